@@ -1,0 +1,214 @@
+"""Stage 3: causality by the sequential causality assignment procedure (SCAP).
+
+A pure graph pass over element and bond ids, no symbolic work (as in ModelingToolkit's
+structural passes). The result says, for every bond, which end computes its *effort* (the other
+end computes its flow); the causal stroke sits at the end that receives the effort.
+
+Order (Karnopp, Margolis & Rosenberg): 1. sources and fixed-form R elements, each followed by
+propagation through 0/1 junctions, TF/MTF and GY/MGY; 2. storage elements in integral causality,
+with propagation; 3. remaining R elements (resistance form), with propagation; 4. any bond still
+open (zero-order loops between junctions). Storage elements that propagation forces into
+derivative causality are reported with the decision that forced them.
+"""
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+from .errors import ModelError
+from .graph import BondGraph, FlatBond, FlatElement
+
+FIXED_R = {"effort": "resistance", "flow": "conductance"}
+
+
+@dataclass(frozen=True)
+class Causality:
+    effort_by: dict  # bond id -> element id that computes the bond's effort
+    derivative: tuple[str, ...]  # storage elements left in derivative causality
+    forced_by: dict  # element id -> (origin element id, via junction id) for derivative ones
+    arbitrary: tuple[str, ...]  # R elements whose causality SCAP chose (step 3)
+    open_bonds: tuple[str, ...]  # bonds chosen in step 4
+    warnings: tuple[str, ...]
+
+    def sets_effort(self, bond: FlatBond, el: str) -> bool:
+        return self.effort_by[bond.id] == el
+
+    def form(self, bg: BondGraph, el: FlatElement) -> str:
+        """The causal form of an element, in words."""
+        t = el.type
+        bonds = bg.bonds_of(el.id)
+        if t in ("I", "C"):
+            sets = self.effort_by[bonds[0].id] == el.id
+            integral = (not sets) if t == "I" else sets
+            return "integral" if integral else "derivative"
+        if t == "R":
+            return "resistance" if self.effort_by[bonds[0].id] == el.id else "conductance"
+        if t in ("TF", "MTF"):
+            b_in = next(b for b in bonds if b.dst == el.id)
+            return "flow forward" if self.effort_by[b_in.id] == el.id else "effort forward"
+        if t in ("GY", "MGY"):
+            return ("flows in" if all(self.effort_by[b.id] == el.id for b in bonds)
+                    else "efforts in")
+        if t == "0":
+            b = next(b for b in bonds if self.effort_by[b.id] != el.id)
+            return f"effort from {b.id}"
+        if t == "1":
+            b = next(b for b in bonds if self.effort_by[b.id] == el.id)
+            return f"flow from {b.id}"
+        return "fixed"
+
+
+class _Scap:
+    def __init__(self, bg: BondGraph):
+        self.bg = bg
+        self.effort_by: dict[str, str] = {}
+        self.origin: dict[str, tuple[str, str]] = {}  # bond -> (origin element, via element)
+
+    def other(self, b: FlatBond, el: str) -> str:
+        return b.dst if b.src == el else b.src
+
+    def set(self, b: FlatBond, setter: str, origin: str, via: str, queue: deque) -> None:
+        cur = self.effort_by.get(b.id)
+        if cur is not None:
+            if cur != setter:
+                o, _ = self.origin[b.id]
+                raise ModelError(self.bg.element(via).coord,
+                                 f"causal conflict on bond {b.id!r} at {self.kind(via)}: "
+                                 f"{self.kind(origin)} and {self.kind(o)} both impose it")
+            return
+        self.effort_by[b.id] = setter
+        self.origin[b.id] = (origin, via)
+        queue.append(b.src)
+        queue.append(b.dst)
+
+    def kind(self, eid: str) -> str:
+        el = self.bg.element(eid)
+        t = el.type
+        return f"{t}-junction {eid!r}" if t in ("0", "1") else f"{t} {eid!r}"
+
+    def propagate(self, queue: deque, origin: str) -> None:
+        while queue:
+            eid = queue.popleft()
+            el = self.bg.element(eid)
+            t = el.type
+            bonds = self.bg.bonds_of(eid)
+            if t in ("0", "1"):
+                # "imposing" bonds: on a 0-junction those where the other end sets the effort;
+                # on a 1-junction those where the junction sets the effort (the other end sets
+                # the flow). Exactly one imposing bond per junction.
+                def imposing(b):
+                    eb = self.effort_by.get(b.id)
+                    if eb is None:
+                        return None
+                    return (eb != eid) if t == "0" else (eb == eid)
+
+                states = [imposing(b) for b in bonds]
+                n_imp = sum(1 for s in states if s is True)
+                if n_imp > 1:
+                    imp = [b for b, s in zip(bonds, states) if s]
+                    origins = sorted({self.origin[b.id][0] for b in imp})
+                    raise ModelError(el.coord, f"causal conflict at {self.kind(eid)}: "
+                                               f"{' and '.join(self.kind(o) for o in origins)} "
+                                               f"each impose its {'effort' if t == '0' else 'flow'}")
+                if n_imp == 1:
+                    for b, s in zip(bonds, states):
+                        if s is None:  # not imposing: on a 0 the junction sets the effort
+                            self.set(b, eid if t == "0" else self.other(b, eid),
+                                     origin, eid, queue)
+                elif states.count(None) == 1:
+                    b = bonds[states.index(None)]
+                    self.set(b, self.other(b, eid) if t == "0" else eid,
+                             origin, eid, queue)
+            elif t in ("TF", "MTF"):
+                a, b = bonds
+                ea, eb = self.effort_by.get(a.id), self.effort_by.get(b.id)
+                if ea is not None and eb is None:
+                    self.set(b, self.other(b, eid) if ea == eid else eid, origin, eid, queue)
+                elif eb is not None and ea is None:
+                    self.set(a, self.other(a, eid) if eb == eid else eid, origin, eid, queue)
+                elif ea is not None and eb is not None and (ea == eid) == (eb == eid):
+                    raise ModelError(el.coord, f"causal conflict at {self.kind(eid)}: it must set "
+                                               "the effort on exactly one of its bonds")
+            elif t in ("GY", "MGY"):
+                a, b = bonds
+                ea, eb = self.effort_by.get(a.id), self.effort_by.get(b.id)
+                if ea is not None and eb is None:
+                    self.set(b, eid if ea == eid else self.other(b, eid), origin, eid, queue)
+                elif eb is not None and ea is None:
+                    self.set(a, eid if eb == eid else self.other(a, eid), origin, eid, queue)
+                elif ea is not None and eb is not None and (ea == eid) != (eb == eid):
+                    raise ModelError(el.coord, f"causal conflict at {self.kind(eid)}: it sets "
+                                               "both efforts or both flows")
+
+    def decide(self, el: FlatElement, sets_effort: bool) -> None:
+        (b,) = self.bg.bonds_of(el.id)
+        q: deque = deque()
+        self.set(b, el.id if sets_effort else self.other(b, el.id), el.id, el.id, q)
+        self.propagate(q, el.id)
+
+
+def assign_causality(bg: BondGraph, allow_derivative: bool = False) -> Causality:
+    s = _Scap(bg)
+    # 1. sources and R elements whose law fixes their form
+    for el in bg.elements:
+        if el.type == "Se":
+            s.decide(el, True)
+        elif el.type == "Sf":
+            s.decide(el, False)
+        elif el.type == "R" and el.law and el.law[0] in FIXED_R:
+            s.decide(el, el.law[0] == "effort")
+    # 2. storage in integral causality
+    for el in bg.elements:
+        if el.type in ("I", "C") and bg.bonds_of(el.id)[0].id not in s.effort_by:
+            s.decide(el, el.type == "C")
+    # 3. remaining R elements: resistance form
+    arbitrary = []
+    for el in bg.elements:
+        if el.type == "R" and bg.bonds_of(el.id)[0].id not in s.effort_by:
+            arbitrary.append(el.id)
+            s.decide(el, True)
+    # 4. open bonds (zero-order loops): the bond's source end sets the effort
+    open_bonds = []
+    for b in bg.bonds:
+        if b.id not in s.effort_by:
+            open_bonds.append(b.id)
+            q: deque = deque()
+            s.set(b, b.src, b.src, b.src, q)
+            s.propagate(q, b.src)
+    # Derivative causality
+    derivative, forced = [], {}
+    for el in bg.elements:
+        if el.type in ("I", "C"):
+            (b,) = bg.bonds_of(el.id)
+            sets = s.effort_by[b.id] == el.id
+            if sets == (el.type == "I"):
+                derivative.append(el.id)
+                forced[el.id] = s.origin[b.id]
+    warnings = []
+    if arbitrary:
+        warnings.append("R elements with causality chosen by SCAP (possible algebraic loop): "
+                        + ", ".join(arbitrary))
+    if open_bonds:
+        warnings.append("bonds with arbitrary causality (zero-order causal paths): "
+                        + ", ".join(open_bonds))
+    caus = Causality(dict(s.effort_by), tuple(derivative), forced, tuple(arbitrary),
+                     tuple(open_bonds), tuple(warnings))
+    if derivative and not allow_derivative:
+        raise ModelError(bg.element(derivative[0]).coord, derivative_message(bg, caus))
+    return caus
+
+
+def derivative_message(bg: BondGraph, caus: Causality) -> str:
+    parts = []
+    for eid in caus.derivative:
+        origin, via = caus.forced_by[eid]
+        el = bg.element(eid)
+        o = bg.element(origin)
+        parts.append(f"{el.type} {eid!r} is forced into derivative causality by {o.type} "
+                     f"{origin!r} through {bg.element(via).type}-junction {via!r}"
+                     if bg.element(via).type in ("0", "1") else
+                     f"{el.type} {eid!r} is forced into derivative causality by {o.type} "
+                     f"{origin!r} through {via!r}")
+    return ("derivative causality: " + "; ".join(parts) + ". Join the storage elements through "
+            "a compliant coupling (a stiff C in parallel with an R, as Maini & Vaz do at every "
+            "joint), or merge them into one element")

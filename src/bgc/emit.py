@@ -1,0 +1,280 @@
+"""Stage 5: equations -> one standalone numpy module, through the jinja2 templates.
+
+The expression printer is sympy's ``NumPyPrinter`` (strict: an unknown function is an error,
+never silently printed) with a few overrides for speed and readability; the generated import
+block lists what the printer actually used. Each function computes only what its results need:
+the assignments are pruned backwards from the results, common subexpressions are eliminated,
+and the definitions are scheduled in causal order.
+"""
+from __future__ import annotations
+
+import itertools
+import keyword
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import jinja2
+import networkx as nx
+import sympy as sp
+from sympy.printing.numpy import NumPyPrinter
+
+from . import __version__
+from .equations import Assignment, Equations, T, schedule
+
+_IDENT_OK = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_")
+
+
+class BgcPrinter(NumPyPrinter):
+    """NumPyPrinter writing ``np.`` and cheap forms of common operations."""
+
+    def __init__(self):
+        # order="none": print terms in sympy's canonical argument order (deterministic, and
+        # far cheaper than sorting every sum for display)
+        super().__init__({"fully_qualified_modules": True, "strict": True, "order": "none",
+                          "allow_unknown_functions": False})
+
+    def _module_format(self, fqn, register=True):
+        if register:
+            parts = fqn.split(".")
+            self.module_imports[".".join(parts[:-1])].add(parts[-1])
+        return "np." + fqn[len("numpy."):] if fqn.startswith("numpy.") else fqn
+
+    def _print_Pow(self, expr, rational=False):
+        b, e = expr.as_base_exp()
+        if e.is_Integer:
+            n = int(e)
+            base = self.parenthesize(b, sp.printing.precedence.PRECEDENCE["Pow"])
+            if n == -1:
+                return f"1/{base}"
+            if n < 0:
+                return f"{base}**({n})" if n != -2 else f"1/({base}*{base})"
+            if n == 2:
+                return f"{base}*{base}"
+        if e == sp.Rational(1, 2):
+            return f"{self._module_format('numpy.sqrt')}({self._print(b)})"
+        if e == -sp.Rational(1, 2):
+            return f"1/{self._module_format('numpy.sqrt')}({self._print(b)})"
+        return super()._print_Pow(expr, rational=rational)
+
+    def _print_Piecewise(self, expr):
+        # where(c0, a0, where(c1, a1, ... default))
+        *pairs, last = expr.args
+        if last.cond != sp.true:
+            return super()._print_Piecewise(expr)
+        out = self._print(last.expr)
+        w = self._module_format("numpy.where")
+        for e, c in reversed(pairs):
+            out = f"{w}({self._print(c)}, {self._print(e)}, {out})"
+        return out
+
+    def _print_Heaviside(self, expr):
+        arg = self._print(expr.args[0])
+        w = self._module_format("numpy.where")
+        return f"{w}({arg} >= 0, 1.0, 0.0)"
+
+    def _print_Relational(self, expr):
+        op = {"<": "<", "<=": "<=", ">": ">", ">=": ">="}.get(expr.rel_op)
+        if op is None:
+            return super()._print_Relational(expr)
+        return f"({self._print(expr.lhs)} {op} {self._print(expr.rhs)})"
+
+    def _print_Min(self, expr):
+        return self._minmax(expr, "numpy.minimum")
+
+    def _print_Max(self, expr):
+        return self._minmax(expr, "numpy.maximum")
+
+    def _minmax(self, expr, fn):
+        f = self._module_format(fn)
+        args = [self._print(a) for a in expr.args]
+        out = args[0]
+        for a in args[1:]:
+            out = f"{f}({out}, {a})"
+        return out
+
+    def _print_Float(self, expr):
+        return repr(float(expr))
+
+
+@dataclass(frozen=True)
+class Line:
+    target: str
+    code: str
+    comment: str = ""
+
+
+@dataclass(frozen=True)
+class Function:
+    params: tuple[str, ...]  # parameter identifiers the body uses
+    inputs: tuple[str, ...]
+    states: tuple[str, ...]
+    lines: tuple[Line, ...]
+    results: tuple[tuple[object, str], ...]  # (key, code)
+    ops: int  # operation count after CSE
+
+
+def _prune(results: list, assigns: list[Assignment]) -> list[Assignment]:
+    need = set()
+    for r in results:
+        need |= r.free_symbols
+    keep = []
+    for a in reversed(assigns):
+        if a.symbol in need:
+            keep.append(a)
+            need |= a.expr.free_symbols
+    keep.reverse()
+    return keep
+
+
+def _function(eq: Equations, printer: BgcPrinter, results: list, assigns: list[Assignment],
+              keys: list, cse: bool = True) -> Function:
+    """Prune, CSE and schedule one generated function's body."""
+    assigns = _prune(results, assigns)
+    exprs = [a.expr for a in assigns] + list(results)
+    if cse and exprs:
+        repl, reduced = sp.cse(exprs, symbols=(sp.Symbol(f"_c{i}", real=True)
+                                               for i in itertools.count()),
+                               order="none", list=True)
+    else:
+        repl, reduced = [], exprs
+    defs = [(s, e, "") for s, e in repl]
+    defs += [(a.symbol, r, a.why) for a, r in zip(assigns, reduced[:len(assigns)])]
+    res = reduced[len(assigns):]
+    # schedule: cse temporaries just before their first use, assignments in causal order
+    g = nx.DiGraph()
+    index = {}
+    byname = {}
+    defined = {s for s, _, _ in defs}
+    for s, e, why in defs:
+        g.add_node(s)
+        byname[s] = (e, why)
+        for d in e.free_symbols:
+            if d in defined:
+                g.add_edge(d, s)
+    pos = {a.symbol: i for i, a in enumerate(assigns)}
+    first_use: dict = {}
+    for s, e, _ in defs:
+        if s in pos:
+            for d in e.free_symbols:
+                if d in defined:
+                    first_use[d] = min(first_use.get(d, 10 ** 9), pos[s])
+    for s, e, _ in reversed(defs[:len(repl)]):  # temporaries used by later temporaries
+        for d in e.free_symbols:
+            if d in defined and s in first_use:
+                first_use[d] = min(first_use.get(d, 10 ** 9), first_use[s])
+    for s, _, _ in defs:
+        if s in pos:
+            index[s] = 2 * pos[s] + 1
+        else:
+            index[s] = 2 * first_use.get(s, len(assigns)) if s in first_use else 2 * len(assigns)
+    order = schedule(g, index)
+    lines = []
+    for s in order:
+        e, why = byname[s]
+        lines.append(Line(str(s), printer.doprint(e), why))
+    results_code = []
+    for k, r in zip(keys, res):
+        results_code.append((k, printer.doprint(r)))
+    used = set()
+    for s, e, _ in defs:
+        used |= e.free_symbols
+    for r in res:
+        used |= r.free_symbols
+    pnames = tuple(str(s) for pv in eq.params for s in pv.symbols if s in used)
+    pnames += tuple(str(a.symbol) for a in eq.derived if a.symbol in used)
+    inames = tuple(str(s) for iv in eq.inputs for s in iv.symbols if s in used)
+    snames = tuple(str(sv.symbol) if sv.symbol in used else "_" for sv in eq.states)
+    ops = _count_ops([e for _, e, _ in defs] + list(res))
+    return Function(pnames, inames, snames, tuple(lines), tuple(results_code), ops)
+
+
+def _count_ops(exprs) -> int:
+    """Arithmetic operations and function calls, counted on the expression trees (cheap)."""
+    n = 0
+    for e in exprs:
+        for node in sp.preorder_traversal(e):
+            if node.is_Add or node.is_Mul:
+                n += len(node.args) - 1
+            elif node.is_Pow or node.is_Function or isinstance(node, sp.Piecewise):
+                n += 1
+    return n
+
+
+def _pyrepr(v) -> str:
+    if isinstance(v, tuple):
+        if all(len(r) == 1 for r in v):
+            return "[" + ", ".join(repr(float(r[0])) for r in v) + "]"
+        return "[" + ", ".join("[" + ", ".join(repr(float(c)) for c in r) + "]" for r in v) + "]"
+    return repr(float(v))
+
+
+def render(eq: Equations, *, source: str, source_hash: str, description: str = "",
+           header_notes: tuple[str, ...] = (), progress=None) -> str:
+    printer = BgcPrinter()
+    n = len(eq.states)
+    say = progress or (lambda msg: None)
+    say("emitting rhs")
+    rhs = _function(eq, printer, list(eq.derivatives), list(eq.assignments), list(range(n)))
+    say("emitting jacobian")
+    jkeys = sorted(eq.jacobian)
+    jac = _function(eq, printer, [eq.jacobian[k] for k in jkeys],
+                    list(eq.assignments) + list(eq.jac_assignments), jkeys)
+    say("emitting outputs")
+    oexprs, okeys = [], []
+    for name, shp, vals in eq.outputs:
+        for k, v in enumerate(vals):
+            oexprs.append(v)
+            okeys.append((name, k))
+    outs = _function(eq, printer, oexprs, list(eq.assignments), okeys)
+    init = _function(eq, printer, [sv.initial for sv in eq.states], [], list(range(n)),
+                     cse=False)
+    derived = [Line(str(a.symbol), printer.doprint(a.expr), a.why) for a in eq.derived]
+    inputs = []
+    for iv in eq.inputs:
+        inputs.append({"name": iv.name, "symbols": [str(s) for s in iv.symbols],
+                       "shape": iv.shape,
+                       "default": [printer.doprint(d) for d in iv.default]})
+    input_params = sorted({str(s) for iv in eq.inputs for d in iv.default for s in d.free_symbols
+                           if s != T})
+    params = []
+    for pv in eq.params:
+        params.append({"id": pv.id, "code": pv.code, "shape": pv.shape,
+                       "symbols": [str(s) for s in pv.symbols], "default": _pyrepr(pv.value),
+                       "unit": pv.unit, "description": pv.description})
+    imports = sorted(m for m in printer.module_imports if m and m != "numpy")
+    env = jinja2.Environment(loader=_loader(), keep_trailing_newline=True,
+                             trim_blocks=True, lstrip_blocks=True,
+                             undefined=jinja2.StrictUndefined, autoescape=False)
+    env.filters["pyrepr"] = repr
+    tpl = env.get_template("module.py.j2")
+    outputs = [{"name": name, "shape": shp, "size": len(vals)} for name, shp, vals in eq.outputs]
+    text = tpl.render(
+        name=eq.name, version=__version__, source=source, source_hash=source_hash,
+        description=description, notes=list(header_notes) + list(eq.loops),
+        states=eq.states, params=params, derived=derived, inputs=inputs,
+        input_params=input_params, outputs=outputs, rhs=rhs, jac=jac, outs=outs, init=init,
+        jac_keys=jkeys, n=n, imports=imports,
+        all_param_symbols=[s for p in params for s in p["symbols"]] + [d.target for d in derived],
+    )
+    for ident in _identifiers(eq):
+        assert ident.isidentifier() and not keyword.iskeyword(ident) and set(ident) <= _IDENT_OK
+    compile(text, f"{eq.name}.py", "exec")  # the generated module must at least be valid Python
+    return text
+
+
+def _identifiers(eq: Equations):
+    for sv in eq.states:
+        yield str(sv.symbol)
+    for pv in eq.params:
+        yield from (str(s) for s in pv.symbols)
+    for a in eq.assignments:
+        yield str(a.symbol)
+
+
+def _loader():
+    here = Path(__file__).resolve().parent
+    repo_templates = here.parent.parent / "templates"
+    if (repo_templates / "module.py.j2").is_file():
+        return jinja2.FileSystemLoader(str(repo_templates))
+    return jinja2.FileSystemLoader(str(resources.files("bgc.templates")))

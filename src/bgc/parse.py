@@ -1,0 +1,660 @@
+"""Stage 1: YAML text -> a validated :class:`Model` (frozen dataclasses with a Coord each).
+
+The YAML is read with PyYAML's safe *composer*, so every node keeps its start mark and every
+error can point at the line and column it comes from. Duplicate keys are errors (plain YAML
+loaders keep the last one silently). Expressions are checked here by the whitelisting parser of
+:mod:`bgc.expr`; names are resolved later, by the stage that knows them.
+"""
+from __future__ import annotations
+
+import keyword
+import re
+import builtins
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+from .errors import Coord, ModelError
+from .expr import BOND_FUNCTIONS, FUNCTIONS, Expr, check
+
+ELEMENT_TYPES = ("Se", "Sf", "C", "I", "R", "TF", "GY", "MTF", "MGY", "0", "1")
+
+#: The element table: for each type, the law keys it accepts (exactly one unless noted).
+LAWS: dict[str, tuple[str, ...]] = {
+    "Se": ("effort",), "Sf": ("flow",),
+    "I": ("inertia", "flow"), "C": ("stiffness", "compliance", "effort"),
+    "R": ("resistance", "effort", "flow"),
+    "TF": ("ratio",), "GY": ("ratio",), "MTF": ("modulus",), "MGY": ("modulus",),
+    "0": (), "1": (),
+}
+STORAGE = ("I", "C")
+TWO_PORTS = ("TF", "GY", "MTF", "MGY")
+JUNCTIONS = ("0", "1")
+
+_IDENT = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+RESERVED = frozenset({"t", "x", "p", "u", "np", "e", "f", "q", "pi", "numpy", "scipy", "math",
+                      "dx", "J", "y", "rhs", "jacobian", "outputs", "simulate",
+                      "initial_state"}
+                     | set(FUNCTIONS) | set(BOND_FUNCTIONS))
+_NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
+MAX_CARDINALITY = 64
+
+
+def check_name(name, coord: Coord, what: str, allow_reserved: bool = False) -> str:
+    """Validate an identifier before it can reach generated code."""
+    if not isinstance(name, str) or not _IDENT.match(name):
+        raise ModelError(coord, f"invalid {what} name {name!r}: use letters, digits and _ , "
+                                "starting with a letter")
+    if "__" in name:
+        raise ModelError(coord, f"invalid {what} name {name!r}: double underscores are reserved")
+    if len(name) > 64:
+        raise ModelError(coord, f"invalid {what} name {name[:20]!r}...: longer than 64 characters")
+    if keyword.iskeyword(name) or name in dir(builtins):
+        raise ModelError(coord, f"invalid {what} name {name!r}: a Python keyword or builtin")
+    if not allow_reserved and name in RESERVED:
+        raise ModelError(coord, f"invalid {what} name {name!r}: reserved by bgc")
+    return name
+
+
+# ---------------------------------------------------------------------------------------------
+# The model's dataclasses
+
+
+@dataclass(frozen=True)
+class Param:
+    name: str
+    value: object  # float, tuple of tuples (matrix), or Expr (derived parameter)
+    coord: Coord
+    unit: str = ""
+    min: float | None = None
+    max: float | None = None
+    description: str = ""
+    free: bool = True
+
+
+@dataclass(frozen=True)
+class Input:
+    name: str
+    default: Expr
+    shape: tuple[int, ...]
+    coord: Coord
+    unit: str = ""
+
+
+@dataclass(frozen=True)
+class Element:
+    name: str
+    type: str  # an element type, or a component name
+    coord: Coord
+    laws: tuple[tuple[str, Expr], ...] = ()
+    initial: Expr | None = None
+    args: tuple[tuple[str, object, Coord], ...] = ()  # component instance parameter values
+    effects: tuple[str, ...] = ()
+
+    def law(self) -> tuple[str, Expr] | None:
+        return self.laws[0] if self.laws else None
+
+
+@dataclass(frozen=True)
+class Bond:
+    name: str
+    src: tuple[str, ...]
+    dst: tuple[str, ...]
+    n: int
+    coord: Coord
+
+
+@dataclass(frozen=True)
+class State:
+    name: str
+    shape: tuple[int, ...]
+    initial: Expr
+    derivative: Expr
+    coord: Coord
+    unit: str = ""
+    effects: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Output:
+    name: str
+    expr: Expr
+    coord: Coord
+
+
+@dataclass(frozen=True)
+class Body:
+    """What a model and a component both hold."""
+
+    params: tuple[Param, ...] = ()
+    elements: tuple[Element, ...] = ()
+    bonds: tuple[Bond, ...] = ()
+    states: tuple[State, ...] = ()
+    outputs: tuple[Output, ...] = ()
+
+
+@dataclass(frozen=True)
+class Component:
+    name: str
+    body: Body
+    ports: tuple[tuple[str, str, Coord], ...]
+    coord: Coord
+
+
+@dataclass(frozen=True)
+class Model:
+    name: str
+    file: str
+    body: Body
+    inputs: tuple[Input, ...]
+    components: tuple[Component, ...]
+    description: str = ""
+    source_hash: str = ""
+    coord: Coord = field(default=None)  # type: ignore[assignment]
+
+    def component(self, name: str) -> Component | None:
+        for c in self.components:
+            if c.name == name:
+                return c
+        return None
+
+
+# ---------------------------------------------------------------------------------------------
+# YAML nodes with places
+
+#: Deepest nesting of YAML collections in a model file.
+MAX_YAML_DEPTH = 32
+
+
+class _Refused(Exception):
+    def __init__(self, mark, message: str):
+        self.mark, self.message = mark, message
+
+
+class _Loader(yaml.SafeLoader):
+    """The safe composer, refusing aliases (shared nodes could expand exponentially, or form
+    cycles) and absurd nesting."""
+
+    _depth = 0
+
+    def compose_node(self, parent, index):
+        if self.check_event(yaml.AliasEvent):
+            ev = self.peek_event()
+            raise _Refused(ev.start_mark, f"YAML alias *{ev.anchor} is not allowed in a model")
+        self._depth += 1
+        try:
+            if self._depth > MAX_YAML_DEPTH:
+                raise _Refused(self.peek_event().start_mark,
+                               f"YAML nested more than {MAX_YAML_DEPTH} levels deep")
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+
+class _Reader:
+    def __init__(self, path: str, text: str):
+        self.path = path
+        self.text = text
+
+    def coord(self, node) -> Coord:
+        m = node.start_mark
+        return Coord(self.path, m.line + 1, m.column + 1)
+
+    def expr_coord(self, node) -> Coord:
+        c = self.coord(node)
+        if isinstance(node, yaml.ScalarNode) and node.style in ("'", '"'):
+            return Coord(c.file, c.line, c.column + 1)
+        if isinstance(node, yaml.ScalarNode) and node.style in ("|", ">"):
+            return Coord(c.file, c.line + 1, c.column + 2)
+        return c
+
+    def _mark(self, m) -> Coord:
+        return Coord(self.path, m.line + 1, m.column + 1) if m else Coord(self.path, 1, 1)
+
+    def compose(self):
+        try:
+            return yaml.compose(self.text, Loader=_Loader)
+        except _Refused as exc:
+            raise ModelError(self._mark(exc.mark), exc.message) from None
+        except yaml.MarkedYAMLError as exc:
+            m = exc.problem_mark or exc.context_mark
+            msg = f"YAML syntax error: {exc.problem or exc.context}"
+            cm = exc.context_mark
+            if exc.problem and exc.context and cm and cm is not m:
+                msg += f" ({exc.context} at line {cm.line + 1}, column {cm.column + 1})"
+            raise ModelError(self._mark(m), msg) from None
+        except yaml.reader.ReaderError as exc:  # a character YAML does not allow
+            before = self.text[:exc.position]
+            line = before.count("\n") + 1
+            col = exc.position - (before.rfind("\n") + 1) + 1
+            raise ModelError(Coord(self.path, line, col), f"YAML error: character "
+                                                          f"{exc.character!r} is not allowed") from None
+        except yaml.YAMLError as exc:
+            raise ModelError(Coord(self.path, 1, 1),
+                             "YAML error: " + " ".join(str(exc).split())) from None
+        except RecursionError:
+            raise ModelError(Coord(self.path, 1, 1), "YAML nested too deeply") from None
+
+    def mapping(self, node, what: str) -> dict:
+        """key -> (key node, value node), refusing duplicates and non-string keys."""
+        if not isinstance(node, yaml.MappingNode):
+            raise ModelError(self.coord(node), f"{what} must be a mapping")
+        out: dict = {}
+        for k, v in node.value:
+            if not isinstance(k, yaml.ScalarNode) or k.tag == "tag:yaml.org,2002:merge":
+                raise ModelError(self.coord(k), f"{what}: keys must be plain names")
+            key = k.value
+            if key in out:
+                raise ModelError(self.coord(k), f"{what}: duplicate key {key!r}")
+            out[key] = (k, v)
+        return out
+
+    def seq(self, node, what: str) -> list:
+        if not isinstance(node, yaml.SequenceNode):
+            raise ModelError(self.coord(node), f"{what} must be a list")
+        return node.value
+
+    def scalar(self, node, what: str):
+        """A plain scalar value: int, float, str, bool or None."""
+        if not isinstance(node, yaml.ScalarNode):
+            raise ModelError(self.coord(node), f"{what} must be a single value")
+        tag = node.tag
+        v = node.value
+        if tag.endswith(":int"):
+            try:
+                return int(v.replace("_", ""), 0)
+            except ValueError:
+                return float(v)
+        if tag.endswith(":float"):
+            return float(v.replace("_", ""))
+        if tag.endswith(":bool"):
+            return v.lower() in ("true", "yes", "on")
+        if tag.endswith(":null"):
+            return None
+        if tag.endswith(":str"):
+            return v
+        raise ModelError(self.coord(node), f"{what}: YAML tag {tag!r} is not allowed")
+
+    def string(self, node, what: str) -> str:
+        v = self.scalar(node, what)
+        if not isinstance(v, str):
+            raise ModelError(self.coord(node), f"{what} must be text")
+        return v
+
+    def number(self, node, what: str) -> float:
+        v = self.scalar(node, what)
+        if isinstance(v, bool) or v is None:
+            raise ModelError(self.coord(node), f"{what} must be a number")
+        if isinstance(v, str):
+            if _NUMBER.match(v.strip()):
+                return float(v)
+            raise ModelError(self.coord(node), f"{what} must be a number, not {v!r}")
+        return float(v)
+
+    def integer(self, node, what: str) -> int:
+        v = self.scalar(node, what)
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise ModelError(self.coord(node), f"{what} must be a whole number")
+        return v
+
+    def expr(self, node, what: str) -> Expr:
+        """An expression: a number, a string, or a (nested) list of those."""
+        if isinstance(node, yaml.SequenceNode):
+            text = self._list_text(node, what)
+            e = Expr(text, self.expr_coord(node))
+        else:
+            v = self.scalar(node, what)
+            if v is None or isinstance(v, bool):
+                raise ModelError(self.coord(node), f"{what} must be an expression")
+            e = Expr(str(v) if not isinstance(v, float) else repr(v), self.expr_coord(node))
+        try:
+            check(e)
+        except ModelError as exc:
+            raise ModelError(exc.coord, f"{what}: {exc.message}") from None
+        return e
+
+    def _list_text(self, node, what) -> str:
+        parts = []
+        for item in node.value:
+            if isinstance(item, yaml.SequenceNode):
+                parts.append(self._list_text(item, what))
+            else:
+                e = self.expr(item, what)
+                parts.append("(" + e.text + ")")
+        return "[" + ", ".join(parts) + "]"
+
+    def shape(self, node, what: str) -> tuple[int, ...]:
+        if isinstance(node, yaml.ScalarNode):
+            n = self.integer(node, what)
+            dims = (n,)
+        else:
+            dims = tuple(self.integer(d, what) for d in self.seq(node, what))
+        if len(dims) > 2 or any(d < 1 or d > MAX_CARDINALITY for d in dims):
+            raise ModelError(self.coord(node), f"{what}: a shape is [], [n] or [n, m] "
+                                               f"with 1 <= n, m <= {MAX_CARDINALITY}")
+        if len(dims) == 1 and dims[0] == 1:
+            dims = ()
+        return dims
+
+    def keys(self, m: dict, allowed, what: str, required=()):
+        for key, (kn, _) in m.items():
+            if key not in allowed:
+                raise ModelError(self.coord(kn), f"{what}: unknown key {key!r} "
+                                                 f"(expected one of: {', '.join(allowed)})")
+        for key in required:
+            if key not in m:
+                return key
+        return None
+
+
+def _require(r: _Reader, m: dict, node, allowed, what: str, required=()):
+    missing = r.keys(m, allowed, what, required)
+    if missing:
+        raise ModelError(r.coord(node), f"{what}: missing key {missing!r}")
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+def parse_file(path: str | Path, _seen: tuple[str, ...] = ()) -> Model:
+    """Read and validate one model file (and the files it imports)."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ModelError(Coord(str(path), 1, 1), f"cannot read model file: {exc}") from None
+    return parse_text(text, str(path), _seen)
+
+
+def parse_text(text: str, path: str = "<model>", _seen: tuple[str, ...] = ()) -> Model:
+    import hashlib
+
+    r = _Reader(path, text)
+    if len(text) > 5_000_000:
+        raise ModelError(Coord(path, 1, 1), "model file is larger than 5 MB")
+    root = r.compose()
+    if root is None:
+        raise ModelError(Coord(path, 1, 1), "the model file is empty")
+    top = r.mapping(root, "the model")
+    allowed = ("bgc", "name", "description", "parameters", "inputs", "elements", "bonds",
+               "states", "outputs", "components", "imports")
+    _require(r, top, root, allowed, "the model", required=("bgc", "name", "elements", "bonds"))
+    version = r.scalar(top["bgc"][1], "bgc")
+    if isinstance(version, bool) or version != 1:
+        raise ModelError(r.coord(top["bgc"][1]), f"unsupported format version {version!r} "
+                                                  "(this bgc reads version 1)")
+    name = check_name(r.string(top["name"][1], "name"), r.coord(top["name"][1]), "model")
+    description = r.string(top["description"][1], "description") if "description" in top else ""
+
+    components: list[Component] = []
+    if "imports" in top:
+        components.extend(_imports(r, top["imports"][1], _seen + (str(Path(path).resolve()),)))
+    if "components" in top:
+        cm = r.mapping(top["components"][1], "components")
+        for cname, (kn, vn) in cm.items():
+            check_name(cname, r.coord(kn), "component", allow_reserved=True)
+            if cname in ELEMENT_TYPES:
+                raise ModelError(r.coord(kn), f"component name {cname!r} is an element type")
+            if any(c.name == cname for c in components):
+                raise ModelError(r.coord(kn), f"component {cname!r} is defined twice")
+            components.append(_component(r, cname, kn, vn))
+
+    inputs = []
+    if "inputs" in top:
+        for iname, (kn, vn) in r.mapping(top["inputs"][1], "inputs").items():
+            check_name(iname, r.coord(kn), "input")
+            if isinstance(vn, yaml.MappingNode):
+                im = r.mapping(vn, f"input {iname!r}")
+                _require(r, im, vn, ("default", "shape", "unit", "description"),
+                         f"input {iname!r}", required=("default",))
+                shape = r.shape(im["shape"][1], "shape") if "shape" in im else ()
+                unit = r.string(im["unit"][1], "unit") if "unit" in im else ""
+                default = r.expr(im["default"][1], f"input {iname!r} default")
+            else:
+                shape, unit = (), ""
+                default = r.expr(vn, f"input {iname!r}")
+            inputs.append(Input(iname, default, shape, r.coord(kn), unit))
+
+    body = _body(r, top, root, "the model", is_component=False)
+    names = _check_unique(body, inputs)
+    for c in components:
+        for el in body.elements:
+            pass
+    model = Model(name=name, file=path, body=body, inputs=tuple(inputs),
+                  components=tuple(components), description=description,
+                  source_hash=hashlib.sha256(text.encode()).hexdigest()[:16],
+                  coord=r.coord(root))
+    del names
+    return model
+
+
+def _imports(r: _Reader, node, seen) -> list[Component]:
+    out = []
+    for item in r.seq(node, "imports"):
+        im = r.mapping(item, "an import")
+        _require(r, im, item, ("file",), "an import", required=("file",))
+        rel = r.string(im["file"][1], "file")
+        target = (Path(r.path).parent / rel)
+        if str(target.resolve()) in seen:
+            raise ModelError(r.coord(im["file"][1]), f"import cycle through {rel!r}")
+        if not target.is_file():
+            raise ModelError(r.coord(im["file"][1]), f"imported file {rel!r} does not exist")
+        sub = parse_file(target, seen)
+        out.extend(sub.components)
+    return out
+
+
+def _component(r: _Reader, cname: str, kn, vn) -> Component:
+    cm = r.mapping(vn, f"component {cname!r}")
+    _require(r, cm, vn, ("parameters", "ports", "elements", "bonds", "states", "description"),
+             f"component {cname!r}", required=("ports", "elements", "bonds"))
+    body = _body(r, cm, vn, f"component {cname!r}", is_component=True)
+    _check_unique(body, ())
+    ports = []
+    elnames = {e.name for e in body.elements}
+    for pname, (pk, pv) in r.mapping(cm["ports"][1], f"component {cname!r} ports").items():
+        check_name(pname, r.coord(pk), "port", allow_reserved=True)
+        target = r.string(pv, f"port {pname!r}")
+        if target not in elnames:
+            raise ModelError(r.coord(pv), f"component {cname!r}: port {pname!r} names "
+                                          f"{target!r}, which is not one of its elements")
+        ports.append((pname, target, r.coord(pk)))
+    if not ports:
+        raise ModelError(r.coord(cm["ports"][1]), f"component {cname!r} has no ports")
+    return Component(cname, body, tuple(ports), r.coord(kn))
+
+
+def _body(r: _Reader, top: dict, node, what: str, is_component: bool) -> Body:
+    params = []
+    if "parameters" in top:
+        for pname, (kn, vn) in r.mapping(top["parameters"][1], "parameters").items():
+            check_name(pname, r.coord(kn), "parameter")
+            params.append(_param(r, pname, kn, vn))
+    elements = []
+    for ename, (kn, vn) in r.mapping(top["elements"][1], "elements").items():
+        check_name(ename, r.coord(kn), "element", allow_reserved=True)
+        elements.append(_element(r, ename, kn, vn))
+    bonds = []
+    for i, bn in enumerate(r.seq(top["bonds"][1], "bonds"), start=1):
+        bonds.append(_bond(r, i, bn))
+    states = []
+    if "states" in top:
+        for sname, (kn, vn) in r.mapping(top["states"][1], "states").items():
+            check_name(sname, r.coord(kn), "state")
+            sm = r.mapping(vn, f"state {sname!r}")
+            _require(r, sm, vn, ("shape", "initial", "derivative", "unit", "description",
+                                 "effects"),
+                     f"state {sname!r}", required=("derivative",))
+            shape = r.shape(sm["shape"][1], "shape") if "shape" in sm else ()
+            init = (r.expr(sm["initial"][1], f"state {sname!r} initial") if "initial" in sm
+                    else Expr("0", r.coord(vn)))
+            states.append(State(sname, shape, init, r.expr(sm["derivative"][1],
+                                                           f"state {sname!r} derivative"),
+                                r.coord(kn), r.string(sm["unit"][1], "unit") if "unit" in sm else "",
+                                _effects(r, sm)))
+    outputs = []
+    if "outputs" in top:
+        if is_component:
+            raise ModelError(r.coord(top["outputs"][0]), f"{what}: outputs belong to the model")
+        for oname, (kn, vn) in r.mapping(top["outputs"][1], "outputs").items():
+            check_name(oname, r.coord(kn), "output", allow_reserved=True)
+            outputs.append(Output(oname, r.expr(vn, f"output {oname!r}"), r.coord(kn)))
+    return Body(tuple(params), tuple(elements), tuple(bonds), tuple(states), tuple(outputs))
+
+
+def _effects(r: _Reader, m: dict) -> tuple[str, ...]:
+    if "effects" not in m:
+        return ()
+    node = m["effects"][1]
+    items = r.seq(node, "effects") if isinstance(node, yaml.SequenceNode) else [node]
+    return tuple(check_name(r.string(i, "effect"), r.coord(i), "effect") for i in items)
+
+
+def _param(r: _Reader, pname: str, kn, vn) -> Param:
+    unit, lo, hi, desc, free = "", None, None, "", True
+    valnode = vn
+    if isinstance(vn, yaml.MappingNode):
+        pm = r.mapping(vn, f"parameter {pname!r}")
+        _require(r, pm, vn, ("value", "unit", "min", "max", "description", "free"),
+                 f"parameter {pname!r}", required=("value",))
+        valnode = pm["value"][1]
+        unit = r.string(pm["unit"][1], "unit") if "unit" in pm else ""
+        lo = r.number(pm["min"][1], "min") if "min" in pm else None
+        hi = r.number(pm["max"][1], "max") if "max" in pm else None
+        desc = r.string(pm["description"][1], "description") if "description" in pm else ""
+        if "free" in pm:
+            free = bool(r.scalar(pm["free"][1], "free"))
+    value = _param_value(r, pname, valnode)
+    if isinstance(value, float):
+        if lo is not None and value < lo:
+            raise ModelError(r.coord(valnode), f"parameter {pname!r}: value {value:g} is below "
+                                               f"its min {lo:g}")
+        if hi is not None and value > hi:
+            raise ModelError(r.coord(valnode), f"parameter {pname!r}: value {value:g} is above "
+                                               f"its max {hi:g}")
+    return Param(pname, value, r.coord(kn), unit, lo, hi, desc, free)
+
+
+def _param_value(r: _Reader, pname: str, node):
+    if isinstance(node, yaml.SequenceNode):
+        rows = []
+        for row in node.value:
+            if isinstance(row, yaml.SequenceNode):
+                rows.append(tuple(r.number(c, f"parameter {pname!r}") for c in row.value))
+            else:
+                rows.append((r.number(row, f"parameter {pname!r}"),))
+        if len({len(x) for x in rows}) != 1:
+            raise ModelError(r.coord(node), f"parameter {pname!r}: rows of different lengths")
+        return tuple(rows)
+    v = r.scalar(node, f"parameter {pname!r}")
+    if isinstance(v, (int, float)) and not isinstance(v, bool):
+        return float(v)
+    if isinstance(v, str) and _NUMBER.match(v.strip()):
+        return float(v)
+    if isinstance(v, str):
+        return r.expr(node, f"parameter {pname!r}")
+    raise ModelError(r.coord(node), f"parameter {pname!r} must be a number, a matrix or an "
+                                    "expression")
+
+
+def _element(r: _Reader, ename: str, kn, vn) -> Element:
+    em = r.mapping(vn, f"element {ename!r}")
+    if "type" not in em:
+        raise ModelError(r.coord(vn), f"element {ename!r}: missing key 'type'")
+    tnode = em["type"][1]
+    etype = r.scalar(tnode, "type")
+    etype = str(etype) if isinstance(etype, int) and not isinstance(etype, bool) else etype
+    if not isinstance(etype, str):
+        raise ModelError(r.coord(tnode), f"element {ename!r}: type must be text")
+    effects = _effects(r, em)
+    if etype not in ELEMENT_TYPES:
+        if not _IDENT.match(etype):
+            raise ModelError(r.coord(tnode), f"element {ename!r}: unknown element type {etype!r}")
+        # A component instance: every other key is a parameter value (checked at flattening).
+        args = []
+        for key, (ak, av) in em.items():
+            if key in ("type", "effects", "description"):
+                continue
+            check_name(key, r.coord(ak), "parameter")
+            if isinstance(av, yaml.SequenceNode) and all(
+                    isinstance(x, yaml.SequenceNode) for x in av.value):
+                val = r.expr(av, f"{ename}.{key}")
+            else:
+                val = r.expr(av, f"{ename}.{key}")
+            args.append((key, val, r.coord(av)))
+        return Element(ename, etype, r.coord(kn), args=tuple(args), effects=effects)
+    allowed = ("type", "initial", "effects", "description") + LAWS[etype]
+    for key, (ak, _) in em.items():
+        if key not in allowed:
+            hint = (f" ({etype} elements take {' or '.join(LAWS[etype])})" if LAWS[etype]
+                    else f" (a {etype}-junction takes no law)")
+            raise ModelError(r.coord(ak), f"element {ename!r}: unknown key {key!r}{hint}")
+    laws = tuple((k, r.expr(em[k][1], f"element {ename!r} ({k})")) for k in LAWS[etype]
+                 if k in em)
+    if LAWS[etype] and len(laws) != 1:
+        raise ModelError(r.coord(kn), f"element {ename!r} ({etype}) needs exactly one of: "
+                                      f"{', '.join(LAWS[etype])}")
+    initial = None
+    if "initial" in em:
+        if etype not in STORAGE:
+            raise ModelError(r.coord(em["initial"][0]), f"element {ename!r}: only I and C "
+                                                        "elements have an initial state")
+        initial = r.expr(em["initial"][1], f"element {ename!r} (initial)")
+    return Element(ename, etype, r.coord(kn), laws=laws, initial=initial, effects=effects)
+
+
+def _endpoint(r: _Reader, node, what) -> tuple[str, ...]:
+    s = r.scalar(node, what)
+    s = str(s) if isinstance(s, (int, float)) and not isinstance(s, bool) else s
+    if not isinstance(s, str):
+        raise ModelError(r.coord(node), f"{what} must name an element or a port")
+    parts = tuple(s.split("."))
+    if len(parts) > 2:
+        raise ModelError(r.coord(node), f"{what} {s!r}: write element or instance.port")
+    for part in parts:
+        check_name(part, r.coord(node), "bond endpoint", allow_reserved=True)
+    return parts
+
+
+def _bond(r: _Reader, i: int, bn) -> Bond:
+    if isinstance(bn, yaml.SequenceNode):
+        if len(bn.value) != 2:
+            raise ModelError(r.coord(bn), f"bond {i}: write [from, to]")
+        src = _endpoint(r, bn.value[0], f"bond {i} 'from'")
+        dst = _endpoint(r, bn.value[1], f"bond {i} 'to'")
+        return Bond(f"b{i}", src, dst, 1, r.coord(bn))
+    bm = r.mapping(bn, f"bond {i}")
+    _require(r, bm, bn, ("from", "to", "n", "name"), f"bond {i}", required=("from", "to"))
+    name = f"b{i}"
+    if "name" in bm:
+        name = check_name(r.string(bm["name"][1], "name"), r.coord(bm["name"][1]), "bond")
+    n = 1
+    if "n" in bm:
+        n = r.integer(bm["n"][1], "n")
+        if not 1 <= n <= MAX_CARDINALITY:
+            raise ModelError(r.coord(bm["n"][1]), f"bond {name!r}: cardinality must be 1.."
+                                                  f"{MAX_CARDINALITY}, got {n}")
+    return Bond(name, _endpoint(r, bm["from"][1], f"bond {name!r} 'from'"),
+                _endpoint(r, bm["to"][1], f"bond {name!r} 'to'"), n, r.coord(bn))
+
+
+def _check_unique(body: Body, inputs) -> dict:
+    seen: dict[str, tuple[str, Coord]] = {}
+    groups = [("parameter", body.params), ("input", inputs), ("element", body.elements),
+              ("state", body.states), ("output", body.outputs)]
+    for kind, items in groups:
+        for it in items:
+            if it.name in seen:
+                k0, c0 = seen[it.name]
+                raise ModelError(it.coord, f"duplicate name {it.name!r}: already a {k0} "
+                                           f"at line {c0.line}")
+            seen[it.name] = (kind, it.coord)
+    bnames: dict[str, Coord] = {}
+    for b in body.bonds:
+        if b.name in bnames:
+            raise ModelError(b.coord, f"duplicate bond name {b.name!r}")
+        if b.name in seen and not b.name.startswith("b"):
+            raise ModelError(b.coord, f"bond name {b.name!r} is already a {seen[b.name][0]}")
+        bnames[b.name] = b.coord
+    return seen

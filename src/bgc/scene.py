@@ -1,0 +1,215 @@
+"""Scenes: which model, how long, parameter overrides, input signals, outputs, solver, plots.
+
+A scene's input expressions replace the model's input defaults before compilation, so the
+generated module carries the scene's signals; its parameter overrides are passed at run time.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import importlib.util
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+
+from .errors import Coord, ModelError
+from .expr import Expr
+from .parse import Model, _Reader, _param_value, _require, check_name, parse_file
+
+METHODS = ("Radau", "BDF", "LSODA", "RK45", "RK23", "DOP853")
+PLOT_KINDS = ("time", "path3d", "loci")
+
+
+@dataclass(frozen=True)
+class Plot:
+    kind: str
+    outputs: tuple[str, ...]
+    title: str
+    coord: Coord
+    labels: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Scene:
+    file: str
+    name: str
+    model_path: str
+    t_span: tuple[float, float]
+    params: dict  # id -> float or nested tuple
+    inputs: dict  # name -> Expr
+    outputs: tuple[str, ...]
+    method: str
+    rtol: float
+    atol: float
+    dt: float | None
+    max_step: float
+    breakpoints: tuple[float, ...]
+    plots: tuple[Plot, ...]
+    effects: dict  # effect name -> bool
+    description: str = ""
+    coord: Coord | None = None
+    source_hash: str = ""
+
+
+def parse_scene(path: str | Path) -> Scene:
+    path = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ModelError(Coord(path, 1, 1), f"cannot read scene file: {exc}") from None
+    r = _Reader(path, text)
+    root = r.compose()
+    if root is None:
+        raise ModelError(Coord(path, 1, 1), "the scene file is empty")
+    top = r.mapping(root, "the scene")
+    allowed = ("bgc_scene", "name", "description", "model", "duration", "t_span", "parameters",
+               "inputs", "outputs", "solver", "breakpoints", "plots", "effects")
+    _require(r, top, root, allowed, "the scene", required=("bgc_scene", "model"))
+    if r.scalar(top["bgc_scene"][1], "bgc_scene") != 1:
+        raise ModelError(r.coord(top["bgc_scene"][1]), "unsupported scene format version")
+    name = Path(path).stem
+    if "name" in top:
+        name = check_name(r.string(top["name"][1], "name"), r.coord(top["name"][1]), "scene")
+    model_rel = r.string(top["model"][1], "model")
+    model_path = str(Path(path).parent / model_rel)
+    if not Path(model_path).is_file():
+        raise ModelError(r.coord(top["model"][1]), f"model file {model_rel!r} does not exist")
+    if "t_span" in top:
+        span = r.seq(top["t_span"][1], "t_span")
+        if len(span) != 2:
+            raise ModelError(r.coord(top["t_span"][1]), "t_span is [start, end]")
+        t0, t1 = (r.number(s, "t_span") for s in span)
+    elif "duration" in top:
+        t0, t1 = 0.0, r.number(top["duration"][1], "duration")
+    else:
+        raise ModelError(r.coord(root), "the scene: give duration or t_span")
+    if not t1 > t0:
+        raise ModelError(r.coord(root), f"the scene: the end time {t1} is not after {t0}")
+    params = {}
+    if "parameters" in top:
+        for pname, (kn, vn) in r.mapping(top["parameters"][1], "parameters").items():
+            parts = pname.split(".")
+            for part in parts:
+                check_name(part, r.coord(kn), "parameter")
+            v = _param_value(r, pname, vn)
+            if isinstance(v, Expr):
+                raise ModelError(r.coord(vn), f"scene parameter {pname!r} must be a number or "
+                                              "a matrix")
+            params[pname] = (v, r.coord(kn))
+    inputs = {}
+    if "inputs" in top:
+        for iname, (kn, vn) in r.mapping(top["inputs"][1], "inputs").items():
+            check_name(iname, r.coord(kn), "input")
+            inputs[iname] = (r.expr(vn, f"input {iname!r}"), r.coord(kn))
+    outputs = ()
+    if "outputs" in top:
+        outputs = tuple(check_name(r.string(o, "output"), r.coord(o), "output",
+                                   allow_reserved=True)
+                        for o in r.seq(top["outputs"][1], "outputs"))
+    method, rtol, atol, dt, max_step = "Radau", 1e-6, 1e-9, None, float("inf")
+    if "solver" in top:
+        sm = r.mapping(top["solver"][1], "solver")
+        _require(r, sm, top["solver"][1], ("method", "rtol", "atol", "dt", "max_step"), "solver")
+        if "method" in sm:
+            method = r.string(sm["method"][1], "method")
+            if method not in METHODS:
+                raise ModelError(r.coord(sm["method"][1]), f"unknown solver method {method!r} "
+                                                           f"(one of {', '.join(METHODS)})")
+        for key in ("rtol", "atol", "dt", "max_step"):
+            if key in sm:
+                v = r.number(sm[key][1], key)
+                if not v > 0:
+                    raise ModelError(r.coord(sm[key][1]), f"solver {key} must be positive")
+                if key == "rtol":
+                    rtol = v
+                elif key == "atol":
+                    atol = v
+                elif key == "dt":
+                    dt = v
+                else:
+                    max_step = v
+    bps = ()
+    if "breakpoints" in top:
+        bps = tuple(r.number(b, "breakpoint") for b in r.seq(top["breakpoints"][1], "breakpoints"))
+    plots = []
+    if "plots" in top:
+        for pn in r.seq(top["plots"][1], "plots"):
+            pm = r.mapping(pn, "a plot")
+            _require(r, pm, pn, ("kind", "outputs", "title", "labels"), "a plot",
+                     required=("kind", "outputs"))
+            kind = r.string(pm["kind"][1], "kind")
+            if kind not in PLOT_KINDS:
+                raise ModelError(r.coord(pm["kind"][1]), f"unknown plot kind {kind!r} "
+                                                         f"(one of {', '.join(PLOT_KINDS)})")
+            outs = tuple(r.string(o, "output") for o in r.seq(pm["outputs"][1], "outputs"))
+            labels = tuple(r.string(o, "label") for o in r.seq(pm["labels"][1], "labels")) \
+                if "labels" in pm else ()
+            title = r.string(pm["title"][1], "title") if "title" in pm else ""
+            plots.append(Plot(kind, outs, title, r.coord(pn), labels))
+    effects = {}
+    if "effects" in top:
+        for ename, (kn, vn) in r.mapping(top["effects"][1], "effects").items():
+            check_name(ename, r.coord(kn), "effect")
+            v = r.scalar(vn, f"effect {ename!r}")
+            if not isinstance(v, bool):
+                raise ModelError(r.coord(vn), f"effect {ename!r}: write on or off (true/false)")
+            effects[ename] = (v, r.coord(kn))
+    desc = r.string(top["description"][1], "description") if "description" in top else ""
+    return Scene(path, name, model_path, (t0, t1), params, inputs, outputs, method, rtol, atol,
+                 dt, max_step, bps, tuple(plots), effects, desc, r.coord(root),
+                 hashlib.sha256(text.encode()).hexdigest()[:16])
+
+
+def apply_scene(model: Model, scene: Scene) -> Model:
+    """The model with the scene's input signals in place of the input defaults."""
+    names = {i.name for i in model.inputs}
+    for iname, (_, coord) in scene.inputs.items():
+        if iname not in names:
+            raise ModelError(coord, f"the model has no input {iname!r} "
+                                    f"(inputs: {', '.join(sorted(names)) or 'none'})")
+    new_inputs = tuple(dataclasses.replace(i, default=scene.inputs[i.name][0])
+                       if i.name in scene.inputs else i for i in model.inputs)
+    return dataclasses.replace(model, inputs=new_inputs)
+
+
+def check_against(scene: Scene, module) -> None:
+    """Scene parameters and outputs must exist in the compiled module."""
+    for pid, (v, coord) in scene.params.items():
+        if pid not in module.PARAM_DEFAULTS:
+            raise ModelError(coord, f"the model has no parameter {pid!r}")
+    for o in scene.outputs:
+        if o not in module.OUTPUT_NAMES:
+            raise ModelError(scene.coord, f"the model has no output {o!r} "
+                                          f"(outputs: {', '.join(module.OUTPUT_NAMES)})")
+    for pl in scene.plots:
+        for o in pl.outputs:
+            if o not in module.OUTPUT_NAMES:
+                raise ModelError(pl.coord, f"plot: the model has no output {o!r}")
+
+
+def param_values(scene: Scene) -> dict:
+    out = {}
+    for pid, (v, _) in scene.params.items():
+        if isinstance(v, tuple):
+            v = [list(r) for r in v] if len(v[0]) > 1 else [r[0] for r in v]
+        out[pid] = v
+    return out
+
+
+def load_module(source: str, name: str):
+    """Import generated source as a module (from a temporary file, so tracebacks show code)."""
+    d = Path(tempfile.mkdtemp(prefix="bgc_"))
+    f = d / f"{name}.py"
+    f.write_text(source, encoding="utf-8")
+    spec = importlib.util.spec_from_file_location(f"bgc_scene_{name}", f)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def scene_model(scene: Scene) -> Model:
+    return apply_scene(parse_file(scene.model_path), scene)

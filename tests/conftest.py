@@ -1,0 +1,69 @@
+"""Shared fixtures for the example-model tests.
+
+``gen(name)`` imports the module bgc generated for ``models/<name>.yaml`` straight from its
+file, ``generated/<name>.py``, so the tests exercise exactly what bgc wrote (the generated
+module must be importable standalone: nothing of bgc is on the path for it).
+``BGC_GENERATED_DIR`` may point at another directory of generated modules.
+
+``bgc_cli(*args)`` runs the bgc command line and returns the CompletedProcess.
+"""
+from __future__ import annotations
+
+import importlib.util
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+MODELS = ROOT / "models"
+GENERATED = Path(os.environ.get("BGC_GENERATED_DIR", ROOT / "generated"))
+
+
+_modules: dict[str, object] = {}
+
+
+def _import_generated(name: str):
+    if name in _modules:
+        return _modules[name]
+    path = GENERATED / f"{name}.py"
+    if not path.is_file():
+        pytest.fail(f"{path} does not exist: compile models/{name}.yaml with bgc first")
+    modname = f"bgc_generated_{name}"
+    spec = importlib.util.spec_from_file_location(modname, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[modname] = module
+    try:
+        spec.loader.exec_module(module)
+    except BaseException:
+        sys.modules.pop(modname, None)
+        raise
+    _modules[name] = module
+    return module
+
+
+@pytest.fixture(scope="session")
+def gen():
+    """``gen(name)`` -> the generated module for models/<name>.yaml."""
+    return _import_generated
+
+
+def _bgc_command() -> list[str]:
+    exe = Path(sys.executable).with_name("bgc")
+    if exe.exists():
+        return [str(exe)]
+    return [sys.executable, "-m", "bgc"]
+
+
+@pytest.fixture(scope="session")
+def bgc_cli():
+    """``bgc_cli(*args)`` runs ``bgc args...`` from the repository root."""
+    def run(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+        env = dict(os.environ)
+        src = str(ROOT / "src")
+        env["PYTHONPATH"] = src + os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else src
+        return subprocess.run(_bgc_command() + list(args), cwd=ROOT, env=env, text=True,
+                              capture_output=True, timeout=timeout, stdin=subprocess.DEVNULL)
+    return run
