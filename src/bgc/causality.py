@@ -71,10 +71,15 @@ class _Scap:
         cur = self.effort_by.get(b.id)
         if cur is not None:
             if cur != setter:
-                o, _ = self.origin[b.id]
+                # Both ends impose the same variable on the bond: `via` its effort if it is to
+                # set the effort (else its flow), and the owner so far from the other end.
+                o, o_via = self.origin[b.id]
+                what = "effort" if setter == via else "flow"
+                src = lambda x, y: (self.kind(x) if x == y  # noqa: E731
+                                    else f"{self.kind(x)} (through {self.kind(y)})")
                 raise ModelError(self.bg.element(via).coord,
-                                 f"causal conflict on bond {b.id!r} at {self.kind(via)}: "
-                                 f"{self.kind(origin)} and {self.kind(o)} both impose it")
+                                 f"causal conflict on bond {b.id!r} ({b.src} -> {b.dst}): "
+                                 f"{src(origin, via)} and {src(o, o_via)} both impose its {what}")
             return
         self.effort_by[b.id] = setter
         self.origin[b.id] = (origin, via)

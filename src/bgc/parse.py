@@ -228,8 +228,10 @@ class _Reader:
             before = self.text[:exc.position]
             line = before.count("\n") + 1
             col = exc.position - (before.rfind("\n") + 1) + 1
-            raise ModelError(Coord(self.path, line, col), f"YAML error: character "
-                                                          f"{exc.character!r} is not allowed") from None
+            ch = exc.character
+            ch = f"U+{ch:04X}" if isinstance(ch, int) else repr(ch)
+            raise ModelError(Coord(self.path, line, col),
+                             f"YAML error: character {ch} is not allowed") from None
         except yaml.YAMLError as exc:
             raise ModelError(Coord(self.path, 1, 1),
                              "YAML error: " + " ".join(str(exc).split())) from None
