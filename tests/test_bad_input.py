@@ -158,9 +158,10 @@ if sys.platform == "win32":  # pragma: no cover
     pytest.skip("POSIX paths in messages", allow_module_level=True)
 
 #: The cases that also go through the command line: a sample from every stage.
-CLI_CASES = ["yaml_syntax", "missing_bonds", "unknown_key", "tf_two_incoming", "self_loop",
-             "name_newline", "expr_import", "import_cycle_a", "derivative_causality",
+CLI_CASES = ["yaml_syntax", "unknown_key", "self_loop", "expr_import", "import_cycle_a",
              "causal_conflict", "undefined_symbol", "nonlinear_loop"]
+#: Late cases whose ``bgc check`` run is skipped (one late case stays, as an expected failure).
+_NO_CHECK = {"nonlinear_loop"}
 
 
 def _run(args: list[str]) -> subprocess.CompletedProcess:
@@ -178,7 +179,8 @@ def cli_runs(tmp_path_factory):
     for name in CLI_CASES:
         rel = str(path_of(name).relative_to(ROOT))
         out = tmp_path_factory.mktemp(f"out_{name}")
-        jobs[(name, "check")] = (["check", rel], out)
+        if name not in _NO_CHECK:
+            jobs[(name, "check")] = (["check", rel], out)
         jobs[(name, "compile")] = (["compile", "-q", rel, "-o", str(out / "out.py")], out)
     with ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 2)) as pool:
         futures = {k: pool.submit(_run, args) for k, (args, _) in jobs.items()}
@@ -189,6 +191,8 @@ def cli_runs(tmp_path_factory):
 @pytest.mark.parametrize("name", CLI_CASES)
 def test_cli(cli_runs, name, command):
     case = BY_NAME[name]
+    if command == "check" and name in _NO_CHECK:
+        pytest.skip("late error: bgc check is exercised on one late case only")
     if command == "check" and case.late:
         pytest.xfail("bgc check stops after causality: errors found while deriving the "
                      "equations are reported by bgc compile only")
