@@ -106,9 +106,12 @@ class Equations:
 class _Ctx:
     """Symbols and name resolution for one bond graph."""
 
-    def __init__(self, bg: BondGraph, caus: Causality):
+    def __init__(self, bg: BondGraph, caus: Causality, fold: dict | None = None,
+                 zero: dict | None = None):
         self.bg = bg
         self.caus = caus
+        self.zero = zero or {}  # removed element id -> cardinality: its variables read zero
+        fold = fold or {}
         self.e = {b.id: _vec("e_" + code_name(b.id), b.n) for b in bg.bonds}
         self.f = {b.id: _vec("f_" + code_name(b.id), b.n) for b in bg.bonds}
         self.params: dict[str, ParamVar] = {}
@@ -119,6 +122,9 @@ class _Ctx:
         for fp in bg.params:
             code = code_name(fp.id)
             if isinstance(fp.value, Expr):
+                continue
+            if fp.id in fold:  # fixed by the scene: a number, not a parameter
+                self.param_value[fp.id] = _fold_value(fold[fp.id])
                 continue
             if isinstance(fp.value, tuple):
                 rows, cols = len(fp.value), len(fp.value[0])
@@ -217,7 +223,11 @@ class _Resolver:
             raise ModelError(coord, f"{self.what}: may only use parameters, and "
                                     f"{'.'.join(path)!r} is a {kind}")
         if kind == "state":
-            return self.ctx.states[join(scope, name)]
+            sid = join(scope, name)
+            if sid not in self.ctx.states:
+                raise ModelError(coord, f"{self.what}: state {sid!r} is removed by the scene "
+                                        "(its effect is off) but is used here")
+            return self.ctx.states[sid]
         if kind == "input":
             return self.ctx.inputs_value(name, coord)
         if kind == "element":
@@ -231,6 +241,8 @@ class _Resolver:
         kind, name, scope = self._find(path, coord)
         ident = join(scope, name)
         bg, ctx = self.ctx.bg, self.ctx
+        if ident in ctx.zero:  # removed by the scene: contributes nothing
+            return sp.Integer(0) if func == "power" else _zeros(ctx.zero[ident])
         if kind == "bond":
             b = bg.bond(ident)
             e, f = ctx.e[b.id], ctx.f[b.id]
@@ -293,8 +305,25 @@ _Ctx.inputs_value = _inputs_value
 # ---------------------------------------------------------------------------------------------
 
 
-def derive(bg: BondGraph, caus: Causality, progress=None) -> Equations:
-    ctx = _Ctx(bg, caus)
+def _zeros(n):
+    return sp.Integer(0) if n == 1 else sp.ImmutableMatrix(sp.zeros(n, 1))
+
+
+def _fold_value(v):
+    if isinstance(v, tuple):
+        if len(v) == 1 and len(v[0]) == 1:
+            return sp.Float(v[0][0])
+        return sp.ImmutableMatrix([[sp.Float(c) for c in row] for row in v])
+    return sp.Float(v)
+
+
+def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = None,
+           zero: dict | None = None) -> Equations:
+    """State equations of a causal bond graph.
+
+    ``fold``: parameter id -> value, turned into numbers; ``zero``: removed element id ->
+    cardinality, whose variables read as zero (both from scene specialisation)."""
+    ctx = _Ctx(bg, caus, fold, zero)
     # States of storage elements, then auxiliary states, in declaration order.
     for el in bg.elements:
         if el.type in ("I", "C") and el.id not in caus.derivative:
@@ -519,10 +548,6 @@ def _solve(m, rhs, el, key):
     return sp.ImmutableMatrix(m.adjugate() * rhs / d)
 
 
-def _zero(n):
-    return sp.Integer(0) if n == 1 else sp.ImmutableMatrix(sp.zeros(n, 1))
-
-
 def _junction(ctx: _Ctx, el: FlatElement, bonds, define):
     caus = ctx.caus
     if el.type == "0":
@@ -531,7 +556,7 @@ def _junction(ctx: _Ctx, el: FlatElement, bonds, define):
             if b is not src:
                 define(ctx.e[b.id], ctx.e[src.id], el, f"0-junction {el.id}: common effort")
         # flows: sum in = sum out, solved for the imposing bond's flow
-        total = _zero(src.n)
+        total = _zeros(src.n)
         for b in bonds:
             if b is src:
                 continue
@@ -543,7 +568,7 @@ def _junction(ctx: _Ctx, el: FlatElement, bonds, define):
         for b in bonds:
             if b is not src:
                 define(ctx.f[b.id], ctx.f[src.id], el, f"1-junction {el.id}: common flow")
-        total = _zero(src.n)
+        total = _zeros(src.n)
         for b in bonds:
             if b is src:
                 continue

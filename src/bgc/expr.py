@@ -147,10 +147,14 @@ def _check_depth(expr: Expr, root: ast.AST) -> None:
 def _check_node(expr: Expr, node: ast.AST, in_where: bool = False) -> None:
     bad = lambda msg: ModelError(_where(expr, node), msg)  # noqa: E731
     if isinstance(node, ast.Constant):
-        if isinstance(node.value, bool) or not isinstance(node.value, (int, float)):
-            raise bad(f"only numbers are allowed as constants, not {_short(repr(node.value))[1:-1]}")
-        if not abs(node.value) < 10.0 ** MAX_EXPONENT:
-            raise bad(f"number {_short(str(node.value))[1:-1]} is out of range")
+        v = node.value
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            r = repr(v)
+            raise bad(f"only numbers are allowed as constants, not "
+                      f"{r if len(r) <= 60 else r[:57] + '...'}")
+        if isinstance(v, float) and not math.isfinite(v) or (
+                isinstance(v, int) and abs(v) > 10 ** MAX_EXPONENT):
+            raise bad(f"number {str(v)[:40]} is out of range")
         return
     if isinstance(node, ast.Name):
         return

@@ -8,7 +8,9 @@ import numpy as np
 
 from .compiler import compile_model
 from .errors import ModelError
-from .scene import Scene, check_against, load_module, param_values, parse_scene, scene_model
+from .scene import (Scene, check_against, free_values, load_module, param_values, parse_scene,
+                    plan_for, scene_model)
+from .specialize import known_effects as _effects
 
 
 @dataclass(frozen=True)
@@ -25,9 +27,20 @@ class SceneResult:
     run_time: float
 
 
-def compile_scene(scene: Scene, progress=None):
+def compile_scene(scene: Scene, progress=None, specialise: bool = True):
+    """The scene's module: its signals compiled in, and (by default) specialised to it."""
     model = scene_model(scene)
-    c = compile_model(model, progress)
+    plan = None
+    if specialise:
+        from .graph import build_graph
+
+        graph = build_graph(model)
+        plan = plan_for(scene, graph.params)
+        if effects_unknown := set(k for k, (on, _) in scene.effects.items()) - _effects(graph):
+            name = sorted(effects_unknown)[0]
+            raise ModelError(scene.effects[name][1], f"the model has no effect {name!r} "
+                                                     f"(effects: {', '.join(sorted(_effects(graph))) or 'none'})")
+    c = compile_model(model, progress, plan)
     mod = load_module(c.source, f"{c.model.name}_{scene.name}")
     check_against(scene, mod)
     return c, mod
@@ -45,12 +58,10 @@ def run_scene(path, progress=None, method=None, rtol=None) -> SceneResult:
     dt = scene.dt or (scene.t_span[1] - scene.t_span[0]) / 1000
     try:
         res = mod.simulate(scene.t_span, dt=dt, method=method, rtol=rtol, atol=scene.atol,
-                           p=param_values(scene) or None, breakpoints=scene.breakpoints,
+                           p=free_values(scene) or None, breakpoints=scene.breakpoints,
                            max_step=scene.max_step)
     except mod.SimulationError as exc:
         raise ModelError(scene.coord, f"simulation failed: {exc}") from None
     t2 = time.perf_counter()
     t, x, y = res
-    if scene.outputs:
-        y = {k: y[k] for k in scene.outputs}
     return SceneResult(scene, mod, t, x, y, res.stats, method, rtol, t1 - t0, t2 - t1)

@@ -52,6 +52,7 @@ class Scene:
     description: str = ""
     coord: Coord | None = None
     source_hash: str = ""
+    free: tuple[str, ...] = ()  # scene parameters that stay parameters (not folded)
 
 
 def parse_scene(path: str | Path) -> Scene:
@@ -66,7 +67,7 @@ def parse_scene(path: str | Path) -> Scene:
         raise ModelError(Coord(path, 1, 1), "the scene file is empty")
     top = r.mapping(root, "the scene")
     allowed = ("bgc_scene", "name", "description", "model", "duration", "t_span", "parameters",
-               "inputs", "outputs", "solver", "breakpoints", "plots", "effects")
+               "inputs", "outputs", "solver", "breakpoints", "plots", "effects", "free")
     _require(r, top, root, allowed, "the scene", required=("bgc_scene", "model"))
     if r.scalar(top["bgc_scene"][1], "bgc_scene") != 1:
         raise ModelError(r.coord(top["bgc_scene"][1]), "unsupported scene format version")
@@ -158,9 +159,16 @@ def parse_scene(path: str | Path) -> Scene:
                 raise ModelError(r.coord(vn), f"effect {ename!r}: write on or off (true/false)")
             effects[ename] = (v, r.coord(kn))
     desc = r.string(top["description"][1], "description") if "description" in top else ""
+    free = ()
+    if "free" in top:
+        free = tuple(r.string(f, "free parameter") for f in r.seq(top["free"][1], "free"))
+        for f, fn in zip(free, top["free"][1].value):
+            if f not in params:
+                raise ModelError(r.coord(fn), f"free parameter {f!r} is not set by the scene's "
+                                              "parameters (free keeps a scene value tunable)")
     return Scene(path, name, model_path, (t0, t1), params, inputs, outputs, method, rtol, atol,
                  dt, max_step, bps, tuple(plots), effects, desc, r.coord(root),
-                 hashlib.sha256(text.encode()).hexdigest()[:16])
+                 hashlib.sha256(text.encode()).hexdigest()[:16], free)
 
 
 def apply_scene(model: Model, scene: Scene) -> Model:
@@ -176,27 +184,43 @@ def apply_scene(model: Model, scene: Scene) -> Model:
 
 
 def check_against(scene: Scene, module) -> None:
-    """Scene parameters and outputs must exist in the compiled module."""
-    for pid, (v, coord) in scene.params.items():
-        if pid not in module.PARAM_DEFAULTS:
-            raise ModelError(coord, f"the model has no parameter {pid!r}")
-    for o in scene.outputs:
-        if o not in module.OUTPUT_NAMES:
-            raise ModelError(scene.coord, f"the model has no output {o!r} "
-                                          f"(outputs: {', '.join(module.OUTPUT_NAMES)})")
+    """Scene plots must name outputs of the compiled module."""
     for pl in scene.plots:
         for o in pl.outputs:
             if o not in module.OUTPUT_NAMES:
-                raise ModelError(pl.coord, f"plot: the model has no output {o!r}")
+                raise ModelError(pl.coord, f"plot: the module has no output {o!r} "
+                                           f"(outputs: {', '.join(module.OUTPUT_NAMES)})")
+
+
+def plan_for(scene: Scene, graph_params) -> "Plan":
+    """The specialisation a scene asks for: effects off, parameters to fold, outputs."""
+    from .specialize import Plan
+
+    known = {p.id: p for p in graph_params}
+    fold = {}
+    for pid, (v, coord) in scene.params.items():
+        if pid not in known or isinstance(known[pid].value, Expr):
+            raise ModelError(coord, f"the model has no parameter {pid!r}"
+                             + (" (it is derived from others)" if pid in known else ""))
+        if pid not in scene.free:
+            fold[pid] = v
+    off = frozenset(k for k, (on, _) in scene.effects.items() if not on)
+    return Plan(off, fold, scene.outputs, scene.name)
 
 
 def param_values(scene: Scene) -> dict:
+    """The scene's parameter values as plain numbers and nested lists."""
     out = {}
     for pid, (v, _) in scene.params.items():
         if isinstance(v, tuple):
             v = [list(r) for r in v] if len(v[0]) > 1 else [r[0] for r in v]
         out[pid] = v
     return out
+
+
+def free_values(scene: Scene) -> dict:
+    """Run-time values of the scene's free parameters."""
+    return {k: v for k, v in param_values(scene).items() if k in scene.free}
 
 
 def load_module(source: str, name: str):

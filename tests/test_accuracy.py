@@ -1,0 +1,177 @@
+"""The work-precision study (bgc accuracy) on the mass-spring-damper step scene."""
+from __future__ import annotations
+
+import csv
+import math
+import types
+from dataclasses import replace
+from pathlib import Path
+
+import click
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from bgc import accuracy as A
+from bgc.errors import ModelError
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = ROOT / "models" / "scenes" / "msd_step.yaml"
+# The force steps at t = 1 s (where(t < 1, 0, F0)); the scene declares no breakpoint, and
+# Radau/BDF cannot pass the jump at rtol 1e-12 without one.
+BPS = (1.0,)
+TOLS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7)
+
+
+@pytest.fixture(scope="module")
+def setup():
+    return A.prepare(SCENE, breakpoints=BPS)
+
+
+@pytest.fixture(scope="module")
+def small_study(setup):
+    return A.study(setup, methods=("DOP853", "Radau"), tols=TOLS, budget=30.0, repeats=1,
+                   ref_rtol=1e-11, jac_methods=("Radau",), jac_tols=(1e-5,))
+
+
+def test_setup_takes_the_scene(setup):
+    assert setup.name == "msd_step"
+    assert setup.outputs == ("position", "velocity")
+    assert setup.atol_scale == pytest.approx(1e-3)  # the scene's atol / rtol
+    assert setup.breakpoints == (1.0,)
+    assert len(setup.t_eval) == 501 and setup.t_eval[-1] == 5.0
+
+
+def test_reference_agreement_is_tiny(small_study):
+    st = small_study
+    assert not st.stiff
+    assert [r.method for r in st.refs] == ["Radau", "DOP853"]
+    assert st.agreement["err"] < 1e-9
+    assert st.agreement["final_err"] < 1e-9
+    # the step response settles at F0 / k = 0.05 m
+    assert st.refs[0].y["position"][-1] == pytest.approx(0.05, rel=0.05)
+
+
+def test_radau_error_decreases_as_the_tolerance_tightens(small_study):
+    rs = sorted((r for r in small_study.runs if r.method == "Radau"), key=lambda r: -r.rtol)
+    assert [r.status for r in rs] == ["ok"] * len(TOLS)
+    errs = [r.err for r in rs]
+    for a, b in zip(errs, errs[1:]):
+        assert b < 2 * a  # monotone within noise
+    assert errs[-1] < errs[0] / 100  # and by a lot over four decades
+    assert all(r.err < 100 * r.rtol for r in rs)
+    assert all(r.nfev > 0 and r.njev > 0 and r.wall > 0 for r in rs)
+    assert set(rs[0].err_abs) == {"position", "velocity"}
+
+
+def test_explicit_method_has_no_jacobian(small_study):
+    rs = [r for r in small_study.runs if r.method == "DOP853"]
+    assert all(r.status == "ok" and r.jac == "none" and r.njev == 0 for r in rs)
+
+
+def test_jacobian_comparison_counts_fd_jacobians(small_study):
+    modes = {r.jac: r for r in small_study.jac_runs}
+    assert set(modes) == set(A.JAC_MODES)
+    for r in modes.values():
+        assert r.status == "ok" and r.njev > 0
+        # same accuracy whichever Jacobian
+        assert r.err == pytest.approx(modes["analytic"].err, rel=0.5)
+
+
+def test_over_budget_is_reported_not_raised(setup, small_study):
+    r = A.measure(setup, small_study.refs[0], "RK45", 1e-6, budget=0.0, repeats=3)
+    assert r.status == "budget" and "budget" in r.message
+    assert math.isnan(r.wall)
+
+
+def test_failure_is_reported_not_raised(setup, small_study):
+    class SimulationError(RuntimeError):
+        pass
+
+    def simulate(*a, **k):
+        raise SimulationError("Radau failed at t = 0.5: step size too small")
+
+    fake = types.SimpleNamespace(**{k: getattr(setup.module, k) for k in
+                                    ("rhs", "jacobian", "STATE_NAMES")},
+                                 simulate=simulate, SimulationError=SimulationError)
+    r = A.measure(replace(setup, module=fake), small_study.refs[0], "Radau", 1e-6)
+    assert r.status == "failed" and "step size too small" in r.message
+
+
+def test_a_killed_worker_is_reported():
+    import time
+
+    status, val = A.run_isolated(lambda: time.sleep(30), timeout=0.5)
+    assert status == "killed"
+
+
+def test_skips_tighter_tolerances_after_the_budget(setup, small_study, monkeypatch):
+    calls = []
+
+    def fake_measure(setup_, ref, method, rtol, **kw):
+        calls.append(rtol)
+        return A.Run(method, rtol, rtol, "none", "budget", "over")
+
+    monkeypatch.setattr(A, "measure", fake_measure)
+    monkeypatch.setattr(A, "reference", lambda s, m, *a: small_study.refs[0])
+    st = A.study(setup, methods=("RK45",), tols=(1e-4, 1e-3, 1e-5), jac_methods=())
+    assert calls == [1e-3]
+    assert [r.status for r in st.runs] == ["budget", "skipped", "skipped"]
+
+
+def test_files_are_written(small_study, tmp_path):
+    files = A.write_all(small_study, tmp_path)
+    names = sorted(f.name for f in files)
+    assert names == sorted(["msd_step_runs.csv", "msd_step_accuracy.md", "msd_step_wp_time.png",
+                            "msd_step_wp_rhs.png", "msd_step_jacobian.png"])
+    for f in files:
+        assert f.stat().st_size > 0
+    assert (tmp_path / "msd_step_wp_time.png").read_bytes()[:4] == b"\x89PNG"
+    rows = list(csv.DictReader((tmp_path / "msd_step_runs.csv").open()))
+    assert {r["kind"] for r in rows} == {"reference", "study", "jacobian"}
+    assert len([r for r in rows if r["kind"] == "study"]) == 2 * len(TOLS)
+    assert "err_abs_position" in rows[0]
+    md = (tmp_path / "msd_step_accuracy.md").read_text()
+    assert "Reference agreement" in md and "| Radau | 1e-05 |" in md
+    assert "atol = rtol x 0.001" in md
+
+
+def test_parse_options():
+    assert A.parse_tols("1e-3:1e-5") == (1e-3, 1e-4, 1e-5)
+    assert A.parse_tols("1e-2,1e-6") == (1e-2, 1e-6)
+    with pytest.raises(ModelError):
+        A.parse_tols("2")
+    with pytest.raises(ModelError):
+        A.parse_methods("Radau,Euler")
+
+
+def test_param_sweep_on_the_spring(setup):
+    def metrics(s, p, res):
+        return {"peak": float(np.max(res.y["position"]))}
+
+    pts = A.param_sweep(setup, "k", [100.0, 400.0], metrics, rtol=1e-6, atol=1e-9,
+                        budget=30.0)
+    assert [p.status for p in pts] == ["ok", "ok"]
+    # a stiffer spring deflects less (static deflection F0 / k)
+    assert pts[1].metrics["peak"] < pts[0].metrics["peak"]
+
+
+def test_cli_command(tmp_path):
+    group = click.Group()
+    A.register(group)
+    out = tmp_path / "acc"
+    r = CliRunner().invoke(group, ["accuracy", str(SCENE), "--out", str(out), "--methods",
+                                   "RK45,Radau", "--tols", "1e-3:1e-5", "--repeats", "1",
+                                   "--ref-rtol", "1e-10", "--breakpoints", "1",
+                                   "--jac-methods", "Radau", "--jac-tols", "1e-4"])
+    assert r.exit_code == 0, (r.output, r.exception)
+    assert "reference agreement" in r.output
+    assert (out / "msd_step_accuracy.md").is_file()
+    assert (out / "msd_step_wp_rhs.png").is_file()
+
+
+def test_cli_user_errors_are_model_errors(tmp_path):
+    group = click.Group()
+    A.register(group)
+    r = CliRunner().invoke(group, ["accuracy", str(SCENE), "--methods", "Euler"])
+    assert isinstance(r.exception, ModelError)
