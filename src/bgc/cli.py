@@ -185,5 +185,14 @@ def simulate_cmd(scene, out, plot_dir, method, rtol, quiet):
                f"integrate {res.run_time:.2f} s")
 
 
+def _register_accuracy():
+    from .accuracy import register
+
+    register(main)
+
+
+_register_accuracy()
+
+
 if __name__ == "__main__":  # pragma: no cover
     main()
