@@ -61,7 +61,14 @@ JAC_SPARSITY[
 
 
 class SimulationError(RuntimeError):
-    """The integrator failed (its message says why)."""
+    """The integrator failed or was stopped (the message says why): .t where, .stats the counts."""
+
+    t = None
+    stats = None
+
+
+class StiffnessError(SimulationError):
+    """An explicit method met a stiff model (the message says where, why, and what to use)."""
 
 
 class SimResult(tuple):
@@ -88,16 +95,24 @@ def _unpack(P):
     return _vals, _bshape
 
 
-_P0 = _unpack(PARAM_DEFAULTS)
+class _Unpacked(tuple):
+    """Parameters unpacked once by _params, (values, batch shape): rhs, jacobian and outputs
+    take it in place of a dict, so simulate unpacks the overrides once, not at every call."""
+
+
+_P0 = _Unpacked(_unpack(PARAM_DEFAULTS))
 
 
 def _params(p):
+    """(values, batch shape): the defaults overridden by p (a dict, or already unpacked)."""
     if p is None:
         return _P0
+    if isinstance(p, _Unpacked):
+        return p
     unknown = set(p) - set(PARAM_DEFAULTS)
     if unknown:
         raise KeyError("unknown parameter(s): " + ", ".join(sorted(unknown)))
-    return _unpack({**PARAM_DEFAULTS, **{k: np.asarray(v, dtype=float) if np.ndim(v) else v for k, v in p.items()}})
+    return _Unpacked(_unpack({**PARAM_DEFAULTS, **{k: np.asarray(v, dtype=float) if np.ndim(v) else v for k, v in p.items()}}))
 
 
 def _inputs(t, _pv, u):
@@ -190,79 +205,305 @@ def outputs(t, x, p=None, u=None):
     }
 
 
-def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, u=None,
-             x0=None, dt=None, breakpoints=(), jac=True, max_step=np.inf):
-    """Integrate with scipy's solve_ivp; returns SimResult (t, x, y).
+# --------------------------------------------------------------------------------------------
+# The runtime: simulate() steps one of scipy's OdeSolver classes through each segment between
+# breakpoints and reads the output times off each step's dense output.
 
-    Parameters given as arrays of shape B integrate len(B) instances at once (the state is
-    flattened and the Jacobian is block diagonal, passed sparse). `breakpoints` are instants
-    where inputs jump: the integration restarts there. Implicit methods get the analytic
-    Jacobian (jac=True) or, with jac=False, finite differences over JAC_SPARSITY.
-    """
-    from scipy.integrate import solve_ivp
+METHODS = ("RK23", "RK45", "DOP853", "Radau", "BDF", "LSODA")
+# Explicit methods are stable on y' = lam*y while h*|lam| stays within these limits on the
+# negative real axis and on the imaginary axis (the stability polynomials of scipy's tableaus).
+_STABILITY = {"RK23": (2.51, 1.73), "RK45": (3.31, 0.99), "DOP853": (6.39, 5.96)}
+# Stiffness test of the explicit methods, after Hairer's DOPRI5: one check (a Jacobian and its
+# eigenvalues) every _STIFF_EVERY accepted steps, then at every step while checks are positive;
+# _STIFF_HITS positive checks in a row make the model stiff, _STIFF_MISSES negative ones reset.
+_STIFF_EVERY, _STIFF_HITS, _STIFF_MISSES = 50, 15, 6
+_STIFF_SAMPLE = 8  # batch instances whose eigenvalues a check computes (bounded cost)
+_AT_LIMIT = 0.7  # a step "at the stability limit": at least this fraction of the stable step
+_DECAYED = 10.0  # a stiff mode decays by at least e^-10 over the rest of the span
+_NEAR_AXIS = 0.087  # sin(5 degrees)
+
+
+def _error(cls, message, t, stats):
+    """A SimulationError (or subclass) that carries where it happened and the counts so far."""
+    err = cls(message)
+    err.t, err.stats = t, dict(stats)
+    return err
+
+
+def _batched(x0, p):
+    """The initial state broadcast to (n, *batch): batch is what x0 and the parameters span."""
+    x0 = initial_state(p) if x0 is None else np.asarray(x0, dtype=float)
+    batch = np.broadcast_shapes(x0.shape[1:], _params(p)[1])
+    x0 = x0.reshape((N_STATES,) + (1,) * (len(batch) + 1 - x0.ndim) + x0.shape[1:])
+    return np.broadcast_to(x0, (N_STATES,) + batch), batch
+
+
+def _flat_atol(atol, batch):
+    """atol as the solver wants it: a scalar, or one value per state flattened like the state."""
+    atol = np.asarray(atol, dtype=float)
+    if atol.ndim == 0:
+        return float(atol)
+    if atol.shape[0] != N_STATES:
+        raise ValueError(f"atol: give a scalar or one value per state ({N_STATES})")
+    atol = atol.reshape((N_STATES,) + (1,) * (len(batch) + 1 - atol.ndim) + atol.shape[1:])
+    return np.broadcast_to(atol, (N_STATES,) + batch).ravel()
+
+
+def _output_times(t0, t1, t_eval, dt):
+    """The output times inside the span in the direction of integration; None: every step."""
+    if t_eval is None and dt is not None:
+        t_eval = np.linspace(t0, t1, int(round(abs(t1 - t0) / dt)) + 1)
+    if t_eval is None:
+        return None
+    t = np.unique(np.asarray(t_eval, dtype=float))
+    t = t[(t >= min(t0, t1)) & (t <= max(t0, t1))]
+    return t if t1 >= t0 else t[::-1]
+
+
+def _segments(t0, t1, breakpoints):
+    """The pieces (a, c) of the span between the breakpoints inside it, in integration order."""
+    inner = sorted({float(b) for b in breakpoints if min(t0, t1) < float(b) < max(t0, t1)},
+                   reverse=t1 < t0)
+    cuts = [t0] + inner + [t1]
+    return [(a, c) for a, c in zip(cuts[:-1], cuts[1:]) if a != c]
+
+
+def _one_sided(a, c):
+    """t -> t held in [a, nextafter(c, a)]: inside the segment (a, c) an input that jumps at c
+    (where(t < c, ...)) keeps its left value, even in a stage the solver evaluates at c."""
+    lo, hi = sorted((a, float(np.nextafter(c, a))))
+    return lambda t: min(max(t, lo), hi)
+
+
+def _flat_rhs(at, shape, p, u, stats):
+    """rhs on the solver's flat state (n * batch,), at the one-sided time at(t); counts calls."""
+    def fun(t, y):
+        stats["nfev"] += 1
+        return rhs(at(t), y.reshape(shape + y.shape[1:]), p, u).reshape(y.shape)
+    return fun
+
+
+def _block_pattern(nb):
+    """Rows and columns of the flat Jacobian's nonzeros: one JAC_SPARSITY block per instance."""
+    rows, cols = np.nonzero(JAC_SPARSITY)
+    b = np.arange(nb)
+    return (rows[:, None] * nb + b).ravel(), (cols[:, None] * nb + b).ravel()
+
+
+def _flat_jacobian(at, shape, p, u, sparse):
+    """The analytic Jacobian on the flat state: block diagonal over a batch (sparse or dense)."""
     import scipy.sparse as sps
 
-    _pv, bshape = _params(p)
-    x0 = initial_state(p) if x0 is None else np.asarray(x0, dtype=float)
-    batch = np.broadcast_shapes(x0.shape[1:], bshape)
-    x0 = np.broadcast_to(x0.reshape(x0.shape + (1,) * (len(batch) - x0.ndim + 1)), (2,) + batch)
-    nb = int(np.prod(batch)) if batch else 1
-    t0, t1 = float(t_span[0]), float(t_span[1])
-    if t_eval is None and dt is not None:
-        t_eval = np.linspace(t0, t1, int(round((t1 - t0) / dt)) + 1)
-    stats = {"nfev": 0, "njev": 0, "nlu": 0}
-
-    def f(t, y):
-        stats["nfev"] += 1
-        return rhs(t, y.reshape((2,) + batch + y.shape[1:]), p, u).reshape(y.shape)
-
-    implicit = method in ("Radau", "BDF", "LSODA")
+    nb = int(np.prod(shape[1:]))
     rows, cols = np.nonzero(JAC_SPARSITY)
-    if nb > 1:
-        b = np.arange(nb)
-        R = (rows[:, None] * nb + b).ravel()
-        C = (cols[:, None] * nb + b).ravel()
-    kwargs = {}
-    if implicit and jac:
-        def jfun(t, y):
-            stats["njev"] += 1
-            J = jacobian(t, y.reshape((2,) + batch), p, u)
-            if nb == 1:
-                return J.reshape(2, 2)
-            vals = J.reshape(2, 2, nb)[rows, cols].ravel()
-            return sps.csc_matrix((vals, (R, C)), shape=(2 * nb, 2 * nb))
-        kwargs["jac"] = jfun
-    elif implicit:
-        if nb > 1:
-            kwargs["jac_sparsity"] = sps.csc_matrix((np.ones(len(R)), (R, C)), shape=(2 * nb, 2 * nb))
-        elif method != "LSODA":
-            kwargs["jac_sparsity"] = JAC_SPARSITY
-    cuts = [t0] + sorted(float(b) for b in breakpoints if t0 < float(b) < t1) + [t1]
-    ts, ys = [], []
-    y = np.array(x0, dtype=float).reshape(-1)
-    for k, (a, c) in enumerate(zip(cuts[:-1], cuts[1:])):
-        last = k == len(cuts) - 2
-        te = want = None
-        if t_eval is not None:
-            want = np.asarray(t_eval, dtype=float)
-            want = want[(want >= a) & ((want <= c) if last else (want < c))]
-            te = np.union1d(want, [c])  # always reach c: the next segment starts from there
-        sol = solve_ivp(f, (a, c), y, method=method, t_eval=te, rtol=rtol, atol=atol,
-                        max_step=max_step, **kwargs)
-        if sol.status < 0:
-            raise SimulationError(f"{method} failed at t = {sol.t[-1]:.6g}: {sol.message}")
-        stats["nlu"] += int(getattr(sol, "nlu", 0) or 0)
-        if want is None:
-            keep = slice(None) if k == 0 else slice(1, None)
-            ts.append(sol.t[keep])
-            ys.append(sol.y[:, keep])
+    R, C = _block_pattern(nb)
+
+    def jac(t, y):
+        J = jacobian(at(t), y.reshape(shape), p, u).reshape(N_STATES, N_STATES, nb)
+        if nb == 1:
+            return J[:, :, 0]
+        vals = J[rows, cols].ravel()
+        if sparse:
+            return sps.csc_matrix((vals, (R, C)), shape=(len(y), len(y)))
+        M = np.zeros((len(y), len(y)))
+        M[R, C] = vals
+        return M
+    return jac
+
+
+def _jacobian_options(method, jac, at, shape, p, u):
+    """The solver's Jacobian: analytic (jac=True), else finite differences over JAC_SPARSITY."""
+    import scipy.sparse as sps
+
+    nb = int(np.prod(shape[1:]))
+    if method in _STABILITY:
+        return {}  # explicit: no Jacobian
+    if jac:
+        return {"jac": _flat_jacobian(at, shape, p, u, sparse=method != "LSODA")}
+    if method == "LSODA":
+        return {}  # LSODA differences densely (it takes no sparsity pattern)
+    if nb == 1:
+        return {"jac_sparsity": JAC_SPARSITY}
+    R, C = _block_pattern(nb)
+    return {"jac_sparsity": sps.csc_matrix((np.ones(len(R)), (R, C)),
+                                           shape=(N_STATES * nb,) * 2)}
+
+
+def _eigenvalues(t, y, shape, p, u):
+    """Eigenvalues of the analytic Jacobian at (t, y), over up to _STIFF_SAMPLE batch instances."""
+    J = np.asarray(jacobian(t, y.reshape(shape), p, u)).reshape(N_STATES, N_STATES, -1)
+    pick = np.unique(np.linspace(0, J.shape[2] - 1, _STIFF_SAMPLE).round().astype(int))
+    J = np.moveaxis(J[:, :, pick], 2, 0)
+    return np.linalg.eigvals(J).ravel() if np.all(np.isfinite(J)) else np.zeros(0)
+
+
+def _stiffness(method, t, t_end, lam):
+    """(largest stable step, steps the rest of the span needs at it, explanation) for an explicit
+    method, from the Jacobian's eigenvalues lam. Only modes that die out within the rest of the
+    span count: an undamped oscillation limits the step through accuracy anyway."""
+    rest = abs(t_end - t)
+    lam = lam[-lam.real * rest > _DECAYED]
+    if not lam.size:
+        return np.inf, 0.0, ""
+    real, imag = _STABILITY[method]
+    # the real-axis limit holds to within ~5 degrees of the imaginary axis, then falls to the
+    # imaginary-axis one (interpolated: within a third of the exact boundary)
+    limit = imag + (real - imag) * np.minimum(1.0, -lam.real / np.abs(lam) / _NEAR_AXIS)
+    k = int(np.argmin(limit / np.abs(lam)))
+    h_max = limit[k] / abs(lam[k])
+    why = (f"the analytic Jacobian's largest |eigenvalue| is {np.max(np.abs(lam)):.4g} 1/s, and "
+           f"{method} is stable only for h*|lambda| <= {real:g} on the negative real axis "
+           f"({imag:g} on the imaginary axis), which allows steps of at most {h_max:.3g} s "
+           f"(binding: the eigenvalue {lam[k]:.4g}); the remaining {rest:.4g} s need about "
+           f"{rest / h_max:.3g} steps")
+    return h_max, rest / h_max, why
+
+
+def _stiff_message(method, t, why, h=None):
+    held = "" if h is None else f"its steps are held at the stability limit (h = {h:.3g} s); "
+    return (f"the model is stiff for {method} at t = {t:.6g}: {held}{why}. Use method=\"Radau\" "
+            "or method=\"BDF\" (they use the analytic Jacobian), or stiff_check=False.")
+
+
+class _StiffnessWatch:
+    """Is an explicit method's step held at its stability limit, check after check?"""
+
+    def __init__(self, method, t_end, max_steps):
+        self.method, self.t_end, self.max_steps = method, t_end, max_steps
+        self.wait, self.hits, self.misses = _STIFF_EVERY, 0, 0
+
+    def due(self):
+        """Called after each accepted step: is a check due now?"""
+        self.wait -= 1
+        return self.hits > 0 or self.wait <= 0
+
+    def check(self, t, h, lam):
+        """Record one check at step size h; returns StiffnessError's message once stiff."""
+        self.wait = _STIFF_EVERY
+        h_max, steps, why = _stiffness(self.method, t, self.t_end, lam)
+        if h >= _AT_LIMIT * h_max and steps > self.max_steps:
+            self.hits, self.misses = self.hits + 1, 0
+        elif self.hits:
+            self.misses += 1
+            if self.misses >= _STIFF_MISSES:
+                self.hits = self.misses = 0
+        return _stiff_message(self.method, t, why, h) if self.hits >= _STIFF_HITS else ""
+
+
+class _Trajectory:
+    """The solution at the output times, read off each step's dense output (exact at a step's
+    end); without output times, the solution at every step."""
+
+    def __init__(self, t0, t1, y0, times):
+        self.times, self.d = times, 1.0 if t1 >= t0 else -1.0
+        if times is None:
+            self.ts, self.ys = [t0], [y0]
         else:
-            mask = np.isin(sol.t, want)
-            ts.append(sol.t[mask])
-            ys.append(sol.y[:, mask])
-        y = sol.y[:, -1]
-    t = np.concatenate(ts)
-    X = np.concatenate(ys, axis=1).reshape((2,) + batch + (len(t),))
-    pt = None if p is None else {k: (np.asarray(v)[..., None] if np.ndim(v) > _PARAM_NDIM[k] else v) for k, v in p.items()}
-    y_out = outputs(t, X, pt, u)
-    return SimResult(t, X, y_out, stats)
+            self.x = np.empty((y0.size, len(times)))
+            self.k = int(np.searchsorted(self.d * times, self.d * t0, side="right"))
+            self.x[:, :self.k] = y0[:, None]  # the output time t0 itself
+
+    def add(self, solver):
+        """Record the step the solver just took."""
+        if self.times is None:
+            self.ts.append(solver.t)
+            self.ys.append(solver.y.copy())
+            return
+        k = self.k
+        end = k + int(np.searchsorted(self.d * self.times[k:], self.d * solver.t, side="right"))
+        if end > k:
+            self.x[:, k:end] = solver.dense_output()(self.times[k:end])
+            if self.times[end - 1] == solver.t:
+                self.x[:, end - 1] = solver.y
+        self.k = end
+
+    def arrays(self):
+        """(t, x) with x of shape (n * batch, len(t))."""
+        if self.times is None:
+            return np.array(self.ts), np.stack(self.ys, axis=-1)
+        return self.times, self.x
+
+
+def _counts(stats, solver):
+    """The statistics so far: the finished segments' plus the running solver's."""
+    return {**stats, "njev": stats["njev"] + int(solver.njev),
+            "nlu": stats["nlu"] + int(solver.nlu)}
+
+
+def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, u=None,
+             x0=None, dt=None, breakpoints=(), jac=True, max_step=np.inf, max_steps=50_000,
+             stiff_check=True, max_wall=None):
+    """Integrate over t_span with one of scipy's OdeSolver classes; returns SimResult (t, x, y).
+
+    method: one of METHODS. rtol; atol a scalar or one value per state. p: parameter overrides;
+    arrays of shape B integrate the instances of B at once (the state is flattened; implicit
+    methods get the block-diagonal Jacobian, sparse). u: input overrides {name: callable(t)}.
+    x0: initial state (default initial_state(p)). t_eval, or dt (a uniform grid): output
+    times, read off each step's dense output (default: every step). breakpoints: instants
+    where inputs jump; each segment between them is a fresh solver, and inside (a, c) the
+    model sees t only in [a, c) (one-sided inputs). jac: implicit methods get the analytic
+    Jacobian, or with jac=False finite differences over JAC_SPARSITY. max_step: the solver's.
+    stiff_check (explicit methods): raise StiffnessError when stability would hold the steps
+    down so far that the rest of the span needs more than max_steps of them, judged from the
+    Jacobian at the start and, while integrating, from steps held at the stability limit.
+    max_wall: seconds; SimulationError once the wall time is exceeded.
+    Statistics in result.stats: nfev (rhs calls), njev, nlu, nsteps (accepted steps), nstiff
+    (stiffness checks), summed over the segments.
+    """
+    import time
+
+    import scipy.integrate
+
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}: one of {', '.join(METHODS)}")
+    deadline = np.inf if max_wall is None else time.perf_counter() + max_wall
+    x0, batch = _batched(x0, p)
+    p_raw, p = p, _params(p)  # unpacked once: the solver calls rhs thousands of times
+    shape = (N_STATES,) + batch
+    y = np.array(x0, dtype=float).reshape(-1)
+    atol = _flat_atol(atol, batch)
+    t0, t1 = float(t_span[0]), float(t_span[1])
+    path = _Trajectory(t0, t1, y, _output_times(t0, t1, t_eval, dt))
+    stats = {"nfev": 0, "njev": 0, "nlu": 0, "nsteps": 0, "nstiff": 0}
+    segments = _segments(t0, t1, breakpoints)
+    watch = None
+    if stiff_check and method in _STABILITY and segments:
+        # stiff from the start: the Jacobian at t0 asks for more than max_steps steps
+        stats["nstiff"] += 1
+        lam = _eigenvalues(t0, y, shape, p, u)
+        _, steps, why = _stiffness(method, t0, t1, lam)
+        if steps > max_steps:
+            raise _error(StiffnessError, _stiff_message(method, t0, why), t0, stats)
+        watch = _StiffnessWatch(method, t1, max_steps)
+    for a, c in segments:
+        at = _one_sided(a, c)
+        solver = getattr(scipy.integrate, method)(
+            _flat_rhs(at, shape, p, u, stats), a, y, c, rtol=rtol, atol=atol,
+            max_step=max_step, **_jacobian_options(method, jac, at, shape, p, u))
+        while solver.status == "running":
+            message = solver.step()
+            if solver.status == "failed":
+                raise _error(SimulationError, f"{method} failed at t = {solver.t:.6g}: "
+                             f"{message}", solver.t, _counts(stats, solver))
+            stats["nsteps"] += 1
+            path.add(solver)
+            if time.perf_counter() > deadline:
+                raise _error(SimulationError, f"{method} stopped at t = {solver.t:.6g}: the "
+                             f"wall time exceeded max_wall = {max_wall:g} s", solver.t,
+                             _counts(stats, solver))
+            if watch is not None and watch.due():
+                # stiff by now: the accepted steps are held at the stability limit
+                stats["nstiff"] += 1
+                lam = _eigenvalues(at(solver.t), solver.y, shape, p, u)
+                stiff = watch.check(solver.t, solver.step_size, lam)
+                if stiff:
+                    raise _error(StiffnessError, stiff, solver.t, _counts(stats, solver))
+        stats.update(_counts(stats, solver))
+        y = solver.y
+    t, X = path.arrays()
+    X = X.reshape(shape + (len(t),))
+    # batched parameters get a trailing axis for the output times
+    pt = None if p_raw is None else {
+        name: np.asarray(v)[..., None] if np.ndim(v) > _PARAM_NDIM[name] else v
+        for name, v in p_raw.items()}
+    return SimResult(t, X, outputs(t, X, pt, u), stats)

@@ -52,6 +52,24 @@ def test_reference_agreement_is_tiny(small_study):
     assert st.refs[0].y["position"][-1] == pytest.approx(0.05, rel=0.05)
 
 
+def test_reference_passes_the_step_at_the_default_ref_rtol(setup):
+    """Radau at rtol 1e-12 (the study's default reference tolerance) through the force step
+    at the breakpoint; simulate keeps the input one-sided at the segment's end (before, the
+    study had to clamp t itself). Closed form: at rest until t = 1, then the underdamped
+    step response x = F0/k [1 - e^(-z wn s)(cos wd s + z/sqrt(1-z^2) sin wd s)], s = t - 1,
+    with the scene's m = 3 kg (k = 200 N/m, c = 4 N s/m, F0 = 10 N)."""
+    short = replace(setup, t_span=(0.0, 1.5), t_eval=setup.t_eval[setup.t_eval <= 1.5])
+    res, stats = A.solve(short, "Radau", 1e-12, 1e-15)
+    assert res.t[-1] == 1.5
+    assert stats["nsteps"] > 0 and stats["nfev"] >= stats["nsteps"]
+    m, k, c, F0 = 3.0, 200.0, 4.0, 10.0
+    wn, z = np.sqrt(k / m), c / (2 * np.sqrt(k * m))
+    r = np.sqrt(1 - z * z)
+    s = np.maximum(res.t - 1.0, 0.0)
+    x = F0 / k * (1 - np.exp(-z * wn * s) * (np.cos(wn * r * s) + z / r * np.sin(wn * r * s)))
+    np.testing.assert_allclose(res.y["position"], x, rtol=0, atol=1e-12)
+
+
 def test_radau_error_decreases_as_the_tolerance_tightens(small_study):
     rs = sorted((r for r in small_study.runs if r.method == "Radau"), key=lambda r: -r.rtol)
     assert [r.status for r in rs] == ["ok"] * len(TOLS)
@@ -61,6 +79,9 @@ def test_radau_error_decreases_as_the_tolerance_tightens(small_study):
     assert errs[-1] < errs[0] / 100  # and by a lot over four decades
     assert all(r.err < 100 * r.rtol for r in rs)
     assert all(r.nfev > 0 and r.njev > 0 and r.wall > 0 for r in rs)
+    assert all(0 < r.nsteps <= r.nfev for r in rs)
+    steps = [r.nsteps for r in rs]
+    assert steps[-1] > steps[0]  # tighter tolerances take more steps
     assert set(rs[0].err_abs) == {"position", "velocity"}
 
 
@@ -92,7 +113,7 @@ def test_failure_is_reported_not_raised(setup, small_study):
         raise SimulationError("Radau failed at t = 0.5: step size too small")
 
     fake = types.SimpleNamespace(**{k: getattr(setup.module, k) for k in
-                                    ("rhs", "jacobian", "STATE_NAMES")},
+                                    ("rhs", "jacobian", "STATE_NAMES", "JAC_SPARSITY")},
                                  simulate=simulate, SimulationError=SimulationError)
     r = A.measure(replace(setup, module=fake), small_study.refs[0], "Radau", 1e-6)
     assert r.status == "failed" and "step size too small" in r.message
@@ -131,9 +152,14 @@ def test_files_are_written(small_study, tmp_path):
     assert {r["kind"] for r in rows} == {"reference", "study", "jacobian"}
     assert len([r for r in rows if r["kind"] == "study"]) == 2 * len(TOLS)
     assert "err_abs_position" in rows[0]
+    study = [r for r in rows if r["kind"] == "study"]
+    assert [int(r["nsteps"]) for r in study] == [r.nsteps for r in small_study.runs]
+    assert all(int(r["nsteps"]) > 0 for r in rows)
     md = (tmp_path / "msd_step_accuracy.md").read_text()
     assert "Reference agreement" in md and "| Radau | 1e-05 |" in md
     assert "atol = rtol x 0.001" in md
+    assert "| wall [s] | steps | rhs | Jac |" in md  # cheapest-run table
+    assert "| wall [s] (runs) | steps | rhs | Jac | LU |" in md  # all runs
 
 
 def test_parse_options():

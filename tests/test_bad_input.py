@@ -31,8 +31,6 @@ class Case:
     line: int
     col: int | None  # None where the column is not meaningful
     substr: str
-    # Found only when equations are derived (``bgc compile``; ``bgc check`` stops at causality).
-    late: bool = False
     where: str | None = None  # the file the error is located in, when not ``file``
 
 
@@ -86,7 +84,7 @@ CASES = [
     Case("reserved_param_sin", 8, 3, "invalid parameter name 'sin': reserved"),
     # parameters
     Case("param_out_of_range", 5, 14, "parameter 'm': value -2 is below its min 0"),
-    Case("derived_self", 6, 3, "parameter 'k' is defined in terms of itself", late=True),
+    Case("derived_self", 6, 3, "parameter 'k' is defined in terms of itself"),
     # expressions: the whitelist (column = the offending character)
     Case("expr_import", 11, 33, "element 'spring' (stiffness): only the built-in functions"),
     Case("expr_class", 11, 33, "element 'spring' (stiffness): attribute access"),
@@ -98,20 +96,18 @@ CASES = [
     Case("expr_comprehension", 11, 33, "ListComp is not allowed in an expression"),
     Case("expr_invalid_char", 11, 35, "invalid expression 'k $ 2'"),
     # expressions: meaning
-    Case("undefined_symbol", 11, 37, "C 'spring': undefined name 'kk'", late=True),
-    Case("index_out_of_range", 12, 37, "C 'spring': index 3 is out of range for size 3",
-         late=True),
-    Case("expr_division_by_zero", 11, 33, "C 'spring': the expression is infinite", late=True),
-    Case("expr_huge_power", 11, 36, "C 'spring': a number larger than 10**300", late=True),
-    Case("p_of_c", 18, 9, "output 'x': p() takes an I element, 'spring' is a C", late=True),
-    Case("se_vector_on_scalar", 9, 3, "Se 'force': cardinality mismatch: effort is 3x1",
-         late=True),
-    Case("matrix_on_n3", 6, 3, "I 'mass': cardinality mismatch: inertia is 2x2", late=True),
+    Case("undefined_symbol", 11, 37, "C 'spring': undefined name 'kk'"),
+    Case("index_out_of_range", 12, 37, "C 'spring': index 3 is out of range for size 3"),
+    Case("expr_division_by_zero", 11, 33, "C 'spring': the expression is infinite"),
+    Case("expr_huge_power", 11, 36, "C 'spring': a number larger than 10**300"),
+    Case("p_of_c", 18, 9, "output 'x': p() takes an I element, 'spring' is a C"),
+    Case("se_vector_on_scalar", 9, 3, "Se 'force': cardinality mismatch: effort is 3x1"),
+    Case("matrix_on_n3", 6, 3, "I 'mass': cardinality mismatch: inertia is 2x2"),
     # causality and algebraic loops
     Case("derivative_causality", 8, 3, "I 'flywheel_b' is forced into derivative causality by "
                                        "I 'flywheel_a'"),
     Case("causal_conflict", 6, 3, "Se 's2' and Se 's1' (through 0-junction 'node') both impose"),
-    Case("nonlinear_loop", 7, 3, "is nonlinear", late=True),
+    Case("nonlinear_loop", 7, 3, "is nonlinear"),
 ]
 
 BY_NAME = {c.file: c for c in CASES}
@@ -160,8 +156,6 @@ if sys.platform == "win32":  # pragma: no cover
 #: The cases that also go through the command line: a sample from every stage.
 CLI_CASES = ["yaml_syntax", "unknown_key", "self_loop", "expr_import", "import_cycle_a",
              "causal_conflict", "undefined_symbol", "nonlinear_loop"]
-#: Late cases whose ``bgc check`` run is skipped (one late case stays, as an expected failure).
-_NO_CHECK = {"nonlinear_loop"}
 
 
 def _run(args: list[str]) -> subprocess.CompletedProcess:
@@ -179,20 +173,15 @@ def cli_runs(tmp_path_factory):
     for name in CLI_CASES:
         rel = str(path_of(name).relative_to(ROOT))
         out = tmp_path_factory.mktemp(f"out_{name}")
-        if name not in _NO_CHECK:
-            jobs[(name, "check")] = (["check", rel], out)
+        jobs[(name, "check")] = (["check", rel], out)
         jobs[(name, "compile")] = (["compile", "-q", rel, "-o", str(out / "out.py")], out)
     with ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 2)) as pool:
         futures = {k: pool.submit(_run, args) for k, (args, _) in jobs.items()}
         return {k: (f.result(), jobs[k][1]) for k, f in futures.items()}
 
 
-_LATE_CHECK = pytest.mark.xfail(reason="bgc check stops after causality: errors found while "
-                                       "deriving the equations are reported by bgc compile only")
-CLI_PARAMS = [pytest.param(name, command, id=f"{name}-{command}",
-                           marks=_LATE_CHECK if command == "check" and BY_NAME[name].late else ())
-              for name in CLI_CASES for command in ("check", "compile")
-              if not (command == "check" and name in _NO_CHECK)]
+CLI_PARAMS = [pytest.param(name, command, id=f"{name}-{command}")
+              for name in CLI_CASES for command in ("check", "compile")]
 
 
 @pytest.mark.parametrize("name,command", CLI_PARAMS)

@@ -13,9 +13,10 @@ What is measured (everything through the generated module's own ``simulate``):
   unless given): the largest error over time of every scene output, in its units; an overall,
   dimensionless error = max over outputs of max|y - y_ref| / (max|y_ref| + atol_scale); the
   final-state error max_i |x_i(T) - x_ref,i(T)| / (max_t |x_ref,i| + atol_scale); wall time
-  (median of the repeats; fewer repeats when they would not fit in the budget); rhs and
-  Jacobian evaluations (finite-difference columns count as rhs evaluations); LU
-  decompositions; failures;
+  (median of the repeats; fewer repeats when they would not fit in the budget); accepted
+  steps; rhs and Jacobian evaluations (finite-difference columns count as rhs evaluations);
+  LU decompositions; failures (an explicit method on a stiff scene stops with simulate's
+  StiffnessError instead of spending the budget);
 * for Radau and BDF, the analytic Jacobian against finite differences over JAC_SPARSITY
   (``simulate(jac=False)``) and dense finite differences, measured side by side.
 
@@ -74,7 +75,6 @@ class Setup:
     outputs: tuple
     atol_scale: float
     compile_time: float = 0.0
-    one_sided: bool = True  # see _instrumented
 
 
 def prepare(scene_path, t_end=None, atol_scale=None, breakpoints=(), progress=None) -> Setup:
@@ -113,62 +113,44 @@ def prepare(scene_path, t_end=None, atol_scale=None, breakpoints=(), progress=No
 
 
 @contextlib.contextmanager
-def _instrumented(mod, deadline, dense_fd, counts, one_sided=True):
-    """Deadline checks in the module's rhs/jacobian; collect njev/nlu from every solve_ivp
-    call (finite-difference Jacobians are invisible to simulate's own stats); drop the
-    sparsity pattern for dense finite differences.
+def _instrumented(mod, deadline, dense_fd):
+    """Deadline checks in the module's rhs and jacobian: they raise BudgetExceeded once the
+    deadline has passed, even in the middle of a solver step. dense_fd: a full sparsity
+    pattern, so that finite differences take one rhs call per state per Jacobian.
 
-    one_sided: inside each segment (a, c) between breakpoints, the rhs and Jacobian see t
-    clamped to [a+, c-] (one ulp inside), so an input written where(t < c, ...) keeps its
-    left value at the segment's end. The generated simulate evaluates the rhs at t = c itself,
-    where the input has already jumped: Radau's last stage sits there, and at tight
-    tolerances the solver fails ("Required step size is less than spacing between numbers").
-    """
-    import scipy.integrate as si
+    (Inputs are one-sided at breakpoints inside the generated simulate itself.)"""
+    rhs0, jac0, pattern0 = mod.rhs, mod.jacobian, mod.JAC_SPARSITY
 
-    rhs0, jac0, ivp0 = mod.rhs, mod.jacobian, si.solve_ivp
-    seg = [-math.inf, math.inf]
-
-    def clamp(t):
-        return min(max(t, seg[0]), seg[1]) if one_sided else t
-
-    def rhs(t, *a, **k):
+    def rhs(*a, **k):
         if time.perf_counter() > deadline:
             raise BudgetExceeded("time budget exceeded")
-        return rhs0(clamp(t), *a, **k)
+        return rhs0(*a, **k)
 
-    def jacobian(t, *a, **k):
+    def jacobian(*a, **k):
         if time.perf_counter() > deadline:
             raise BudgetExceeded("time budget exceeded")
-        return jac0(clamp(t), *a, **k)
+        return jac0(*a, **k)
 
-    def solve_ivp(fun, t_span, *a, **k):
-        if dense_fd:
-            k.pop("jac_sparsity", None)
-        lo, hi = float(t_span[0]), float(t_span[1])
-        seg[:] = [np.nextafter(lo, hi), np.nextafter(hi, lo)]
-        sol = ivp0(fun, t_span, *a, **k)
-        counts["njev"] += int(getattr(sol, "njev", 0) or 0)
-        counts["nlu"] += int(getattr(sol, "nlu", 0) or 0)
-        return sol
-
-    mod.rhs, mod.jacobian, si.solve_ivp = rhs, jacobian, solve_ivp
+    mod.rhs, mod.jacobian = rhs, jacobian
+    if dense_fd:
+        mod.JAC_SPARSITY = np.ones_like(pattern0)
     try:
         yield
     finally:
-        mod.rhs, mod.jacobian, si.solve_ivp = rhs0, jac0, ivp0
+        mod.rhs, mod.jacobian, mod.JAC_SPARSITY = rhs0, jac0, pattern0
 
 
 def solve(setup: Setup, method, rtol, atol, jac_mode="analytic", deadline=math.inf):
-    """One simulate call; returns (SimResult, stats with solver-reported njev and nlu)."""
+    """One simulate call; returns (SimResult, stats: nfev, njev, nlu, nsteps).
+
+    njev counts every Jacobian the solver formed, finite-difference ones included (their rhs
+    calls are in nfev)."""
     mod = setup.module
-    counts = {"njev": 0, "nlu": 0}
-    with _instrumented(mod, deadline, jac_mode == "dense-fd", counts, setup.one_sided):
+    with _instrumented(mod, deadline, jac_mode == "dense-fd"):
         res = mod.simulate(setup.t_span, t_eval=setup.t_eval, method=method, rtol=rtol,
                            atol=atol, p=setup.p, breakpoints=setup.breakpoints,
                            jac=jac_mode == "analytic", max_step=setup.max_step)
-    stats = {"nfev": int(res.stats["nfev"]), "njev": counts["njev"], "nlu": counts["nlu"],
-             "njev_simulate": int(res.stats.get("njev", 0))}
+    stats = {k: int(res.stats[k]) for k in ("nfev", "njev", "nlu", "nsteps")}
     return res, stats
 
 
@@ -326,6 +308,7 @@ class Run:
     nfev: int = 0
     njev: int = 0
     nlu: int = 0
+    nsteps: int = 0  # accepted steps
     err: float = math.nan
     err_output: str = ""
     err_abs: dict = field(default_factory=dict)
@@ -371,7 +354,7 @@ def measure(setup: Setup, ref: Reference, method, rtol, atol=None, jac_mode="ana
     if status == "ok":
         walls, st, errs = val
         return replace(run, wall=float(np.median(walls)), walls=tuple(walls), nfev=st["nfev"],
-                       njev=st["njev"], nlu=st["nlu"], **errs)
+                       njev=st["njev"], nlu=st["nlu"], nsteps=st["nsteps"], **errs)
     if isinstance(val, BudgetExceeded):
         return replace(run, status="budget", message=f"exceeded the {budget:g} s budget")
     msg = str(val).strip().splitlines()[0] if str(val).strip() else type(val).__name__
@@ -445,7 +428,8 @@ def study(setup: Setup, methods=METHODS, tols=DEFAULT_TOLS, budget=60.0, repeats
                           "(a convergence check, not an independent method)")
             say(check_note)
             r = reference(setup, ref_methods[0], 10 * ref_rtol, 10 * ref_atol, ref_budget)
-        say(f"reference: {r.method} done in {r.wall:.2f} s ({r.stats['nfev']} rhs, "
+        say(f"reference: {r.method} done in {r.wall:.2f} s ({r.stats['nsteps']} steps, "
+            f"{r.stats['nfev']} rhs, "
             f"{r.stats['njev']} Jacobians)")
         refs.append(r)
     ref_methods = tuple(r.method for r in refs)
@@ -487,7 +471,8 @@ def _line(r: Run) -> str:
     if r.status != "ok":
         return f"{head} {r.status.upper()} {r.message}"
     return (f"{head} error {r.err:.2e}, final {r.final_err:.2e}, {r.wall:.3f} s "
-            f"(median of {len(r.walls)}), {r.nfev} rhs, {r.njev} Jac, {r.nlu} LU")
+            f"(median of {len(r.walls)}), {r.nsteps} steps, {r.nfev} rhs, {r.njev} Jac, "
+            f"{r.nlu} LU")
 
 
 # --------------------------------------------------------------------------------------------
@@ -505,8 +490,8 @@ def _fmt(v, spec=".2e"):
 def write_csv(st: Study, path):
     outs = st.setup.outputs
     cols = ["kind", "method", "jacobian", "rtol", "atol", "status", "message", "wall_s",
-            "n_repeats", "walls_s", "nfev", "njev", "nlu", "err", "err_output", "err_abs_max",
-            "final_err", "final_err_state"] + [f"err_abs_{o}" for o in outs]
+            "n_repeats", "walls_s", "nsteps", "nfev", "njev", "nlu", "err", "err_output",
+            "err_abs_max", "final_err", "final_err_state"] + [f"err_abs_{o}" for o in outs]
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(cols)
@@ -514,7 +499,7 @@ def write_csv(st: Study, path):
     for ref in st.refs:
         rows.append(Run(ref.method, ref.rtol, ref.atol, "analytic", "ok", "reference",
                         ref.wall, (ref.wall,), ref.stats["nfev"], ref.stats["njev"],
-                        ref.stats["nlu"], kind="reference"))
+                        ref.stats["nlu"], ref.stats["nsteps"], kind="reference"))
     rows[-1] = replace(rows[-1], message="reference (errors: against the first)",
                        **{k: st.agreement[k] for k in ("err", "err_output", "err_abs",
                                                        "err_abs_max", "final_err",
@@ -522,7 +507,7 @@ def write_csv(st: Study, path):
     for r in rows + st.runs + st.jac_runs:
         w.writerow([r.kind, r.method, r.jac, f"{r.rtol:g}", f"{r.atol:g}", r.status, r.message,
                     _fmt(r.wall, ".6g"), len(r.walls), " ".join(f"{x:.4g}" for x in r.walls),
-                    r.nfev, r.njev, r.nlu, _fmt(r.err, ".6e"), r.err_output,
+                    r.nsteps, r.nfev, r.njev, r.nlu, _fmt(r.err, ".6e"), r.err_output,
                     _fmt(r.err_abs_max, ".6e"), _fmt(r.final_err, ".6e"), r.final_err_state]
                    + [_fmt(r.err_abs.get(o, math.nan), ".6e") for o in outs])
     _write(path, buf.getvalue())
@@ -570,42 +555,44 @@ def write_markdown(st: Study, path, images=()):
              "(max_t |x_ref,i| + atol scale).")
     L.append(f"* Wall time: median of up to {s['repeats']} runs within a {s['budget']:g} s "
              "budget per (method, tolerance), each in a forked child with a hard limit; "
-             "rhs counts include finite-difference columns; 'Jac' counts Jacobian "
+             "'steps' counts accepted steps; rhs counts include finite-difference "
+             "columns; 'Jac' counts Jacobian "
              "evaluations (analytic or finite-difference).\n")
     L.append("## Cheapest run reaching an error\n")
-    L.append("| error <= | method | rtol | error | wall [s] | rhs | Jac |")
-    L.append("|---|---|---|---|---|---|---|")
+    L.append("| error <= | method | rtol | error | wall [s] | steps | rhs | Jac |")
+    L.append("|---|---|---|---|---|---|---|---|")
     for target in (1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8):
         if target < a["err"]:
             continue
         r = cheapest(st.runs, target)
         if r is None:
-            L.append(f"| {target:.0e} | none | | | | | |")
+            L.append(f"| {target:.0e} | none | | | | | | |")
         else:
             L.append(f"| {target:.0e} | {r.method} | {r.rtol:.0e} | {r.err:.2e} | "
-                     f"{r.wall:.3g} | {r.nfev} | {r.njev} |")
+                     f"{r.wall:.3g} | {r.nsteps} | {r.nfev} | {r.njev} |")
     L.append("")
     L.append("## All runs (analytic Jacobian for the implicit methods)\n")
     L.append("| method | rtol | atol | status | error | worst output | max abs error "
-             "| final-state error | wall [s] (runs) | rhs | Jac | LU |")
-    L.append("|---|---|---|---|---|---|---|---|---|---|---|---|")
+             "| final-state error | wall [s] (runs) | steps | rhs | Jac | LU |")
+    L.append("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in st.runs:
         if r.status == "ok":
             L.append(f"| {r.method} | {r.rtol:.0e} | {r.atol:.0e} | ok | {r.err:.2e} | "
                      f"{r.err_output} | {r.err_abs[r.err_output]:.2e} | {r.final_err:.2e} | "
-                     f"{r.wall:.3g} ({len(r.walls)}) | {r.nfev} | {r.njev} | {r.nlu} |")
+                     f"{r.wall:.3g} ({len(r.walls)}) | {r.nsteps} | {r.nfev} | {r.njev} | "
+                     f"{r.nlu} |")
         else:
             L.append(f"| {r.method} | {r.rtol:.0e} | {r.atol:.0e} | **{r.status}** | "
-                     f"{r.message} | | | | | | | |")
+                     f"{r.message} | | | | | | | | |")
     L.append("")
     if st.jac_runs:
         L.append("## Analytic Jacobian against finite differences\n")
         L.append("Sparse FD: `simulate(jac=False)`, scipy's grouped differences over "
                  "JAC_SPARSITY; dense FD: the same without the sparsity pattern (one rhs per "
                  "state per Jacobian). Ratios are FD / analytic, measured back to back.\n")
-        L.append("| method | rtol | Jacobian | status | error | wall [s] | wall ratio | rhs "
-                 "| Jac | rhs ratio | LU |")
-        L.append("|---|---|---|---|---|---|---|---|---|---|---|")
+        L.append("| method | rtol | Jacobian | status | error | wall [s] | wall ratio | steps "
+                 "| rhs | Jac | rhs ratio | LU |")
+        L.append("|---|---|---|---|---|---|---|---|---|---|---|---|")
         base = {}
         for r in st.jac_runs:
             if r.jac == "analytic":
@@ -613,13 +600,14 @@ def write_markdown(st: Study, path, images=()):
             b = base.get((r.method, r.rtol))
             if r.status != "ok":
                 L.append(f"| {r.method} | {r.rtol:.0e} | {r.jac} | **{r.status}** | "
-                         f"{r.message} | | | | | | |")
+                         f"{r.message} | | | | | | | |")
                 continue
             ok = b is not None and b.status == "ok"
             wr = f"{r.wall / b.wall:.2f}" if ok else ""
             fr = f"{r.nfev / b.nfev:.2f}" if ok and b.nfev else ""
             L.append(f"| {r.method} | {r.rtol:.0e} | {r.jac} | ok | {r.err:.2e} | "
-                     f"{r.wall:.3g} ({len(r.walls)}) | {wr} | {r.nfev} | {r.njev} | {fr} | "
+                     f"{r.wall:.3g} ({len(r.walls)}) | {wr} | {r.nsteps} | {r.nfev} | {r.njev} | "
+                     f"{fr} | "
                      f"{r.nlu} |")
         L.append("")
     for img in images:
@@ -725,6 +713,7 @@ class SweepPoint:
     njev: int = 0
     nlu: int = 0
     metrics: dict = field(default_factory=dict)
+    nsteps: int = 0
 
 
 def param_sweep(setup: Setup, param, values, metrics_fn, method="Radau", rtol=1e-6,
@@ -755,7 +744,8 @@ def param_sweep(setup: Setup, param, values, metrics_fn, method="Radau", rtol=1e
         status, val = run_isolated(work, budget + _GRACE)
         if status == "ok":
             wall, st, met = val
-            pt = SweepPoint(float(v), "ok", "", wall, st["nfev"], st["njev"], st["nlu"], met)
+            pt = SweepPoint(float(v), "ok", "", wall, st["nfev"], st["njev"], st["nlu"], met,
+                            st["nsteps"])
             say(f"{param} = {v:.3g}: {wall:.2f} s, {st['nfev']} rhs, " + ", ".join(
                 f"{k} {x:.3g}" for k, x in met.items()))
         else:

@@ -48,8 +48,10 @@ def main():
 @main.command("compile")
 @click.argument("model", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", type=click.Path(dir_okay=False), help="module to write "
-              "(default: generated/<name>.py beside the models folder, or ./<name>.py)")
-@click.option("--scene", type=click.Path(dir_okay=False), help="specialise for this scene")
+              "(default: generated/<name>.py beside the models folder, or ./<name>.py; with "
+              "--scene: ./<name>_<scene>.py)")
+@click.option("--scene", type=click.Path(dir_okay=False),
+              help="specialise for this scene (its signals, effects, parameters, outputs)")
 @click.option("-q", "--quiet", is_flag=True)
 def compile_cmd(model, output, scene, quiet):
     """Compile MODEL.yaml into a Python module."""
@@ -59,13 +61,19 @@ def compile_cmd(model, output, scene, quiet):
     prog = _Progress(quiet)
     prog("parsing")
     if scene:
-        from .scene import apply_scene, parse_scene
+        from .graph import build_graph
+        from .scene import apply_scene, check_outputs, parse_scene, plan_for
 
         sc = parse_scene(scene)
+        if Path(sc.model_path).resolve() != Path(model).resolve():
+            raise ModelError(sc.model_coord, f"the scene is for {sc.model_path}, not {model}")
         m = apply_scene(parse_file(model), sc)
+        c = compile_model(m, prog, plan_for(sc, build_graph(m).params))
+        check_outputs(sc, [o[0] for o in c.equations.outputs])
+        if output is None:
+            output = Path(f"{c.model.name}_{sc.name}.py")
     else:
-        m = parse_file(model)
-    c = compile_model(m, prog)
+        c = compile_model(parse_file(model), prog)
     if output is None:
         output = _default_output(Path(model), c.model.name)
     write_atomic(output, c.source)
@@ -83,14 +91,16 @@ def _default_output(model: Path, name: str) -> Path:
 @main.command("check")
 @click.argument("model", type=click.Path(dir_okay=False))
 def check_cmd(model):
-    """Parse MODEL.yaml, assign causality and list bonds, states and warnings."""
+    """Check MODEL.yaml completely (up to the equations) and list causality, states, warnings."""
     from .causality import assign_causality
+    from .equations import derive
     from .graph import build_graph
     from .parse import parse_file
 
     m = parse_file(model)
     bg = build_graph(m)
     caus = assign_causality(bg)
+    eqs = derive(bg, caus)  # every expression built and checked, as `bgc compile` would
     out = io.StringIO()
     out.write(f"model {m.name}: {len(bg.elements)} elements, {len(bg.bonds)} bonds\n\n")
     out.write("causality (the stroke is at the end that receives the effort):\n")
@@ -112,13 +122,13 @@ def check_cmd(model):
             states.append(f"{el.id}.{'p' if el.type == 'I' else 'q'}" + (f" ({n})" if n > 1 else ""))
     for st in bg.states:
         states.append(f"{st.id}" + (f" {list(st.shape)}" if st.shape else ""))
-    n_states = sum(bg.bonds_of(el.id)[0].n for el in bg.elements if el.type in ("I", "C"))
-    n_states += sum(int(np.prod(st.shape)) if st.shape else 1 for st in bg.states)
-    out.write(f"\nstates ({n_states} scalars):\n")
+    out.write(f"\nstates ({len(eqs.states)} scalars):\n")
     for s in states:
         out.write(f"  {s}\n")
     all_integral = not caus.derivative
     out.write(f"\ncausality: {'all storage elements integral' if all_integral else 'derivative'}\n")
+    for loop in eqs.loops:
+        out.write(f"note: {loop}\n")
     for wmsg in caus.warnings:
         out.write(f"warning: {wmsg}\n")
     click.echo(out.getvalue(), nl=False)
@@ -183,6 +193,50 @@ def simulate_cmd(scene, out, plot_dir, method, rtol, quiet):
                f"{res.method} rtol={res.rtol:g}: {st['nfev']} rhs calls, {st['njev']} Jacobians, "
                f"{st.get('nlu', 0)} LU; compile {res.compile_time:.2f} s, "
                f"integrate {res.run_time:.2f} s")
+
+
+@main.command("explain")
+@click.argument("scene", type=click.Path(dir_okay=False))
+@click.option("--rounds", type=click.IntRange(1, 100), default=7, show_default=True,
+              help="interleaved timing rounds of the rhs (the median is shown)")
+@click.option("-q", "--quiet", is_flag=True)
+def explain_cmd(scene, rounds, quiet):
+    """Full model against SCENE's specialisation: states, operations, cost of one rhs call."""
+    from .runner import explain_scene
+
+    prog = _Progress(quiet)
+    ex = explain_scene(scene, progress=prog)
+    prog("timing the rhs")
+    kept, removed = ex.states
+    (ofull, ospec), (cfull, cspec) = ex.ops(), ex.rhs_cost(rounds)
+    sc = ex.scene
+    out = io.StringIO()
+    out.write(f"scene {sc.name}: model {ex.full.model.name} ({sc.model_path})\n")
+    if ex.same:
+        out.write("the scene changes nothing: its module is the full model\n")
+    w = 24
+
+    def row(label, a, b, fmt="{}"):
+        ratio = f"{b / a:.2f}" if a else "-"
+        out.write(f"  {label:<{w}} {fmt.format(a):>10} {fmt.format(b):>10} {ratio:>7}\n")
+
+    out.write(f"  {'':<{w}} {'full':>10} {'scene':>10} {'ratio':>7}\n")
+    row("states", len(ex.full_module.STATE_NAMES), len(kept))
+    row("outputs", len(ex.full_module.OUTPUT_NAMES), len(ex.module.OUTPUT_NAMES))
+    row("rhs operations", ofull["rhs"], ospec["rhs"])
+    row("jacobian operations", ofull["jacobian"], ospec["jacobian"])
+    row("Jacobian nonzeros", len(ex.full.equations.jacobian), len(ex.special.equations.jacobian))
+    row("rhs call [us]", cfull * 1e6, cspec * 1e6, "{:.1f}")
+    out.write(f"  compile: full {ex.compile_time[0]:.2f} s, scene {ex.compile_time[1]:.2f} s\n")
+    out.write(f"\nstates kept ({len(kept)}): {', '.join(kept) or 'none'}\n")
+    out.write(f"states removed ({len(removed)}): {', '.join(removed) or 'none'}\n")
+    if ex.special.notes:
+        out.write("\nwhat the scene changed (as in the module's header):\n")
+        for note in ex.special.notes:
+            out.write(f"  - {note}\n")
+    out.write(f"\n(operations after CSE, counted in the generated code; rhs cost: median of "
+              f"{rounds} interleaved rounds at the initial state, default parameters)\n")
+    click.echo(out.getvalue(), nl=False)
 
 
 def _register_accuracy():

@@ -6,12 +6,14 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from .causality import Causality, assign_causality
+from .causality import Causality, assign_causality, derivative_message
 from .emit import render
 from .equations import Equations, derive
+from .errors import ModelError
 from .graph import BondGraph, build_graph
 from .parse import Model, parse_file
-from .specialize import Plan, recausal, remove_effects, slice_outputs
+from .specialize import (Plan, known_effects, recausal, remove_effects, select_outputs,
+                         slice_outputs, state_owners, states_note)
 
 
 @dataclass(frozen=True)
@@ -21,6 +23,7 @@ class Compiled:
     causality: Causality
     equations: Equations
     source: str  # the generated module's text
+    notes: tuple[str, ...] = ()  # what specialisation removed and why (also in the header)
 
 
 def analyse(model: Model, progress=None, allow_derivative: bool = False
@@ -33,27 +36,35 @@ def analyse(model: Model, progress=None, allow_derivative: bool = False
 
 
 def compile_model(model: Model, progress=None, plan: Plan | None = None) -> Compiled:
-    """Compile a model, specialised to a scene's plan (effects, folded parameters, outputs)."""
+    """Compile a model, specialised to a scene's plan (effects, folded parameters, outputs).
+
+    A plan that changes nothing gives exactly the module of the model alone."""
     say = progress or (lambda msg: None)
     special = plan is not None and not plan.trivial
     graph, caus = analyse(model, progress, allow_derivative=special)
+    if plan is not None:  # every effect the scene names (on or off) must exist
+        effects = known_effects(graph)
+        for eff in list(plan.effect_coords) + sorted(plan.effects_off):
+            if eff not in effects:
+                raise ModelError(plan.effect_coords.get(eff, plan.coord),
+                                 f"the model has no effect {eff!r} (effects: "
+                                 f"{', '.join(sorted(effects)) or 'none'})")
     notes: list[str] = []
-    fold, zero = None, None
+    fold, zero, rem = None, None, None
     if special:
         say("specialising for the scene")
-        notes.append(f"specialised for scene {plan.scene!r}")
-        if plan.effects_off:
-            notes.append("effects off: " + ", ".join(sorted(plan.effects_off)))
-            rem = remove_effects(graph, plan.effects_off)
-            caus, moved = recausal(graph, caus, rem, plan.effects_off)
-            graph, zero = rem.graph, rem.zero
-            notes += list(rem.notes) + list(moved)
-        elif caus.derivative:
-            from .causality import derivative_message
-            from .errors import ModelError
-
+        full_states = state_owners(graph, caus)
+        if caus.derivative:  # the full model must be sound before anything is removed
             raise ModelError(graph.element(caus.derivative[0]).coord,
                              derivative_message(graph, caus))
+        rem = remove_effects(graph, plan.effects_off, plan.coord)
+        if plan.effects_off:
+            notes.append("effects off: " + ", ".join(sorted(plan.effects_off)))
+            caus, cnotes = recausal(graph, caus, rem, plan)
+            notes += list(rem.notes) + list(cnotes)
+        spec_graph, onotes = select_outputs(graph, rem, plan)
+        notes += list(onotes)
+        graph, zero = spec_graph, (rem.zero or None)
         if plan.fold:
             fold = plan.fold
             notes.append("parameters folded in as constants: " + ", ".join(
@@ -61,15 +72,22 @@ def compile_model(model: Model, progress=None, plan: Plan | None = None) -> Comp
     say("deriving equations")
     eqs = derive(graph, caus, progress, fold=fold, zero=zero)
     if special and plan.outputs:
-        eqs, snotes = slice_outputs(eqs, plan.outputs)
+        say("slicing to the requested outputs")
+        eqs, snotes, _ = slice_outputs(eqs)
         notes += list(snotes)
+    if special and len(eqs.states) < len(full_states):
+        notes.append(states_note(full_states, {sv.name for sv in eqs.states}, rem))
+    if notes:
+        notes.insert(0, f"specialised for scene {plan.scene!r}")
     text = render(eqs, source=Path(model.file).name, source_hash=model.source_hash,
                   description=model.description, header_notes=tuple(notes), progress=progress)
-    return Compiled(model, graph, caus, eqs, text)
+    return Compiled(model, graph, caus, eqs, text, tuple(notes))
 
 
 def _short(v) -> str:
-    return repr(v) if not isinstance(v, tuple) else "matrix"
+    if isinstance(v, tuple):
+        return "[" + ", ".join(_short(r) if isinstance(r, tuple) else repr(r) for r in v) + "]"
+    return repr(v)
 
 
 def compile_file(path: str | Path, progress=None) -> Compiled:

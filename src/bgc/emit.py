@@ -57,6 +57,19 @@ class BgcPrinter(NumPyPrinter):
             return f"1/{self._module_format('numpy.sqrt')}({self._print(b)})"
         return super()._print_Pow(expr, rational=rational)
 
+    def _print_Mul(self, expr):
+        # CodePrinter._print_Mul writes a lone denominator factor after "/" without
+        # parentheses, trusting that a power binds tighter than "/". _print_Pow writes b**2 as
+        # the product b*b, so x/b**2 would come out as x/b*b (= x): parenthesise it.
+        s = super()._print_Mul(expr)
+        den = [f for f in sp.Mul.make_args(expr) if f.is_commutative and f.is_Pow
+               and f.exp.is_Rational and f.exp.is_negative]
+        if len(den) == 1 and den[0].exp == -2:
+            d = self._print(sp.Pow(den[0].base, 2, evaluate=False))
+            if s.endswith("/" + d):
+                s = f"{s[:-len(d)]}({d})"
+        return s
+
     def _print_Piecewise(self, expr):
         # where(c0, a0, where(c1, a1, ... default))
         *pairs, last = expr.args

@@ -636,7 +636,7 @@ def _causal_order(bg: BondGraph, defs: dict, owner: dict):
                 continue
         comp = sorted(comp, key=index.get)
         els = sorted({owner[s] for s in comp})
-        desc = ", ".join(f"{bg.element(e).type} {e!r}" for e in els)
+        desc = ", ".join(_kind(bg.element(e)) for e in els)
         eqs = [s - defs[s].expr for s in comp]
         try:
             A, rhs = sp.linear_eq_to_matrix(eqs, comp)
@@ -662,6 +662,11 @@ def _causal_order(bg: BondGraph, defs: dict, owner: dict):
                     g.add_edge(dep, s)
     order = schedule(g, index)
     return order, loops
+
+
+def _kind(el: FlatElement) -> str:
+    """'R 'load'', '0-junction 'node''."""
+    return f"{el.type}-junction {el.id!r}" if el.type in ("0", "1") else f"{el.type} {el.id!r}"
 
 
 def schedule(g: nx.DiGraph, index: dict) -> list:

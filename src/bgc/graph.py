@@ -14,6 +14,7 @@ import networkx as nx
 
 from .errors import Coord, ModelError
 from .expr import Expr
+from .parse import ELEMENT_TYPES as _TYPES
 from .parse import JUNCTIONS, STORAGE, TWO_PORTS, Body, Component, Model
 
 MAX_DEPTH = 8
@@ -237,8 +238,6 @@ class _Flattener:
         raise ModelError(coord, f"bond {bname!r}: {head!r} is a {kind}, not an element")
 
 
-_TYPES = ("Se", "Sf", "C", "I", "R", "TF", "GY", "MTF", "MGY", "0", "1")
-
 
 def _check(bg: BondGraph) -> None:
     for el in bg.elements:
@@ -264,7 +263,6 @@ def _check(bg: BondGraph) -> None:
             if n != 1:
                 raise ModelError(el.coord, f"{el.type} {el.id!r} is a one-port element: it needs "
                                            f"exactly one bond, it has {n}")
-            if el.type in ("Se", "Sf") and bonds[0].dst == el.id:
-                pass  # a source on an incoming bond is a sink: allowed, power sign follows
+            # (a source whose bond points into it absorbs power: allowed, the sign follows)
         if el.type in STORAGE and el.law is None:
             raise ModelError(el.coord, f"{el.type} {el.id!r} has no constitutive law")

@@ -419,16 +419,11 @@ def parse_text(text: str, path: str = "<model>", _seen: tuple[str, ...] = ()) ->
             inputs.append(Input(iname, default, shape, r.coord(kn), unit))
 
     body = _body(r, top, root, "the model", is_component=False)
-    names = _check_unique(body, inputs)
-    for c in components:
-        for el in body.elements:
-            pass
-    model = Model(name=name, file=path, body=body, inputs=tuple(inputs),
+    _check_unique(body, inputs)
+    return Model(name=name, file=path, body=body, inputs=tuple(inputs),
                   components=tuple(components), description=description,
                   source_hash=hashlib.sha256(text.encode()).hexdigest()[:16],
                   coord=r.coord(root))
-    del names
-    return model
 
 
 def _imports(r: _Reader, node, seen) -> list[Component]:
@@ -579,12 +574,7 @@ def _element(r: _Reader, ename: str, kn, vn) -> Element:
             if key in ("type", "effects", "description"):
                 continue
             check_name(key, r.coord(ak), "parameter")
-            if isinstance(av, yaml.SequenceNode) and all(
-                    isinstance(x, yaml.SequenceNode) for x in av.value):
-                val = r.expr(av, f"{ename}.{key}")
-            else:
-                val = r.expr(av, f"{ename}.{key}")
-            args.append((key, val, r.coord(av)))
+            args.append((key, r.expr(av, f"{ename}.{key}"), r.coord(av)))
         return Element(ename, etype, r.coord(kn), args=tuple(args), effects=effects)
     allowed = ("type", "initial", "effects", "description") + LAWS[etype]
     for key, (ak, _) in em.items():

@@ -1,4 +1,15 @@
-"""PNG figures of a simulation: outputs against time, 3-D paths, loci of unit vectors."""
+"""PNG figures of a simulation: outputs against time, 3-D paths, loci of unit vectors.
+
+Every output array has time on its last axis. Three kinds of figure, chosen by a scene's
+``plots`` list (kind, outputs, labels, title):
+
+* ``time``: one panel per output, stacked on a shared time axis (angles that swing by 0.07 rad
+  and by 1 rad stay readable side by side); vector outputs draw every component in their panel.
+* ``path3d``: 3-vector outputs as curves, in a 3-D view and seen from above (X-Y), on equal
+  scales, so a circle looks like a circle and the gap between two paths is visible.
+* ``loci``: the tips of a rotation matrix's three columns (unit vectors), one panel each, with
+  equal scales on the three axes.
+"""
 from __future__ import annotations
 
 from pathlib import Path
@@ -13,12 +24,15 @@ def _mpl():
     import matplotlib.pyplot as plt
 
     plt.rcParams.update({"figure.dpi": 110, "axes.grid": True, "grid.alpha": 0.3,
-                         "font.size": 9})
+                         "font.size": 9, "axes.formatter.useoffset": False,
+                         "axes.formatter.limits": (-3, 4),
+                         "axes.unicode_minus": False})
     return plt
 
 
 def _components(name, arr):
     """(label, series over time) for every component of an output, time on the last axis."""
+    arr = np.asarray(arr)
     if arr.ndim == 1:
         return [(name, arr)]
     flat = arr.reshape(-1, arr.shape[-1])
@@ -30,36 +44,68 @@ def _components(name, arr):
     return out
 
 
+def _label(labels, k, default):
+    return labels[k] if k < len(labels) else default
+
+
 def plot_time(t, y, names, path, title="", labels=()):
     plt = _mpl()
-    fig, ax = plt.subplots(figsize=(7.5, 4.2))
-    k = 0
-    for name in names:
-        for lab, series in _components(name, y[name]):
-            ax.plot(t, series, lw=1.4, label=labels[k] if k < len(labels) else lab)
-            k += 1
-    ax.set_xlabel("t [s]")
-    ax.set_title(title or ", ".join(names))
-    ax.legend(loc="best", fontsize=8)
+    fig, axes = plt.subplots(len(names), 1, sharex=True, squeeze=False,
+                             figsize=(7.5, 1.2 + 1.75 * len(names)))
+    for k, (name, ax) in enumerate(zip(names, axes[:, 0])):
+        comps = _components(name, y[name])
+        for lab, series in comps:
+            ax.plot(t, series, lw=1.4, label=lab)
+        ax.set_ylabel(_label(labels, k, name))
+        if len(comps) > 1:
+            ax.legend(loc="best", fontsize=7, ncol=min(len(comps), 3))
+    axes[-1, 0].set_xlabel("t [s]")
+    fig.suptitle(title or ", ".join(names))
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
 
 
+def _equal_3d(ax, pts):
+    """Equal scales on the three axes of a 3-D plot around the points (3, N)."""
+    lo, hi = pts.min(axis=1), pts.max(axis=1)
+    mid, half = (lo + hi) / 2, max(float(np.max(hi - lo)) / 2, 1e-12)
+    ax.set_xlim(mid[0] - half, mid[0] + half)
+    ax.set_ylim(mid[1] - half, mid[1] + half)
+    ax.set_zlim(mid[2] - half, mid[2] + half)
+    ax.set_box_aspect((1, 1, 1))
+    from matplotlib.ticker import MaxNLocator
+
+    for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
+        axis.set_major_locator(MaxNLocator(4))
+
+
+_STYLES = ["--", ":", "-", "-."]
+
+
 def plot_path3d(t, y, names, path, title="", labels=()):
     plt = _mpl()
-    fig = plt.figure(figsize=(6.5, 5.5))
-    ax = fig.add_subplot(projection="3d")
-    styles = ["--", ":", "-", "-."]
+    fig = plt.figure(figsize=(11, 5))
+    ax = fig.add_subplot(1, 2, 1, projection="3d")
+    top = fig.add_subplot(1, 2, 2)
     for k, name in enumerate(names):
-        a = y[name]
-        ax.plot(a[0], a[1], a[2], styles[k % 4], lw=1.6 if k == len(names) - 1 else 1.2,
-                label=labels[k] if k < len(labels) else name)
-    ax.set_xlabel("X0 [m]")
-    ax.set_ylabel("Y0 [m]")
-    ax.set_zlabel("Z0 [m]")
-    ax.set_title(title or "path")
+        a = np.asarray(y[name]).reshape(3, -1)
+        kw = dict(lw=1.8 if k == len(names) - 1 else 1.2, label=_label(labels, k, name))
+        line, = ax.plot(a[0], a[1], a[2], _STYLES[k % 4], **kw)
+        top.plot(a[0], a[1], _STYLES[k % 4], color=line.get_color(), **kw)
+        top.plot(a[0, :1], a[1, :1], "o", ms=4, color=line.get_color())
+    allpts = np.concatenate([np.asarray(y[n]).reshape(3, -1) for n in names], axis=1)
+    _equal_3d(ax, allpts)
+    ax.set_xlabel("X0")
+    ax.set_ylabel("Y0")
+    ax.set_zlabel("Z0")
+    ax.set_title("3-D view")
     ax.legend(loc="upper left", fontsize=8)
+    top.set_aspect("equal", adjustable="datalim")
+    top.set_xlabel("X0")
+    top.set_ylabel("Y0")
+    top.set_title("seen from above (dots: start)")
+    fig.suptitle(title or "path")
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
@@ -69,16 +115,20 @@ def plot_loci(t, y, names, path, title="", labels=()):
     """Loci of the columns of a rotation matrix output (unit vectors)."""
     plt = _mpl()
     (name,) = names[:1]
-    R = y[name]
-    fig = plt.figure(figsize=(11, 3.8))
+    R = np.asarray(y[name])
+    fig = plt.figure(figsize=(12, 4.4))
     cols = labels or ("i", "j", "k")
     for c in range(3):
         ax = fig.add_subplot(1, 3, c + 1, projection="3d")
         v = R[:, c, :]
         ax.plot(v[0], v[1], v[2], lw=1.4)
-        ax.scatter([v[0, 0]], [v[1, 0]], [v[2, 0]], color="green", s=12, label="start")
-        ax.scatter([v[0, -1]], [v[1, -1]], [v[2, -1]], color="red", s=12, label="end")
-        ax.set_title(f"{name}: unit vector {cols[c]}")
+        ax.scatter([v[0, 0]], [v[1, 0]], [v[2, 0]], color="green", s=14, label="start")
+        ax.scatter([v[0, -1]], [v[1, -1]], [v[2, -1]], color="red", s=14, label="end")
+        _equal_3d(ax, v)
+        ax.set_xlabel("X0")
+        ax.set_ylabel("Y0")
+        ax.set_zlabel("Z0")
+        ax.set_title(f"unit vector {cols[c]} (column {c + 1} of {name})")
         ax.legend(fontsize=7)
     fig.suptitle(title or f"loci of the unit vectors of {name}")
     fig.tight_layout()
@@ -90,15 +140,14 @@ def write_plots(scene, t, y, outdir) -> list[Path]:
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     written = []
-    plots = scene.plots
-    if not plots:
+    if not scene.plots:
         for name in y:
             p = outdir / f"{scene.name}_{name}.png"
             plot_time(t, y, [name], p)
             written.append(p)
         return written
     fns = {"time": plot_time, "path3d": plot_path3d, "loci": plot_loci}
-    for k, pl in enumerate(plots):
+    for k, pl in enumerate(scene.plots):
         p = outdir / f"{scene.name}_{k + 1}_{pl.kind}.png"
         fns[pl.kind](t, y, list(pl.outputs), p, pl.title, pl.labels)
         written.append(p)

@@ -53,6 +53,8 @@ class Scene:
     coord: Coord | None = None
     source_hash: str = ""
     free: tuple[str, ...] = ()  # scene parameters that stay parameters (not folded)
+    output_coords: dict = dataclasses.field(default_factory=dict)  # output -> Coord
+    model_coord: Coord | None = None  # where the scene names its model
 
 
 def parse_scene(path: str | Path) -> Scene:
@@ -105,11 +107,17 @@ def parse_scene(path: str | Path) -> Scene:
         for iname, (kn, vn) in r.mapping(top["inputs"][1], "inputs").items():
             check_name(iname, r.coord(kn), "input")
             inputs[iname] = (r.expr(vn, f"input {iname!r}"), r.coord(kn))
-    outputs = ()
+    outputs, output_coords = (), {}
     if "outputs" in top:
-        outputs = tuple(check_name(r.string(o, "output"), r.coord(o), "output",
-                                   allow_reserved=True)
-                        for o in r.seq(top["outputs"][1], "outputs"))
+        for o in r.seq(top["outputs"][1], "outputs"):
+            oname = check_name(r.string(o, "output"), r.coord(o), "output", allow_reserved=True)
+            if oname in output_coords:
+                raise ModelError(r.coord(o), f"output {oname!r} is listed twice")
+            output_coords[oname] = r.coord(o)
+        if not output_coords:
+            raise ModelError(r.coord(top["outputs"][1]), "outputs: list at least one output "
+                                                         "(leave the key out for all of them)")
+        outputs = tuple(output_coords)
     method, rtol, atol, dt, max_step = "Radau", 1e-6, 1e-9, None, float("inf")
     if "solver" in top:
         sm = r.mapping(top["solver"][1], "solver")
@@ -149,6 +157,10 @@ def parse_scene(path: str | Path) -> Scene:
             labels = tuple(r.string(o, "label") for o in r.seq(pm["labels"][1], "labels")) \
                 if "labels" in pm else ()
             title = r.string(pm["title"][1], "title") if "title" in pm else ""
+            for o, on in zip(outs, pm["outputs"][1].value):
+                if outputs and o not in output_coords:
+                    raise ModelError(r.coord(on), f"plot: output {o!r} is not among the "
+                                                  f"scene's outputs ({', '.join(outputs)})")
             plots.append(Plot(kind, outs, title, r.coord(pn), labels))
     effects = {}
     if "effects" in top:
@@ -162,13 +174,16 @@ def parse_scene(path: str | Path) -> Scene:
     free = ()
     if "free" in top:
         free = tuple(r.string(f, "free parameter") for f in r.seq(top["free"][1], "free"))
-        for f, fn in zip(free, top["free"][1].value):
+        for k, (f, fn) in enumerate(zip(free, top["free"][1].value)):
             if f not in params:
                 raise ModelError(r.coord(fn), f"free parameter {f!r} is not set by the scene's "
                                               "parameters (free keeps a scene value tunable)")
+            if f in free[:k]:
+                raise ModelError(r.coord(fn), f"free parameter {f!r} is listed twice")
     return Scene(path, name, model_path, (t0, t1), params, inputs, outputs, method, rtol, atol,
                  dt, max_step, bps, tuple(plots), effects, desc, r.coord(root),
-                 hashlib.sha256(text.encode()).hexdigest()[:16], free)
+                 hashlib.sha256(text.encode()).hexdigest()[:16], free, output_coords,
+                 r.coord(top["model"][1]))
 
 
 def apply_scene(model: Model, scene: Scene) -> Model:
@@ -185,11 +200,7 @@ def apply_scene(model: Model, scene: Scene) -> Model:
 
 def check_against(scene: Scene, module) -> None:
     """Scene plots must name outputs of the compiled module."""
-    for pl in scene.plots:
-        for o in pl.outputs:
-            if o not in module.OUTPUT_NAMES:
-                raise ModelError(pl.coord, f"plot: the module has no output {o!r} "
-                                           f"(outputs: {', '.join(module.OUTPUT_NAMES)})")
+    check_outputs(scene, module.OUTPUT_NAMES)
 
 
 def plan_for(scene: Scene, graph_params) -> "Plan":
@@ -205,7 +216,9 @@ def plan_for(scene: Scene, graph_params) -> "Plan":
         if pid not in scene.free:
             fold[pid] = v
     off = frozenset(k for k, (on, _) in scene.effects.items() if not on)
-    return Plan(off, fold, scene.outputs, scene.name)
+    return Plan(off, fold, scene.outputs, scene.name,
+                {k: c for k, (_, c) in scene.effects.items()}, dict(scene.output_coords),
+                scene.coord, tuple(f for f in scene.free))
 
 
 def param_values(scene: Scene) -> dict:
@@ -236,4 +249,24 @@ def load_module(source: str, name: str):
 
 
 def scene_model(scene: Scene) -> Model:
-    return apply_scene(parse_file(scene.model_path), scene)
+    """The scene's model: its input signals, and its values for the model's top-level
+    parameters in place of the defaults (the module keeps them as parameters unless the
+    scene's plan folds them in)."""
+    model = apply_scene(parse_file(scene.model_path), scene)
+    values = {k: v for k, (v, _) in scene.params.items()}
+    top = {p.name: p for p in model.body.params}
+    if not any(k in top and not isinstance(top[k].value, Expr) for k in values):
+        return model
+    params = tuple(dataclasses.replace(p, value=values[p.name])
+                   if p.name in values and not isinstance(p.value, Expr) else p
+                   for p in model.body.params)
+    return dataclasses.replace(model, body=dataclasses.replace(model.body, params=params))
+
+
+def check_outputs(scene: Scene, names) -> None:
+    """Scene plots must name outputs the compiled module has."""
+    for pl in scene.plots:
+        for o in pl.outputs:
+            if o not in names:
+                raise ModelError(pl.coord, f"plot: the module has no output {o!r} "
+                                           f"(outputs: {', '.join(names)})")
