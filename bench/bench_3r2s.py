@@ -12,11 +12,14 @@ from __future__ import annotations
 import argparse
 import cProfile
 import io
+import os
 import pstats
 import time
 from pathlib import Path
 
-import numpy as np
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy: see tests/conftest.py
+
+import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 ANGLES = ("theta1", "theta2", "theta3", "theta4")
@@ -81,6 +84,8 @@ def main():
     ap.add_argument("--scenes", nargs="*", default=["circle", "figure8", "gearshift"])
     ap.add_argument("--no-accuracy", action="store_true",
                     help="skip the rtol 1e-10 comparison run of the circle (about a minute)")
+    ap.add_argument("--no-reference", action="store_true",
+                    help="skip the hand-written reference model's circle run (about 10 s)")
     ap.add_argument("--out", default=str(ROOT / "bench" / "RESULTS.md"))
     args = ap.parse_args()
     L = ["# 3R2S benchmark", "",
@@ -151,6 +156,35 @@ def main():
         say("|---|---|")
         for k, v in shares.items():
             say(f"| {k} | {v:.0%} |")
+        say()
+    if circle and not args.no_reference:
+        # the independent hand-written numpy model of the same machine (tests/reference/), run
+        # as such a model usually is: solve_ivp's Radau with finite-difference Jacobians
+        import sys
+
+        sys.path.insert(0, str(ROOT / "tests"))
+        from reference import mech3r2s as ref
+
+        sc, mod, res = circle
+        y0 = ref.initial_state()
+        r_ref = per_call(lambda: ref.rhs(0.1, y0, "circle"))
+        out = ref.simulate("circle", t_eval=res.t, rtol=sc.rtol, atol=sc.atol)
+        _, wall_bgc, _ = run_scene(mod, sc)
+        err = max(float(np.max(np.abs(out[a] - res.y[a]))) for a in ANGLES)
+        say("## Against a hand-written numpy model (tests/reference/mech3r2s.py)")
+        say()
+        say("The same circle scene and tolerances; the hand-written model with solve_ivp's Radau "
+            "and finite-difference Jacobians, bgc's module with its analytic one.")
+        say()
+        say("| | hand-written | bgc | ratio |")
+        say("|---|---|---|---|")
+        say(f"| rhs call, batch 1 | {r_ref * 1e6:.0f} us | {r1 * 1e6:.0f} us | "
+            f"{r_ref / r1:.1f}x |")
+        say(f"| circle scene, wall | {out['wall']:.2f} s | {wall_bgc:.2f} s | "
+            f"{out['wall'] / wall_bgc:.1f}x |")
+        say(f"| rhs calls | {out['nfev']} | {res.stats['nfev']} | |")
+        say()
+        say(f"The two models' angles agree within {err:.1e} rad.")
         say()
     if circle and not args.no_accuracy:
         sc, mod, res = circle

@@ -360,7 +360,7 @@ def measure(setup: Setup, ref: Reference, method, rtol, atol=None, jac_mode="ana
     msg = str(val).strip().splitlines()[0] if str(val).strip() else type(val).__name__
     if not type(val).__name__ == "SimulationError":
         msg = f"{type(val).__name__}: {msg}"
-    return replace(run, status="failed", message=msg[:200])
+    return replace(run, status="failed", message=msg[:600])
 
 
 @dataclass

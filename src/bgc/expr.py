@@ -64,7 +64,7 @@ def _collect(node: ast.AST, out: set) -> None:
         for a in node.args:
             _collect(a, out)
         return
-    path = _path(node)
+    path = dotted_path(node)
     if path is not None:
         if path[-1] == "T" and len(path) > 1:
             path = path[:-1]
@@ -75,11 +75,12 @@ def _collect(node: ast.AST, out: set) -> None:
         _collect(child, out)
 
 
-def _path(node: ast.AST) -> tuple[str, ...] | None:
+def dotted_path(node: ast.AST) -> tuple[str, ...] | None:
+    """`a.b.c` -> ("a", "b", "c"); None for anything but a (dotted) name."""
     if isinstance(node, ast.Name):
         return (node.id,)
     if isinstance(node, ast.Attribute):
-        head = _path(node.value)
+        head = dotted_path(node.value)
         return None if head is None else head + (node.attr,)
     return None
 
@@ -159,9 +160,9 @@ def _check_node(expr: Expr, node: ast.AST, in_where: bool = False) -> None:
     if isinstance(node, ast.Name):
         return
     if isinstance(node, ast.Attribute):
-        if _path(node) is None:
+        if dotted_path(node) is None:
             raise bad("attribute access is only allowed on names (component paths, .T)")
-        for part in _path(node):
+        for part in dotted_path(node):
             if part.startswith("_"):
                 raise bad(f"name {part!r} is not allowed (leading underscore)")
         return
@@ -213,7 +214,7 @@ def _check_node(expr: Expr, node: ast.AST, in_where: bool = False) -> None:
         if node.keywords or any(isinstance(a, ast.Starred) for a in node.args):
             raise bad(f"{name}(): keyword and starred arguments are not allowed")
         if name in BOND_FUNCTIONS:
-            if len(node.args) != 1 or _path(node.args[0]) is None:
+            if len(node.args) != 1 or dotted_path(node.args[0]) is None:
                 raise bad(f"{name}() takes one name: a bond, element or junction")
             return
         if name not in FUNCTIONS:
@@ -304,7 +305,7 @@ class _Builder:
             v = node.value
             return sp.Integer(v) if type(v) is int else sp.Float(repr(v))
         if isinstance(node, (ast.Name, ast.Attribute)):
-            path = _path(node)
+            path = dotted_path(node)
             if len(path) > 1 and path[-1] == "T":
                 v = self.r.value(path[:-1], _where(self.expr, node))
                 if not isinstance(v, sp.MatrixBase):
@@ -405,7 +406,7 @@ class _Builder:
     def call(self, node):
         name = node.func.id
         if name in BOND_FUNCTIONS:
-            return self.r.bond(name, _path(node.args[0]), _where(self.expr, node.args[0]))
+            return self.r.bond(name, dotted_path(node.args[0]), _where(self.expr, node.args[0]))
         if name in ("eye", "zeros"):
             dims = [_int_const(self.expr, a) for a in node.args]
             if any(d < 1 or d > 1000 for d in dims):

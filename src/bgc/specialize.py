@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 from .causality import Causality, assign_causality, derivative_message
 from .errors import Coord, ModelError
 from .equations import Equations
-from .expr import BOND_FUNCTIONS, Expr
+from .expr import BOND_FUNCTIONS, Expr, dotted_path
 from .graph import BondGraph, FlatBond, FlatElement, join
 
 
@@ -74,15 +74,6 @@ class Removal:
 # What expressions refer to
 
 
-def _path(node) -> tuple[str, ...] | None:
-    if isinstance(node, ast.Name):
-        return (node.id,)
-    if isinstance(node, ast.Attribute):
-        head = _path(node.value)
-        return None if head is None else head + (node.attr,)
-    return None
-
-
 def _raw_refs(expr: Expr) -> set[tuple[str, ...]]:
     """Dotted paths an expression names: values and the arguments of e/f/p/q/power."""
     out: set[tuple[str, ...]] = set()
@@ -91,14 +82,14 @@ def _raw_refs(expr: Expr) -> set[tuple[str, ...]]:
         node = stack.pop()
         if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) \
                 and node.func.id in BOND_FUNCTIONS:
-            p = _path(node.args[0]) if node.args else None
+            p = dotted_path(node.args[0]) if node.args else None
             if p is not None:
                 out.add(p)
             continue
         if isinstance(node, ast.Call):
             stack.extend(node.args)
             continue
-        p = _path(node)
+        p = dotted_path(node)
         if p is not None:
             if len(p) > 1 and p[-1] == "T":
                 p = p[:-1]
