@@ -475,12 +475,12 @@ def zeroed(model, zero: dict):
 @pytest.mark.parametrize("effect", sorted(R3_TOGGLES))
 def test_3r2s_toggle_equals_full_model_with_zeroed_parameters(circle, effect):
     """The first 0.05 s of the circle scene (the start of the settling transient, where the
-    stiff joints ring: the costliest stretch of the scene), at the scene's tolerances.
+    stiff joints ring: the costliest stretch of the scene), at the scene's tolerances (tighter
+    ones where R3_TOLS says so).
 
     The reference is the full model compiled plainly from the model with the effect's
     parameters set to zero; the specialised module is compiled from that same model (so g is
-    zero in the energy output's potential term too). Both run with their own defaults: passing
-    p to simulate would unpack the parameters on every rhs call, which dominates the 3R2S."""
+    zero in the energy output's potential term too). Both run with their own defaults."""
     scene, full_mod, on = circle
     model = zeroed(scene_model(scene), R3_TOGGLES[effect])
     ref_mod = load_module(compile_model(model).source, f"ref_{effect}")

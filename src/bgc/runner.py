@@ -45,8 +45,8 @@ def compile_scene(scene: Scene, progress=None, specialise: bool = True):
 
 def runtime_params(scene: Scene, mod) -> dict | None:
     """The scene's free parameter values the module does not already have as defaults (the
-    scene's values of top-level parameters are compiled in as defaults; a parameter passed at
-    run time is unpacked on every call)."""
+    scene's values of top-level parameters are compiled in as defaults, so most scenes pass
+    none and use the module's precomputed defaults)."""
     out = {}
     for k, v in free_values(scene).items():
         if k in mod.PARAM_DEFAULTS and not np.array_equal(np.asarray(v, dtype=float),
