@@ -618,6 +618,22 @@ def write_markdown(st: Study, path, images=()):
 _MARK = {"RK45": "o", "RK23": "^", "DOP853": "s", "Radau": "D", "BDF": "v", "LSODA": "P"}
 
 
+def _finish(plt, fig, ax, agree, xlabel, title, path):
+    """Log-log axes of error against cost, the reference's resolution as a floor; saved."""
+    ax.axhline(max(agree, 1e-300), color="k", ls=":", lw=1,
+               label=f"reference agreement {agree:.1e}")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("max output error (relative to peak)")
+    ax.set_title(title)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
 def plot_study(st: Study, out_dir) -> list:
     from .plots import _mpl
 
@@ -643,20 +659,10 @@ def plot_study(st: Study, out_dir) -> list:
                 if r.rtol in (rs[0].rtol, rs[-1].rtol):
                     ax.annotate(f"{r.rtol:.0e}", (x_, y_), textcoords="offset points",
                                 xytext=(4, 3), fontsize=7, color=line.get_color())
-        ax.axhline(max(agree, 1e-300), color="k", ls=":", lw=1,
-                   label=f"reference agreement {agree:.1e}")
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_xlabel(xlabel)
-        ax.set_ylabel("max output error (relative to peak)")
-        ax.set_title(f"{st.setup.name}: work-precision, t = {st.setup.t_span[0]:g}.."
-                     f"{st.setup.t_span[1]:g} s (labels: rtol)")
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        f = out_dir / f"{st.setup.name}_{suffix}.png"
-        fig.savefig(f)
-        plt.close(fig)
-        files.append(f)
+        files.append(_finish(plt, fig, ax, agree, xlabel,
+                             f"{st.setup.name}: work-precision, t = {st.setup.t_span[0]:g}.."
+                             f"{st.setup.t_span[1]:g} s (labels: rtol)",
+                             out_dir / f"{st.setup.name}_{suffix}.png"))
     if st.jac_runs:
         fig, ax = plt.subplots(figsize=(7.2, 4.8))
         styles = {"analytic": "-", "sparse-fd": "--", "dense-fd": ":"}
@@ -672,20 +678,10 @@ def plot_study(st: Study, out_dir) -> list:
                                 marker=_MARK.get(m, "o"), ls=styles[mode], lw=1.4, ms=5,
                                 label=f"{m}, {mode}", **kw)
                 colors.setdefault(m, line.get_color())
-        ax.axhline(max(agree, 1e-300), color="k", ls=":", lw=1,
-                   label=f"reference agreement {agree:.1e}")
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_xlabel("wall time [s] (median)")
-        ax.set_ylabel("max output error (relative to peak)")
-        ax.set_title(f"{st.setup.name}: analytic Jacobian vs finite differences "
-                     f"(rtol {', '.join(f'{t:.0e}' for t in st.settings['jac_tols'])})")
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        f = out_dir / f"{st.setup.name}_jacobian.png"
-        fig.savefig(f)
-        plt.close(fig)
-        files.append(f)
+        files.append(_finish(plt, fig, ax, agree, "wall time [s] (median)",
+                             f"{st.setup.name}: analytic Jacobian vs finite differences (rtol "
+                             f"{', '.join(f'{t:.0e}' for t in st.settings['jac_tols'])})",
+                             out_dir / f"{st.setup.name}_jacobian.png"))
     return files
 
 
