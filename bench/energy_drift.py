@@ -35,7 +35,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-METHODS = ("RK45", "DOP853", "Radau", "BDF", "LSODA")
+METHODS = ("RK45", "DOP853", "Radau", "BDF", "LSODA", "Rodas4")
 
 
 def load_pendulum():

@@ -463,10 +463,10 @@ def outputs(t, x, p=None, u=None):
 
 
 # --------------------------------------------------------------------------------------------
-# The runtime: simulate() steps one of scipy's OdeSolver classes through each segment between
-# breakpoints and reads the output times off each step's dense output.
+# The runtime: simulate() steps one of scipy's OdeSolver classes (or Rodas4, below) through
+# each segment between breakpoints and reads the output times off each step's dense output.
 
-METHODS = ("RK23", "RK45", "DOP853", "Radau", "BDF", "LSODA")
+METHODS = ("RK23", "RK45", "DOP853", "Radau", "BDF", "LSODA", "Rodas4")  # Rodas4: bgc's own
 # Explicit methods are stable on y' = lam*y while h*|lam| stays within these limits on the
 # negative real axis and on the imaginary axis (the stability polynomials of scipy's tableaus).
 _STABILITY = {"RK23": (2.51, 1.73), "RK45": (3.31, 0.99), "DOP853": (6.39, 5.96)}
@@ -575,6 +575,12 @@ def _jacobian_options(method, jac, at, shape, p, u):
     nb = int(np.prod(shape[1:]))
     if method in _STABILITY:
         return {}  # explicit: no Jacobian
+    if method == "Rodas4":
+        if not jac:
+            raise ValueError("Rodas4 needs the analytic Jacobian (jac=True): a Rosenbrock "
+                             "method's order rests on the exact Jacobian")
+        return {"jac": _flat_jacobian(at, shape, p, u, sparse=True),
+                "time_dependent": bool(INPUT_NAMES)}
     if jac:
         return {"jac": _flat_jacobian(at, shape, p, u, sparse=method != "LSODA")}
     if method == "LSODA":
@@ -619,7 +625,8 @@ def _stiffness(method, t, t_end, lam):
 def _stiff_message(method, t, why, h=None):
     held = "" if h is None else f"its steps are held at the stability limit (h = {h:.3g} s); "
     return (f"the model is stiff for {method} at t = {t:.6g}: {held}{why}. Use method=\"Radau\" "
-            "or method=\"BDF\" (they use the analytic Jacobian), or stiff_check=False.")
+            "or method=\"Rodas4\" (L-stable) or method=\"BDF\" (they use the analytic "
+            "Jacobian), or stiff_check=False.")
 
 
 class _StiffnessWatch:
@@ -687,10 +694,213 @@ def _counts(stats, solver):
             "nlu": stats["nlu"] + int(solver.nlu)}
 
 
+# --------------------------------------------------------------------------------------------
+# Rodas4, bgc's own implicit method: the 6-stage Rosenbrock method of order 4 (embedded order
+# 3) of Hairer & Wanner (Solving ODEs II, sec. IV.7; coefficients from their RODAS), L-stable
+# and stiffly accurate. It solves linear systems only: each step costs one Jacobian, one LU of
+# W = I/(h gamma) - J and six rhs calls (plus one for df/dt when the model has inputs). Unlike
+# BDF of orders 3-5 it damps stiff modes that lie near the imaginary axis (lightly damped
+# penalty joints), and it needs no Newton iteration. Its order rests on the exact Jacobian:
+# it takes the analytic one only.
+_RODAS_GAMMA = 0.25
+_RODAS_A = (  # stage i's state: y + sum_j A[i][j] k_j
+    (),
+    (1.544,),
+    (0.9466785280815826, 0.2557011698983284),
+    (3.314825187068521, 2.896124015972201, 0.9986419139977817),
+    (1.221224509226641, 6.019134481288629, 12.53708332932087, -0.687886036105895),
+    (1.221224509226641, 6.019134481288629, 12.53708332932087, -0.687886036105895, 1.0),
+)
+_RODAS_C = (  # stage i's right-hand side: f_i + sum_j C[i][j] k_j / h + h d_i df/dt
+    (),
+    (-5.6688,),
+    (-2.430093356833875, -0.2063599157091915),
+    (-0.1073529058151375, -9.594562251023355, -20.47028614809616),
+    (7.496443313967647, -10.24680431464352, -33.99990352819905, 11.7089089320616),
+    (8.083246795921522, -7.981132988064893, -31.52159432874371, 16.31930543123136,
+     -6.058818238834054),
+)
+_RODAS_T = (0.0, 0.386, 0.21, 0.63, 1.0, 1.0)  # stage times, fractions of h
+_RODAS_D = (0.25, -0.1043, 0.1035, -0.0362, 0.0, 0.0)
+_RODAS_H = (  # dense output (order 3): y(t0 + s h) = (1-s) y0 + s (y1 + (1-s)(q1 + s q2))
+    (10.12623508344586, -7.487995877610167, -34.80091861555747, -7.992771707568823,
+     1.025137723295662),
+    (-0.6762803392801253, 6.087714651680015, 16.43084320892478, 24.76722511418386,
+     -6.594389125716872),
+)
+# step-size control (Hairer's RODAS): h_new = h * clip(0.9 err^(-1/4), 1/5, 6)
+_RODAS_SAFETY, _RODAS_MIN_FACTOR, _RODAS_MAX_FACTOR = 0.9, 0.2, 6.0
+
+
+def _rms(x):
+    return float(np.sqrt(np.mean(np.square(x)))) if x.size else 0.0
+
+
+def _rodas_class():
+    """The Rodas4 OdeSolver class, made on first use (scipy is imported lazily)."""
+    global _RODAS4
+    if _RODAS4 is not None:
+        return _RODAS4
+    import scipy.linalg
+    import scipy.sparse as sps
+    import scipy.sparse.linalg
+    from scipy.integrate import DenseOutput, OdeSolver
+
+    class RodasDense(DenseOutput):
+        """The step's interpolant: third order, exact at both ends."""
+
+        def __init__(self, t_old, t, y_old, y, q1, q2):
+            super().__init__(t_old, t)
+            self.h, self.y_old, self.y, self.q1, self.q2 = t - t_old, y_old, y, q1, q2
+
+        def _call_impl(self, t):
+            s = (np.asarray(t, dtype=float) - self.t_old) / self.h
+            y0, y1, q1, q2 = ((v if s.ndim == 0 else v[:, None])
+                              for v in (self.y_old, self.y, self.q1, self.q2))
+            return (1 - s) * y0 + s * (y1 + (1 - s) * (q1 + s * q2))
+
+    class Rodas4(OdeSolver):
+        """Rosenbrock method Rodas4 (scipy OdeSolver interface). jac(t, y) -> dense array or
+        sparse matrix, the exact Jacobian; time_dependent: the rhs depends on t explicitly
+        (df/dt is then taken by a forward difference, one rhs call per step)."""
+
+        def __init__(self, fun, t0, y0, t_bound, jac, rtol=1e-6, atol=1e-9, max_step=np.inf,
+                     first_step=None, time_dependent=True, **extraneous):
+            super().__init__(fun, t0, y0, t_bound, vectorized=False)
+            eps = np.finfo(float).eps
+            self.rtol, self.atol = max(float(rtol), 100 * eps), atol
+            self.max_step, self.jac, self.time_dependent = max_step, jac, time_dependent
+            self.f = self.fun(self.t, self.y)
+            self.h_abs = (self._initial_step() if first_step is None
+                          else float(first_step))
+            self.J = self.dfdt = None
+            self.dense = None
+
+        def _scale(self, *ys):
+            return self.atol + self.rtol * np.max([np.abs(v) for v in ys], axis=0)
+
+        def _initial_step(self):
+            """Hairer's starting step for order 4: an explicit Euler probe of f's change."""
+            if self.n == 0 or self.t_bound == self.t:
+                return np.inf
+            scale = self._scale(self.y)
+            d0, d1 = _rms(self.y / scale), _rms(self.f / scale)
+            h0 = 1e-6 if d0 < 1e-5 or d1 < 1e-5 else 0.01 * d0 / d1
+            h0 = min(h0, abs(self.t_bound - self.t))
+            f1 = self.fun(self.t + self.direction * h0, self.y + self.direction * h0 * self.f)
+            d2 = _rms((f1 - self.f) / scale) / h0
+            h1 = (max(1e-6, h0 * 1e-3) if max(d1, d2) <= 1e-15
+                  else (0.01 / max(d1, d2)) ** 0.2)
+            return min(100 * h0, h1, self.max_step)
+
+        def _jacobian(self):
+            """J and df/dt at the step's start (kept through rejected attempts)."""
+            t, y = self.t, self.y
+            J = self.jac(t, y)
+            self.njev += 1
+            self.J = sps.csc_matrix(J) if sps.issparse(J) else np.asarray(J, dtype=float)
+            self.dfdt = np.zeros(self.n)
+            if self.time_dependent:
+                delta = np.sqrt(np.finfo(float).eps) * max(1.0, abs(t))
+                # forward in the direction of integration, backward when that leaves the span
+                d = self.direction * delta
+                if self.direction * (t + d - self.t_bound) > 0:
+                    d = -d
+                self.dfdt = (self.fun(t + d, y) - self.f) / d
+
+        def _factor(self, h):
+            """A solver for W x = b, W = I/(h gamma) - J."""
+            self.nlu += 1
+            c = 1.0 / (h * _RODAS_GAMMA)
+            if sps.issparse(self.J):
+                try:
+                    lu = scipy.sparse.linalg.splu(sps.identity(self.n, format="csc") * c
+                                                  - self.J)
+                except RuntimeError:  # exactly singular W: the step is tried smaller
+                    return None
+                return lu.solve
+            # LAPACK's getrf/getrs directly: scipy.linalg.lu_solve's argument checks cost
+            # about as much as the 100x100 solve itself, six times a step
+            getrf, getrs = scipy.linalg.get_lapack_funcs(("getrf", "getrs"), (self.J,))
+            lu, piv, info = getrf(np.eye(self.n) * c - self.J, overwrite_a=True)
+            if info > 0:  # exactly singular W: the step is tried smaller
+                return None
+            return lambda b: getrs(lu, piv, b)[0]
+
+        def _attempt(self, h):
+            """One Rodas4 step of size h (signed): (y_new, error estimate, dense coefficients)."""
+            t, y = self.t, self.y
+            solve = self._factor(h)
+            if solve is None:
+                return None, None, None
+            k = []
+            for i in range(6):
+                if i == 0:
+                    fi = self.f
+                else:
+                    u = y + sum(a * kj for a, kj in zip(_RODAS_A[i], k))
+                    fi = self.fun(t + _RODAS_T[i] * h, u)
+                b = fi + sum((c / h) * kj for c, kj in zip(_RODAS_C[i], k))
+                if _RODAS_D[i]:
+                    b = b + (h * _RODAS_D[i]) * self.dfdt
+                k.append(solve(b))
+            y_new = u + k[5]  # stiffly accurate: the last stage is the solution
+            q1 = sum(c * kj for c, kj in zip(_RODAS_H[0], k))
+            q2 = sum(c * kj for c, kj in zip(_RODAS_H[1], k))
+            return y_new, k[5], (q1, q2)
+
+        def _step_impl(self):
+            t, y = self.t, self.y
+            min_step = 10 * abs(np.nextafter(t, self.direction * np.inf) - t)
+            h_abs = min(max(self.h_abs, min_step), self.max_step)
+            if self.J is None:
+                self._jacobian()
+            rejected = False
+            while True:
+                if h_abs < min_step:
+                    return False, "the step size fell below its minimum (10 ulp of t)"
+                h = h_abs * self.direction
+                t_new = t + h
+                if self.direction * (t_new - self.t_bound) > 0:
+                    t_new = self.t_bound
+                h = t_new - t
+                h_abs = abs(h)
+                y_new, err, q = self._attempt(h)
+                err_norm = np.inf if y_new is None else _rms(err / self._scale(y, y_new))
+                if np.isfinite(err_norm) and err_norm <= 1.0:
+                    break
+                # rejected: shrink (hard when the attempt overflowed) and retry with the same J
+                factor = (_RODAS_MIN_FACTOR if not np.isfinite(err_norm) else
+                          max(_RODAS_MIN_FACTOR, _RODAS_SAFETY * err_norm ** -0.25))
+                h_abs *= factor
+                rejected = True
+            factor = (_RODAS_MAX_FACTOR if err_norm == 0 else
+                      min(_RODAS_MAX_FACTOR, _RODAS_SAFETY * err_norm ** -0.25))
+            if rejected:
+                factor = min(1.0, factor)  # no growth right after a rejection
+            self.h_abs = h_abs * max(_RODAS_MIN_FACTOR, factor)
+            self.dense = (y, q)
+            self.t, self.y = t_new, y_new
+            self.f = self.fun(t_new, y_new)
+            self.J = None
+            return True, None
+
+        def _dense_output_impl(self):
+            y_old, (q1, q2) = self.dense
+            return RodasDense(self.t_old, self.t, y_old, self.y, q1, q2)
+
+    _RODAS4 = Rodas4
+    return Rodas4
+
+
+_RODAS4 = None
+
+
 def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, u=None,
              x0=None, dt=None, breakpoints=(), jac=True, max_step=np.inf, max_steps=50_000,
              stiff_check=True, max_wall=None):
-    """Integrate over t_span with one of scipy's OdeSolver classes; returns SimResult (t, x, y).
+    """Integrate over t_span with one of scipy's OdeSolver classes or bgc's Rosenbrock method
+    Rodas4 (L-stable, order 4; see above); returns SimResult (t, x, y).
 
     method: one of METHODS. rtol; atol a scalar or one value per state. p: parameter overrides;
     arrays of shape B integrate the instances of B at once (the state is flattened; implicit
@@ -734,7 +944,8 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
         watch = _StiffnessWatch(method, t1, max_steps)
     for a, c in segments:
         at = _one_sided(a, c)
-        solver = getattr(scipy.integrate, method)(
+        solver_class = _rodas_class() if method == "Rodas4" else getattr(scipy.integrate, method)
+        solver = solver_class(
             _flat_rhs(at, shape, p, u, stats), a, y, c, rtol=rtol, atol=atol,
             max_step=max_step, **_jacobian_options(method, jac, at, shape, p, u))
         while solver.status == "running":

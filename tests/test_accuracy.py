@@ -162,6 +162,22 @@ def test_files_are_written(small_study, tmp_path):
     assert "| wall [s] (runs) | steps | rhs | Jac | LU |" in md  # all runs
 
 
+def test_markdown_rows_keep_their_columns(small_study, tmp_path):
+    """A failure message that quotes |eigenvalue| (as StiffnessError's do) and spans lines
+    stays in its cell: every row of the all-runs table has the header's column count."""
+    import re
+
+    bad = replace(small_study.runs[0], status="failed", method="RK45",
+                  message="stiff: the largest |eigenvalue| is 9e4 1/s,\nh*|lambda| <= 3.31")
+    st = replace(small_study, runs=list(small_study.runs) + [bad])
+    A.write_all(st, tmp_path)
+    md = (tmp_path / "msd_step_accuracy.md").read_text()
+    table = md[md.index("## All runs"):].split("\n\n")[1].splitlines()
+    pipes = [len(re.findall(r"(?<!\\)\|", row)) for row in table]
+    assert len(table) == 2 + len(st.runs) and len(set(pipes)) == 1, pipes
+    assert "largest \\|eigenvalue\\| is 9e4 1/s, h*\\|lambda\\|" in md
+
+
 def test_parse_options():
     assert A.parse_tols("1e-3:1e-5") == (1e-3, 1e-4, 1e-5)
     assert A.parse_tols("1e-2,1e-6") == (1e-2, 1e-6)
@@ -169,6 +185,10 @@ def test_parse_options():
         A.parse_tols("2")
     with pytest.raises(ModelError):
         A.parse_methods("Radau,Euler")
+    # bgc's Rodas4 is studied by default; it has no finite-difference Jacobian variant
+    assert "Rodas4" in A.METHODS and "Rodas4" in A.IMPLICIT
+    with pytest.raises(ModelError, match="Rodas4"):
+        A.parse_methods("Radau,Rodas4", A.FD_JACOBIAN)
 
 
 def test_param_sweep_on_the_spring(setup):

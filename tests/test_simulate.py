@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-METHODS = ("RK23", "RK45", "DOP853", "Radau", "BDF", "LSODA")
-IMPLICIT = ("Radau", "BDF", "LSODA")
+METHODS = ("RK23", "RK45", "DOP853", "Radau", "BDF", "LSODA", "Rodas4")
+IMPLICIT = ("Radau", "BDF", "LSODA", "Rodas4")
 
 # models/msd.yaml: m x'' + c x' + k x = F, x(0) = x'(0) = 0; states (mass.p, spring.q)
 M, K, C, F0 = 2.0, 200.0, 4.0, 10.0
@@ -67,9 +67,13 @@ def test_step_response_matches_closed_form(msd, method):
 
 
 def _scipy_reference(mod, method, t_span, x0, **kw):
-    """scipy's own driver on the module's rhs (and analytic Jacobian), same settings."""
-    if method in ("Radau", "BDF", "LSODA"):
+    """scipy's own driver on the module's rhs (and analytic Jacobian), same settings.
+    Rodas4 (bgc's own OdeSolver) is handed to solve_ivp as a class."""
+    if method in IMPLICIT:
         kw["jac"] = lambda t, y: mod.jacobian(t, y)
+    if method == "Rodas4":
+        method = mod._rodas_class()
+        kw["time_dependent"] = bool(mod.INPUT_NAMES)
     return solve_ivp(lambda t, y: mod.rhs(t, y), t_span, x0, method=method, **kw)
 
 
@@ -168,7 +172,7 @@ def test_without_t_eval_every_step_and_every_segment_end(msd):
     assert 0.7 in res.t and 2.5 in res.t and 7.0 not in res.t  # 7 lies outside the span
 
 
-@pytest.mark.parametrize("method", ["RK45", "Radau", "LSODA"])
+@pytest.mark.parametrize("method", ["RK45", "Radau", "LSODA", "Rodas4"])
 def test_output_times_at_and_around_breakpoints(msd, method):
     """The output at a breakpoint is the state reached there (continuous across the jump);
     times just either side come from the dense output of the two segments."""
@@ -282,7 +286,8 @@ BATCH_C = np.array([2.0, 4.0, 8.0, 12.0])
 
 
 @pytest.mark.parametrize("method,jac", [("Radau", True), ("Radau", False), ("BDF", True),
-                                        ("BDF", False), ("LSODA", True), ("DOP853", True)])
+                                        ("BDF", False), ("LSODA", True), ("DOP853", True),
+                                        ("Rodas4", True)])
 def test_batch_equals_single_runs(msd, method, jac):
     """Four damping values in one call (flat state, block-diagonal Jacobian: sparse for Radau
     and BDF, dense for LSODA, or finite differences over the block pattern) equal four calls,
@@ -293,7 +298,7 @@ def test_batch_equals_single_runs(msd, method, jac):
     batch = msd.simulate((0.0, 2.0), p={"c": BATCH_C}, **kw)
     assert batch.x.shape == (2, 4, len(t_eval))
     assert batch.y["position"].shape == (4, len(t_eval))
-    if method in ("Radau", "BDF"):
+    if method in ("Radau", "BDF", "Rodas4"):
         assert batch.stats["njev"] >= 1
     for i, c in enumerate(BATCH_C):
         single = msd.simulate((0.0, 2.0), p={"c": c}, **kw)

@@ -1,6 +1,7 @@
-"""Work-precision study of a scene: error against cost for scipy's integrators.
+"""Work-precision study of a scene: error against cost for scipy's integrators and bgc's own
+Rosenbrock method Rodas4.
 
-    bgc accuracy SCENE.yaml [--out DIR] [--methods RK45,DOP853,Radau,BDF,LSODA]
+    bgc accuracy SCENE.yaml [--out DIR] [--methods RK45,DOP853,Radau,BDF,LSODA,Rodas4]
                  [--tols 1e-3:1e-10] [--budget 60] [--repeats 3]
 
 What is measured (everything through the generated module's own ``simulate``):
@@ -43,9 +44,11 @@ import numpy as np
 
 from .errors import ModelError
 
-METHODS = ("RK45", "DOP853", "Radau", "BDF", "LSODA")
-ALL_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")
-IMPLICIT = ("Radau", "BDF", "LSODA")
+METHODS = ("RK45", "DOP853", "Radau", "BDF", "LSODA", "Rodas4")
+ALL_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA", "Rodas4")
+IMPLICIT = ("Radau", "BDF", "LSODA", "Rodas4")
+# the implicit methods that also run on finite-difference Jacobians (Rodas4 needs the exact one)
+FD_JACOBIAN = ("Radau", "BDF", "LSODA")
 DEFAULT_TOLS = tuple(10.0 ** -k for k in range(3, 11))
 JAC_MODES = ("analytic", "sparse-fd", "dense-fd")
 STIFF_THRESHOLD = 1e3  # max|eig(J(t0, x0))| * span above this: the scene is treated as stiff
@@ -237,7 +240,7 @@ def _warm_up(setup: Setup):
     import scipy.sparse  # noqa: F401
 
     t0, t1 = setup.t_span
-    for m in ("RK45", "Radau", "BDF", "LSODA"):
+    for m in ("RK45", "Radau", "BDF", "LSODA", "Rodas4"):
         try:
             te = np.array([t0, t0 + 1e-6 * (t1 - t0)])
             solve(replace(setup, t_span=tuple(te), t_eval=te, breakpoints=()),
@@ -389,6 +392,12 @@ def parse_tols(text: str) -> tuple:
     if not tols or not all(0 < t < 1 for t in tols):
         raise ModelError(None, f"--tols {text!r}: tolerances lie strictly between 0 and 1")
     return tols
+
+
+def md_cell(text: str) -> str:
+    """Text for one markdown table cell: its pipes escaped (messages quote |eigenvalue|) and
+    line breaks folded, so that the row keeps its columns."""
+    return " ".join(str(text).split()).replace("|", "\\|")
 
 
 def parse_methods(text, allowed=ALL_METHODS) -> tuple:
@@ -583,7 +592,7 @@ def write_markdown(st: Study, path, images=()):
                      f"{r.nlu} |")
         else:
             L.append(f"| {r.method} | {r.rtol:.0e} | {r.atol:.0e} | **{r.status}** | "
-                     f"{r.message} | | | | | | | | |")
+                     f"{md_cell(r.message)} | | | | | | | | |")
     L.append("")
     if st.jac_runs:
         L.append("## Analytic Jacobian against finite differences\n")
@@ -600,7 +609,7 @@ def write_markdown(st: Study, path, images=()):
             b = base.get((r.method, r.rtol))
             if r.status != "ok":
                 L.append(f"| {r.method} | {r.rtol:.0e} | {r.jac} | **{r.status}** | "
-                         f"{r.message} | | | | | | | |")
+                         f"{md_cell(r.message)} | | | | | | | |")
                 continue
             ok = b is not None and b.status == "ok"
             wr = f"{r.wall / b.wall:.2f}" if ok else ""
@@ -615,7 +624,8 @@ def write_markdown(st: Study, path, images=()):
     _write(path, "\n".join(L))
 
 
-_MARK = {"RK45": "o", "RK23": "^", "DOP853": "s", "Radau": "D", "BDF": "v", "LSODA": "P"}
+_MARK = {"RK45": "o", "RK23": "^", "DOP853": "s", "Radau": "D", "BDF": "v", "LSODA": "P",
+         "Rodas4": "X"}
 
 
 def _finish(plt, fig, ax, agree, xlabel, title, path):
@@ -804,7 +814,7 @@ def register(main_group):
         rms = parse_methods(ref_methods) if ref_methods else None
         if rms is not None and len(rms) != 2:
             raise ModelError(None, "--ref-methods: give two methods")
-        jms = parse_methods(jac_methods, IMPLICIT) if jac_methods.strip() else ()
+        jms = parse_methods(jac_methods, FD_JACOBIAN) if jac_methods.strip() else ()
         jtl = parse_tols(jac_tols) if jms else ()
         if not budget > 0 or repeats < 1 or not 0 < ref_rtol < 1:
             raise ModelError(None, "--budget and --ref-rtol must be positive, --repeats >= 1")

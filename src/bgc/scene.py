@@ -19,7 +19,7 @@ from .errors import Coord, ModelError
 from .expr import Expr
 from .parse import Model, _Reader, _param_value, _require, check_name, parse_file
 
-METHODS = ("Radau", "BDF", "LSODA", "RK45", "RK23", "DOP853")
+METHODS = ("Radau", "BDF", "LSODA", "RK45", "RK23", "DOP853", "Rodas4")
 PLOT_KINDS = ("time", "path3d", "loci")
 
 

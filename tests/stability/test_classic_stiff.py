@@ -62,7 +62,7 @@ def test_vdp_equations_and_jacobian_match_the_circuit(vdp):
             np.testing.assert_allclose(vdp.jacobian(0.0, x, p), J_fd, rtol=1e-6, atol=0)
 
 
-@pytest.mark.parametrize("method", ["Radau", "BDF", "LSODA"])
+@pytest.mark.parametrize("method", ["Radau", "BDF", "LSODA", "Rodas4"])
 @pytest.mark.parametrize("V0", [1.0, 0.5])
 def test_vdp_mu_1e3_against_published_reference(vdp, method, V0):
     """At mu = 1e3, t = 2 against the Bari test set (with V0 != 1 the solution is V0 times
@@ -123,7 +123,7 @@ def test_chain_jacobian_is_the_state_matrix(chain):
     assert lam.max() / lam.min() > 1e3
 
 
-@pytest.mark.parametrize("method", ["Radau", "BDF", "LSODA"])
+@pytest.mark.parametrize("method", ["Radau", "BDF", "LSODA", "Rodas4"])
 def test_chain_force_step_against_exact_solution(chain, method):
     P = chain.PARAM_DEFAULTS
     te = np.linspace(0.0, 2.0, 201)

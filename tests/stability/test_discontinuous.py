@@ -73,7 +73,7 @@ def msd_square_exact(P, t):
     return x, v
 
 
-@pytest.mark.parametrize("method", ["Radau", "BDF", "LSODA", "RK45", "DOP853"])
+@pytest.mark.parametrize("method", ["Radau", "BDF", "LSODA", "RK45", "DOP853", "Rodas4"])
 def test_square_wave_force_without_breakpoints(gen, method):
     """Measured, no breakpoints: errors 2.7e-8 (Radau) to 7.7e-7 (RK45) of F0/k, the same
     as with a breakpoint at every jump; 7 to 110 % more steps."""
@@ -93,7 +93,7 @@ def test_square_wave_force_without_breakpoints(gen, method):
     assert blind.stats["nsteps"] < 3 * told.stats["nsteps"]
 
 
-@pytest.mark.parametrize("method", ["Radau", "BDF"])
+@pytest.mark.parametrize("method", ["Radau", "BDF", "Rodas4"])
 def test_stiff_chain_force_step_without_breakpoint(gen, method):
     """The two-mass chain (stiff link 1e8 N/m) at rest until its force steps on at 0.5 s."""
     mod = gen("two_mass_chain")

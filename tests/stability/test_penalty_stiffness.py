@@ -1,10 +1,18 @@
 """The 3R2S with joint stiffness k_t = 1e8, 1e10 and 1e12 N/m: implicit integration finishes,
-nothing is NaN or inf, and the constraint violation shrinks like 1/k_t.
+nothing is NaN or inf, and the constraint violation shrinks like 1/k_t. Every check runs
+twice: with scipy's Radau and with the generated module's own Rosenbrock method Rodas4.
 
 The joints of the 3R2S (models/3r2s.yaml) are penalty couplings: stiff springs k_t with
 dampers r_t. Each run lets the mechanism settle under gravity for 1 s from its unloaded
 initial pose, the drive holding the tip at P3(0) (v_d = 0: generated/mech3r2s.py as
-compiled), with Radau at rtol 1e-6, atol 5e-7 (the circle scene's tolerances).
+compiled), at rtol 1e-6, atol 5e-7 (the circle scene's tolerances; Rodas4 at 1e-7, 5e-8).
+
+scipy's BDF and LSODA are not in the list: the joints' modes (about -413 +- 4.3e4 i 1/s at
+k_t = 1e8, the imaginary part growing like sqrt(k_t) while the real part stays) lie within
+a few tenths of a degree of the imaginary axis, outside the stability wedges of BDF orders
+3 to 5 (86, 73 and 52 degrees), and scipy's BDF cannot be held to order 2. At k_t >= 1e10
+they crawl (after 150 s BDF had reached t = 0.34 s, LSODA t = 0.87 s): see
+docs/stability.md.
 
 What is checked, and against what:
 * the static balance of the whole mechanism at t = 1 s: the forces of the ground joints J1
@@ -30,17 +38,21 @@ from stability_helpers import orthogonality_error, ref, rows
 
 K_T = (1e8, 1e10, 1e12)
 SPAN = (0.0, 1.0)
-TOLS = dict(method="Radau", rtol=1e-6, atol=5e-7)
+# Rodas4 one decade tighter: at the scene's tolerances its force balance misses by 1.2e-4 W
+# at k_t = 1e10 and its closure ratio by 3 % (the bounds below: 1e-4 W, 2 %). Its steps are
+# controlled by an order-3 estimate of an order-4 solution, Radau's by order 3 of order 5.
+TOLS = {"Radau": dict(rtol=1e-6, atol=5e-7), "Rodas4": dict(rtol=1e-7, atol=5e-8)}
 WEIGHT = float(np.sum(ref.M) * 9.81)  # 21.582 N
 
 
-@pytest.fixture(scope="module")
-def runs(gen):
+@pytest.fixture(scope="module", params=["Radau", "Rodas4"])
+def runs(gen, request):
     mod = gen("mech3r2s")
     assert mod.PARAM_DEFAULTS["k_t"] == 1e8 and mod.PARAM_DEFAULTS["k_d"] == 1e5
     out = {}
     for k in K_T:
-        res = mod.simulate(SPAN, dt=0.01, p={"k_t": k}, **TOLS)
+        res = mod.simulate(SPAN, dt=0.01, p={"k_t": k}, method=request.param,
+                           **TOLS[request.param])
         t, x, y = res
         out[k] = {"t": t, "x": x, "y": y, "stats": res.stats, "mod": mod}
     return out
@@ -57,15 +69,30 @@ def test_implicit_solver_finishes_without_nan_or_inf(runs):
 
 @pytest.mark.slow
 def test_ground_and_drive_carry_the_weight(runs):
-    """At rest the external forces balance the weight: k_t q(J1) - k_t q(J5) + k_d q(drive)
-    = (0, 0, m g). q(J1) = x(ground) - x(Q1), q(J5) = x(P4 of link 4) - x(ground) and
-    q(drive) = p_d - p3 (each coupling's state: the displacement of its port a minus b)."""
+    """Newton for the whole mechanism at t = 1 s: the external forces minus the weight equal
+    the rate of its total momentum, sum of dp/dt of the links' translational momenta. The
+    external forces are those of the ground joints J1, J5 and the drive, each coupling's
+    k q + r dq/dt (q its state: the displacement of port a minus port b). The internal
+    joints' forces cancel pairwise, so this holds only if the graph's junctions and
+    couplings are right (tolerance 1e-9 W: rounding of forces up to k_t q ~ 10 N). And the
+    mechanism has nearly settled: |d(sum p)/dt| < 1e-3 W. Measured 3.4e-4 W at k_t = 1e8
+    with Radau at rtol 1e-9: the drive mode (k_d = 1e5 N/m, r_d = 5 N s/m) still rings. (At
+    rtol 1e-6 Radau's own damping makes it look settled, 1.2e-5 W; an earlier version of this
+    test bounded the static balance by 1e-4 W and passed only through that.)"""
     for k, r in runs.items():
-        mod, x = r["mod"], r["x"][:, -1:]
-        F = (k * rows(mod, x, "j1.C.q", (3,)) - k * rows(mod, x, "j5.C.q", (3,))
-             + mod.PARAM_DEFAULTS["k_d"] * rows(mod, x, "jd.C.q", (3,)))[:, 0]
-        np.testing.assert_allclose(F, [0.0, 0.0, WEIGHT], rtol=0, atol=1e-4 * WEIGHT,
+        mod, x = r["mod"], r["x"][:, -1]
+        P = dict(mod.PARAM_DEFAULTS, k_t=k)
+        dx = mod.rhs(r["t"][-1], x, {"k_t": k})
+
+        def force(name, kk, rr):
+            return kk * rows(mod, x, name, (3,)) + rr * rows(mod, dx, name, (3,))
+
+        F = (force("j1.C.q", k, P["r_t"]) - force("j5.C.q", k, P["r_t5"])
+             + force("jd.C.q", P["k_d"], P["r_d"]))
+        dp = sum(rows(mod, dx, f"link{i}.It.p", (3,)) for i in (1, 2, 3, 4))
+        np.testing.assert_allclose(F - [0.0, 0.0, WEIGHT], dp, rtol=0, atol=1e-9 * WEIGHT,
                                    err_msg=f"k_t = {k:g}")
+        assert np.max(np.abs(dp)) < 1e-3 * WEIGHT, (k, dp)
 
 
 @pytest.mark.slow
