@@ -60,3 +60,36 @@ def test_user_error_exit_2_without_traceback(tmp_path):
     assert r.stderr.strip().splitlines()[-1].startswith(f"{bad}:4:")
     assert "Traceback" not in r.stderr
     assert not (tmp_path / "out.py").exists()
+
+
+def test_simulate_options_are_checked_and_errors_have_a_place(tmp_path):
+    """--method is one of the runtime's methods (an unknown one: a usage error, exit 2, no
+    traceback); --max-wall turns a long run into a located user error, nothing written."""
+    scene = ROOT / "models" / "scenes" / "msd_step.yaml"
+    r = bgc("simulate", scene, "--method", "Euler")
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "'Euler' is not one of" in r.stderr and "'Rodas4'" in r.stderr
+    out = tmp_path / "r.npz"
+    r = bgc("simulate", ROOT / "models" / "scenes" / "3r2s_circle.yaml", "--max-wall", "0.2",
+            "--out", out, "-q")
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    last = r.stderr.strip().splitlines()[-1]
+    assert last.startswith(f"{ROOT / 'models' / 'scenes' / '3r2s_circle.yaml'}:")
+    assert "simulation failed: Radau stopped at t = " in last and "max_wall = 0.2 s" in last
+    assert not out.exists()
+
+
+def test_simulate_with_the_modules_own_rosenbrock_method(tmp_path):
+    """--method Rodas4 on the step response: the same answer as the scene's Radau run, to
+    the tolerances (rtol 1e-6: both within 1e-5 of the peak displacement)."""
+    scene = ROOT / "models" / "scenes" / "msd_step.yaml"
+    runs = {}
+    for m in ("Radau", "Rodas4"):
+        r = bgc("simulate", scene, "--method", m, "--out", tmp_path / f"{m}.npz")
+        assert r.returncode == 0, r.stderr
+        assert f"{m} rtol=" in r.stdout
+        runs[m] = np.load(tmp_path / f"{m}.npz")
+    a, b = runs["Radau"], runs["Rodas4"]
+    np.testing.assert_array_equal(a["t"], b["t"])
+    x = a["position"]
+    assert np.max(np.abs(b["position"] - x)) < 1e-5 * np.max(np.abs(x))

@@ -11,6 +11,7 @@ import numpy as np
 
 from . import __version__
 from .errors import ModelError
+from .scene import METHODS as SOLVER_METHODS
 
 
 class _Progress:
@@ -166,15 +167,18 @@ def graph_cmd(model, output):
 @click.argument("scene", type=click.Path(dir_okay=False))
 @click.option("--out", type=click.Path(dir_okay=False), help="results .npz (t and outputs)")
 @click.option("--plot", "plot_dir", type=click.Path(file_okay=False), help="write PNG plots here")
-@click.option("--method", default=None, help="override the scene's solver method")
-@click.option("--rtol", type=float, default=None)
+@click.option("--method", type=click.Choice(SOLVER_METHODS), default=None,
+              help="override the scene's solver method (Rodas4: the generated module's own)")
+@click.option("--rtol", type=click.FloatRange(min=0.0, min_open=True), default=None)
+@click.option("--max-wall", type=click.FloatRange(min=0.0, min_open=True), default=None,
+              help="stop with an error once the integration has taken this many seconds")
 @click.option("-q", "--quiet", is_flag=True)
-def simulate_cmd(scene, out, plot_dir, method, rtol, quiet):
+def simulate_cmd(scene, out, plot_dir, method, rtol, max_wall, quiet):
     """Compile the scene's model and simulate the scene."""
     from .runner import run_scene
 
     prog = _Progress(quiet)
-    res = run_scene(scene, progress=prog, method=method, rtol=rtol)
+    res = run_scene(scene, progress=prog, method=method, rtol=rtol, max_wall=max_wall)
     if out:
         buf = io.BytesIO()
         np.savez_compressed(buf, t=res.t, **res.y)

@@ -55,7 +55,7 @@ def runtime_params(scene: Scene, mod) -> dict | None:
     return out or None
 
 
-def run_scene(path, progress=None, method=None, rtol=None) -> SceneResult:
+def run_scene(path, progress=None, method=None, rtol=None, max_wall=None) -> SceneResult:
     say = progress or (lambda msg: None)
     scene = parse_scene(path)
     t0 = time.perf_counter()
@@ -68,7 +68,7 @@ def run_scene(path, progress=None, method=None, rtol=None) -> SceneResult:
     try:
         res = mod.simulate(scene.t_span, dt=dt, method=method, rtol=rtol, atol=scene.atol,
                            p=runtime_params(scene, mod), breakpoints=scene.breakpoints,
-                           max_step=scene.max_step)
+                           max_step=scene.max_step, max_wall=max_wall)
     except mod.SimulationError as exc:
         raise ModelError(scene.coord, f"simulation failed: {exc}") from None
     t2 = time.perf_counter()
