@@ -1,8 +1,8 @@
-"""Energy drift per period of scipy's integrators on a lossless model: the frictionless
-pendulum (models/pendulum.yaml) released at theta0 = 2 rad.
+"""Energy drift per period of scipy's integrators and bgc's Rodas4 on a lossless model: the
+frictionless pendulum (models/pendulum.yaml) released at theta0 = 2 rad.
 
     python bench/energy_drift.py [--periods 10000] [--rtol 1e-8] [--atol 1e-8]
-                                 [--methods RK45,DOP853,Radau,BDF,LSODA] [--budget 2000]
+                                 [--methods RK45,DOP853,Radau,BDF,LSODA,Rodas4] [--budget 2000]
                                  [--out docs/accuracy]
 
 Nothing dissipates, so the energy E(t) = E0 = m g l (1 - cos theta0) exactly; the relative
@@ -117,7 +117,7 @@ def main(argv=None):
     (out / "pendulum_energy_drift.csv").write_text(buf.getvalue(), encoding="utf-8")
     png = plot(results, args, T, out / "pendulum_energy_drift.png")
     lines = [
-        "# Energy drift of scipy's integrators on a lossless model\n",
+        "# Energy drift of scipy's integrators and bgc's Rodas4 on a lossless model\n",
         f"The frictionless pendulum (`models/pendulum.yaml`, theta0 = "
         f"{mod.PARAM_DEFAULTS['theta0']:g} rad, period T = {T:.6f} s), rtol "
         f"{args.rtol:g}, atol {args.atol:g}, relative energy error (E - E0)/E0 sampled at "

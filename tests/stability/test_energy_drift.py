@@ -12,7 +12,7 @@ T = 4 K(sin^2(theta0 / 2)) sqrt(l / g) (K: complete elliptic integral of the fir
 * Each method over a shorter run: drift per period below 1e-7, i.e. below 1e-3 over 1e4
   periods if the drift stays linear. scipy's BDF does not meet it (measured 2.6e-7 per
   period: 2.6e-3 over 1e4 periods); its test is an expected failure, so that a change is
-  noticed. bgc's Rodas4 drifts 4.3e-11 per period over 10 periods (7.7e-11 over 100).
+  noticed. bgc's Rodas4 drifts 4.3e-11 per period over 10 periods (7.8e-11 over 1e4).
   bench/energy_drift.py measures every method over the full 1e4 periods (docs/stability.md
   has the table).
 """
