@@ -703,7 +703,7 @@ def _counts(stats, solver):
 # penalty joints), and it needs no Newton iteration. Its order rests on the exact Jacobian:
 # it takes the analytic one only.
 _RODAS_GAMMA = 0.25
-_RODAS_A = (  # stage i's state: y + sum_j A[i][j] k_j
+_RODAS_A = (  # stage i's state: y + sum_j A[i][j] k_j (rows padded to 6x6 below)
     (),
     (1.544,),
     (0.9466785280815826, 0.2557011698983284),
@@ -728,6 +728,10 @@ _RODAS_H = (  # dense output (order 3): y(t0 + s h) = (1-s) y0 + s (y1 + (1-s)(q
     (-0.6762803392801253, 6.087714651680015, 16.43084320892478, 24.76722511418386,
      -6.594389125716872),
 )
+# as 6x6 and 2x6 arrays, zero where a stage does not enter, so a step is a few matrix products
+_RODAS_A, _RODAS_C = (np.array([row + (0.0,) * (6 - len(row)) for row in table])
+                      for table in (_RODAS_A, _RODAS_C))
+_RODAS_H = np.array([row + (0.0,) for row in _RODAS_H])
 # step-size control (Hairer's RODAS): h_new = h * clip(0.9 err^(-1/4), 1/5, 6)
 _RODAS_SAFETY, _RODAS_MIN_FACTOR, _RODAS_MAX_FACTOR = 0.9, 0.2, 6.0
 
@@ -770,14 +774,19 @@ def _rodas_class():
             eps = np.finfo(float).eps
             self.rtol, self.atol = max(float(rtol), 100 * eps), atol
             self.max_step, self.jac, self.time_dependent = max_step, jac, time_dependent
+            # LAPACK's getrf/getrs directly: scipy.linalg.lu_solve's argument checks cost
+            # about as much as a 100x100 solve, six times a step
+            self._getrf, self._getrs = scipy.linalg.get_lapack_funcs(("getrf", "getrs"),
+                                                                     (self.y,))
             self.f = self.fun(self.t, self.y)
             self.h_abs = (self._initial_step() if first_step is None
                           else float(first_step))
             self.J = self.dfdt = None
             self.dense = None
 
-        def _scale(self, *ys):
-            return self.atol + self.rtol * np.max([np.abs(v) for v in ys], axis=0)
+        def _scale(self, y, y_new=None):
+            size = np.abs(y) if y_new is None else np.maximum(np.abs(y), np.abs(y_new))
+            return self.atol + self.rtol * size
 
         def _initial_step(self):
             """Hairer's starting step for order 4: an explicit Euler probe of f's change."""
@@ -819,35 +828,25 @@ def _rodas_class():
                 except RuntimeError:  # exactly singular W: the step is tried smaller
                     return None
                 return lu.solve
-            # LAPACK's getrf/getrs directly: scipy.linalg.lu_solve's argument checks cost
-            # about as much as the 100x100 solve itself, six times a step
-            getrf, getrs = scipy.linalg.get_lapack_funcs(("getrf", "getrs"), (self.J,))
-            lu, piv, info = getrf(np.eye(self.n) * c - self.J, overwrite_a=True)
+            lu, piv, info = self._getrf(np.eye(self.n) * c - self.J, overwrite_a=True)
             if info > 0:  # exactly singular W: the step is tried smaller
                 return None
-            return lambda b: getrs(lu, piv, b)[0]
+            return lambda b: self._getrs(lu, piv, b)[0]
 
         def _attempt(self, h):
-            """One Rodas4 step of size h (signed): (y_new, error estimate, dense coefficients)."""
+            """One Rodas4 step of size h (signed): (y_new, error estimate, dense coefficients);
+            (None, None, None) when W is singular."""
             t, y = self.t, self.y
             solve = self._factor(h)
             if solve is None:
                 return None, None, None
-            k = []
+            K = np.zeros((6, self.n))  # the stages k_1..k_6
             for i in range(6):
-                if i == 0:
-                    fi = self.f
-                else:
-                    u = y + sum(a * kj for a, kj in zip(_RODAS_A[i], k))
-                    fi = self.fun(t + _RODAS_T[i] * h, u)
-                b = fi + sum((c / h) * kj for c, kj in zip(_RODAS_C[i], k))
-                if _RODAS_D[i]:
-                    b = b + (h * _RODAS_D[i]) * self.dfdt
-                k.append(solve(b))
-            y_new = u + k[5]  # stiffly accurate: the last stage is the solution
-            q1 = sum(c * kj for c, kj in zip(_RODAS_H[0], k))
-            q2 = sum(c * kj for c, kj in zip(_RODAS_H[1], k))
-            return y_new, k[5], (q1, q2)
+                u = y + _RODAS_A[i] @ K  # rows of A and C are zero from column i on
+                fi = self.f if i == 0 else self.fun(t + _RODAS_T[i] * h, u)
+                K[i] = solve(fi + (_RODAS_C[i] / h) @ K + (h * _RODAS_D[i]) * self.dfdt)
+            # stiffly accurate: the last stage's state plus k_6 is the solution, k_6 the error
+            return u + K[5], K[5], _RODAS_H @ K
 
         def _step_impl(self):
             t, y = self.t, self.y
