@@ -341,30 +341,6 @@ JAC_SPARSITY[
 ] = True
 
 
-class SimulationError(RuntimeError):
-    """The integrator failed or was stopped (the message says why): .t where, .stats the counts."""
-
-    t = None
-    stats = None
-
-
-class StiffnessError(SimulationError):
-    """An explicit method met a stiff model (the message says where, why, and what to use)."""
-
-
-class SimResult(tuple):
-    """(t, x, y) with x of shape (n, *batch, len(t)) and y the outputs; .stats the solver's counts."""
-
-    def __new__(cls, t, x, y, stats):
-        self = super().__new__(cls, (t, x, y))
-        self.stats = stats
-        return self
-
-    t = property(lambda self: self[0])
-    x = property(lambda self: self[1])
-    y = property(lambda self: self[2])
-
-
 def _unpack(P):
     """Parameter dict -> flat tuple of values (matrix entries, then derived parameters)."""
     l1 = P['l1']
@@ -7398,6 +7374,30 @@ def outputs(t, x, p=None, u=None):
         'dissipated': np.array(_b(s_W_diss)),
         'joint_gap': np.stack([_b(np.sqrt(q_j1__C_0*q_j1__C_0 + q_j1__C_1*q_j1__C_1 + q_j1__C_2*q_j1__C_2)), _b(np.sqrt(q_j2__C_0*q_j2__C_0 + q_j2__C_1*q_j2__C_1 + q_j2__C_2*q_j2__C_2)), _b(np.sqrt(q_j3__C_0*q_j3__C_0 + q_j3__C_1*q_j3__C_1 + q_j3__C_2*q_j3__C_2)), _b(np.sqrt(q_j4__C_0*q_j4__C_0 + q_j4__C_1*q_j4__C_1 + q_j4__C_2*q_j4__C_2)), _b(np.sqrt(q_j5__C_0*q_j5__C_0 + q_j5__C_1*q_j5__C_1 + q_j5__C_2*q_j5__C_2)), ]).reshape((5,) + _shape),
     }
+
+
+class SimulationError(RuntimeError):
+    """The integrator failed or was stopped (the message says why): .t where, .stats the counts."""
+
+    t = None
+    stats = None
+
+
+class StiffnessError(SimulationError):
+    """An explicit method met a stiff model (the message says where, why, and what to use)."""
+
+
+class SimResult(tuple):
+    """(t, x, y) with x of shape (n, *batch, len(t)) and y the outputs; .stats the solver's counts."""
+
+    def __new__(cls, t, x, y, stats):
+        self = super().__new__(cls, (t, x, y))
+        self.stats = stats
+        return self
+
+    t = property(lambda self: self[0])
+    x = property(lambda self: self[1])
+    y = property(lambda self: self[2])
 
 
 # --------------------------------------------------------------------------------------------

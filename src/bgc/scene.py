@@ -7,9 +7,10 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import importlib.abc
 import importlib.util
+import linecache
 import sys
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -237,15 +238,46 @@ def free_values(scene: Scene) -> dict:
 
 
 def load_module(source: str, name: str):
-    """Import generated source as a module (from a temporary file, so tracebacks show code)."""
-    d = Path(tempfile.mkdtemp(prefix="bgc_"))
-    f = d / f"{name}.py"
-    f.write_text(source, encoding="utf-8")
-    spec = importlib.util.spec_from_file_location(f"bgc_scene_{name}", f)
+    """Import generated source as a module, from memory: nothing is written to disk. The code
+    is compiled under a recognisable file name (``<bgc NAME>``) registered with ``linecache``,
+    so tracebacks and ``inspect`` still show the generated lines."""
+    from .emit import check_skeleton
+
+    check_skeleton(source)  # never execute a module whose top level is not the template's
+    modname = f"bgc_generated_{name}"
+    filename = f"<bgc {name}>"
+    loader = _SourceLoader(modname, filename, source)
+    spec = importlib.util.spec_from_loader(modname, loader, origin=filename)
     mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
+    mod.__file__ = filename
+    linecache.cache[filename] = (len(source), None, source.splitlines(True), filename)
+    sys.modules[modname] = mod
+    try:
+        loader.exec_module(mod)
+    except BaseException:
+        sys.modules.pop(modname, None)
+        raise
     return mod
+
+
+class _SourceLoader(importlib.abc.Loader):
+    """A loader for generated source held in memory (``get_source`` serves tracebacks,
+    ``get_data`` the module's own text)."""
+
+    def __init__(self, modname: str, filename: str, source: str):
+        self.modname, self.filename, self.source = modname, filename, source
+
+    def create_module(self, spec):
+        return None
+
+    def exec_module(self, module):
+        exec(compile(self.source, self.filename, "exec"), module.__dict__)
+
+    def get_source(self, fullname):
+        return self.source
+
+    def get_data(self, path):
+        return self.source.encode("utf-8")
 
 
 def scene_model(scene: Scene) -> Model:
