@@ -21,7 +21,7 @@ import networkx as nx
 import sympy as sp
 from sympy.printing.numpy import NumPyPrinter
 
-from . import __version__
+from . import __version__, fastsym
 from .equations import Assignment, Equations, T, schedule
 
 _IDENT_OK = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_")
@@ -205,9 +205,12 @@ def _function(eq: Equations, printer: BgcPrinter, results: list, assigns: list[A
     assigns = _prune(results, assigns)
     exprs = [a.expr for a in assigns] + list(results)
     if cse and exprs:
-        repl, reduced = sp.cse(exprs, symbols=(sp.Symbol(f"_c{i}", real=True)
-                                               for i in itertools.count()),
-                               order="none", list=True)
+        names = (sp.Symbol(f"_c{i}", real=True) for i in itertools.count())
+        fast = fastsym.cse(exprs, lambda: next(names))  # symengine, when it can read them all
+        if fast is not None:
+            repl, reduced = fast
+        else:
+            repl, reduced = sp.cse(exprs, symbols=names, order="none", list=True)
     else:
         repl, reduced = [], exprs
     defs = [(s, e, "") for s, e in repl]
@@ -403,6 +406,11 @@ def _top_names(node) -> tuple[str, set]:
     return kind, set()
 
 
+@functools.lru_cache(maxsize=None)
+def _runtime_dump(backend: str) -> tuple[str, ...]:
+    return tuple(ast.dump(s) for s in ast.parse(runtime_source(backend)).body)
+
+
 def check_skeleton(text: str, backend: str = _TEMPLATES) -> None:
     """Parse the generated module and check its top-level statements: a docstring, the
     imports the printer may ask for, the model part's own definitions (each name once at most,
@@ -412,11 +420,11 @@ def check_skeleton(text: str, backend: str = _TEMPLATES) -> None:
     except SyntaxError as exc:
         raise SkeletonError(f"generated module does not parse: {exc}") from None
     body = tree.body
-    rt = ast.parse(runtime_source(backend)).body
+    rt = _runtime_dump(backend)
     if len(body) < len(rt) + 2:
         raise SkeletonError("generated module is shorter than its runtime")
     head, tail = body[:len(body) - len(rt)], body[len(body) - len(rt):]
-    if [ast.dump(s) for s in tail] != [ast.dump(s) for s in rt]:
+    if tuple(ast.dump(s) for s in tail) != rt:
         raise SkeletonError("the runtime part differs from templates/numpy/runtime.py")
     doc = head[0]
     if not (isinstance(doc, ast.Expr) and isinstance(doc.value, ast.Constant)
