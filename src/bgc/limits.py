@@ -49,7 +49,7 @@ class Limits:
     #: Decimal digits used when a constant expression is evaluated numerically.
     eval_digits: int = 30
     #: Largest number of sympy operations in one built expression (after substitution).
-    built_ops: int = 100_000
+    built_ops: int = 20_000
     # -- scenes and runs ------------------------------------------------------------------
     #: Largest magnitude of a time (start, end, breakpoint) in seconds.
     time_magnitude: float = 1e15

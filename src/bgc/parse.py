@@ -112,6 +112,7 @@ class Bond:
     dst: tuple[str, ...]
     n: int
     coord: Coord
+    auto: bool = False  # named b1, b2, ... by its position (the user gave no name)
 
 
 @dataclass(frozen=True)
@@ -719,7 +720,7 @@ def _bond(r: _Reader, i: int, bn) -> Bond:
             raise ModelError(r.coord(bn), f"bond {i}: write [from, to]")
         src = _endpoint(r, bn.value[0], f"bond {i} 'from'")
         dst = _endpoint(r, bn.value[1], f"bond {i} 'to'")
-        return Bond(f"b{i}", src, dst, 1, r.coord(bn))
+        return Bond(f"b{i}", src, dst, 1, r.coord(bn), auto=True)
     bm = r.mapping(bn, f"bond {i}")
     _require(r, bm, bn, ("from", "to", "n", "name"), f"bond {i}", required=("from", "to"))
     name = f"b{i}"
@@ -732,7 +733,8 @@ def _bond(r: _Reader, i: int, bn) -> Bond:
             raise ModelError(r.coord(bm["n"][1]), f"bond {name!r}: cardinality must be 1.."
                                                   f"{MAX_CARDINALITY}, got {n}")
     return Bond(name, _endpoint(r, bm["from"][1], f"bond {name!r} 'from'"),
-                _endpoint(r, bm["to"][1], f"bond {name!r} 'to'"), n, r.coord(bn))
+                _endpoint(r, bm["to"][1], f"bond {name!r} 'to'"), n, r.coord(bn),
+                auto="name" not in bm)
 
 
 def _check_unique(body: Body, inputs) -> dict:
@@ -746,11 +748,21 @@ def _check_unique(body: Body, inputs) -> dict:
                 raise ModelError(it.coord, f"duplicate name {it.name!r}: already a {k0} "
                                            f"at line {c0.line}")
             seen[it.name] = (kind, it.coord)
-    bnames: dict[str, Coord] = {}
+    bnames: dict[str, Bond] = {}
     for b in body.bonds:
         if b.name in bnames:
+            other = bnames[b.name]
+            auto = other if other.auto else b if b.auto else None
+            if auto is not None:  # a user's name equal to another bond's automatic name
+                user = b if auto is other else other
+                raise ModelError(user.coord, f"bond name {b.name!r} is the automatic name of the "
+                                             f"bond at line {auto.coord.line}: choose another")
             raise ModelError(b.coord, f"duplicate bond name {b.name!r}")
-        if b.name in seen and not b.name.startswith("b"):
-            raise ModelError(b.coord, f"bond name {b.name!r} is already a {seen[b.name][0]}")
-        bnames[b.name] = b.coord
+        # An automatic name gives way to the user's names (the bond keeps it in generated code,
+        # e_b3, but an expression's b3 means the user's parameter, element or state).
+        if b.name in seen and not b.auto:
+            kind = seen[b.name][0]
+            raise ModelError(b.coord, f"bond name {b.name!r} is already "
+                                      f"{'an' if kind[0] in 'aeiou' else 'a'} {kind}")
+        bnames[b.name] = b
     return seen
