@@ -421,6 +421,7 @@ class _Imports:
     def __init__(self):
         self.cache: dict[str, Model] = {}
         self.stack: list[str] = []
+        self.files = 0  # distinct files begun
 
 
 def parse_file(path: str | Path, _imports: _Imports | None = None,
@@ -530,7 +531,8 @@ def _read_imports(r: _Reader, node, imports: _Imports) -> list[Component]:
             raise ModelError(coord, f"import cycle through {_short(rel)}")
         sub = imports.cache.get(target)
         if sub is None:
-            if len(imports.cache) >= LIMITS.import_files:
+            imports.files += 1
+            if imports.files > LIMITS.import_files:
                 raise ModelError(coord, f"more than {LIMITS.import_files} imported files "
                                         "(the limit of distinct files one model may import)")
             sub = parse_file(Path(r.path).parent / rel, imports, coord)
