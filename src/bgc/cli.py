@@ -130,7 +130,7 @@ def check_cmd(model):
     out.write(f"\ncausality: {'all storage elements integral' if all_integral else 'derivative'}\n")
     for loop in eqs.loops:
         out.write(f"note: {loop}\n")
-    for wmsg in caus.warnings:
+    for wmsg in eqs.warnings:  # what the equations leave standing of causality's warnings
         out.write(f"warning: {wmsg}\n")
     click.echo(out.getvalue(), nl=False)
 

@@ -18,7 +18,9 @@ import yaml
 
 from .errors import Coord, ModelError
 from .expr import Expr
+from .limits import LIMITS
 from .parse import Model, _Reader, _param_value, _require, check_name, parse_file
+from .safeio import read_text_bounded
 
 METHODS = ("Radau", "BDF", "LSODA", "RK45", "RK23", "DOP853", "Rodas4")
 PLOT_KINDS = ("time", "path3d", "loci")
@@ -60,10 +62,7 @@ class Scene:
 
 def parse_scene(path: str | Path) -> Scene:
     path = str(path)
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ModelError(Coord(path, 1, 1), f"cannot read scene file: {exc}") from None
+    text = read_text_bounded(path, None, "scene file", LIMITS.scene_bytes)
     r = _Reader(path, text)
     root = r.compose()
     if root is None:
@@ -72,26 +71,42 @@ def parse_scene(path: str | Path) -> Scene:
     allowed = ("bgc_scene", "name", "description", "model", "duration", "t_span", "parameters",
                "inputs", "outputs", "solver", "breakpoints", "plots", "effects", "free")
     _require(r, top, root, allowed, "the scene", required=("bgc_scene", "model"))
-    if r.scalar(top["bgc_scene"][1], "bgc_scene") != 1:
+    version = r.scalar(top["bgc_scene"][1], "bgc_scene")
+    if isinstance(version, bool) or version != 1:
         raise ModelError(r.coord(top["bgc_scene"][1]), "unsupported scene format version")
     name = Path(path).stem
     if "name" in top:
         name = check_name(r.string(top["name"][1], "name"), r.coord(top["name"][1]), "scene")
     model_rel = r.string(top["model"][1], "model")
+    if "\0" in model_rel:
+        raise ModelError(r.coord(top["model"][1]), "the model's path contains a NUL byte")
     model_path = str(Path(path).parent / model_rel)
     if not Path(model_path).is_file():
         raise ModelError(r.coord(top["model"][1]), f"model file {model_rel!r} does not exist")
+    tmax = LIMITS.time_magnitude
+
+    def a_time(node, what):
+        v = r.number(node, what)
+        if abs(v) > tmax:
+            raise ModelError(r.coord(node), f"{what}: {v:g} s is beyond the limit of times "
+                                            f"(|t| <= {tmax:g} s)")
+        return v
+
     if "t_span" in top:
-        span = r.seq(top["t_span"][1], "t_span")
+        span_node = top["t_span"][1]
+        span = r.seq(span_node, "t_span")
         if len(span) != 2:
-            raise ModelError(r.coord(top["t_span"][1]), "t_span is [start, end]")
-        t0, t1 = (r.number(s, "t_span") for s in span)
+            raise ModelError(r.coord(span_node), "t_span is [start, end]")
+        t0, t1 = (a_time(s, "t_span") for s in span)
     elif "duration" in top:
-        t0, t1 = 0.0, r.number(top["duration"][1], "duration")
+        span_node = top["duration"][1]
+        t0, t1 = 0.0, a_time(span_node, "duration")
     else:
         raise ModelError(r.coord(root), "the scene: give duration or t_span")
     if not t1 > t0:
-        raise ModelError(r.coord(root), f"the scene: the end time {t1} is not after {t0}")
+        raise ModelError(r.coord(span_node), f"the scene: the end time {t1:g} is not after "
+                                             f"the start {t0:g}")
+    length = t1 - t0
     params = {}
     if "parameters" in top:
         for pname, (kn, vn) in r.mapping(top["parameters"][1], "parameters").items():
@@ -130,9 +145,23 @@ def parse_scene(path: str | Path) -> Scene:
                                                            f"(one of {', '.join(METHODS)})")
         for key in ("rtol", "atol", "dt", "max_step"):
             if key in sm:
-                v = r.number(sm[key][1], key)
+                v = r.number(sm[key][1], key)  # finite, within 10**300
+                where = r.coord(sm[key][1])
                 if not v > 0:
-                    raise ModelError(r.coord(sm[key][1]), f"solver {key} must be positive")
+                    raise ModelError(where, f"solver {key} must be positive")
+                if key == "rtol" and not LIMITS.min_rtol <= v <= 1:
+                    raise ModelError(where, f"solver rtol {v:g} is outside "
+                                            f"[{LIMITS.min_rtol:g}, 1] (the limit of tolerances: "
+                                            "doubles carry about 16 digits)")
+                if key == "dt" and length / v + 1 > LIMITS.output_samples:
+                    raise ModelError(where, f"solver dt {v:g} over {length:g} s gives "
+                                            f"{length / v + 1:.3g} output samples, more than "
+                                            f"the limit of {LIMITS.output_samples}")
+                if key == "max_step" and v < length * LIMITS.min_step_fraction:
+                    raise ModelError(where, f"solver max_step {v:g} is below the limit of "
+                                            f"{LIMITS.min_step_fraction:g} times the span "
+                                            f"({length * LIMITS.min_step_fraction:g} s): the "
+                                            "run would not end")
                 if key == "rtol":
                     rtol = v
                 elif key == "atol":
@@ -143,7 +172,12 @@ def parse_scene(path: str | Path) -> Scene:
                     max_step = v
     bps = ()
     if "breakpoints" in top:
-        bps = tuple(r.number(b, "breakpoint") for b in r.seq(top["breakpoints"][1], "breakpoints"))
+        items = r.seq(top["breakpoints"][1], "breakpoints")
+        if len(items) > LIMITS.breakpoints:
+            raise ModelError(r.coord(items[LIMITS.breakpoints]), f"more than "
+                                                                 f"{LIMITS.breakpoints} "
+                                                                 "breakpoints (the limit)")
+        bps = tuple(a_time(b, "breakpoint") for b in items)
     plots = []
     if "plots" in top:
         for pn in r.seq(top["plots"][1], "plots"):
