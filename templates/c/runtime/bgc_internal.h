@@ -1,0 +1,43 @@
+/* bgc runtime internals shared by the driver (bgc_runtime.c) and the integrators. */
+#ifndef BGC_INTERNAL_H
+#define BGC_INTERNAL_H
+
+#include "bgc_runtime.h"
+
+#define BGC_REJECT (-1) /* a stage state is not finite: the step is retried smaller */
+
+typedef void (*bgc_interp_fn)(void *data, double t, double *out);
+
+typedef struct {
+    const bgc_model *m;
+    const double *p;
+    const bgc_options *opt;
+    bgc_stats *st;
+    double rtol;        /* the method's (floored) rtol */
+    double max_step;    /* > 0, inf when none */
+    double deadline;    /* monotonic seconds, or inf */
+    double lo, hi;      /* the segment's one-sided time window [a, nextafter(c, a)] */
+    double *y_out;      /* n_out x n */
+    int k_out;          /* next output row */
+} bgc_ctx;
+
+/* rhs at the one-sided time; counts; 0, BGC_REJECT (x not finite), BGC_ERR_NONFINITE or
+ * BGC_ERR_MODEL (st filled) */
+int bgc_call_rhs(bgc_ctx *c, double t, const double *x, double *dx);
+int bgc_call_jac(bgc_ctx *c, double t, const double *x, double *jv);
+double bgc_atol(const bgc_ctx *c, int i);
+/* rms of e_i / (atol_i + rtol * max(|y_i|, |z_i|)) (z may be NULL) */
+double bgc_err_norm(const bgc_ctx *c, const double *e, const double *y, const double *z);
+/* Hairer's starting step for a method whose error estimate has the given order */
+int bgc_initial_step(bgc_ctx *c, double t, double t_end, const double *y, const double *f,
+                     int order, double *h, double *work);
+/* after an accepted step to t_new: write output rows for times in (t_old, t_new] */
+void bgc_outputs(bgc_ctx *c, double t_new, const double *y_new, bgc_interp_fn f, void *data);
+int bgc_out_of_time(bgc_ctx *c, double t);  /* wall-time check; fills st when exceeded */
+int bgc_fail(bgc_ctx *c, int status, double t, const char *fmt, ...);
+double bgc_min_step(double t);
+
+int bgc_rodas4_segment(bgc_ctx *c, double a, double b, double *y);
+int bgc_radau5_segment(bgc_ctx *c, double a, double b, double *y);
+
+#endif
