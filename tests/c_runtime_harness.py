@@ -47,8 +47,12 @@ class Stats(C.Structure):
     _fields_ = [("nsteps", C.c_long), ("naccept", C.c_long), ("nreject", C.c_long),
                 ("nfev", C.c_long), ("njev", C.c_long), ("nlu", C.c_long),
                 ("status", C.c_int), ("t_fail", C.c_double), ("bad_index", C.c_int),
-                ("bad_where", C.c_int), ("message", C.c_char * 256), ("bad_entry", C.c_int),
-                ("n_done", C.c_int), ("t_last", C.c_double), ("nsparse_fallback", C.c_long)]
+                ("bad_where", C.c_int), ("message", C.c_char * 256)]
+
+
+class StatsExt(C.Structure):
+    _fields_ = [("bad_entry", C.c_int), ("n_done", C.c_int), ("t_last", C.c_double),
+                ("nsparse_fallback", C.c_long)]
 
 
 def compiler() -> str | None:
@@ -85,6 +89,7 @@ class Lib:
         self.lib = lib = C.CDLL(str(path))
         lib.bgc_integrate.argtypes = [C.POINTER(Model), DBLP, C.c_double, C.c_double, DBLP,
                                       C.POINTER(Options), DBLP, C.POINTER(Stats)]
+        lib.bgc_integrate_ex.argtypes = lib.bgc_integrate.argtypes + [C.POINTER(StatsExt)]
         lib.bgc_integrate_batch.argtypes = [C.POINTER(Model), C.c_int, DBLP, DBLP, C.c_double,
                                             C.c_double, C.POINTER(Options), DBLP,
                                             C.POINTER(Stats), C.c_int]
@@ -146,9 +151,11 @@ class ModelHandle:
         p = np.ascontiguousarray(p, dtype=float)
         x0 = np.ascontiguousarray(x0, dtype=float)
         Y = np.zeros((o.n_out, self.n))
-        st = Stats()
-        status = self.lib.lib.bgc_integrate(C.byref(self.s), ptr(p), t0, t1, ptr(x0),
-                                            C.byref(o), ptr(Y), C.byref(st))
+        st, ext = Stats(), StatsExt()
+        status = self.lib.lib.bgc_integrate_ex(C.byref(self.s), ptr(p), t0, t1, ptr(x0),
+                                               C.byref(o), ptr(Y), C.byref(st), C.byref(ext))
+        for name, _ in StatsExt._fields_:
+            setattr(st, name, getattr(ext, name))
         return status, Y, st
 
     def run_batch(self, P, t0, t1, X0, nthreads=2, **kw):
@@ -194,3 +201,6 @@ def chain_matrix(N, k_stiff, k_soft, c, m):
     A[1::2, 0::2] = -K / m
     A[1::2, 1::2] = -D / m
     return A
+
+
+BGC = {v: k for k, v in STATUS.items()}

@@ -143,3 +143,9 @@ int fail_rhs(double t, const double *x, const double *p, double *dx)
     dx[0] = -x[0];
     return t > 0.5;
 }
+int fail_jac(double t, const double *x, const double *p, double *jv)
+{
+    (void)t; (void)x; (void)p;
+    jv[0] = -1.0;
+    return 0;
+}

@@ -13,6 +13,7 @@ typedef struct {
     const double *p;
     const bgc_options *opt;
     bgc_stats *st;
+    bgc_stats_ext *xs;  /* never NULL inside (a local one when the caller gives none) */
     double rtol;        /* the method's (floored) rtol */
     double max_step;    /* > 0, inf when none */
     double deadline;    /* monotonic seconds, or inf */

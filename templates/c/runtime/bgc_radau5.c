@@ -264,7 +264,7 @@ int bgc_radau5_segment(bgc_ctx *c, double a, double b, double *y)
         radau_dense d = {n, t, h, yold, Zold};
         bgc_outputs(c, t_new, y, radau_interp, &d);
         t = t_new;
-        st->t_last = t;
+        c->xs->t_last = t;
         h_abs = h_next;
         if (t < b) {
             if ((status = bgc_call_rhs(c, t, y, f0))) goto done;
@@ -276,7 +276,7 @@ int bgc_radau5_segment(bgc_ctx *c, double a, double b, double *y)
         }
     }
 done:
-    st->nsparse_fallback += ls.fallbacks;
+    c->xs->nsparse_fallback += ls.fallbacks;
     bgc_linsys_free(&ls);
     free(v);
     free(buf);

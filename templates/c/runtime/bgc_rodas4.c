@@ -155,11 +155,11 @@ int bgc_rodas4_segment(bgc_ctx *c, double a, double b, double *y)
         rodas_dense d = {n, t, h, yold, y, q};
         bgc_outputs(c, t_new, y, rodas_interp, &d);
         t = t_new;
-        st->t_last = t;
+        c->xs->t_last = t;
         if (t < b && (status = bgc_call_rhs(c, t, y, f))) goto done;
     }
 done:
-    st->nsparse_fallback += ls.fallbacks;
+    c->xs->nsparse_fallback += ls.fallbacks;
     bgc_linsys_free(&ls);
     free(buf);
     return status;

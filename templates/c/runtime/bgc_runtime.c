@@ -75,7 +75,7 @@ int bgc_call_jac(bgc_ctx *c, double t, const double *x, double *jv)
     for (int e = 0; e < c->m->nnz; e++)
         if (!isfinite(jv[e])) {
             c->st->bad_index = c->m->jac_row[e];
-            c->st->bad_entry = e;
+            c->xs->bad_entry = e;
             c->st->bad_where = 1;
             return bgc_fail(c, BGC_ERR_NONFINITE, t, "%s: the Jacobian entry d(state %d)/d(state "
                             "%d) is not finite (%g) at t = %.17g", method_name(c->opt->method),
@@ -138,7 +138,7 @@ void bgc_outputs(bgc_ctx *c, double t_new, const double *y_new, bgc_interp_fn f,
         else f(data, to, row);
         c->k_out++;
     }
-    c->st->n_done = c->k_out;
+    c->xs->n_done = c->k_out;
 }
 
 int bgc_out_of_time(bgc_ctx *c, double t)
@@ -158,15 +158,25 @@ static int cmp_double(const void *a, const void *b)
 int bgc_integrate(const bgc_model *m, const double *p, double t0, double t1, const double *x0,
                   const bgc_options *opt, double *y_out, bgc_stats *st)
 {
+    return bgc_integrate_ex(m, p, t0, t1, x0, opt, y_out, st, NULL);
+}
+
+int bgc_integrate_ex(const bgc_model *m, const double *p, double t0, double t1,
+                     const double *x0, const bgc_options *opt, double *y_out, bgc_stats *st,
+                     bgc_stats_ext *ext)
+{
     if (!st) return BGC_ERR_ARGS;
+    bgc_stats_ext local;
+    if (!ext) ext = &local;
     memset(st, 0, sizeof *st);
+    memset(ext, 0, sizeof *ext);
     st->bad_index = -1;
-    st->bad_entry = -1;
+    ext->bad_entry = -1;
     st->t_fail = NAN;
-    st->t_last = t0;
+    ext->t_last = t0;
     bgc_ctx c;
     memset(&c, 0, sizeof c);
-    c.m = m; c.p = p; c.opt = opt; c.st = st; c.y_out = y_out;
+    c.m = m; c.p = p; c.opt = opt; c.st = st; c.xs = ext; c.y_out = y_out;
     c.lo = -INFINITY; c.hi = INFINITY;
     /* argument checks */
     const char *bad = NULL;
@@ -221,7 +231,7 @@ int bgc_integrate(const bgc_model *m, const double *p, double t0, double t1, con
         memcpy(y_out + (size_t)c.k_out * n, x0, (size_t)n * sizeof(double));
         c.k_out++;
     }
-    st->n_done = c.k_out;
+    ext->n_done = c.k_out;
     int status = 0;
     for (int s = 0; s + 1 < nc && !status; s++) {
         double a = cuts[s], b = cuts[s + 1];
@@ -235,7 +245,7 @@ int bgc_integrate(const bgc_model *m, const double *p, double t0, double t1, con
     if (status == BGC_REJECT) status = BGC_ERR_STEP_TOO_SMALL;
     st->status = status;
     if (!status) {
-        st->t_last = t1;
+        ext->t_last = t1;
         snprintf(st->message, sizeof st->message, "%s: reached t = %.17g", method_name(opt->method), t1);
     }
     return status;

@@ -62,16 +62,23 @@ typedef struct {
     double t_fail; int bad_index;   /* first non-finite component (state index) or -1 */
     int bad_where;                  /* 0 rhs, 1 jacobian */
     char message[256];
-    /* added: */
+} bgc_stats;
+
+/* More about a run, beside bgc_stats (kept separate so that bgc_stats keeps its layout) */
+typedef struct {
     int bad_entry;                  /* Jacobian entry (pattern order) that was non-finite, or -1 */
     int n_done;                     /* output rows written (the rest are NaN on failure) */
     double t_last;                  /* the time the integration reached */
     long nsparse_fallback;          /* sparse factorisations that fell back to dense LU */
-} bgc_stats;
+} bgc_stats_ext;
 
 int bgc_integrate(const bgc_model *m, const double *p, double t0, double t1, const double *x0,
                   const bgc_options *opt, double *y_out /* n_out*n, row per output time */,
                   bgc_stats *st);
+/* the same, also filling ext (may be NULL) */
+int bgc_integrate_ex(const bgc_model *m, const double *p, double t0, double t1,
+                     const double *x0, const bgc_options *opt, double *y_out, bgc_stats *st,
+                     bgc_stats_ext *ext);
 /* a batch: instance k uses p + k*np and x0 + k*n, writes y_out + k*n_out*n, st + k; every
    instance has its own step size; spread over threads with OpenMP when compiled with it.
    Returns BGC_OK, or the status of the first instance (lowest k) that failed. */
