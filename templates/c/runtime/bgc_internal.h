@@ -20,11 +20,18 @@ typedef struct {
     double lo, hi;      /* the segment's one-sided time window [a, nextafter(c, a)] */
     double *y_out;      /* n_out x n */
     int k_out;          /* next output row */
+    /* the last non-finite rhs value of a trial stage (it rejected the step): reported if the
+     * step then shrinks below its minimum; pend_index < 0: none since the last accepted step */
+    int pend_index; double pend_t, pend_v;
 } bgc_ctx;
 
 /* rhs at the one-sided time; counts; 0, BGC_REJECT (x not finite), BGC_ERR_NONFINITE or
  * BGC_ERR_MODEL (st filled) */
 int bgc_call_rhs(bgc_ctx *c, double t, const double *x, double *dx);
+/* the same at a trial stage: a non-finite value rejects the step (BGC_REJECT) and is kept as
+ * pending; bgc_step_too_small reports it when the step cannot shrink further */
+int bgc_call_rhs_trial(bgc_ctx *c, double t, const double *x, double *dx);
+int bgc_step_too_small(bgc_ctx *c, double t);
 int bgc_call_jac(bgc_ctx *c, double t, const double *x, double *jv);
 double bgc_atol(const bgc_ctx *c, int i);
 /* rms of e_i / (atol_i + rtol * max(|y_i|, |z_i|)) (z may be NULL) */

@@ -106,8 +106,7 @@ int bgc_radau5_segment(bgc_ctx *c, double a, double b, double *y)
         int niter = 0;
         for (;;) {
             if (h_abs < min_step) {
-                status = bgc_fail(c, BGC_ERR_STEP_TOO_SMALL, t, "Radau5 failed at t = %.17g: "
-                                  "the step size fell below its minimum (10 ulp of t)", t);
+                status = bgc_step_too_small(c, t);
                 goto done;
             }
             if (c->opt->max_steps > 0 && st->nsteps >= c->opt->max_steps) {
@@ -156,7 +155,7 @@ int bgc_radau5_segment(bgc_ctx *c, double a, double b, double *y)
                 const double cc[3] = {C1, C2, 1.0};
                 for (int i = 0; i < 3; i++) {
                     for (size_t r = 0; r < N; r++) tmp[r] = y[r] + Z[i * N + r];
-                    int s = bgc_call_rhs(c, t + cc[i] * h, tmp, F + i * N);
+                    int s = bgc_call_rhs_trial(c, t + cc[i] * h, tmp, F + i * N);
                     if (s == BGC_REJECT) { diverged = 1; break; }
                     if (s) { status = s; goto done; }
                 }
@@ -222,7 +221,7 @@ int bgc_radau5_segment(bgc_ctx *c, double a, double b, double *y)
             if (err_norm >= 1.0 && (first || rejected)) {
                 /* Hairer's remedy for stiff components: one more filtering with f(y0 + err) */
                 for (size_t r = 0; r < N; r++) work[r] = y[r] + err[r];
-                int s = bgc_call_rhs(c, t, work, err);
+                int s = bgc_call_rhs_trial(c, t, work, err);
                 if (s && s != BGC_REJECT) { status = s; goto done; }
                 if (s == BGC_REJECT) err_norm = INFINITY;
                 else {
@@ -241,6 +240,7 @@ int bgc_radau5_segment(bgc_ctx *c, double a, double b, double *y)
         }
         /* accepted: the next step size (predictive controller, H&W IV.8 (8.25)) */
         st->naccept++;
+        c->pend_index = -1;
         first = 0;
         double safety = SAFETY * (2 * NEWTON_MAXITER + 1) / (2 * NEWTON_MAXITER + niter);
         double en = fmax(err_norm, 1e-10);

@@ -86,8 +86,7 @@ int bgc_rodas4_segment(bgc_ctx *c, double a, double b, double *y)
         double err_norm, t_new, h;
         for (;;) {
             if (h_abs < min_step) {
-                status = bgc_fail(c, BGC_ERR_STEP_TOO_SMALL, t, "Rodas4 failed at t = %.17g: the "
-                                  "step size fell below its minimum (10 ulp of t)", t);
+                status = bgc_step_too_small(c, t);
                 goto done;
             }
             if (c->opt->max_steps > 0 && st->nsteps >= c->opt->max_steps) {
@@ -118,7 +117,7 @@ int bgc_rodas4_segment(bgc_ctx *c, double a, double b, double *y)
                     }
                     if (i == 0) memcpy(ki, f, (size_t)n * sizeof(double));
                     else {
-                        int s = bgc_call_rhs(c, t + RT[i] * h, u, ki);
+                        int s = bgc_call_rhs_trial(c, t + RT[i] * h, u, ki);
                         if (s == BGC_REJECT) { ok = 0; break; }
                         if (s) { status = s; goto done; }
                     }
@@ -142,6 +141,7 @@ int bgc_rodas4_segment(bgc_ctx *c, double a, double b, double *y)
         if (rejected && fac > 1.0) fac = 1.0;
         h_abs *= fmax(MIN_FACTOR, fac);
         st->naccept++;
+        c->pend_index = -1;
         for (int r = 0; r < n; r++) {
             double s1 = 0.0, s2 = 0.0;
             for (int j = 0; j < 5; j++) {

@@ -44,7 +44,15 @@ static const char *method_name(int method) { return method == BGC_RADAU5 ? "Rada
 
 double bgc_min_step(double t) { return 10.0 * fabs(nextafter(t, INFINITY) - t); }
 
-int bgc_call_rhs(bgc_ctx *c, double t, const double *x, double *dx)
+static int nonfinite_rhs(bgc_ctx *c, int i, double v, double t)
+{
+    c->st->bad_index = i;
+    c->st->bad_where = 0;
+    return bgc_fail(c, BGC_ERR_NONFINITE, t, "%s: the right-hand side of state %d is not "
+                    "finite (%g) at t = %.17g", method_name(c->opt->method), i, v, t);
+}
+
+static int call_rhs(bgc_ctx *c, double t, const double *x, double *dx, int trial)
 {
     const int n = c->m->n;
     for (int i = 0; i < n; i++)
@@ -56,13 +64,21 @@ int bgc_call_rhs(bgc_ctx *c, double t, const double *x, double *dx)
                         method_name(c->opt->method), t);
     for (int i = 0; i < n; i++)
         if (!isfinite(dx[i])) {
-            c->st->bad_index = i;
-            c->st->bad_where = 0;
-            return bgc_fail(c, BGC_ERR_NONFINITE, t, "%s: the right-hand side of state %d is "
-                            "not finite (%g) at t = %.17g", method_name(c->opt->method), i,
-                            dx[i], t);
+            if (!trial) return nonfinite_rhs(c, i, dx[i], t);
+            c->pend_index = i; c->pend_t = t; c->pend_v = dx[i];
+            return BGC_REJECT;
         }
     return 0;
+}
+
+int bgc_call_rhs(bgc_ctx *c, double t, const double *x, double *dx) { return call_rhs(c, t, x, dx, 0); }
+int bgc_call_rhs_trial(bgc_ctx *c, double t, const double *x, double *dx) { return call_rhs(c, t, x, dx, 1); }
+
+int bgc_step_too_small(bgc_ctx *c, double t)
+{
+    if (c->pend_index >= 0) return nonfinite_rhs(c, c->pend_index, c->pend_v, c->pend_t);
+    return bgc_fail(c, BGC_ERR_STEP_TOO_SMALL, t, "%s failed at t = %.17g: the step size fell "
+                    "below its minimum (10 ulp of t)", method_name(c->opt->method), t);
 }
 
 int bgc_call_jac(bgc_ctx *c, double t, const double *x, double *jv)
@@ -114,7 +130,7 @@ int bgc_initial_step(bgc_ctx *c, double t, double t_end, const double *y, const 
     if (h0 > t_end - t) h0 = t_end - t;
     double *y1 = work, *f1 = work + n;
     for (int i = 0; i < n; i++) y1[i] = y[i] + h0 * f[i];
-    int s = bgc_call_rhs(c, t + h0, y1, f1);
+    int s = bgc_call_rhs_trial(c, t + h0, y1, f1);
     if (s == BGC_REJECT) { *h = h0 * 1e-3; return 0; }
     if (s) return s;
     for (int i = 0; i < n; i++) f1[i] -= f[i];
@@ -178,6 +194,7 @@ int bgc_integrate_ex(const bgc_model *m, const double *p, double t0, double t1,
     memset(&c, 0, sizeof c);
     c.m = m; c.p = p; c.opt = opt; c.st = st; c.xs = ext; c.y_out = y_out;
     c.lo = -INFINITY; c.hi = INFINITY;
+    c.pend_index = -1;
     /* argument checks */
     const char *bad = NULL;
     if (!m || !opt || !st || !x0 || m->n < 0 || m->nnz < 0 || !m->rhs || !m->jac)
@@ -242,7 +259,9 @@ int bgc_integrate_ex(const bgc_model *m, const double *p, double t0, double t1,
                                           : bgc_rodas4_segment(&c, a, b, y);
     }
     free(cuts); free(y);
-    if (status == BGC_REJECT) status = BGC_ERR_STEP_TOO_SMALL;
+    if (status == BGC_REJECT)  /* not expected: accepted states are finite */
+        status = bgc_fail(&c, BGC_ERR_STEP_TOO_SMALL, ext->t_last, "%s failed at t = %.17g: "
+                          "the state is not finite", method_name(opt->method), ext->t_last);
     st->status = status;
     if (!status) {
         ext->t_last = t1;
