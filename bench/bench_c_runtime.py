@@ -60,7 +60,7 @@ def runs(lib, quick):
         ("pendulum, t = 0..10", lib.model("pend", 2, [0, 1], [1, 0], 1), [9.81], [1.0, 0.0], 10.0),
         ("forced msd, t = 0..5", lib.model("msd", 2, [0, 1, 1], [1, 0, 1], 5, time_inputs=True),
          [1.0, 40.0, 0.8, 2.0, 3.0], [1.0, 0.0], 5.0),
-        ("Van der Pol mu=1e3, t = 0..2", lib.model("vdp", 2, [0, 1, 1], [1, 0, 1], 1), [1e3],
+        ("Van der Pol eps=1e-6, t = 0..2", lib.model("vdp", 2, [0, 1, 1], [1, 0, 1], 1), [1e-6],
          [2.0, 0.0], 2.0),
         ("stiff 2-mass chain, t = 0..2", lib.model("chain", 4, r2, c2, 5), chain_p,
          [0.01, 0.0, 0.0, 1.0], 2.0),

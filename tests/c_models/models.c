@@ -66,20 +66,21 @@ int pend_jac(double t, const double *x, const double *p, double *jv)
     return 0;
 }
 
-/* Van der Pol: y0' = y1, y1' = mu (1 - y0^2) y1 - y0, p = (mu); pattern (0,1), (1,0), (1,1) */
+/* Van der Pol, scaled (problem VDPOL of Hairer & Wanner's stiff test set):
+ * y0' = y1, y1' = ((1 - y0^2) y1 - y0) / eps, p = (eps); pattern (0,1), (1,0), (1,1) */
 int vdp_rhs(double t, const double *x, const double *p, double *dx)
 {
     (void)t;
     dx[0] = x[1];
-    dx[1] = p[0] * (1.0 - x[0] * x[0]) * x[1] - x[0];
+    dx[1] = ((1.0 - x[0] * x[0]) * x[1] - x[0]) / p[0];
     return 0;
 }
 int vdp_jac(double t, const double *x, const double *p, double *jv)
 {
     (void)t;
     jv[0] = 1.0;
-    jv[1] = -2.0 * p[0] * x[0] * x[1] - 1.0;
-    jv[2] = p[0] * (1.0 - x[0] * x[0]);
+    jv[1] = (-2.0 * x[0] * x[1] - 1.0) / p[0];
+    jv[2] = (1.0 - x[0] * x[0]) / p[0];
     return 0;
 }
 

@@ -39,7 +39,8 @@ static const double E1 = -(13.0 + 7.0 * SQ6) / 3.0, E2 = (-13.0 + 7.0 * SQ6) / 3
 #define SAFETY 0.9
 #define MIN_FACTOR 0.2
 #define MAX_FACTOR 8.0
-#define JAC_KEEP 1e-3   /* keep J after a step whose Newton contraction was at most this */
+#define JAC_KEEP 1e-3   /* keep J after a step whose Newton needed at most 2 iterations or
+                          contracted at least this fast */
 
 /* the collocation polynomial of a step: y0 + sum_i Z_i L_i(s), s = (t - t0)/h, L_i the
  * Lagrange polynomials on the nodes 0, c1, c2, 1 that vanish at 0 */
@@ -253,9 +254,9 @@ int bgc_radau5_segment(bgc_ctx *c, double a, double b, double *y)
         if (rejected && fac > 1.0) fac = 1.0;
         h_acc = h; err_acc = fmax(en, 1e-2); have_acc = 1;
         /* keep J (and the LU when the step size hardly changes) after fast convergence */
-        int keep_jac = niter == 1 || theta <= JAC_KEEP;
+        int keep_jac = niter <= 2 || theta <= JAC_KEEP;
         double h_next = h * fac;
-        if (keep_jac && fac >= 1.0 && fac <= 1.2) h_next = h;
+        if (keep_jac && fac <= 1.2) h_next = h;
         memcpy(yold, y, N * sizeof(double));
         memcpy(Zold, Z, 3 * N * sizeof(double));
         h_prev = h;
