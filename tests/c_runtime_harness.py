@@ -24,6 +24,11 @@ STATUS = {0: "OK", 1: "NONFINITE", 2: "MAX_STEPS", 3: "STEP_TOO_SMALL", 4: "WALL
           5: "SINGULAR", 6: "MODEL", 7: "ARGS"}
 
 
+class Complex(C.Structure):
+    """double complex by value (the x86-64 and AArch64 ABIs pass it as two doubles)."""
+    _fields_ = [("re", C.c_double), ("im", C.c_double)]
+
+
 class LuPlan(C.Structure):
     _fields_ = [("n", C.c_int), ("nnz_lu", C.c_int), ("nnz_jac", C.c_int),
                 ("perm", INTP), ("row_ptr", INTP), ("col_idx", INTP), ("diag_pos", INTP),
@@ -102,6 +107,10 @@ class Lib:
         lib.bgc_dense_lu_z.argtypes = [C.c_int, C.c_void_p, INTP]
         lib.bgc_dense_solve_z.argtypes = [C.c_int, C.c_void_p, INTP, C.c_void_p]
         lib.bgc_radau5_constants.argtypes = [DBLP]
+        lib.bgc_linsys_solve_once.argtypes = [C.POINTER(Model), C.c_double, DBLP, DBLP,
+                                              C.POINTER(C.c_long)]
+        lib.bgc_linsys_solve_once_z.argtypes = [C.POINTER(Model), Complex, DBLP,
+                                                C.c_void_p, C.POINTER(C.c_long)]
 
     def model(self, name, n, rows, cols, np_, time_inputs=False, plan=None):
         return ModelHandle(self, name, n, rows, cols, np_, time_inputs, plan)

@@ -365,14 +365,29 @@ def test_dense_lu_matches_numpy(lib):
     assert np.allclose(bz, np.linalg.solve(Z, b + 1j), rtol=1e-12)
 
 
-def test_sparse_tiny_pivot_is_reported(lib):
-    """[[0, 1], [1, 0]] has no usable pivot without pivoting: the sparse LU says so (the
-    integrators then use the dense LU with partial pivoting for that step)."""
+def test_sparse_tiny_pivot_falls_back_to_dense(lib):
+    """c I - J = [[0, 1], [1, 0]] (c = 0) has no usable pivot without pivoting: the sparse LU
+    says so, and the integrators' solver then factorises densely with partial pivoting and
+    still solves correctly (real and complex); a well-conditioned c uses the plan."""
     plan = make_plan(2, [0, 1], [1, 0])
     ps = H.plan_struct(plan)
     a = np.zeros(plan.nnz_lu)
-    a[plan.jac_pos] = 1.0
+    a[plan.jac_pos] = -1.0
     assert lib.lib.bgc_sparse_lu(C.byref(ps), H.ptr(a)) != 0
+    mod = lib.model("lin", 2, [0, 1], [1, 0], 2, plan=plan)
+    jv = np.array([-1.0, -1.0])
+    for c, fallbacks in ((0.0, 1), (3.0, 0)):
+        A = np.array([[c, 1.0], [1.0, c]])
+        b = np.array([1.0, 2.0])
+        nfb = C.c_long(-1)
+        assert lib.lib.bgc_linsys_solve_once(C.byref(mod.s), c, H.ptr(jv), H.ptr(b),
+                                             C.byref(nfb)) == 0
+        assert nfb.value == fallbacks and np.allclose(b, np.linalg.solve(A, [1.0, 2.0]))
+        bz = np.array([1.0 + 1j, 2.0])
+        cz = H.Complex(c, 0.0)
+        assert lib.lib.bgc_linsys_solve_once_z(C.byref(mod.s), cz, H.ptr(jv), bz.ctypes.data,
+                                               C.byref(nfb)) == 0
+        assert nfb.value == fallbacks and np.allclose(bz, np.linalg.solve(A, [1.0 + 1j, 2.0]))
 
 
 @pytest.mark.parametrize("method", METHODS)

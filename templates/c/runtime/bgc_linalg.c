@@ -284,3 +284,27 @@ void bgc_linsys_solve_z(bgc_linsys *ls, double complex *b)
     if (ls->use_dense_z) bgc_dense_solve_z(ls->n, ls->adz, ls->pivz, b);
     else bgc_sparse_solve_z(ls->plan, ls->az, b, ls->wz);
 }
+
+int bgc_linsys_solve_once(const bgc_model *m, double c, const double *jv, double *b,
+                          long *fallbacks)
+{
+    bgc_linsys ls;
+    int s = bgc_linsys_init(&ls, m, 0);
+    if (!s) s = bgc_linsys_factor(&ls, c, jv);
+    if (!s) bgc_linsys_solve(&ls, b);
+    if (fallbacks) *fallbacks = ls.fallbacks;
+    bgc_linsys_free(&ls);
+    return s;
+}
+
+int bgc_linsys_solve_once_z(const bgc_model *m, double complex c, const double *jv,
+                            double complex *b, long *fallbacks)
+{
+    bgc_linsys ls;
+    int s = bgc_linsys_init(&ls, m, 1);
+    if (!s) s = bgc_linsys_factor_z(&ls, c, jv);
+    if (!s) bgc_linsys_solve_z(&ls, b);
+    if (fallbacks) *fallbacks = ls.fallbacks;
+    bgc_linsys_free(&ls);
+    return s;
+}

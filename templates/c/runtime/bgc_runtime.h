@@ -124,6 +124,12 @@ int bgc_linsys_factor(bgc_linsys *ls, double c, const double *jv);
 void bgc_linsys_solve(bgc_linsys *ls, double *b);
 int bgc_linsys_factor_z(bgc_linsys *ls, double complex c, const double *jv);
 void bgc_linsys_solve_z(bgc_linsys *ls, double complex *b);
+/* one factorisation of c*I - J and one solve of b in place, as an integrator does them (for
+ * tests); fallbacks: how many sparse factorisations fell back to the dense LU */
+int bgc_linsys_solve_once(const bgc_model *m, double c, const double *jv, double *b,
+                          long *fallbacks);
+int bgc_linsys_solve_once_z(const bgc_model *m, double complex c, const double *jv,
+                            double complex *b, long *fallbacks);
 
 #ifdef __cplusplus
 }
