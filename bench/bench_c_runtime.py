@@ -148,6 +148,25 @@ def chain_integration(lib, quick):
                   f"{ts * 1e3:.2f} ms | {td / ts:.1f} |")
 
 
+def batches(lib, quick):
+    print("\n## Batches: 1000 pendulums (own parameters, own steps), Radau5 and Rodas4 rtol 1e-6\n")
+    print("| method | serial loop of single runs | batch, 1 thread | batch, 2 threads |")
+    print("|---|---|---|---|")
+    m = lib.model("pend", 2, [0, 1], [1, 0], 1)
+    nb = 200 if quick else 1000
+    rng = np.random.default_rng(0)
+    P = rng.uniform(1, 20, (nb, 1))
+    X0 = np.column_stack([rng.uniform(-2, 2, nb), np.zeros(nb)])
+    t = np.linspace(0, 10, 101)
+    for method in ("Rodas4", "Radau5"):
+        kw = dict(method=method, rtol=1e-6, atol=1e-6, t_out=t)
+        single = best_time(lambda: [m.run(P[k], 0.0, 10.0, X0[k], **kw) for k in range(nb)], 3)
+        b1 = best_time(lambda: m.run_batch(P, 0.0, 10.0, X0, nthreads=1, **kw), 3)
+        b2 = best_time(lambda: m.run_batch(P, 0.0, 10.0, X0, nthreads=2, **kw), 3)
+        print(f"| {method} | {single * 1e3:.1f} ms | {b1 * 1e3:.1f} ms | {b2 * 1e3:.1f} ms "
+              f"({b1 / b2:.2f}x) |")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--quick", action="store_true", help="fewer sizes and tolerances")
@@ -160,6 +179,7 @@ def main():
         runs(lib, args.quick)
         lu(lib, tmp, args.quick)
         chain_integration(lib, args.quick)
+        batches(lib, args.quick)
 
 
 if __name__ == "__main__":
