@@ -476,3 +476,28 @@ def test_rodas4_is_the_numpy_modules_rodas4(lib, gen, problem):
                                 t_out=t)
         assert status == 0 and st.nfev + 1 == ref.nfev
         assert np.abs(Y - ref.y.T).max() < 1e-3 * tol
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_l_stability_on_stiff_chain(lib, method):
+    """The stiff two-mass chain started on its fastest mode (eigenvalue about -2e4): one
+    fixed step of h = 0.1 (h |lambda| ~ 2000) leaves almost none of that mode (an A-stable
+    method that is not L-stable, like the trapezoidal rule, would keep about all of it with
+    its sign flipped)."""
+    p = [2, 1e6, 1.0, 1e4, 1.0]
+    rows, cols = H.chain_pattern(2)
+    mod = lib.model("chain", 4, rows, cols, 5)
+    A = H.chain_matrix(2, *p[1:])
+    lam, V = np.linalg.eig(A)
+    fast = int(np.argmin(lam.real))
+    assert lam[fast].real < -1e4 and abs(lam[fast].imag) == 0
+    x0 = V[:, fast].real / np.abs(V[:, fast].real).max()
+    h = 0.1
+    status, Y, st = mod.run(p, 0.0, h, x0, method=method, rtol=1e9, atol=1e9, h0=h,
+                            max_step=h, t_out=[h])
+    assert status == 0 and st.naccept == 1
+    w0 = np.linalg.solve(V, x0)
+    w1 = np.linalg.solve(V, Y[0])
+    assert abs(w1[fast]) < 1e-2 * abs(w0[fast])
+    trapezoid = (1 + h * lam[fast] / 2) / (1 - h * lam[fast] / 2)
+    assert abs(trapezoid) > 0.99
