@@ -274,7 +274,7 @@ int bgc_integrate_batch(const bgc_model *m, int nb, const double *P, const doubl
                         double t0, double t1, const bgc_options *opt, double *Y_out,
                         bgc_stats *st, int nthreads)
 {
-    if (!m || !opt || !st || nb < 0) return BGC_ERR_ARGS;
+    if (!m || !opt || !st || nb < 0 || (nb > 0 && !X0)) return BGC_ERR_ARGS;
     const size_t rows = opt->n_out > 0 ? (size_t)opt->n_out * m->n : 0;
 #ifdef _OPENMP
     if (nthreads <= 0) nthreads = omp_get_max_threads();

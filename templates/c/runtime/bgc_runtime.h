@@ -10,6 +10,9 @@
 
 #include <complex.h>
 
+/* bumped whenever the runtime's behaviour or ABI changes (compile caches may key on it) */
+#define BGC_RUNTIME_VERSION 1
+
 #ifdef __cplusplus
 extern "C" {
 #endif
