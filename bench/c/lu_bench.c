@@ -3,7 +3,7 @@
 #define _POSIX_C_SOURCE 199309L
 #include <stdlib.h>
 #include <time.h>
-#include "bgc_runtime.h"
+#include "bgc_internal.h"
 
 static double now_s(void)
 {

@@ -2,7 +2,43 @@
 #ifndef BGC_INTERNAL_H
 #define BGC_INTERNAL_H
 
+#include <complex.h>
 #include "bgc_runtime.h"
+
+/* ---- complex LU (Radau's second system) ---------------------------------------------------- */
+int bgc_dense_lu_z(int n, double complex *a, int *piv);
+void bgc_dense_solve_z(int n, const double complex *lu, const int *piv, double complex *b);
+int bgc_sparse_lu_z(const struct bgc_lu_plan *pl, double complex *a);
+void bgc_sparse_solve_z(const struct bgc_lu_plan *pl, const double complex *a,
+                        double complex *b, double complex *w);
+
+
+/* The linear solver an integrator uses for (c I - J): sparse along the model's plan when it
+ * has one (falling back to dense partial pivoting for a step whose pivot is too small), else
+ * dense. Internal, but declared here for the integrator files. */
+typedef struct {
+    int n, nnz; const int *row, *col; const struct bgc_lu_plan *plan;
+    int use_dense, use_dense_z;   /* the current factorisation is dense (no plan, fallback) */
+    double *a; int *piv;          /* sparse nnz_lu values, or NULL without a plan */
+    double *ad;                   /* dense n*n (fallback or no plan) */
+    double complex *az, *adz; int *pivz;
+    double *w; double complex *wz;
+    long fallbacks;
+} bgc_linsys;
+int bgc_linsys_init(bgc_linsys *ls, const bgc_model *m, int complex_too);
+void bgc_linsys_free(bgc_linsys *ls);
+/* factor c*I - J, J given by values jv on the model's pattern; 0 ok, nonzero singular */
+int bgc_linsys_factor(bgc_linsys *ls, double c, const double *jv);
+void bgc_linsys_solve(bgc_linsys *ls, double *b);
+int bgc_linsys_factor_z(bgc_linsys *ls, double complex c, const double *jv);
+void bgc_linsys_solve_z(bgc_linsys *ls, double complex *b);
+/* one factorisation of c*I - J and one solve of b in place, as an integrator does them (for
+ * tests); fallbacks: how many sparse factorisations fell back to the dense LU */
+int bgc_linsys_solve_once(const bgc_model *m, double c, const double *jv, double *b,
+                          long *fallbacks);
+int bgc_linsys_solve_once_z(const bgc_model *m, double complex c, const double *jv,
+                            double complex *b, long *fallbacks);
+
 
 #define BGC_REJECT (-1) /* a stage state is not finite: the step is retried smaller */
 

@@ -4,7 +4,7 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
-#include "bgc_runtime.h"
+#include "bgc_internal.h"
 
 #define BGC_PIVOT_REL 1e-10 /* sparse pivot accepted when |u_kk| > this * max|row k| */
 
