@@ -393,7 +393,8 @@ def test_mtf_from_a_scalar_to_a_two_vector():
 
 
 def test_tf_from_a_two_vector_to_a_scalar():
-    """The other way round: a 1x2 modulus from a 2-vector to a scalar (f2 = M f1 is 1x1)."""
+    """The other way round, with a TF: a 1x2 ratio from a 2-vector to a scalar (f2 = M f1 is
+    1x1)."""
     text = """bgc: 1
 name: gather
 parameters: {a: 0.6, b: 0.8, m: 2.0, k: 3.0}
@@ -401,7 +402,7 @@ elements:
   F:      {type: Se, effort: "[1, 2]"}
   j:      {type: "1"}
   mass:   {type: I, inertia: m}
-  lever:  {type: MTF, modulus: "[[a, b]]"}
+  lever:  {type: TF, ratio: "[[a, b]]"}
   spring: {type: C, stiffness: k}
 bonds:
   - {from: F, to: j, n: 2}
