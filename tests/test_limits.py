@@ -452,3 +452,15 @@ def test_articles(law, msg):
         'effort: "1"', law)
     err = refused(compile_model, parse_text(text, "m.yaml"))
     assert msg in err.message, err.message
+
+
+@pytest.mark.parametrize("value", ["inf", "nan", "1e-20"])
+def test_cli_rtol_is_checked(value, tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
+    res = subprocess.run([sys.executable, "-m", "bgc.cli", "simulate",
+                          str(ROOT / "models" / "scenes" / "msd_step.yaml"), "--rtol", value],
+                         cwd=tmp_path, env=env, text=True, capture_output=True, timeout=300)
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.strip() == (f"error: --rtol {float(value):g} is outside [1e-14, 1] (the "
+                                  "limit of tolerances: doubles carry about 16 digits)")
+    assert list(tmp_path.iterdir()) == []
