@@ -464,3 +464,43 @@ def test_cli_rtol_is_checked(value, tmp_path):
     assert res.stderr.strip() == (f"error: --rtol {float(value):g} is outside [1e-14, 1] (the "
                                   "limit of tolerances: doubles carry about 16 digits)")
     assert list(tmp_path.iterdir()) == []
+
+
+# ---------------------------------------------------------------------------------------------
+# libyaml's events and PyYAML's own give the same nodes
+
+
+def _nodes(node, out):
+    m = node.start_mark
+    out.append((type(node).__name__, node.tag, getattr(node, "style", None), m.line, m.column,
+                node.value if isinstance(node.value, str) else len(node.value)))
+    if not isinstance(node.value, str):
+        for item in node.value:
+            for sub in (item if isinstance(item, tuple) else (item,)):
+                _nodes(sub, out)
+    return out
+
+
+@pytest.mark.skipif(parse_mod._FastLoader is None, reason="PyYAML without libyaml")
+def test_fast_and_pure_python_composers_agree():
+    import yaml
+
+    files = sorted((ROOT / "models").rglob("*.yaml")) + sorted((ROOT / "tests").rglob("*.yaml"))
+    compared = 0
+    for f in files:
+        text = f.read_text(encoding="utf-8")
+        try:
+            slow = yaml.compose(text, Loader=parse_mod._Loader)
+        except Exception:  # noqa: BLE001 - bad files: test_bad_input checks their messages
+            continue
+        loader = parse_mod._FastLoader(text)
+        try:
+            fast = loader.get_single_node()
+        finally:
+            loader.dispose()
+        if slow is None:
+            assert fast is None, f
+            continue
+        assert _nodes(fast, []) == _nodes(slow, []), f
+        compared += 1
+    assert compared >= 40
