@@ -504,3 +504,15 @@ def test_fast_and_pure_python_composers_agree():
         assert _nodes(fast, []) == _nodes(slow, []), f
         compared += 1
     assert compared >= 40
+
+
+@pytest.mark.parametrize("value,msg", [
+    ("[" + ", ".join(["1"] * 65) + "]", "a 65x1 matrix is larger than the limit of matrix size"),
+    ("[[" + ", ".join(["1"] * 65) + "]]", "a 1x65 matrix is larger than the limit"),
+    ("[[]]", "an empty matrix or row"),
+    ("[]", "an empty matrix or row"),
+])
+def test_matrix_parameters_are_bounded(value, msg):
+    err = refused(parse_text, MSD.replace("{m: 2.0, k: 200.0}", f"{{m: 2.0, k: 200.0, K: {value}}}"),
+                  "m.yaml")
+    assert err.coord.line == 3 and msg in err.message, err

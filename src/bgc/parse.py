@@ -686,8 +686,15 @@ def _param_value(r: _Reader, pname: str, node):
                 rows.append(tuple(r.number(c, f"parameter {pname!r}") for c in row.value))
             else:
                 rows.append((r.number(row, f"parameter {pname!r}"),))
+        if not rows or not all(rows):
+            raise ModelError(r.coord(node), f"parameter {pname!r}: an empty matrix or row")
         if len({len(x) for x in rows}) != 1:
             raise ModelError(r.coord(node), f"parameter {pname!r}: rows of different lengths")
+        dim = LIMITS.matrix_dim
+        if len(rows) > dim or len(rows[0]) > dim:
+            raise ModelError(r.coord(node), f"parameter {pname!r}: a {len(rows)}x{len(rows[0])} "
+                                            f"matrix is larger than the limit of matrix size "
+                                            f"({dim} rows or columns)")
         return tuple(rows)
     v = r.scalar(node, f"parameter {pname!r}")
     if isinstance(v, (int, float)) and not isinstance(v, bool):
