@@ -153,7 +153,7 @@ def parse_scene(path: str | Path) -> Scene:
                     check_rtol(v, where, "solver rtol")
                 if key == "dt" and length / v + 1 > LIMITS.output_samples:
                     raise ModelError(where, f"solver dt {v:g} over {length:g} s gives "
-                                            f"{length / v + 1:.3g} output samples, more than "
+                                            f"{length / v + 1:.0f} output samples, more than "
                                             f"the limit of {LIMITS.output_samples}")
                 if key == "max_step" and v < length * LIMITS.min_step_fraction:
                     raise ModelError(where, f"solver max_step {v:g} is below the limit of "
