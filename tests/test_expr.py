@@ -294,3 +294,15 @@ def test_hints(text, hint):
     with pytest.raises(ModelError) as info:
         E.check(ex(text))
     assert hint in info.value.message
+
+
+def test_parsing_user_text_shows_no_warning():
+    """Python warns about some text it still parses (1if x else y): bgc shows none of it."""
+    import warnings
+
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        for text in ["1if a else b", "0x1for", "a is 1"]:
+            with pytest.raises(ModelError):
+                E.check(ex(text))
+    assert [str(w.message) for w in seen] == []

@@ -393,7 +393,8 @@ def test_mtf_from_a_scalar_to_a_two_vector():
 
 
 def test_tf_from_a_two_vector_to_a_scalar():
-    """The other way round: a 1x2 modulus from a 2-vector to a scalar (f2 = M f1 is 1x1)."""
+    """The other way round, with a TF: a 1x2 ratio from a 2-vector to a scalar (f2 = M f1 is
+    1x1)."""
     text = """bgc: 1
 name: gather
 parameters: {a: 0.6, b: 0.8, m: 2.0, k: 3.0}
@@ -401,7 +402,7 @@ elements:
   F:      {type: Se, effort: "[1, 2]"}
   j:      {type: "1"}
   mass:   {type: I, inertia: m}
-  lever:  {type: MTF, modulus: "[[a, b]]"}
+  lever:  {type: TF, ratio: "[[a, b]]"}
   spring: {type: C, stiffness: k}
 bonds:
   - {from: F, to: j, n: 2}
@@ -451,3 +452,67 @@ def test_articles(law, msg):
         'effort: "1"', law)
     err = refused(compile_model, parse_text(text, "m.yaml"))
     assert msg in err.message, err.message
+
+
+@pytest.mark.parametrize("value", ["inf", "nan", "1e-20"])
+def test_cli_rtol_is_checked(value, tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
+    res = subprocess.run([sys.executable, "-m", "bgc.cli", "simulate",
+                          str(ROOT / "models" / "scenes" / "msd_step.yaml"), "--rtol", value],
+                         cwd=tmp_path, env=env, text=True, capture_output=True, timeout=300)
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.strip() == (f"error: --rtol {float(value):g} is outside [1e-14, 1] (the "
+                                  "limit of tolerances: doubles carry about 16 digits)")
+    assert list(tmp_path.iterdir()) == []
+
+
+# ---------------------------------------------------------------------------------------------
+# libyaml's events and PyYAML's own give the same nodes
+
+
+def _nodes(node, out):
+    m = node.start_mark
+    out.append((type(node).__name__, node.tag, getattr(node, "style", None), m.line, m.column,
+                node.value if isinstance(node.value, str) else len(node.value)))
+    if not isinstance(node.value, str):
+        for item in node.value:
+            for sub in (item if isinstance(item, tuple) else (item,)):
+                _nodes(sub, out)
+    return out
+
+
+@pytest.mark.skipif(parse_mod._FastLoader is None, reason="PyYAML without libyaml")
+def test_fast_and_pure_python_composers_agree():
+    import yaml
+
+    files = sorted((ROOT / "models").rglob("*.yaml")) + sorted((ROOT / "tests").rglob("*.yaml"))
+    compared = 0
+    for f in files:
+        text = f.read_text(encoding="utf-8")
+        try:
+            slow = yaml.compose(text, Loader=parse_mod._Loader)
+        except Exception:  # noqa: BLE001 - bad files: test_bad_input checks their messages
+            continue
+        loader = parse_mod._FastLoader(text)
+        try:
+            fast = loader.get_single_node()
+        finally:
+            loader.dispose()
+        if slow is None:
+            assert fast is None, f
+            continue
+        assert _nodes(fast, []) == _nodes(slow, []), f
+        compared += 1
+    assert compared >= 40
+
+
+@pytest.mark.parametrize("value,msg", [
+    ("[" + ", ".join(["1"] * 65) + "]", "a 65x1 matrix is larger than the limit of matrix size"),
+    ("[[" + ", ".join(["1"] * 65) + "]]", "a 1x65 matrix is larger than the limit"),
+    ("[[]]", "an empty matrix or row"),
+    ("[]", "an empty matrix or row"),
+])
+def test_matrix_parameters_are_bounded(value, msg):
+    err = refused(parse_text, MSD.replace("{m: 2.0, k: 200.0}", f"{{m: 2.0, k: 200.0, K: {value}}}"),
+                  "m.yaml")
+    assert err.coord.line == 3 and msg in err.message, err

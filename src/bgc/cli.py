@@ -176,7 +176,10 @@ def graph_cmd(model, output):
 def simulate_cmd(scene, out, plot_dir, method, rtol, max_wall, quiet):
     """Compile the scene's model and simulate the scene."""
     from .runner import run_scene
+    from .scene import check_rtol
 
+    if rtol is not None:  # inf and nan pass click's range check
+        check_rtol(rtol, None, "--rtol")
     prog = _Progress(quiet)
     res = run_scene(scene, progress=prog, method=method, rtol=rtol, max_wall=max_wall)
     if out:

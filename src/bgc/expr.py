@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import ast
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Callable, Protocol
 
@@ -129,7 +130,9 @@ def check(expr: Expr) -> ast.expr:
     if not body.strip():
         raise ModelError(expr.coord, "empty expression")
     try:
-        tree = ast.parse(body, mode="eval")
+        with warnings.catch_warnings():  # e.g. "invalid decimal literal" for 1if: never shown
+            warnings.simplefilter("ignore")
+            tree = ast.parse(body, mode="eval")
     except SyntaxError as exc:
         off = lead + max((exc.offset or 1) - 1, 0) if (exc.lineno or 1) == 1 else lead
         raise ModelError(_at(expr, min(off, len(text))),

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 class Limits:
     # -- files ----------------------------------------------------------------------------
     #: Largest model or imported file, in bytes.
-    model_bytes: int = 5_000_000
+    model_bytes: int = 2_000_000
     #: Largest scene file, in bytes.
     scene_bytes: int = 1_000_000
     #: Most distinct files one model may import (directly and through other imports).

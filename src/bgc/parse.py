@@ -182,7 +182,7 @@ class _Refused(Exception):
         self.mark, self.message = mark, message
 
 
-class _Loader(yaml.SafeLoader):
+class _Guard:
     """The safe composer, refusing aliases (shared nodes could expand exponentially, or form
     cycles) and absurd nesting."""
 
@@ -200,6 +200,34 @@ class _Loader(yaml.SafeLoader):
             return super().compose_node(parent, index)
         finally:
             self._depth -= 1
+
+
+class _Loader(_Guard, yaml.SafeLoader):
+    """PyYAML's pure-Python loader (its messages and places are the ones bgc reports)."""
+
+
+try:  # libyaml's event parser, when PyYAML was built with it: ~6x faster on large files
+    from yaml._yaml import CParser as _CParser
+except ImportError:  # pragma: no cover - PyYAML without libyaml
+    _CParser = None
+
+if _CParser is not None:
+    class _FastLoader(_Guard, yaml.composer.Composer, _CParser, yaml.constructor.SafeConstructor,
+                      yaml.resolver.Resolver):
+        """libyaml's events, composed into nodes by PyYAML's (guarded) composer."""
+
+        def __init__(self, stream):
+            _CParser.__init__(self, stream)
+            yaml.composer.Composer.__init__(self)
+            yaml.constructor.SafeConstructor.__init__(self)
+            yaml.resolver.Resolver.__init__(self)
+
+        def compose_scalar_node(self, anchor):
+            node = super().compose_scalar_node(anchor)
+            node.style = node.style or None  # libyaml says '' for plain, PyYAML None
+            return node
+else:  # pragma: no cover
+    _FastLoader = None
 
 
 class _Reader:
@@ -223,6 +251,16 @@ class _Reader:
         return Coord(self.path, m.line + 1, m.column + 1) if m else Coord(self.path, 1, 1)
 
     def compose(self):
+        if _FastLoader is not None:
+            loader = _FastLoader(self.text)
+            try:
+                return loader.get_single_node()
+            except _Refused as exc:
+                raise ModelError(self._mark(exc.mark), exc.message) from None
+            except Exception:  # noqa: BLE001 - a YAML error: the pure-Python loader below
+                pass  # reports it with PyYAML's message and place
+            finally:
+                loader.dispose()
         try:
             return yaml.compose(self.text, Loader=_Loader)
         except _Refused as exc:
@@ -648,8 +686,15 @@ def _param_value(r: _Reader, pname: str, node):
                 rows.append(tuple(r.number(c, f"parameter {pname!r}") for c in row.value))
             else:
                 rows.append((r.number(row, f"parameter {pname!r}"),))
+        if not rows or not all(rows):
+            raise ModelError(r.coord(node), f"parameter {pname!r}: an empty matrix or row")
         if len({len(x) for x in rows}) != 1:
             raise ModelError(r.coord(node), f"parameter {pname!r}: rows of different lengths")
+        dim = LIMITS.matrix_dim
+        if len(rows) > dim or len(rows[0]) > dim:
+            raise ModelError(r.coord(node), f"parameter {pname!r}: a {len(rows)}x{len(rows[0])} "
+                                            f"matrix is larger than the limit of matrix size "
+                                            f"({dim} rows or columns)")
         return tuple(rows)
     v = r.scalar(node, f"parameter {pname!r}")
     if isinstance(v, (int, float)) and not isinstance(v, bool):

@@ -149,13 +149,11 @@ def parse_scene(path: str | Path) -> Scene:
                 where = r.coord(sm[key][1])
                 if not v > 0:
                     raise ModelError(where, f"solver {key} must be positive")
-                if key == "rtol" and not LIMITS.min_rtol <= v <= 1:
-                    raise ModelError(where, f"solver rtol {v:g} is outside "
-                                            f"[{LIMITS.min_rtol:g}, 1] (the limit of tolerances: "
-                                            "doubles carry about 16 digits)")
+                if key == "rtol":
+                    check_rtol(v, where, "solver rtol")
                 if key == "dt" and length / v + 1 > LIMITS.output_samples:
                     raise ModelError(where, f"solver dt {v:g} over {length:g} s gives "
-                                            f"{length / v + 1:.3g} output samples, more than "
+                                            f"{length / v + 1:.0f} output samples, more than "
                                             f"the limit of {LIMITS.output_samples}")
                 if key == "max_step" and v < length * LIMITS.min_step_fraction:
                     raise ModelError(where, f"solver max_step {v:g} is below the limit of "
@@ -219,6 +217,14 @@ def parse_scene(path: str | Path) -> Scene:
                  dt, max_step, bps, tuple(plots), effects, desc, r.coord(root),
                  hashlib.sha256(text.encode()).hexdigest()[:16], free, output_coords,
                  r.coord(top["model"][1]))
+
+
+def check_rtol(v: float, where: Coord | None, what: str) -> float:
+    """A relative tolerance: finite, within [LIMITS.min_rtol, 1] (a scene's, or ``--rtol``)."""
+    if not LIMITS.min_rtol <= v <= 1:  # false for NaN too
+        raise ModelError(where, f"{what} {v:g} is outside [{LIMITS.min_rtol:g}, 1] (the limit "
+                                "of tolerances: doubles carry about 16 digits)")
+    return v
 
 
 def apply_scene(model: Model, scene: Scene) -> Model:
