@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .compiler import compile_model
-from .errors import ModelError
+from .errors import ModelError, SimulationFailed
 from .scene import (Scene, check_against, free_values, load_module, param_values, parse_scene,
                     plan_for, scene_model)
 
@@ -40,6 +40,9 @@ def compile_scene(scene: Scene, progress=None, specialise: bool = True):
     c = compile_model(model, progress, plan)
     mod = load_module(c.source, f"{c.model.name}_{scene.name}{'' if specialise else '_full'}")
     check_against(scene, mod)
+    from .plots import check_plots
+
+    check_plots(scene, mod.OUTPUT_SHAPES)  # a plot that cannot be drawn: before any run
     return c, mod
 
 
@@ -57,7 +60,7 @@ def runtime_params(scene: Scene, mod) -> dict | None:
 
 def run_scene(path, progress=None, method=None, rtol=None, max_wall=None) -> SceneResult:
     say = progress or (lambda msg: None)
-    scene = parse_scene(path)
+    scene = path if isinstance(path, Scene) else parse_scene(path)
     t0 = time.perf_counter()
     c, mod = compile_scene(scene, progress)
     t1 = time.perf_counter()
@@ -70,7 +73,7 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None) -> Sce
                            p=runtime_params(scene, mod), breakpoints=scene.breakpoints,
                            max_step=scene.max_step, max_wall=max_wall)
     except mod.SimulationError as exc:
-        raise ModelError(scene.coord, f"simulation failed: {exc}") from None
+        raise SimulationFailed(scene.coord, f"simulation failed: {exc}") from None
     t2 = time.perf_counter()
     t, x, y = res
     return SceneResult(scene, mod, t, x, y, res.stats, method, rtol, t1 - t0, t2 - t1)
