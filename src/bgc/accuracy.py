@@ -91,7 +91,7 @@ def prepare(scene_path, t_end=None, atol_scale=None, breakpoints=(), progress=No
     except ImportError:  # pragma: no cover - older layout
         from .scene import param_values as values
 
-    scene = parse_scene(scene_path)
+    scene = scene_path if hasattr(scene_path, "t_span") else parse_scene(scene_path)
     t0c = time.perf_counter()
     _, mod = compile_scene(scene, progress)
     ct = time.perf_counter() - t0c
@@ -383,6 +383,8 @@ def parse_tols(text: str) -> tuple:
     try:
         if ":" in text:
             a, b = (float(s) for s in text.split(":"))
+            if not (0 < a < 1 and 0 < b < 1):
+                raise ValueError
             ka, kb = round(-math.log10(a)), round(-math.log10(b))
             step = 1 if kb >= ka else -1
             return tuple(10.0 ** -k for k in range(ka, kb + step, step))
@@ -522,12 +524,16 @@ def write_csv(st: Study, path):
     _write(path, buf.getvalue())
 
 
-def _write(path, text):
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    tmp.replace(path)
+#: The inputs of the study (scene, model, imports) that no output may replace: set by the
+#: command, see bgc.outfiles.
+_INPUTS = None
+
+
+def _write(path, data):
+    """Every file of the study goes through bgc's one checked writer."""
+    from .outfiles import write_output
+
+    write_output(path, data, _INPUTS, "accuracy output")
 
 
 def cheapest(runs, target):
@@ -639,17 +645,20 @@ def _finish(plt, fig, ax, agree, xlabel, title, path):
     ax.set_title(title)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
     plt.close(fig)
+    _write(path, buf.getvalue())
     return path
 
 
 def plot_study(st: Study, out_dir) -> list:
     from .plots import _mpl
 
+    from .outfiles import prepare_folder
+
     plt = _mpl()
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = prepare_folder(out_dir, "--out")
     files = []
     agree = st.agreement["err"]
     for xkey, xlabel, suffix in (("wall", "wall time [s] (median)", "wp_time"),
@@ -780,6 +789,8 @@ def register(main_group):
     """Add the `accuracy` command to a click group."""
     import click
 
+    from .cli import POSITIVE, RTOL, finite
+
     @main_group.command("accuracy")
     @click.argument("scene", type=click.Path(dir_okay=False))
     @click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
@@ -788,20 +799,20 @@ def register(main_group):
                   help="comma-separated scipy methods")
     @click.option("--tols", default="1e-3:1e-10", show_default=True,
                   help="rtol values: a decade range a:b or a comma list")
-    @click.option("--atol-scale", type=float, default=None,
+    @click.option("--atol-scale", type=POSITIVE, default=None,
                   help="atol = rtol x this (default: the scene's atol/rtol)")
-    @click.option("--budget", type=float, default=60.0, show_default=True,
+    @click.option("--budget", type=POSITIVE, default=60.0, show_default=True,
                   help="seconds per (method, tolerance), repeats included")
-    @click.option("--repeats", type=int, default=3, show_default=True)
-    @click.option("--ref-rtol", type=float, default=1e-12, show_default=True)
+    @click.option("--repeats", type=click.IntRange(1, 1000), default=3, show_default=True)
+    @click.option("--ref-rtol", type=RTOL, default=1e-12, show_default=True)
     @click.option("--ref-methods", default=None,
                   help="two methods for the reference (default: Radau,BDF if stiff, else "
                        "Radau,DOP853)")
-    @click.option("--ref-budget", type=float, default=900.0, show_default=True)
+    @click.option("--ref-budget", type=POSITIVE, default=900.0, show_default=True)
     @click.option("--jac-methods", default="Radau,BDF", show_default=True,
                   help="methods for the analytic-vs-FD Jacobian comparison ('' for none)")
     @click.option("--jac-tols", default="1e-4,1e-6,1e-8", show_default=True)
-    @click.option("--t-end", type=float, default=None, help="stop the scene early (s)")
+    @click.option("--t-end", type=finite(), default=None, help="stop the scene early (s)")
     @click.option("--breakpoints", "extra_bps", default="",
                   help="comma-separated instants where inputs jump, added to the scene's")
     @click.option("-q", "--quiet", is_flag=True)
@@ -823,9 +834,20 @@ def register(main_group):
             bps = tuple(float(b) for b in extra_bps.split(",") if b.strip())
         except ValueError:
             raise ModelError(None, f"--breakpoints {extra_bps!r}: give numbers") from None
-        setup = prepare(scene, t_end=t_end, atol_scale=atol_scale, breakpoints=bps)
+        if not all(math.isfinite(b) for b in bps):
+            raise ModelError(None, f"--breakpoints {extra_bps!r}: give finite numbers")
+        global _INPUTS
+        from .outfiles import prepare_folder
+        from .scene import parse_scene
+
+        from .cli import _model_inputs
+
+        sc = parse_scene(scene)
+        _INPUTS = _model_inputs(scene, sc.model_path)
+        out = Path(out_dir or f"accuracy_{Path(sc.file).stem}")
+        prepare_folder(out, "--out")  # before the study, not after it
+        setup = prepare(sc, t_end=t_end, atol_scale=atol_scale, breakpoints=bps)
         st = study(setup, ms, tl, budget, repeats, ref_rtol, rms, ref_budget, jms, jtl, say)
-        out = Path(out_dir or f"accuracy_{setup.name}")
         for f in write_all(st, out):
             say(f"wrote {f}")
         a = st.agreement
