@@ -256,8 +256,8 @@ def _nonfinite(method, what, t, y, values, shape, stats):
         v = values.reshape(N_STATES, N_STATES, nb)[i, j, b]
         index = (i, j)
         part = (f"the Jacobian entry ({i}, {j}), d(d{STATE_NAMES[i]}/dt)/d({STATE_NAMES[j]}), "
-                f"is {v:g} (row of state {STATE_NAMES[i]!r}, element {STATE_OWNERS[i]!r}; "
-                f"column of state {STATE_NAMES[j]!r}, element {STATE_OWNERS[j]!r})")
+                f"is {v:g} (the equation of state {STATE_NAMES[i]!r}, element "
+                f"{STATE_OWNERS[i]!r})")
     else:
         bad = ~np.isfinite(values.reshape(N_STATES, nb))
         i = int(np.flatnonzero(bad.any(axis=1))[0])
@@ -749,6 +749,11 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
             if steps > max_steps:
                 raise _error(StiffnessError, _stiff_message(method, t0, why), t0, stats)
             watch = _StiffnessWatch(method, t1, max_steps)
+        if method == "LSODA" and jac and segments:
+            # LSODA may switch to its stiff mode and use the analytic Jacobian at any time:
+            # one must be finite where the run starts, as for the other implicit methods
+            _flat_jacobian(_one_sided(*segments[0]), shape, p, u, False, method,
+                           stats)(t0, y)
         for a, c in segments:
             at = _one_sided(a, c)
             solver_class = _rodas_class() if method == "Rodas4" else getattr(scipy.integrate, method)

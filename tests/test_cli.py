@@ -64,7 +64,8 @@ def test_user_error_exit_2_without_traceback(tmp_path):
 
 def test_simulate_options_are_checked_and_errors_have_a_place(tmp_path):
     """--method is one of the runtime's methods (an unknown one: a usage error, exit 2, no
-    traceback); --max-wall turns a long run into a located user error, nothing written."""
+    traceback); --max-wall turns a long run into a located failed run (exit 1), nothing
+    written."""
     scene = ROOT / "models" / "scenes" / "msd_step.yaml"
     r = bgc("simulate", scene, "--method", "Euler")
     assert r.returncode == 2 and "Traceback" not in r.stderr
@@ -72,7 +73,7 @@ def test_simulate_options_are_checked_and_errors_have_a_place(tmp_path):
     out = tmp_path / "r.npz"
     r = bgc("simulate", ROOT / "models" / "scenes" / "3r2s_circle.yaml", "--max-wall", "0.2",
             "--out", out, "-q")
-    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert r.returncode == 1 and "Traceback" not in r.stderr
     last = r.stderr.strip().splitlines()[-1]
     assert last.startswith(f"{ROOT / 'models' / 'scenes' / '3r2s_circle.yaml'}:")
     assert "simulation failed: Radau stopped at t = " in last and "max_wall = 0.2 s" in last

@@ -38,7 +38,8 @@ def compile_scene(scene: Scene, progress=None, specialise: bool = True):
 
         plan = plan_for(scene, build_graph(model).params)
     c = compile_model(model, progress, plan)
-    mod = load_module(c.source, f"{c.model.name}_{scene.name}{'' if specialise else '_full'}")
+    with np.errstate(all="ignore"):  # X0 is computed on import: no numpy warnings
+        mod = load_module(c.source, f"{c.model.name}_{scene.name}{'' if specialise else '_full'}")
     check_against(scene, mod)
     from .plots import check_plots
 
@@ -68,15 +69,184 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None) -> Sce
     rtol = rtol or scene.rtol
     say(f"simulating {scene.name} with {method}, rtol {rtol:g}")
     dt = scene.dt or (scene.t_span[1] - scene.t_span[0]) / 1000
+    p = runtime_params(scene, mod)
     try:
         res = mod.simulate(scene.t_span, dt=dt, method=method, rtol=rtol, atol=scene.atol,
-                           p=runtime_params(scene, mod), breakpoints=scene.breakpoints,
-                           max_step=scene.max_step, max_wall=max_wall)
+                           p=p, breakpoints=scene.breakpoints, max_step=scene.max_step,
+                           max_wall=max_wall)
     except mod.SimulationError as exc:
-        raise SimulationFailed(scene.coord, f"simulation failed: {exc}") from None
+        coord, why = scene.coord, ""
+        if getattr(exc, "where", None) is not None:  # a NonFiniteError: which law, and why
+            with np.errstate(all="ignore"):
+                found = nonfinite_culprit(c, mod, exc, p)
+            if found is not None:
+                coord, why = found
+        raise SimulationFailed(coord, f"simulation failed: {exc}{why}") from None
     t2 = time.perf_counter()
     t, x, y = res
     return SceneResult(scene, mod, t, x, y, res.stats, method, rtol, t1 - t0, t2 - t1)
+
+
+# ---------------------------------------------------------------------------------------------
+# Which law made a value that is not finite (the module names the state; bgc, holding the
+# equations, finds the element and, where known, a remedy)
+
+#: Most assignments a diagnosis evaluates (it runs on failure only; sympy is slow).
+_DIAGNOSE_MAX = 5000
+
+
+def _num(expr, vals):
+    """expr's value at vals (symbol -> float): a complex, or None if it cannot be evaluated."""
+    import sympy as sp
+
+    try:
+        v = expr.xreplace({s: sp.Float(vals[s]) for s in expr.free_symbols if s in vals})
+        if v.free_symbols:
+            return None
+        if v.has(sp.zoo, sp.oo, -sp.oo, sp.nan):
+            return complex(np.nan)
+        return complex(v.evalf())
+    except (TypeError, ValueError, ArithmeticError, AttributeError):
+        return complex(np.nan)
+
+
+def _finite(v) -> bool:
+    return v is None or (np.isfinite(v.real) and np.isfinite(v.imag) and v.imag == 0)
+
+
+def _element_of(why: str) -> str | None:
+    """The element id an assignment's description starts with (see equations.derive)."""
+    for prefix in ("0-junction ", "1-junction "):
+        if why.startswith(prefix):
+            return why[len(prefix):].split(":", 1)[0]
+    if why.startswith("derived parameter "):
+        return None
+    head = why.split(" (", 1)[0]
+    return head or None
+
+
+def _remedy(expr, vals, wrt=None) -> str:
+    """A known cure for the law expr, at the point vals, that gave a non-finite value (or,
+    with wrt, an infinite slope): a fractional power of zero, a log of zero, a division by
+    zero, the root of a negative number."""
+    import sympy as sp
+
+    for node in sp.preorder_traversal(expr):
+        if isinstance(node, sp.Pow) and node.exp.is_number:
+            base = _num(node.base, vals)
+            if base is None:
+                continue
+            e = float(node.exp)
+            if abs(base) == 0 and 0 < e < 1:
+                return (f" ({node} has an infinite slope where {node.base} = 0): regularise "
+                        "the law near zero, e.g. sqrt(abs(e) + eps**2) - eps in place of "
+                        "sqrt(abs(e)) with a small eps, or give it a laminar (linear) region "
+                        "near zero")
+            if abs(base) == 0 and e < 0:
+                return f" (it divides by {node.base}, which is 0 here)"
+            if base.real < 0 and not float(e).is_integer():
+                return (f" (it takes a fractional power of {node.base}, which is negative "
+                        "here: keep the argument positive)")
+        if isinstance(node, sp.log):
+            arg = _num(node.args[0], vals)
+            if arg is not None and arg.real <= 0:
+                return f" (it takes the log of {node.args[0]}, which is {arg.real:g} here)"
+    return ""
+
+
+def nonfinite_culprit(c, mod, exc, p=None):
+    """(coord, text) naming the element whose law made the NonFiniteError ``exc``, and a
+    remedy where one is known; None if it cannot be told (the module's message stands)."""
+    import sympy as sp
+
+    eq = c.equations
+    try:
+        b = int(exc.instance or 0)
+        t = float(exc.t)
+        pv, _ = mod._params(p)
+
+        def pick(v):
+            a = np.asarray(v, dtype=float).ravel()
+            return float(a[b] if a.size > b else a[0])
+
+        vals = {}
+        names = [s for pvar in eq.params for s in pvar.symbols] + [d.symbol for d in eq.derived]
+        for s, v in zip(names, pv):
+            vals[s] = pick(v)
+        if eq.inputs:
+            uv = mod._inputs(t, pv, None)
+            for s, v in zip((s for iv in eq.inputs for s in iv.symbols), uv):
+                vals[s] = pick(v)
+        for sv, v in zip(eq.states, np.asarray(exc.x, dtype=float)):
+            vals[sv.symbol] = float(v)
+    except Exception:  # noqa: BLE001 - a diagnosis is best effort
+        return None
+    where = exc.where
+    if where == "initial state":
+        row = eq.states[exc.index].initial
+        rows = [row]
+    else:
+        i = exc.index if where == "rhs" else exc.index[0]
+        rows = [eq.derivatives[i]]
+    j = exc.index[1] if where == "jacobian" else None
+
+    def located(owner, text):
+        try:
+            coord = c.graph.element(owner).coord
+        except Exception:  # noqa: BLE001 - a state's owner, or not an element
+            coord = None
+        return coord, text
+
+    # parameters and inputs the failing row reads: one that is itself not finite is the cause
+    by_sym = {a.symbol: a for a in eq.assignments}
+    need, todo = set(), set().union(*(r.free_symbols for r in rows))
+    while todo and len(need) < _DIAGNOSE_MAX:
+        s = todo.pop()
+        if s in need:
+            continue
+        need.add(s)
+        if s in by_sym:
+            todo |= by_sym[s].expr.free_symbols
+    for pvar in eq.params:
+        for s in pvar.symbols:
+            if s in need and not np.isfinite(vals.get(s, 0.0)):
+                return None, f"; parameter {pvar.id!r} is {vals[s]:g}"
+    for d in eq.derived:
+        if d.symbol in need and not np.isfinite(vals.get(d.symbol, 0.0)):
+            return None, (f"; the {d.why} is {vals[d.symbol]:g} (= {d.expr} with the "
+                          "parameters' values)")
+    for iv in eq.inputs:
+        for s in iv.symbols:
+            if s in need and not np.isfinite(vals.get(s, 0.0)):
+                return None, f"; input {iv.name!r} is {vals[s]:g} at t = {t:g}"
+    if where == "initial state" or len(need) > _DIAGNOSE_MAX:
+        return None
+    dep = {eq.states[j].symbol} if j is not None else set()
+    for a in eq.assignments:
+        if a.symbol not in need:
+            continue
+        v = _num(a.expr, vals)
+        vals[a.symbol] = complex(np.nan) if v is None else v
+        owner = _element_of(a.why)
+        if not _finite(v):
+            shown = "nan" if v is None or np.isnan(v.real) else f"{v.real:g}"
+            return located(owner, f"; it comes from {a.why}: {a.expr} is {shown} here"
+                           + _remedy(a.expr, vals))
+        vals[a.symbol] = v.real
+        if j is None or not (a.expr.free_symbols & dep):
+            continue
+        dep.add(a.symbol)
+        from .equations import _clean
+
+        for s in sorted(a.expr.free_symbols & dep, key=str):
+            try:
+                d = _clean(sp.diff(a.expr, s))
+            except Exception:  # noqa: BLE001
+                continue
+            if not _finite(_num(d, vals)):
+                return located(owner, f"; it comes from {a.why}: {a.expr} has an infinite "
+                                      f"slope at {s} = {vals[s]:g}" + _remedy(a.expr, vals, s))
+    return None
 
 
 # ---------------------------------------------------------------------------------------------
