@@ -793,7 +793,7 @@ def register(main_group):
 
     @main_group.command("accuracy")
     @click.argument("scene", type=click.Path(dir_okay=False))
-    @click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
+    @click.option("--out", "out_dir", type=click.Path(), default=None,
                   help="output folder (default: accuracy_<scene>)")
     @click.option("--methods", default=",".join(METHODS), show_default=True,
                   help="comma-separated scipy methods")

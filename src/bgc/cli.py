@@ -146,7 +146,7 @@ def main():
 
 @main.command("compile")
 @click.argument("model", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", type=click.Path(dir_okay=False), help="module to write "
+@click.option("-o", "--output", type=click.Path(), help="module to write "
               "(default: generated/<name>.py beside the models folder, or ./<name>.py; with "
               "--scene: ./<name>_<scene>.py)")
 @click.option("--scene", type=click.Path(dir_okay=False),
@@ -236,7 +236,7 @@ def check_cmd(model):
 
 @main.command("graph")
 @click.argument("model", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+@click.option("-o", "--output", required=True, type=click.Path(),
               help="FILE.dot, FILE.svg or FILE.png")
 def graph_cmd(model, output):
     """Draw the bond graph with causal strokes (DOT; SVG/PNG through Graphviz)."""
@@ -263,8 +263,8 @@ def graph_cmd(model, output):
 
 @main.command("simulate")
 @click.argument("scene", type=click.Path(dir_okay=False))
-@click.option("--out", type=click.Path(dir_okay=False), help="results .npz (t and outputs)")
-@click.option("--plot", "plot_dir", type=click.Path(file_okay=False), help="write PNG plots here")
+@click.option("--out", type=click.Path(), help="results .npz (t and outputs)")
+@click.option("--plot", "plot_dir", type=click.Path(), help="write PNG plots here")
 @click.option("--method", type=click.Choice(SOLVER_METHODS), default=None,
               help="override the scene's solver method (Rodas4: the generated module's own)")
 @click.option("--rtol", type=RTOL, default=None, help="relative tolerance, 0 < rtol < 1")

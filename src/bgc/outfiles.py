@@ -108,17 +108,19 @@ def model_inputs(model_path) -> list[Path]:
     return out
 
 
-_UMASK: int | None = None
-
-
 def umask() -> int:
-    """The process's umask (read once: os.umask can only be read by setting it)."""
-    global _UMASK
-    if _UMASK is None:
-        old = os.umask(0o022)
-        os.umask(old)
-        _UMASK = old
-    return _UMASK
+    """The process's umask: from /proc/self/status where Linux shows it, else by setting and
+    restoring it (os.umask can only be read that way)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    old = os.umask(0o022)
+    os.umask(old)
+    return old
 
 
 def check_output(path, inputs: Inputs | None = None, what: str = "output") -> Path:

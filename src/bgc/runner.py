@@ -103,8 +103,10 @@ def _num(expr, vals):
         v = expr.xreplace({s: sp.Float(vals[s]) for s in expr.free_symbols if s in vals})
         if v.free_symbols:
             return None
-        if v.has(sp.zoo, sp.oo, -sp.oo, sp.nan):
+        if v.has(sp.nan):
             return complex(np.nan)
+        if v.has(sp.zoo, sp.oo, -sp.oo):
+            return complex(-np.inf if v == -sp.oo else np.inf)
         return complex(v.evalf())
     except (TypeError, ValueError, ArithmeticError, AttributeError):
         return complex(np.nan)
@@ -229,7 +231,8 @@ def nonfinite_culprit(c, mod, exc, p=None):
         vals[a.symbol] = complex(np.nan) if v is None else v
         owner = _element_of(a.why)
         if not _finite(v):
-            shown = "nan" if v is None or np.isnan(v.real) else f"{v.real:g}"
+            shown = ("nan" if v is None or np.isnan(v.real) else
+                     f"{v.real:g}" if v.imag == 0 or np.isinf(v.real) else f"complex ({v:g})")
             return located(owner, f"; it comes from {a.why}: {a.expr} is {shown} here"
                            + _remedy(a.expr, vals))
         vals[a.symbol] = v.real
