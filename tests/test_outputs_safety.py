@@ -215,6 +215,8 @@ def test_simulate_refuses_bad_outputs_before_running(tmp_path):
                          "output name"),
         (("--plot", tmp_path / "file"), f"error: --plot '{tmp_path / 'file'}': exists and is "
                                         "not a folder"),
+        (("--plot", tmp_path / "file" / "sub"), f"error: --plot '{tmp_path / 'file' / 'sub'}'"
+                                                ": a part of the path is a file, not a folder"),
     ]
     for args, msg in cases:
         r = bgc("simulate", MSD_SCENE, *args)
@@ -401,6 +403,7 @@ def test_internal_error_is_one_line_exit_3():
     assert r.returncode == 3 and "Traceback" in r.stderr and "planted bug" in r.stderr
 
 
+@pytest.mark.slow
 def test_no_temporary_files_left(tmp_path):
     """compile, simulate (with plots), explain and accuracy with TMPDIR set to an empty
     folder: it stays empty (generated modules load from memory)."""

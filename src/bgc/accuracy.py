@@ -837,7 +837,7 @@ def register(main_group):
         if not all(math.isfinite(b) for b in bps):
             raise ModelError(None, f"--breakpoints {extra_bps!r}: give finite numbers")
         global _INPUTS
-        from .outfiles import prepare_folder
+        from .outfiles import check_folder
         from .scene import parse_scene
 
         from .cli import _model_inputs
@@ -845,7 +845,7 @@ def register(main_group):
         sc = parse_scene(scene)
         _INPUTS = _model_inputs(scene, sc.model_path)
         out = Path(out_dir or f"accuracy_{Path(sc.file).stem}")
-        prepare_folder(out, "--out")  # before the study, not after it
+        check_folder(out, "--out")  # before the study, not after it
         setup = prepare(sc, t_end=t_end, atol_scale=atol_scale, breakpoints=bps)
         st = study(setup, ms, tl, budget, repeats, ref_rtol, rms, ref_budget, jms, jtl, say)
         for f in write_all(st, out):

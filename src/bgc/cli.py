@@ -273,7 +273,7 @@ def graph_cmd(model, output):
 @click.option("-q", "--quiet", is_flag=True)
 def simulate_cmd(scene, out, plot_dir, method, rtol, max_wall, quiet):
     """Compile the scene's model and simulate the scene."""
-    from .outfiles import check_output, prepare_folder, write_output
+    from .outfiles import check_folder, check_output, write_output
     from .runner import run_scene
     from .scene import check_rtol, parse_scene
 
@@ -284,18 +284,21 @@ def simulate_cmd(scene, out, plot_dir, method, rtol, max_wall, quiet):
     ins = _model_inputs(scene, sc.model_path)
     if out:  # refused before the run, not after it
         check_output(out, ins, "--out")
-    if plot_dir and Path(plot_dir).exists() and not Path(plot_dir).is_dir():
-        prepare_folder(plot_dir, "--plot")
+    if plot_dir is not None:
+        check_folder(plot_dir, "--plot")
     res = run_scene(sc, progress=prog, method=method, rtol=rtol, max_wall=max_wall)
+    figures = None
+    if plot_dir is not None:  # every figure drawn before anything is written
+        from .plots import render_plots, write_plots
+
+        figures = render_plots(res.scene, res.t, res.y)
     if out:
         buf = io.BytesIO()
         np.savez_compressed(buf, t=res.t, **res.y)
         write_output(out, buf.getvalue(), ins, "--out")
         prog(f"wrote {out}")
-    if plot_dir:
-        from .plots import write_plots
-
-        for p in write_plots(res.scene, res.t, res.y, plot_dir, ins):
+    if plot_dir is not None:
+        for p in write_plots(res.scene, res.t, res.y, plot_dir, ins, figures):
             prog(f"wrote {p}")
     st = res.stats
     click.echo(f"{res.scene.name}: t = {res.t[0]:g}..{res.t[-1]:g} s, {len(res.t)} points, "

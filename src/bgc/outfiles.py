@@ -30,6 +30,7 @@ import yaml
 from .errors import ModelError
 
 __all__ = ["OutputError", "Inputs", "write_output", "check_output", "prepare_folder",
+           "check_folder",
            "model_inputs", "umask"]
 
 
@@ -176,6 +177,38 @@ def prepare_folder(folder, what: str = "output folder") -> Path:
         raise OutputError(what, text, f"cannot create the folder: {_reason(exc)}") from None
     if not p.is_dir():
         raise OutputError(what, text, "exists and is not a folder")
+    return p
+
+
+def check_folder(folder, what: str = "output folder") -> Path:
+    """The checks of :func:`prepare_folder` without creating anything: ``folder`` is a folder,
+    or the nearest part of it that exists is a folder bgc may create entries in."""
+    text = os.fspath(folder)
+    if text == "":
+        raise OutputError(what, "", "the path is empty")
+    if "\0" in text:
+        raise OutputError(what, text, "the path contains a NUL character")
+    p = Path(text)
+    probe = p
+    while True:
+        try:
+            st = os.stat(probe)
+        except FileNotFoundError:
+            if probe.parent == probe:
+                break
+            probe = probe.parent
+            continue
+        except NotADirectoryError:
+            raise OutputError(what, text, "a part of the path is a file, not a folder") from None
+        except OSError as exc:
+            raise OutputError(what, text, _reason(exc)) from None
+        if not stat.S_ISDIR(st.st_mode):
+            raise OutputError(what, text, "exists and is not a folder" if probe == p else
+                              "a part of the path is a file, not a folder")
+        if not os.access(probe, os.W_OK | os.X_OK):
+            raise OutputError(what, text, f"cannot write in {_show(str(probe))}: Permission "
+                                          "denied")
+        break
     return p
 
 

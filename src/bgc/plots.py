@@ -177,22 +177,24 @@ def _png(fn, *args) -> bytes:
     return buf.getvalue()
 
 
-def write_plots(scene, t, y, outdir, inputs=None) -> list[Path]:
-    """One PNG per plot of the scene (or per output when it names none), in ``outdir``
-    (created if missing), each through the checked writer (bgc.outfiles)."""
-    from .outfiles import prepare_folder, write_output
-
-    outdir = prepare_folder(outdir, "--plot folder")
-    written = []
+def render_plots(scene, t, y) -> list[tuple[str, bytes]]:
+    """(file name, PNG bytes) of each plot of the scene (or one per output when it names
+    none), drawn in memory: nothing is written until every figure has been drawn."""
     if not scene.plots:
-        for name in y:
-            p = _name(outdir, f"{scene.name}_{name}.png")
-            written.append(write_output(p, _png(plot_time, t, y, [name]), inputs, "plot"))
-        return written
+        return [(f"{scene.name}_{name}.png", _png(plot_time, t, y, [name])) for name in y]
     check_plots(scene, {k: np.shape(v)[:-1] for k, v in y.items()})
     fns = {"time": plot_time, "path3d": plot_path3d, "loci": plot_loci}
-    for k, pl in enumerate(scene.plots):
-        p = _name(outdir, f"{scene.name}_{k + 1}_{pl.kind}.png")
-        data = _png(fns[pl.kind], t, y, list(pl.outputs), pl.title, pl.labels)
-        written.append(write_output(p, data, inputs, "plot"))
-    return written
+    return [(f"{scene.name}_{k + 1}_{pl.kind}.png",
+             _png(fns[pl.kind], t, y, list(pl.outputs), pl.title, pl.labels))
+            for k, pl in enumerate(scene.plots)]
+
+
+def write_plots(scene, t, y, outdir, inputs=None, rendered=None) -> list[Path]:
+    """The scene's plots as PNGs in ``outdir`` (created if missing), each through the checked
+    writer (bgc.outfiles). ``rendered``: the figures of :func:`render_plots`, if drawn."""
+    from .outfiles import prepare_folder, write_output
+
+    figures = render_plots(scene, t, y) if rendered is None else rendered
+    outdir = prepare_folder(outdir, "--plot")
+    return [write_output(_name(outdir, fname), data, inputs, "plot")
+            for fname, data in figures]
