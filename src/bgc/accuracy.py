@@ -843,10 +843,10 @@ def register(main_group):
         from .cli import _model_inputs
 
         sc = parse_scene(scene)
-        _INPUTS = _model_inputs(scene, sc.model_path)
         out = Path(out_dir or f"accuracy_{Path(sc.file).stem}")
         check_folder(out, "--out")  # before the study, not after it
         setup = prepare(sc, t_end=t_end, atol_scale=atol_scale, breakpoints=bps)
+        _INPUTS = _model_inputs(scene, sc.model_path)  # the model has parsed: its imports
         st = study(setup, ms, tl, budget, repeats, ref_rtol, rms, ref_budget, jms, jtl, say)
         for f in write_all(st, out):
             say(f"wrote {f}")

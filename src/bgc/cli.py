@@ -123,18 +123,19 @@ POSITIVE = finite(0.0, lo_open=True)
 RTOL = finite(0.0, 1.0, lo_open=True, hi_open=True)
 
 
-def _model_inputs(*paths):
-    """The inputs of this run that no output may replace: the given files, and for model
-    files the files they import."""
+def _model_inputs(*paths, follow: bool = True):
+    """The inputs of this run that no output may replace: the given files (models, scenes)
+    and, with ``follow``, the files the models import (only once bgc's parser has read them:
+    the imports are found by reading the files again)."""
     from .outfiles import Inputs, model_inputs
 
     ins = Inputs()
     for p in paths:
         if p is None:
             continue
-        for f in model_inputs(p) if str(p).endswith((".yaml", ".yml")) else [p]:
-            ins.add(f)
         ins.add(p)
+        for f in model_inputs(p) if follow else ():
+            ins.add(f)
     return ins
 
 
@@ -281,12 +282,12 @@ def simulate_cmd(scene, out, plot_dir, method, rtol, max_wall, quiet):
         check_rtol(rtol, None, "--rtol")
     prog = _Progress(quiet)
     sc = parse_scene(scene)
-    ins = _model_inputs(scene, sc.model_path)
-    if out:  # refused before the run, not after it
-        check_output(out, ins, "--out")
+    if out:  # refused before the run, not after it (the imports are known after it)
+        check_output(out, _model_inputs(scene, sc.model_path, follow=False), "--out")
     if plot_dir is not None:
         check_folder(plot_dir, "--plot")
     res = run_scene(sc, progress=prog, method=method, rtol=rtol, max_wall=max_wall)
+    ins = _model_inputs(scene, sc.model_path)
     figures = None
     if plot_dir is not None:  # every figure drawn before anything is written
         from .plots import render_plots, write_plots

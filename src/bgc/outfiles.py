@@ -82,6 +82,10 @@ class Inputs:
         return self.ids.get((st.st_dev, st.st_ino))
 
 
+_MAX_READ = 5_000_000  # bytes: the parser's limit on a model file
+_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
 def model_inputs(model_path) -> list[Path]:
     """The model file and every file it imports, transitively (read after the model has
     parsed, so the files are known to be valid and bounded; each file visited once)."""
@@ -98,8 +102,12 @@ def model_inputs(model_path) -> list[Path]:
             continue
         seen.add(key)
         out.append(p)
-        try:
-            doc = yaml.safe_load(p.read_text(encoding="utf-8"))
+        try:  # only regular files of a model's size are read (never a FIFO or a device)
+            st = os.stat(p)
+            if not stat.S_ISREG(st.st_mode) or st.st_size > _MAX_READ:
+                continue
+            with open(p, "rb") as fh:
+                doc = yaml.load(fh.read(_MAX_READ).decode("utf-8"), Loader=_LOADER)
         except Exception:  # noqa: BLE001 - best effort: parse_file has already checked it
             continue
         imports = doc.get("imports") if isinstance(doc, dict) else None
