@@ -311,6 +311,23 @@ def test_nan_parameter_is_named():
     assert "dmass.p/dt is nan (state 0 'mass.p', element 'mass')" in str(err)
     coord, text = nonfinite_culprit(c, mod, err, p)
     assert text == "; parameter 'c' is nan"
+    declared = [k for k, ln in enumerate(MSD.read_text().splitlines(), 1)
+                if ln.startswith("  c:")]
+    assert (Path(coord.file).name, [coord.line]) == ("msd.yaml", declared)  # c's declaration
+
+
+def test_nan_derived_parameter_at_t0(tmp_path):
+    """c = sqrt(c2 - c1) with c2 < c1 is NaN; the damper's force c v makes dp/dt NaN at
+    t = 0: one line at the parameter's place, exit 1, nothing written."""
+    assert "c: \"sqrt(c2 - c1)\"" in (HERE / "nan_param.yaml").read_text().splitlines()[9]
+    r = bgc("simulate", HERE / "nan_param_scene.yaml", "--out", tmp_path / "r.npz", "-q")
+    assert one_error_line(r, status=1) == (
+        f"{HERE / 'nan_param.yaml'}:10:3: simulation failed: Radau failed at t = 0: the "
+        "right-hand side is not finite: dmass.p/dt is nan (state 0 'mass.p', element 'mass'); "
+        "the derived parameter c is nan (= sqrt(-c1 + c2) with the parameters' values) (it "
+        "takes a fractional power of -c1 + c2, which is negative here: keep the argument "
+        "positive)")
+    assert listing(tmp_path) == []
 
 
 @pytest.mark.parametrize("method", ["RK23", "RK45", "DOP853", "Radau", "BDF", "LSODA", "Rodas4"])

@@ -80,7 +80,7 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None) -> Sce
             with np.errstate(all="ignore"):
                 found = nonfinite_culprit(c, mod, exc, p)
             if found is not None:
-                coord, why = found
+                coord, why = found[0] or scene.coord, found[1]
         raise SimulationFailed(coord, f"simulation failed: {exc}{why}") from None
     t2 = time.perf_counter()
     t, x, y = res
@@ -199,6 +199,9 @@ def nonfinite_culprit(c, mod, exc, p=None):
             coord = None
         return coord, text
 
+    def param_coord(pid):
+        return next((fp.coord for fp in c.graph.params if fp.id == pid), None)
+
     # parameters and inputs the failing row reads: one that is itself not finite is the cause
     by_sym = {a.symbol: a for a in eq.assignments}
     need, todo = set(), set().union(*(r.free_symbols for r in rows))
@@ -212,11 +215,13 @@ def nonfinite_culprit(c, mod, exc, p=None):
     for pvar in eq.params:
         for s in pvar.symbols:
             if s in need and not np.isfinite(vals.get(s, 0.0)):
-                return None, f"; parameter {pvar.id!r} is {vals[s]:g}"
+                return param_coord(pvar.id), f"; parameter {pvar.id!r} is {vals[s]:g}"
     for d in eq.derived:
         if d.symbol in need and not np.isfinite(vals.get(d.symbol, 0.0)):
-            return None, (f"; the {d.why} is {vals[d.symbol]:g} (= {d.expr} with the "
-                          "parameters' values)")
+            pid = d.why[len("derived parameter "):] if d.why.startswith("derived parameter ") \
+                else None
+            return param_coord(pid), (f"; the {d.why} is {vals[d.symbol]:g} (= {d.expr} with "
+                                      "the parameters' values)" + _remedy(d.expr, vals))
     for iv in eq.inputs:
         for s in iv.symbols:
             if s in need and not np.isfinite(vals.get(s, 0.0)):
