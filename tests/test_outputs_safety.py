@@ -347,6 +347,23 @@ def test_every_method_stops_on_a_nan_rhs(gen, method):
     assert str(err).startswith(f"{method} failed at t = ")
 
 
+def test_the_cheap_finiteness_check(gen):
+    """The per-call check (a sum of squares) against numpy's element-wise isfinite, including
+    finite entries whose squares overflow (1e200) and a lone nan or inf among many."""
+    msd = gen("msd")
+    rng = np.random.default_rng(7)
+    cases = [np.zeros(0), np.ones(3), np.array([1e200, -1e200]), np.array([1e308, 1.0])]
+    for bad in (np.nan, np.inf, -np.inf):
+        for n in (1, 5, 1000):
+            a = rng.normal(size=n) * 1e150
+            a[rng.integers(n)] = bad
+            cases.append(a)
+    cases.append(rng.normal(size=(4, 4, 3)))
+    with np.errstate(all="ignore"):  # as inside simulate
+        for a in cases:
+            assert msd._all_finite(a) == bool(np.isfinite(a).all()), a
+
+
 def test_jacobian_entry_in_a_batch(gen):
     """Batched parameters: the instance whose Jacobian is not finite is named; the (row,
     column) entry is the one that reads the bad parameter (msd: J[0, 0] = -c/m)."""
