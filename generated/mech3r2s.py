@@ -8402,7 +8402,8 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
                            stats)(t0, y)
         for a, c in segments:
             at = _one_sided(a, c)
-            solver_class = _rodas_class() if method == "Rodas4" else getattr(scipy.integrate, method)
+            solver_class = (_rodas_class() if method == "Rodas4"
+                            else getattr(scipy.integrate, method))
             solver = solver_class(
                 _flat_rhs(at, shape, p, u, stats, method), a, y, c, rtol=rtol, atol=atol,
                 max_step=max_step, **_jacobian_options(method, jac, at, shape, p, u, stats))

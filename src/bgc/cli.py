@@ -1,6 +1,7 @@
 """Command line: a thin layer over the pipeline. User errors: one located line, exit 2."""
 from __future__ import annotations
 
+import errno
 import io
 import math
 import os
@@ -75,6 +76,8 @@ class _Group(click.Group):
                        "machine has)", err=True)
             sys.exit(EXIT_USER)
         except OSError as exc:  # a file named on the command line that cannot be used
+            if exc.errno == errno.EPIPE:
+                raise  # stdout closed early (bgc check ... | head): click exits quietly
             if _debug():
                 traceback.print_exc()
             from .emit import oneline
@@ -100,18 +103,19 @@ class _Finite(click.ParamType):
         return f"{lo}x{hi}"
 
     def convert(self, value, param, ctx):
+        shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:37] + "..."
         if isinstance(value, float):
             v = value
         else:
             try:
                 v = float(str(value).strip())
             except ValueError:
-                self.fail(f"{value!r} is not a number", param, ctx)
+                self.fail(f"{shown} is not a number", param, ctx)
         if not math.isfinite(v):
-            self.fail(f"{value!r} is not a finite number", param, ctx)
+            self.fail(f"{shown} is not a finite number", param, ctx)
         if self.lo is not None and (v <= self.lo if self.lo_open else v < self.lo) or \
                 self.hi is not None and (v >= self.hi if self.hi_open else v > self.hi):
-            self.fail(f"{value!r} is not in the range {self._range()}", param, ctx)
+            self.fail(f"{shown} is not in the range {self._range()}", param, ctx)
         return v
 
 

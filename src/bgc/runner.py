@@ -112,6 +112,12 @@ def _num(expr, vals):
         return complex(np.nan)
 
 
+def _show(expr, limit: int = 160) -> str:
+    """An expression for a one-line message, cut to ``limit`` characters."""
+    text = " ".join(str(expr).split())
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
 def _finite(v) -> bool:
     return v is None or (np.isfinite(v.real) and np.isfinite(v.imag) and v.imag == 0)
 
@@ -140,19 +146,20 @@ def _remedy(expr, vals, wrt=None) -> str:
                 continue
             e = float(node.exp)
             if abs(base) == 0 and 0 < e < 1:
-                return (f" ({node} has an infinite slope where {node.base} = 0): regularise "
-                        "the law near zero, e.g. sqrt(abs(e) + eps**2) - eps in place of "
-                        "sqrt(abs(e)) with a small eps, or give it a laminar (linear) region "
-                        "near zero")
+                return (f" ({_show(node, 60)} has an infinite slope where "
+                        f"{_show(node.base, 60)} = 0): regularise the law near zero, e.g. "
+                        "sqrt(abs(e) + eps**2) - eps in place of sqrt(abs(e)) with a small eps, "
+                        "or give it a laminar (linear) region near zero")
             if abs(base) == 0 and e < 0:
-                return f" (it divides by {node.base}, which is 0 here)"
+                return f" (it divides by {_show(node.base, 60)}, which is 0 here)"
             if base.real < 0 and not float(e).is_integer():
-                return (f" (it takes a fractional power of {node.base}, which is negative "
-                        "here: keep the argument positive)")
+                return (f" (it takes a fractional power of {_show(node.base, 60)}, which is "
+                        "negative here: keep the argument positive)")
         if isinstance(node, sp.log):
             arg = _num(node.args[0], vals)
             if arg is not None and arg.real <= 0:
-                return f" (it takes the log of {node.args[0]}, which is {arg.real:g} here)"
+                return (f" (it takes the log of {_show(node.args[0], 60)}, which is "
+                        f"{arg.real:g} here)")
     return ""
 
 
@@ -220,8 +227,9 @@ def nonfinite_culprit(c, mod, exc, p=None):
         if d.symbol in need and not np.isfinite(vals.get(d.symbol, 0.0)):
             pid = d.why[len("derived parameter "):] if d.why.startswith("derived parameter ") \
                 else None
-            return param_coord(pid), (f"; the {d.why} is {vals[d.symbol]:g} (= {d.expr} with "
-                                      "the parameters' values)" + _remedy(d.expr, vals))
+            return param_coord(pid), (f"; the {d.why} is {vals[d.symbol]:g} (= "
+                                      f"{_show(d.expr)} with the parameters' values)"
+                                      + _remedy(d.expr, vals))
     for iv in eq.inputs:
         for s in iv.symbols:
             if s in need and not np.isfinite(vals.get(s, 0.0)):
@@ -238,7 +246,7 @@ def nonfinite_culprit(c, mod, exc, p=None):
         if not _finite(v):
             shown = ("nan" if v is None or np.isnan(v.real) else
                      f"{v.real:g}" if v.imag == 0 or np.isinf(v.real) else f"complex ({v:g})")
-            return located(owner, f"; it comes from {a.why}: {a.expr} is {shown} here"
+            return located(owner, f"; it comes from {a.why}: {_show(a.expr)} is {shown} here"
                            + _remedy(a.expr, vals))
         vals[a.symbol] = v.real
         if j is None or not (a.expr.free_symbols & dep):
@@ -252,7 +260,7 @@ def nonfinite_culprit(c, mod, exc, p=None):
             except Exception:  # noqa: BLE001
                 continue
             if not _finite(_num(d, vals)):
-                return located(owner, f"; it comes from {a.why}: {a.expr} has an infinite "
+                return located(owner, f"; it comes from {a.why}: {_show(a.expr)} has an infinite "
                                       f"slope at {s} = {vals[s]:g}" + _remedy(a.expr, vals, s))
     return None
 
