@@ -245,6 +245,11 @@ def test_orifice_at_equal_levels_names_the_orifice_and_the_remedy(tmp_path):
     assert "it comes from orifice (R): flow law" in line and "infinite slope" in line
     assert "regularise" in line and "sqrt(abs(e) + eps**2) - eps" in line
     assert listing(tmp_path) == []
+    # bgc accuracy: the same line (its start checked before the study), exit 1, no folder
+    r = bgc("accuracy", HERE / "orifice_equal.yaml", "--out", tmp_path / "acc", "--methods",
+            "RK45", "--jac-methods", "", "-q")
+    assert one_error_line(r, status=1) == line  # (its check runs Radau too)
+    assert listing(tmp_path) == []
 
 
 @pytest.fixture(scope="module")

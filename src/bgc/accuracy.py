@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ModelError
+from .errors import ModelError, SimulationFailed
 
 METHODS = ("RK45", "DOP853", "Radau", "BDF", "LSODA", "Rodas4")
 ALL_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA", "Rodas4")
@@ -78,6 +78,7 @@ class Setup:
     outputs: tuple
     atol_scale: float
     compile_time: float = 0.0
+    compiled: object = None  # the Compiled scene module (for diagnoses)
 
 
 def prepare(scene_path, t_end=None, atol_scale=None, breakpoints=(), progress=None) -> Setup:
@@ -93,7 +94,7 @@ def prepare(scene_path, t_end=None, atol_scale=None, breakpoints=(), progress=No
 
     scene = scene_path if hasattr(scene_path, "t_span") else parse_scene(scene_path)
     t0c = time.perf_counter()
-    _, mod = compile_scene(scene, progress)
+    c, mod = compile_scene(scene, progress)
     ct = time.perf_counter() - t0c
     t0, t1 = scene.t_span
     if t_end is not None:
@@ -112,7 +113,7 @@ def prepare(scene_path, t_end=None, atol_scale=None, breakpoints=(), progress=No
     return Setup(Path(scene.file).stem, scene, mod, values(scene) or None, (t0, t1),
                  t_eval, tuple(sorted({float(b) for b in (*scene.breakpoints, *breakpoints)
                                        if t0 < b < t1})), scene.max_step,
-                 outs, float(atol_scale), ct)
+                 outs, float(atol_scale), ct, c)
 
 
 @contextlib.contextmanager
@@ -226,7 +227,10 @@ def is_stiff(setup: Setup) -> tuple[bool, float]:
     mod = setup.module
     x0 = mod.initial_state(setup.p).reshape(-1)
     n = x0.size
-    J = np.asarray(mod.jacobian(setup.t_span[0], x0, setup.p)).reshape(n, n)
+    with np.errstate(all="ignore"):
+        J = np.asarray(mod.jacobian(setup.t_span[0], x0, setup.p)).reshape(n, n)
+    if not np.all(np.isfinite(J)):  # simulate stops on it; treat the scene as stiff
+        return True, math.inf
     rho = float(np.max(np.abs(np.linalg.eigvals(J)))) if n else 0.0
     index = rho * (setup.t_span[1] - setup.t_span[0])
     return index > STIFF_THRESHOLD, index
@@ -262,8 +266,8 @@ def reference(setup: Setup, method, rtol, atol, budget) -> Reference:
         hint = ("raise --ref-budget or loosen --ref-rtol" if isinstance(val, BudgetExceeded)
                 else "an input that jumps needs a breakpoint (scene `breakpoints` or "
                      "--breakpoints); or loosen --ref-rtol")
-        raise ModelError(setup.scene.coord, f"the reference solution ({method}, rtol "
-                                            f"{rtol:g}) did not finish: {val} ({hint})")
+        raise SimulationFailed(setup.scene.coord, f"the reference solution ({method}, rtol "
+                                                  f"{rtol:g}) did not finish: {val} ({hint})")
     return val
 
 
@@ -847,7 +851,12 @@ def register(main_group):
         check_folder(out, "--out")  # before the study, not after it
         setup = prepare(sc, t_end=t_end, atol_scale=atol_scale, breakpoints=bps)
         _INPUTS = _model_inputs(scene, sc.model_path)  # the model has parsed: its imports
-        st = study(setup, ms, tl, budget, repeats, ref_rtol, rms, ref_budget, jms, jtl, say)
+        from .runner import check_start
+
+        check_start(setup.compiled, setup.module, sc, setup.p)  # nan or inf at t0: one line
+        with np.errstate(all="ignore"):  # (inherited by the forked runs)
+            st = study(setup, ms, tl, budget, repeats, ref_rtol, rms, ref_budget, jms, jtl,
+                       say)
         for f in write_all(st, out):
             say(f"wrote {f}")
         a = st.agreement

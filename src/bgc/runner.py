@@ -75,13 +75,7 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None) -> Sce
                            p=p, breakpoints=scene.breakpoints, max_step=scene.max_step,
                            max_wall=max_wall)
     except mod.SimulationError as exc:
-        coord, why = scene.coord, ""
-        if getattr(exc, "where", None) is not None:  # a NonFiniteError: which law, and why
-            with np.errstate(all="ignore"):
-                found = nonfinite_culprit(c, mod, exc, p)
-            if found is not None:
-                coord, why = found[0] or scene.coord, found[1]
-        raise SimulationFailed(coord, f"simulation failed: {exc}{why}") from None
+        raise simulation_failed(c, mod, scene, exc, p) from None
     t2 = time.perf_counter()
     t, x, y = res
     return SceneResult(scene, mod, t, x, y, res.stats, method, rtol, t1 - t0, t2 - t1)
@@ -161,6 +155,34 @@ def _remedy(expr, vals, wrt=None) -> str:
                 return (f" (it takes the log of {_show(node.args[0], 60)}, which is "
                         f"{arg.real:g} here)")
     return ""
+
+
+def simulation_failed(c, mod, scene, exc, p=None) -> SimulationFailed:
+    """The user's error for the module's SimulationError ``exc``: at the scene, or for a value
+    that is not finite at the law that made it, with a remedy where one is known."""
+    coord, why = scene.coord, ""
+    if getattr(exc, "where", None) is not None:  # a NonFiniteError: which law, and why
+        with np.errstate(all="ignore"):
+            found = nonfinite_culprit(c, mod, exc, p)
+        if found is not None:
+            coord, why = found[0] or scene.coord, found[1]
+    return SimulationFailed(coord, f"simulation failed: {exc}{why}")
+
+
+def check_start(c, mod, scene, p=None) -> None:
+    """The model's rhs and Jacobian are finite where the scene starts: a short Radau run
+    (it evaluates both at t0 first); a value that is not finite there is the located
+    SimulationFailed of :func:`simulation_failed`. Other failures are left to the caller."""
+    t0, t1 = scene.t_span
+    span = (t0, t0 + 1e-9 * (t1 - t0))
+    try:
+        with np.errstate(all="ignore"):
+            mod.simulate(span, t_eval=span[:1], method="Radau", p=p, rtol=1e-3, atol=1e-6,
+                         max_steps=100)
+    except mod.NonFiniteError as exc:
+        raise simulation_failed(c, mod, scene, exc, p) from None
+    except Exception:  # noqa: BLE001 - only the non-finite start is checked here
+        pass
 
 
 def nonfinite_culprit(c, mod, exc, p=None):
