@@ -140,10 +140,9 @@ def _remedy(expr, vals, wrt=None) -> str:
                 continue
             e = float(node.exp)
             if abs(base) == 0 and 0 < e < 1:
-                return (f" ({_show(node, 60)} has an infinite slope where "
-                        f"{_show(node.base, 60)} = 0): regularise the law near zero, e.g. "
-                        "sqrt(abs(e) + eps**2) - eps in place of sqrt(abs(e)) with a small eps, "
-                        "or give it a laminar (linear) region near zero")
+                return (f" ({_show(node, 50)} at {_show(node.base, 40)} = 0): regularise it, "
+                        "e.g. sqrt(abs(e) + eps**2) - eps for sqrt(abs(e)), or give it a "
+                        "laminar (linear) region near 0")
             if abs(base) == 0 and e < 0:
                 return f" (it divides by {_show(node.base, 60)}, which is 0 here)"
             if base.real < 0 and not float(e).is_integer():
@@ -268,7 +267,7 @@ def nonfinite_culprit(c, mod, exc, p=None):
         if not _finite(v):
             shown = ("nan" if v is None or np.isnan(v.real) else
                      f"{v.real:g}" if v.imag == 0 or np.isinf(v.real) else f"complex ({v:g})")
-            return located(owner, f"; it comes from {a.why}: {_show(a.expr)} is {shown} here"
+            return located(owner, f"; it comes from {a.why}: {_show(a.expr, 120)} is {shown} here"
                            + _remedy(a.expr, vals))
         vals[a.symbol] = v.real
         if j is None or not (a.expr.free_symbols & dep):
@@ -282,7 +281,7 @@ def nonfinite_culprit(c, mod, exc, p=None):
             except Exception:  # noqa: BLE001
                 continue
             if not _finite(_num(d, vals)):
-                return located(owner, f"; it comes from {a.why}: {_show(a.expr)} has an infinite "
+                return located(owner, f"; it comes from {a.why}: {_show(a.expr, 120)} has an infinite "
                                       f"slope at {s} = {vals[s]:g}" + _remedy(a.expr, vals, s))
     return None
 
