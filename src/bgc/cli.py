@@ -272,7 +272,8 @@ def graph_cmd(model, output):
 @click.option("--plot", "plot_dir", type=click.Path(), help="write PNG plots here")
 @click.option("--method", type=click.Choice(SOLVER_METHODS), default=None,
               help="override the scene's solver method (Rodas4: the generated module's own)")
-@click.option("--rtol", type=RTOL, default=None, help="relative tolerance, 0 < rtol < 1")
+@click.option("--rtol", type=float, default=None,
+              help="relative tolerance, finite, within the limit of tolerances (1e-14..1)")
 @click.option("--max-wall", type=POSITIVE, default=None,
               help="stop with an error once the integration has taken this many seconds")
 @click.option("-q", "--quiet", is_flag=True)
@@ -282,7 +283,7 @@ def simulate_cmd(scene, out, plot_dir, method, rtol, max_wall, quiet):
     from .runner import run_scene
     from .scene import check_rtol, parse_scene
 
-    if rtol is not None:  # inf and nan pass click's range check
+    if rtol is not None:  # finite, within the limits (bgc.limits): one line, exit 2
         check_rtol(rtol, None, "--rtol")
     prog = _Progress(quiet)
     sc = parse_scene(scene)

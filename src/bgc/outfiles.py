@@ -82,17 +82,19 @@ class Inputs:
         return self.ids.get((st.st_dev, st.st_ino))
 
 
-_MAX_READ = 5_000_000  # bytes: the parser's limit on a model file
 _LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
 def model_inputs(model_path) -> list[Path]:
     """The model file and every file it imports, transitively (read after the model has
     parsed, so the files are known to be valid and bounded; each file visited once)."""
+    from .limits import LIMITS
+    from .safeio import read_text_bounded
+
     out: list[Path] = []
     seen: set[str] = set()
     todo = [Path(model_path)]
-    while todo and len(out) < 10_000:
+    while todo and len(out) <= LIMITS.import_files:
         p = todo.pop()
         try:
             key = str(p.resolve())
@@ -102,12 +104,9 @@ def model_inputs(model_path) -> list[Path]:
             continue
         seen.add(key)
         out.append(p)
-        try:  # only regular files of a model's size are read (never a FIFO or a device)
-            st = os.stat(p)
-            if not stat.S_ISREG(st.st_mode) or st.st_size > _MAX_READ:
-                continue
-            with open(p, "rb") as fh:
-                doc = yaml.load(fh.read(_MAX_READ).decode("utf-8"), Loader=_LOADER)
+        try:  # read as the parser reads (regular files within the size limit only)
+            text = read_text_bounded(p, None, "model file", LIMITS.model_bytes)
+            doc = yaml.load(text, Loader=_LOADER)
         except Exception:  # noqa: BLE001 - best effort: parse_file has already checked it
             continue
         imports = doc.get("imports") if isinstance(doc, dict) else None
