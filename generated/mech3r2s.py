@@ -244,6 +244,110 @@ STATE_NAMES = (
     'W_drive',
     'W_diss',
 )
+# the element (or state) whose equation defines each state: error messages name it
+STATE_OWNERS = (
+    'link1.It',
+    'link1.It',
+    'link1.It',
+    'link1.Ir',
+    'link1.Ir',
+    'link1.Ir',
+    'link2.It',
+    'link2.It',
+    'link2.It',
+    'link2.Ir',
+    'link2.Ir',
+    'link2.Ir',
+    'link3.It',
+    'link3.It',
+    'link3.It',
+    'link3.Ir',
+    'link3.Ir',
+    'link3.Ir',
+    'link4.It',
+    'link4.It',
+    'link4.It',
+    'link4.Ir',
+    'link4.Ir',
+    'link4.Ir',
+    'j1.C',
+    'j1.C',
+    'j1.C',
+    'j2.C',
+    'j2.C',
+    'j2.C',
+    'j3.C',
+    'j3.C',
+    'j3.C',
+    'j4.C',
+    'j4.C',
+    'j4.C',
+    'j5.C',
+    'j5.C',
+    'j5.C',
+    'r1.C',
+    'r1.C',
+    'r2.C',
+    'r2.C',
+    'r3.C',
+    'r3.C',
+    'jd.C',
+    'jd.C',
+    'jd.C',
+    'link1.R',
+    'link1.R',
+    'link1.R',
+    'link1.R',
+    'link1.R',
+    'link1.R',
+    'link1.R',
+    'link1.R',
+    'link1.R',
+    'link1.rC',
+    'link1.rC',
+    'link1.rC',
+    'link2.R',
+    'link2.R',
+    'link2.R',
+    'link2.R',
+    'link2.R',
+    'link2.R',
+    'link2.R',
+    'link2.R',
+    'link2.R',
+    'link2.rC',
+    'link2.rC',
+    'link2.rC',
+    'link3.R',
+    'link3.R',
+    'link3.R',
+    'link3.R',
+    'link3.R',
+    'link3.R',
+    'link3.R',
+    'link3.R',
+    'link3.R',
+    'link3.rC',
+    'link3.rC',
+    'link3.rC',
+    'link4.R',
+    'link4.R',
+    'link4.R',
+    'link4.R',
+    'link4.R',
+    'link4.R',
+    'link4.R',
+    'link4.R',
+    'link4.R',
+    'link4.rC',
+    'link4.rC',
+    'link4.rC',
+    'pd',
+    'pd',
+    'pd',
+    'W_drive',
+    'W_diss',
+)
 PARAM_DEFAULTS = {
     'l1': 0.07,
     'l2': 0.06,
@@ -7726,6 +7830,14 @@ class SimulationError(RuntimeError):
     stats = None
 
 
+class NonFiniteError(SimulationError):
+    """rhs or jacobian gave a value that is not finite (nan or inf): .where is "rhs",
+    "jacobian" or "initial state", .index the state (rhs) or (row, column) entry (jacobian),
+    .x the state of the instance concerned, .instance its index in the batch (flat)."""
+
+    where = index = x = instance = None
+
+
 class StiffnessError(SimulationError):
     """An explicit method met a stiff model (the message says where, why, and what to use)."""
 
@@ -7765,6 +7877,52 @@ def _error(cls, message, t, stats):
     """A SimulationError (or subclass) that carries where it happened and the counts so far."""
     err = cls(message)
     err.t, err.stats = t, dict(stats)
+    return err
+
+
+def _all_finite(a):
+    """Every entry of a finite? Cheaply: the sum of squares (one BLAS dot) is finite when all
+    entries are (nan and inf propagate through it; s - s is 0 only for a finite s); if it
+    overflowed from large finite entries, the entries are looked at one by one."""
+    v = a.ravel()
+    s = v.dot(v)
+    return (s - s) == 0.0 or bool(np.isfinite(v).all())
+
+
+def _nonfinite(method, what, t, y, values, shape, stats):
+    """The NonFiniteError for rhs values (flat, n * batch) or Jacobian values (n, n, batch)
+    that are not all finite: the first state (or entry, row-major) that is not, its name and
+    the element that owns it (STATE_NAMES, STATE_OWNERS). Only called on failure."""
+    nb = int(np.prod(shape[1:]))
+    values = np.asarray(values)
+    if what == "jacobian":
+        bad = ~np.isfinite(values.reshape(N_STATES, N_STATES, nb))
+        i, j = (int(k) for k in np.argwhere(bad.any(axis=2))[0])
+        b = int(np.flatnonzero(bad[i, j])[0])
+        v = values.reshape(N_STATES, N_STATES, nb)[i, j, b]
+        index = (i, j)
+        part = (f"the Jacobian entry ({i}, {j}), d(d{STATE_NAMES[i]}/dt)/d({STATE_NAMES[j]}), "
+                f"is {v:g} (the equation of state {STATE_NAMES[i]!r}, element "
+                f"{STATE_OWNERS[i]!r})")
+    else:
+        bad = ~np.isfinite(values.reshape(N_STATES, nb))
+        i = int(np.flatnonzero(bad.any(axis=1))[0])
+        b = int(np.flatnonzero(bad[i])[0])
+        v = values.reshape(N_STATES, nb)[i, b]
+        index = i
+        if what == "rhs":
+            part = (f"the right-hand side is not finite: d{STATE_NAMES[i]}/dt is {v:g} (state "
+                    f"{i} {STATE_NAMES[i]!r}, element {STATE_OWNERS[i]!r})")
+        else:
+            part = (f"the {what} is not finite: state {i} {STATE_NAMES[i]!r} (element "
+                    f"{STATE_OWNERS[i]!r}) is {v:g}")
+    x = np.asarray(y, dtype=float).reshape(N_STATES, nb)[:, b]
+    if what != "initial state" and not np.all(np.isfinite(x)):
+        k = int(np.flatnonzero(~np.isfinite(x))[0])
+        part += f"; the state itself is not finite ({STATE_NAMES[k]!r} = {x[k]:g})"
+    where = f" in batch instance {b}" if nb > 1 else ""
+    err = _error(NonFiniteError, f"{method} failed at t = {t:.6g}{where}: {part}", t, stats)
+    err.where, err.index, err.x, err.instance = what, index, x, b
     return err
 
 
@@ -7813,11 +7971,15 @@ def _one_sided(a, c):
     return lambda t: min(max(t, lo), hi)
 
 
-def _flat_rhs(at, shape, p, u, stats):
-    """rhs on the solver's flat state (n * batch,), at the one-sided time at(t); counts calls."""
+def _flat_rhs(at, shape, p, u, stats, method):
+    """rhs on the solver's flat state (n * batch,), at the one-sided time at(t); counts calls.
+    A value that is not finite stops the run (NonFiniteError): one check per call."""
     def fun(t, y):
         stats["nfev"] += 1
-        return rhs(at(t), y.reshape(shape + y.shape[1:]), p, u).reshape(y.shape)
+        dy = rhs(at(t), y.reshape(shape + y.shape[1:]), p, u).reshape(y.shape)
+        if not _all_finite(dy):
+            raise _nonfinite(method, "rhs", at(t), y, dy, shape, stats)
+        return dy
     return fun
 
 
@@ -7828,8 +7990,9 @@ def _block_pattern(nb):
     return (rows[:, None] * nb + b).ravel(), (cols[:, None] * nb + b).ravel()
 
 
-def _flat_jacobian(at, shape, p, u, sparse):
-    """The analytic Jacobian on the flat state: block diagonal over a batch (sparse or dense)."""
+def _flat_jacobian(at, shape, p, u, sparse, method, stats):
+    """The analytic Jacobian on the flat state: block diagonal over a batch (sparse or dense).
+    An entry that is not finite stops the run (NonFiniteError): one check per call."""
     import scipy.sparse as sps
 
     nb = int(np.prod(shape[1:]))
@@ -7838,6 +8001,8 @@ def _flat_jacobian(at, shape, p, u, sparse):
 
     def jac(t, y):
         J = jacobian(at(t), y.reshape(shape), p, u).reshape(N_STATES, N_STATES, nb)
+        if not _all_finite(J):
+            raise _nonfinite(method, "jacobian", at(t), y, J, shape, stats)
         if nb == 1:
             return J[:, :, 0]
         vals = J[rows, cols].ravel()
@@ -7849,7 +8014,7 @@ def _flat_jacobian(at, shape, p, u, sparse):
     return jac
 
 
-def _jacobian_options(method, jac, at, shape, p, u):
+def _jacobian_options(method, jac, at, shape, p, u, stats):
     """The solver's Jacobian: analytic (jac=True), else finite differences over JAC_SPARSITY."""
     import scipy.sparse as sps
 
@@ -7860,10 +8025,10 @@ def _jacobian_options(method, jac, at, shape, p, u):
         if not jac:
             raise ValueError("Rodas4 needs the analytic Jacobian (jac=True): a Rosenbrock "
                              "method's order rests on the exact Jacobian")
-        return {"jac": _flat_jacobian(at, shape, p, u, sparse=True),
+        return {"jac": _flat_jacobian(at, shape, p, u, True, method, stats),
                 "time_dependent": bool(INPUT_NAMES)}
     if jac:
-        return {"jac": _flat_jacobian(at, shape, p, u, sparse=method != "LSODA")}
+        return {"jac": _flat_jacobian(at, shape, p, u, method != "LSODA", method, stats)}
     if method == "LSODA":
         return {}  # LSODA differences densely (it takes no sparsity pattern)
     if nb == 1:
@@ -7873,9 +8038,12 @@ def _jacobian_options(method, jac, at, shape, p, u):
                                            shape=(N_STATES * nb,) * 2)}
 
 
-def _eigenvalues(t, y, shape, p, u):
-    """Eigenvalues of the analytic Jacobian at (t, y), over up to _STIFF_SAMPLE batch instances."""
+def _eigenvalues(t, y, shape, p, u, method, stats):
+    """Eigenvalues of the analytic Jacobian at (t, y), over up to _STIFF_SAMPLE batch instances
+    (a Jacobian that is not finite stops the run, as in the implicit methods)."""
     J = np.asarray(jacobian(t, y.reshape(shape), p, u)).reshape(N_STATES, N_STATES, -1)
+    if not _all_finite(J):
+        raise _nonfinite(method, "jacobian", t, y, J, shape, stats)
     pick = np.unique(np.linspace(0, J.shape[2] - 1, _STIFF_SAMPLE).round().astype(int))
     J = np.moveaxis(J[:, :, pick], 2, 0)
     return np.linalg.eigvals(J).ravel() if np.all(np.isfinite(J)) else np.zeros(0)
@@ -8203,55 +8371,67 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
 
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}: one of {', '.join(METHODS)}")
-    deadline = np.inf if max_wall is None else time.perf_counter() + max_wall
-    x0, batch = _batched(x0, p)
-    p_raw, p = p, _params(p)  # unpacked once: the solver calls rhs thousands of times
-    shape = (N_STATES,) + batch
-    y = np.array(x0, dtype=float).reshape(-1)
-    atol = _flat_atol(atol, batch)
-    t0, t1 = float(t_span[0]), float(t_span[1])
-    path = _Trajectory(t0, t1, y, _output_times(t0, t1, t_eval, dt))
-    stats = {"nfev": 0, "njev": 0, "nlu": 0, "nsteps": 0, "nstiff": 0}
-    segments = _segments(t0, t1, breakpoints)
-    watch = None
-    if stiff_check and method in _STABILITY and segments:
-        # stiff from the start: the Jacobian at t0 asks for more than max_steps steps
-        stats["nstiff"] += 1
-        lam = _eigenvalues(t0, y, shape, p, u)
-        _, steps, why = _stiffness(method, t0, t1, lam)
-        if steps > max_steps:
-            raise _error(StiffnessError, _stiff_message(method, t0, why), t0, stats)
-        watch = _StiffnessWatch(method, t1, max_steps)
-    for a, c in segments:
-        at = _one_sided(a, c)
-        solver_class = _rodas_class() if method == "Rodas4" else getattr(scipy.integrate, method)
-        solver = solver_class(
-            _flat_rhs(at, shape, p, u, stats), a, y, c, rtol=rtol, atol=atol,
-            max_step=max_step, **_jacobian_options(method, jac, at, shape, p, u))
-        while solver.status == "running":
-            message = solver.step()
-            if solver.status == "failed":
-                raise _error(SimulationError, f"{method} failed at t = {solver.t:.6g}: "
-                             f"{message}", solver.t, _counts(stats, solver))
-            stats["nsteps"] += 1
-            path.add(solver)
-            if time.perf_counter() > deadline:
-                raise _error(SimulationError, f"{method} stopped at t = {solver.t:.6g}: the "
-                             f"wall time exceeded max_wall = {max_wall:g} s", solver.t,
-                             _counts(stats, solver))
-            if watch is not None and watch.due():
-                # stiff by now: the accepted steps are held at the stability limit
-                stats["nstiff"] += 1
-                lam = _eigenvalues(at(solver.t), solver.y, shape, p, u)
-                stiff = watch.check(solver.t, solver.step_size, lam)
-                if stiff:
-                    raise _error(StiffnessError, stiff, solver.t, _counts(stats, solver))
-        stats.update(_counts(stats, solver))
-        y = solver.y
-    t, X = path.arrays()
-    X = X.reshape(shape + (len(t),))
-    # batched parameters get a trailing axis for the output times
-    pt = None if p_raw is None else {
-        name: np.asarray(v)[..., None] if np.ndim(v) > _PARAM_NDIM[name] else v
-        for name, v in p_raw.items()}
-    return SimResult(t, X, outputs(t, X, pt, u), stats)
+    # numpy's floating-point warnings stay quiet here: a value that is not finite stops the
+    # run with a NonFiniteError that says where, instead of a warning on the terminal
+    with np.errstate(all="ignore"):
+        deadline = np.inf if max_wall is None else time.perf_counter() + max_wall
+        x0, batch = _batched(x0, p)
+        p_raw, p = p, _params(p)  # unpacked once: the solver calls rhs thousands of times
+        shape = (N_STATES,) + batch
+        y = np.array(x0, dtype=float).reshape(-1)
+        stats = {"nfev": 0, "njev": 0, "nlu": 0, "nsteps": 0, "nstiff": 0}
+        if not np.isfinite(y).all():
+            raise _nonfinite(method, "initial state", float(t_span[0]), y, y, shape, stats)
+        atol = _flat_atol(atol, batch)
+        t0, t1 = float(t_span[0]), float(t_span[1])
+        path = _Trajectory(t0, t1, y, _output_times(t0, t1, t_eval, dt))
+        segments = _segments(t0, t1, breakpoints)
+        watch = None
+        if stiff_check and method in _STABILITY and segments:
+            # stiff from the start: the Jacobian at t0 asks for more than max_steps steps
+            stats["nstiff"] += 1
+            lam = _eigenvalues(t0, y, shape, p, u, method, stats)
+            _, steps, why = _stiffness(method, t0, t1, lam)
+            if steps > max_steps:
+                raise _error(StiffnessError, _stiff_message(method, t0, why), t0, stats)
+            watch = _StiffnessWatch(method, t1, max_steps)
+        if method == "LSODA" and jac and segments:
+            # LSODA may switch to its stiff mode and use the analytic Jacobian at any time:
+            # one must be finite where the run starts, as for the other implicit methods
+            _flat_jacobian(_one_sided(*segments[0]), shape, p, u, False, method,
+                           stats)(t0, y)
+        for a, c in segments:
+            at = _one_sided(a, c)
+            solver_class = (_rodas_class() if method == "Rodas4"
+                            else getattr(scipy.integrate, method))
+            solver = solver_class(
+                _flat_rhs(at, shape, p, u, stats, method), a, y, c, rtol=rtol, atol=atol,
+                max_step=max_step, **_jacobian_options(method, jac, at, shape, p, u, stats))
+            while solver.status == "running":
+                message = solver.step()
+                if solver.status == "failed":
+                    raise _error(SimulationError, f"{method} failed at t = {solver.t:.6g}: "
+                                 f"{message}", solver.t, _counts(stats, solver))
+                stats["nsteps"] += 1
+                path.add(solver)
+                if time.perf_counter() > deadline:
+                    raise _error(SimulationError, f"{method} stopped at t = {solver.t:.6g}: the "
+                                 f"wall time exceeded max_wall = {max_wall:g} s", solver.t,
+                                 _counts(stats, solver))
+                if watch is not None and watch.due():
+                    # stiff by now: the accepted steps are held at the stability limit
+                    stats["nstiff"] += 1
+                    lam = _eigenvalues(at(solver.t), solver.y, shape, p, u, method,
+                                       _counts(stats, solver))
+                    stiff = watch.check(solver.t, solver.step_size, lam)
+                    if stiff:
+                        raise _error(StiffnessError, stiff, solver.t, _counts(stats, solver))
+            stats.update(_counts(stats, solver))
+            y = solver.y
+        t, X = path.arrays()
+        X = X.reshape(shape + (len(t),))
+        # batched parameters get a trailing axis for the output times
+        pt = None if p_raw is None else {
+            name: np.asarray(v)[..., None] if np.ndim(v) > _PARAM_NDIM[name] else v
+            for name, v in p_raw.items()}
+        return SimResult(t, X, outputs(t, X, pt, u), stats)

@@ -265,12 +265,17 @@ def test_max_wall_stops_the_run(msd):
 
 
 def test_solver_failure_is_a_simulation_error_with_counts(msd):
-    """A force that turns NaN at t = 0.5: the step size collapses there and RK45 gives up."""
+    """A force that turns NaN at t = 0.5: the first rhs call past 0.5 stops RK45 with a
+    NonFiniteError (a SimulationError) naming the state the force drives, mass.p (the force
+    enters only the momentum balance), within the step that crossed t = 0.5."""
     with pytest.raises(msd.SimulationError, match="RK45 failed at t = 0.5") as exc:
         msd.simulate((0.0, 1.0), method="RK45",
                      u={"F": lambda t: np.where(np.asarray(t) < 0.5, F0, np.nan)})
-    assert not isinstance(exc.value, msd.StiffnessError)
-    assert exc.value.t == pytest.approx(0.5) and exc.value.stats["nfev"] > 0
+    err = exc.value
+    assert not isinstance(err, msd.StiffnessError) and isinstance(err, msd.NonFiniteError)
+    assert 0.5 <= err.t < 0.52 and err.stats["nfev"] > 0
+    assert err.where == "rhs" and msd.STATE_NAMES[err.index] == "mass.p"
+    assert "dmass.p/dt is nan" in str(err) and "element 'mass'" in str(err)
 
 
 def test_unknown_method(msd):

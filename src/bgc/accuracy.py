@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ModelError
+from .errors import ModelError, SimulationFailed
 
 METHODS = ("RK45", "DOP853", "Radau", "BDF", "LSODA", "Rodas4")
 ALL_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA", "Rodas4")
@@ -78,6 +78,7 @@ class Setup:
     outputs: tuple
     atol_scale: float
     compile_time: float = 0.0
+    compiled: object = None  # the Compiled scene module (for diagnoses)
 
 
 def prepare(scene_path, t_end=None, atol_scale=None, breakpoints=(), progress=None) -> Setup:
@@ -91,9 +92,9 @@ def prepare(scene_path, t_end=None, atol_scale=None, breakpoints=(), progress=No
     except ImportError:  # pragma: no cover - older layout
         from .scene import param_values as values
 
-    scene = parse_scene(scene_path)
+    scene = scene_path if hasattr(scene_path, "t_span") else parse_scene(scene_path)
     t0c = time.perf_counter()
-    _, mod = compile_scene(scene, progress)
+    c, mod = compile_scene(scene, progress)
     ct = time.perf_counter() - t0c
     t0, t1 = scene.t_span
     if t_end is not None:
@@ -112,7 +113,7 @@ def prepare(scene_path, t_end=None, atol_scale=None, breakpoints=(), progress=No
     return Setup(Path(scene.file).stem, scene, mod, values(scene) or None, (t0, t1),
                  t_eval, tuple(sorted({float(b) for b in (*scene.breakpoints, *breakpoints)
                                        if t0 < b < t1})), scene.max_step,
-                 outs, float(atol_scale), ct)
+                 outs, float(atol_scale), ct, c)
 
 
 @contextlib.contextmanager
@@ -226,7 +227,10 @@ def is_stiff(setup: Setup) -> tuple[bool, float]:
     mod = setup.module
     x0 = mod.initial_state(setup.p).reshape(-1)
     n = x0.size
-    J = np.asarray(mod.jacobian(setup.t_span[0], x0, setup.p)).reshape(n, n)
+    with np.errstate(all="ignore"):
+        J = np.asarray(mod.jacobian(setup.t_span[0], x0, setup.p)).reshape(n, n)
+    if not np.all(np.isfinite(J)):  # simulate stops on it; treat the scene as stiff
+        return True, math.inf
     rho = float(np.max(np.abs(np.linalg.eigvals(J)))) if n else 0.0
     index = rho * (setup.t_span[1] - setup.t_span[0])
     return index > STIFF_THRESHOLD, index
@@ -262,8 +266,8 @@ def reference(setup: Setup, method, rtol, atol, budget) -> Reference:
         hint = ("raise --ref-budget or loosen --ref-rtol" if isinstance(val, BudgetExceeded)
                 else "an input that jumps needs a breakpoint (scene `breakpoints` or "
                      "--breakpoints); or loosen --ref-rtol")
-        raise ModelError(setup.scene.coord, f"the reference solution ({method}, rtol "
-                                            f"{rtol:g}) did not finish: {val} ({hint})")
+        raise SimulationFailed(setup.scene.coord, f"the reference solution ({method}, rtol "
+                                                  f"{rtol:g}) did not finish: {val} ({hint})")
     return val
 
 
@@ -383,6 +387,8 @@ def parse_tols(text: str) -> tuple:
     try:
         if ":" in text:
             a, b = (float(s) for s in text.split(":"))
+            if not (0 < a < 1 and 0 < b < 1):
+                raise ValueError
             ka, kb = round(-math.log10(a)), round(-math.log10(b))
             step = 1 if kb >= ka else -1
             return tuple(10.0 ** -k for k in range(ka, kb + step, step))
@@ -522,12 +528,16 @@ def write_csv(st: Study, path):
     _write(path, buf.getvalue())
 
 
-def _write(path, text):
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    tmp.replace(path)
+#: The inputs of the study (scene, model, imports) that no output may replace: set by the
+#: command, see bgc.outfiles.
+_INPUTS = None
+
+
+def _write(path, data):
+    """Every file of the study goes through bgc's one checked writer."""
+    from .outfiles import write_output
+
+    write_output(path, data, _INPUTS, "accuracy output")
 
 
 def cheapest(runs, target):
@@ -639,17 +649,20 @@ def _finish(plt, fig, ax, agree, xlabel, title, path):
     ax.set_title(title)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
     plt.close(fig)
+    _write(path, buf.getvalue())
     return path
 
 
 def plot_study(st: Study, out_dir) -> list:
     from .plots import _mpl
 
+    from .outfiles import prepare_folder
+
     plt = _mpl()
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = prepare_folder(out_dir, "--out")
     files = []
     agree = st.agreement["err"]
     for xkey, xlabel, suffix in (("wall", "wall time [s] (median)", "wp_time"),
@@ -780,28 +793,30 @@ def register(main_group):
     """Add the `accuracy` command to a click group."""
     import click
 
+    from .cli import POSITIVE, RTOL, finite
+
     @main_group.command("accuracy")
     @click.argument("scene", type=click.Path(dir_okay=False))
-    @click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
+    @click.option("--out", "out_dir", type=click.Path(), default=None,
                   help="output folder (default: accuracy_<scene>)")
     @click.option("--methods", default=",".join(METHODS), show_default=True,
                   help="comma-separated scipy methods")
     @click.option("--tols", default="1e-3:1e-10", show_default=True,
                   help="rtol values: a decade range a:b or a comma list")
-    @click.option("--atol-scale", type=float, default=None,
+    @click.option("--atol-scale", type=POSITIVE, default=None,
                   help="atol = rtol x this (default: the scene's atol/rtol)")
-    @click.option("--budget", type=float, default=60.0, show_default=True,
+    @click.option("--budget", type=POSITIVE, default=60.0, show_default=True,
                   help="seconds per (method, tolerance), repeats included")
-    @click.option("--repeats", type=int, default=3, show_default=True)
-    @click.option("--ref-rtol", type=float, default=1e-12, show_default=True)
+    @click.option("--repeats", type=click.IntRange(1, 1000), default=3, show_default=True)
+    @click.option("--ref-rtol", type=RTOL, default=1e-12, show_default=True)
     @click.option("--ref-methods", default=None,
                   help="two methods for the reference (default: Radau,BDF if stiff, else "
                        "Radau,DOP853)")
-    @click.option("--ref-budget", type=float, default=900.0, show_default=True)
+    @click.option("--ref-budget", type=POSITIVE, default=900.0, show_default=True)
     @click.option("--jac-methods", default="Radau,BDF", show_default=True,
                   help="methods for the analytic-vs-FD Jacobian comparison ('' for none)")
     @click.option("--jac-tols", default="1e-4,1e-6,1e-8", show_default=True)
-    @click.option("--t-end", type=float, default=None, help="stop the scene early (s)")
+    @click.option("--t-end", type=finite(), default=None, help="stop the scene early (s)")
     @click.option("--breakpoints", "extra_bps", default="",
                   help="comma-separated instants where inputs jump, added to the scene's")
     @click.option("-q", "--quiet", is_flag=True)
@@ -823,9 +838,25 @@ def register(main_group):
             bps = tuple(float(b) for b in extra_bps.split(",") if b.strip())
         except ValueError:
             raise ModelError(None, f"--breakpoints {extra_bps!r}: give numbers") from None
-        setup = prepare(scene, t_end=t_end, atol_scale=atol_scale, breakpoints=bps)
-        st = study(setup, ms, tl, budget, repeats, ref_rtol, rms, ref_budget, jms, jtl, say)
-        out = Path(out_dir or f"accuracy_{setup.name}")
+        if not all(math.isfinite(b) for b in bps):
+            raise ModelError(None, f"--breakpoints {extra_bps!r}: give finite numbers")
+        global _INPUTS
+        from .outfiles import check_folder
+        from .scene import parse_scene
+
+        from .cli import _model_inputs
+
+        sc = parse_scene(scene)
+        out = Path(out_dir or f"accuracy_{Path(sc.file).stem}")
+        check_folder(out, "--out")  # before the study, not after it
+        setup = prepare(sc, t_end=t_end, atol_scale=atol_scale, breakpoints=bps)
+        _INPUTS = _model_inputs(scene, sc.model_path)  # the model has parsed: its imports
+        from .runner import check_start
+
+        check_start(setup.compiled, setup.module, sc, setup.p)  # nan or inf at t0: one line
+        with np.errstate(all="ignore"):  # (inherited by the forked runs)
+            st = study(setup, ms, tl, budget, repeats, ref_rtol, rms, ref_budget, jms, jtl,
+                       say)
         for f in write_all(st, out):
             say(f"wrote {f}")
         a = st.agreement

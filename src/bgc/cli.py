@@ -1,16 +1,20 @@
 """Command line: a thin layer over the pipeline. User errors: one located line, exit 2."""
 from __future__ import annotations
 
+import errno
 import io
+import math
+import os
 import sys
 import time
+import traceback
 from pathlib import Path
 
 import click
 import numpy as np
 
 from . import __version__
-from .errors import ModelError
+from .errors import ModelError, SimulationFailed
 from .scene import METHODS as SOLVER_METHODS
 
 
@@ -24,20 +28,119 @@ class _Progress:
             click.echo(f"[{time.perf_counter() - self.t0:6.2f} s] {msg}", err=True)
 
 
-def _fail(exc: ModelError):
+#: Exit statuses (README, "Errors"): 0 ok; 1 the simulation failed (numerically, or was
+#: stopped); 2 a model, scene or usage error; 3 an internal error of bgc.
+EXIT_FAILED_RUN, EXIT_USER, EXIT_INTERNAL = 1, 2, 3
+
+
+def _fail(exc: ModelError, status: int = EXIT_USER):
     click.echo(f"error: {exc}" if exc.coord is None else str(exc), err=True)
-    sys.exit(2)
+    sys.exit(status)
+
+
+def _debug() -> bool:
+    return os.environ.get("BGC_DEBUG", "") not in ("", "0")
+
+
+def _internal(exc: BaseException):
+    """An exception bgc did not expect: one line saying so (the traceback with BGC_DEBUG=1)."""
+    from .emit import oneline
+
+    if _debug():
+        traceback.print_exc()
+    what = oneline(f"{type(exc).__name__}: {exc}", 300)
+    click.echo(f"bgc: internal error ({what}); this is a bug in bgc, please report it with the "
+               "command and its input files (BGC_DEBUG=1 shows the traceback)", err=True)
+    sys.exit(EXIT_INTERNAL)
 
 
 class _Group(click.Group):
     def invoke(self, ctx):
         try:
             return super().invoke(ctx)
+        except (click.exceptions.ClickException, click.exceptions.Exit, click.Abort):
+            raise  # usage errors: click prints them (exit 2)
+        except SimulationFailed as exc:
+            if _debug():
+                traceback.print_exc()
+            _fail(exc, EXIT_FAILED_RUN)
         except ModelError as exc:
+            if _debug():
+                traceback.print_exc()
             _fail(exc)
         except RecursionError:
             click.echo("error: the model is nested too deeply", err=True)
-            sys.exit(2)
+            sys.exit(EXIT_USER)
+        except MemoryError:
+            click.echo("error: out of memory (the model or scene asks for more than this "
+                       "machine has)", err=True)
+            sys.exit(EXIT_USER)
+        except OSError as exc:  # a file named on the command line that cannot be used
+            if exc.errno == errno.EPIPE:
+                raise  # stdout closed early (bgc check ... | head): click exits quietly
+            if _debug():
+                traceback.print_exc()
+            from .emit import oneline
+
+            where = f" {exc.filename!r}" if exc.filename is not None else ""
+            click.echo(f"error:{oneline(where, 240)} {exc.strerror or exc}", err=True)
+            sys.exit(EXIT_USER)
+        except Exception as exc:  # noqa: BLE001 - the catch-all: exit 3, one line
+            _internal(exc)
+
+
+class _Finite(click.ParamType):
+    """A finite float in a range: click's FloatRange lets inf and nan through."""
+
+    name = "float"
+
+    def __init__(self, lo=None, hi=None, lo_open=False, hi_open=False):
+        self.lo, self.hi, self.lo_open, self.hi_open = lo, hi, lo_open, hi_open
+
+    def _range(self) -> str:
+        lo = "" if self.lo is None else f"{self.lo:g} {'<' if self.lo_open else '<='} "
+        hi = "" if self.hi is None else f" {'<' if self.hi_open else '<='} {self.hi:g}"
+        return f"{lo}x{hi}"
+
+    def convert(self, value, param, ctx):
+        shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:37] + "..."
+        if isinstance(value, float):
+            v = value
+        else:
+            try:
+                v = float(str(value).strip())
+            except ValueError:
+                self.fail(f"{shown} is not a number", param, ctx)
+        if not math.isfinite(v):
+            self.fail(f"{shown} is not a finite number", param, ctx)
+        if self.lo is not None and (v <= self.lo if self.lo_open else v < self.lo) or \
+                self.hi is not None and (v >= self.hi if self.hi_open else v > self.hi):
+            self.fail(f"{shown} is not in the range {self._range()}", param, ctx)
+        return v
+
+
+def finite(lo=None, hi=None, lo_open=False, hi_open=False) -> _Finite:
+    return _Finite(lo, hi, lo_open, hi_open)
+
+
+POSITIVE = finite(0.0, lo_open=True)
+RTOL = finite(0.0, 1.0, lo_open=True, hi_open=True)
+
+
+def _model_inputs(*paths, follow: bool = True):
+    """The inputs of this run that no output may replace: the given files (models, scenes)
+    and, with ``follow``, the files the models import (only once bgc's parser has read them:
+    the imports are found by reading the files again)."""
+    from .outfiles import Inputs, model_inputs
+
+    ins = Inputs()
+    for p in paths:
+        if p is None:
+            continue
+        ins.add(p)
+        for f in model_inputs(p) if follow else ():
+            ins.add(f)
+    return ins
 
 
 @click.group(cls=_Group)
@@ -48,7 +151,7 @@ def main():
 
 @main.command("compile")
 @click.argument("model", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", type=click.Path(dir_okay=False), help="module to write "
+@click.option("-o", "--output", type=click.Path(), help="module to write "
               "(default: generated/<name>.py beside the models folder, or ./<name>.py; with "
               "--scene: ./<name>_<scene>.py)")
 @click.option("--scene", type=click.Path(dir_okay=False),
@@ -77,7 +180,8 @@ def compile_cmd(model, output, scene, quiet):
         c = compile_model(parse_file(model), prog)
     if output is None:
         output = _default_output(Path(model), c.model.name)
-    write_atomic(output, c.source)
+    ins = _model_inputs(model, scene, sc.model_path if scene else None)
+    write_atomic(output, c.source, ins, "-o")
     prog(f"wrote {output}: {len(c.equations.states)} states, "
          f"{len(c.equations.jacobian)} Jacobian entries")
 
@@ -137,7 +241,7 @@ def check_cmd(model):
 
 @main.command("graph")
 @click.argument("model", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+@click.option("-o", "--output", required=True, type=click.Path(),
               help="FILE.dot, FILE.svg or FILE.png")
 def graph_cmd(model, output):
     """Draw the bond graph with causal strokes (DOT; SVG/PNG through Graphviz)."""
@@ -145,55 +249,62 @@ def graph_cmd(model, output):
     from .compiler import write_atomic
     from .draw import render_image, to_dot
     from .graph import build_graph
+    from .outfiles import check_output
     from .parse import parse_file
 
     bg = build_graph(parse_file(model))
     caus = assign_causality(bg, allow_derivative=True)
     dot = to_dot(bg, caus)
     suffix = Path(output).suffix.lower()
-    if suffix == ".dot":
-        write_atomic(output, dot)
-    elif suffix in (".svg", ".png"):
-        data = render_image(dot, suffix[1:])
-        tmp = Path(output).with_name(f".{Path(output).name}.tmp")
-        tmp.write_bytes(data)
-        tmp.replace(output)
-    else:
-        raise ModelError(None, f"unknown drawing format {suffix!r}: use .dot, .svg or .png")
+    if suffix not in (".dot", ".svg", ".png"):
+        raise ModelError(None, f"-o {output!r}: unknown drawing format {suffix!r}: use .dot, "
+                               ".svg or .png")
+    ins = _model_inputs(model)
+    check_output(output, ins, "-o")  # before Graphviz runs
+    data = dot if suffix == ".dot" else render_image(dot, suffix[1:])
+    write_atomic(output, data, ins, "-o")
     click.echo(f"wrote {output}", err=True)
 
 
 @main.command("simulate")
 @click.argument("scene", type=click.Path(dir_okay=False))
-@click.option("--out", type=click.Path(dir_okay=False), help="results .npz (t and outputs)")
-@click.option("--plot", "plot_dir", type=click.Path(file_okay=False), help="write PNG plots here")
+@click.option("--out", type=click.Path(), help="results .npz (t and outputs)")
+@click.option("--plot", "plot_dir", type=click.Path(), help="write PNG plots here")
 @click.option("--method", type=click.Choice(SOLVER_METHODS), default=None,
               help="override the scene's solver method (Rodas4: the generated module's own)")
-@click.option("--rtol", type=click.FloatRange(min=0.0, min_open=True), default=None)
-@click.option("--max-wall", type=click.FloatRange(min=0.0, min_open=True), default=None,
+@click.option("--rtol", type=float, default=None,
+              help="relative tolerance, finite, within the limit of tolerances (1e-14..1)")
+@click.option("--max-wall", type=POSITIVE, default=None,
               help="stop with an error once the integration has taken this many seconds")
 @click.option("-q", "--quiet", is_flag=True)
 def simulate_cmd(scene, out, plot_dir, method, rtol, max_wall, quiet):
     """Compile the scene's model and simulate the scene."""
+    from .outfiles import check_folder, check_output, write_output
     from .runner import run_scene
-    from .scene import check_rtol
+    from .scene import check_rtol, parse_scene
 
-    if rtol is not None:  # inf and nan pass click's range check
+    if rtol is not None:  # finite, within the limits (bgc.limits): one line, exit 2
         check_rtol(rtol, None, "--rtol")
     prog = _Progress(quiet)
-    res = run_scene(scene, progress=prog, method=method, rtol=rtol, max_wall=max_wall)
+    sc = parse_scene(scene)
+    if out:  # refused before the run, not after it (the imports are known after it)
+        check_output(out, _model_inputs(scene, sc.model_path, follow=False), "--out")
+    if plot_dir is not None:
+        check_folder(plot_dir, "--plot")
+    res = run_scene(sc, progress=prog, method=method, rtol=rtol, max_wall=max_wall)
+    ins = _model_inputs(scene, sc.model_path)
+    figures = None
+    if plot_dir is not None:  # every figure drawn before anything is written
+        from .plots import render_plots, write_plots
+
+        figures = render_plots(res.scene, res.t, res.y)
     if out:
         buf = io.BytesIO()
         np.savez_compressed(buf, t=res.t, **res.y)
-        tmp = Path(out).with_name(f".{Path(out).name}.tmp")
-        Path(out).parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_bytes(buf.getvalue())
-        tmp.replace(out)
+        write_output(out, buf.getvalue(), ins, "--out")
         prog(f"wrote {out}")
-    if plot_dir:
-        from .plots import write_plots
-
-        for p in write_plots(res.scene, res.t, res.y, plot_dir):
+    if plot_dir is not None:
+        for p in write_plots(res.scene, res.t, res.y, plot_dir, ins, figures):
             prog(f"wrote {p}")
     st = res.stats
     click.echo(f"{res.scene.name}: t = {res.t[0]:g}..{res.t[-1]:g} s, {len(res.t)} points, "

@@ -1,8 +1,6 @@
 """The driver: each stage takes and returns frozen dataclasses."""
 from __future__ import annotations
 
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -96,16 +94,11 @@ def compile_file(path: str | Path, progress=None) -> Compiled:
     return compile_model(parse_file(path), progress)
 
 
-def write_atomic(path: str | Path, text: str) -> None:
-    """Write to a temporary file beside the target, then rename: never a half-written file."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+def write_atomic(path: str | Path, text: str | bytes, inputs=None, what: str = "output") -> Path:
+    """Write to a temporary file beside the target, then rename: never a half-written file,
+    never an input of the run (``inputs``: an :class:`bgc.outfiles.Inputs`) nor anything but
+    a regular file replaced, the umask's permissions, and every failure one
+    :class:`bgc.outfiles.OutputError` (see :mod:`bgc.outfiles`, the one checked writer)."""
+    from .outfiles import write_output
+
+    return write_output(path, text, inputs, what)

@@ -53,8 +53,14 @@ def render_image(dot: str, fmt: str) -> bytes:
     if exe is None:
         raise ModelError(None, f"writing .{fmt} needs Graphviz's 'dot' program (install the "
                                "graphviz package), or write .dot")
-    proc = subprocess.run([exe, f"-T{fmt}"], input=dot.encode(), capture_output=True,
-                          timeout=120)
+    try:
+        proc = subprocess.run([exe, f"-T{fmt}"], input=dot.encode(), capture_output=True,
+                              timeout=120)
+    except subprocess.TimeoutExpired:
+        raise ModelError(None, "graphviz did not finish within 120 s; write .dot") from None
+    except OSError as exc:
+        raise ModelError(None, f"graphviz could not be started: {exc.strerror or exc}") from None
     if proc.returncode != 0:
-        raise ModelError(None, f"graphviz failed: {proc.stderr.decode(errors='replace')[:500]}")
+        err = " ".join(proc.stderr.decode(errors="replace").split())[:300]
+        raise ModelError(None, f"graphviz failed: {err}")
     return proc.stdout

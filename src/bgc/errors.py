@@ -42,5 +42,10 @@ class ModelError(Exception):
         super().__init__(f"{coord}: {message}" if coord else message)
 
 
+class SimulationFailed(ModelError):
+    """A run that failed numerically or was stopped (non-finite values, a solver failure, a
+    stiff model for an explicit method, a time limit): reported with its place, exit status 1."""
+
+
 class InternalError(Exception):
     """A bug in bgc, not in the user's model."""

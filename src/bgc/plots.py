@@ -12,6 +12,7 @@ Every output array has time on its last axis. Three kinds of figure, chosen by a
 """
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import numpy as np
@@ -62,7 +63,7 @@ def plot_time(t, y, names, path, title="", labels=()):
     axes[-1, 0].set_xlabel("t [s]")
     fig.suptitle(title or ", ".join(names))
     fig.tight_layout()
-    fig.savefig(path)
+    fig.savefig(path, format="png")
     plt.close(fig)
 
 
@@ -107,7 +108,7 @@ def plot_path3d(t, y, names, path, title="", labels=()):
     top.set_title("seen from above (dots: start)")
     fig.suptitle(title or "path")
     fig.tight_layout()
-    fig.savefig(path)
+    fig.savefig(path, format="png")
     plt.close(fig)
 
 
@@ -132,23 +133,68 @@ def plot_loci(t, y, names, path, title="", labels=()):
         ax.legend(fontsize=7)
     fig.suptitle(title or f"loci of the unit vectors of {name}")
     fig.tight_layout()
-    fig.savefig(path)
+    fig.savefig(path, format="png")
     plt.close(fig)
 
 
-def write_plots(scene, t, y, outdir) -> list[Path]:
-    outdir = Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
-    written = []
+#: What each kind of figure needs of its outputs' shapes (without the time axis).
+_NEEDS = {"path3d": ((3,), "a 3-vector"), "loci": ((3, 3), "a 3x3 matrix (a rotation)")}
+
+
+def check_plots(scene, output_shapes: dict) -> None:
+    """Every plot of the scene can be drawn from the module's outputs: a located error (the
+    plot's place in the scene) otherwise, before anything is simulated or written."""
+    from .errors import ModelError
+
+    for pl in scene.plots:
+        if pl.kind not in ("time", *_NEEDS):
+            raise ModelError(pl.coord, f"plot: unknown kind {pl.kind!r} (time, path3d, loci)")
+        if not pl.outputs:
+            raise ModelError(pl.coord, "plot: names no outputs")
+        if pl.kind == "loci" and len(pl.outputs) != 1:
+            raise ModelError(pl.coord, "plot: a loci plot shows one output (a 3x3 rotation)")
+        need = _NEEDS.get(pl.kind)
+        for o in pl.outputs:
+            shape = tuple(output_shapes.get(o, ()))
+            if need is not None and shape != need[0]:
+                got = "a scalar" if not shape else "x".join(map(str, shape))
+                raise ModelError(pl.coord, f"plot: a {pl.kind} plot needs {need[1]} for each "
+                                           f"output; output {o!r} is {got}")
+
+
+def _name(outdir: Path, fname: str) -> Path:
+    """outdir/fname, where fname must be a plain file name (scene and output names are)."""
+    from .errors import ModelError
+
+    if Path(fname).name != fname or fname.startswith("."):
+        raise ModelError(None, f"plot file name {fname!r} is not a plain file name")
+    return outdir / fname
+
+
+def _png(fn, *args) -> bytes:
+    buf = io.BytesIO()
+    fn(*args[:3], buf, *args[3:])
+    return buf.getvalue()
+
+
+def render_plots(scene, t, y) -> list[tuple[str, bytes]]:
+    """(file name, PNG bytes) of each plot of the scene (or one per output when it names
+    none), drawn in memory: nothing is written until every figure has been drawn."""
     if not scene.plots:
-        for name in y:
-            p = outdir / f"{scene.name}_{name}.png"
-            plot_time(t, y, [name], p)
-            written.append(p)
-        return written
+        return [(f"{scene.name}_{name}.png", _png(plot_time, t, y, [name])) for name in y]
+    check_plots(scene, {k: np.shape(v)[:-1] for k, v in y.items()})
     fns = {"time": plot_time, "path3d": plot_path3d, "loci": plot_loci}
-    for k, pl in enumerate(scene.plots):
-        p = outdir / f"{scene.name}_{k + 1}_{pl.kind}.png"
-        fns[pl.kind](t, y, list(pl.outputs), p, pl.title, pl.labels)
-        written.append(p)
-    return written
+    return [(f"{scene.name}_{k + 1}_{pl.kind}.png",
+             _png(fns[pl.kind], t, y, list(pl.outputs), pl.title, pl.labels))
+            for k, pl in enumerate(scene.plots)]
+
+
+def write_plots(scene, t, y, outdir, inputs=None, rendered=None) -> list[Path]:
+    """The scene's plots as PNGs in ``outdir`` (created if missing), each through the checked
+    writer (bgc.outfiles). ``rendered``: the figures of :func:`render_plots`, if drawn."""
+    from .outfiles import prepare_folder, write_output
+
+    figures = render_plots(scene, t, y) if rendered is None else rendered
+    outdir = prepare_folder(outdir, "--plot")
+    return [write_output(_name(outdir, fname), data, inputs, "plot")
+            for fname, data in figures]

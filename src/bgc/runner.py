@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .compiler import compile_model
-from .errors import ModelError
+from .errors import ModelError, SimulationFailed
 from .scene import (Scene, check_against, free_values, load_module, param_values, parse_scene,
                     plan_for, scene_model)
 
@@ -38,8 +38,12 @@ def compile_scene(scene: Scene, progress=None, specialise: bool = True):
 
         plan = plan_for(scene, build_graph(model).params)
     c = compile_model(model, progress, plan)
-    mod = load_module(c.source, f"{c.model.name}_{scene.name}{'' if specialise else '_full'}")
+    with np.errstate(all="ignore"):  # X0 is computed on import: no numpy warnings
+        mod = load_module(c.source, f"{c.model.name}_{scene.name}{'' if specialise else '_full'}")
     check_against(scene, mod)
+    from .plots import check_plots
+
+    check_plots(scene, mod.OUTPUT_SHAPES)  # a plot that cannot be drawn: before any run
     return c, mod
 
 
@@ -57,7 +61,7 @@ def runtime_params(scene: Scene, mod) -> dict | None:
 
 def run_scene(path, progress=None, method=None, rtol=None, max_wall=None) -> SceneResult:
     say = progress or (lambda msg: None)
-    scene = parse_scene(path)
+    scene = path if isinstance(path, Scene) else parse_scene(path)
     t0 = time.perf_counter()
     c, mod = compile_scene(scene, progress)
     t1 = time.perf_counter()
@@ -65,15 +69,221 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None) -> Sce
     rtol = rtol or scene.rtol
     say(f"simulating {scene.name} with {method}, rtol {rtol:g}")
     dt = scene.dt or (scene.t_span[1] - scene.t_span[0]) / 1000
+    p = runtime_params(scene, mod)
     try:
         res = mod.simulate(scene.t_span, dt=dt, method=method, rtol=rtol, atol=scene.atol,
-                           p=runtime_params(scene, mod), breakpoints=scene.breakpoints,
-                           max_step=scene.max_step, max_wall=max_wall)
+                           p=p, breakpoints=scene.breakpoints, max_step=scene.max_step,
+                           max_wall=max_wall)
     except mod.SimulationError as exc:
-        raise ModelError(scene.coord, f"simulation failed: {exc}") from None
+        raise simulation_failed(c, mod, scene, exc, p) from None
     t2 = time.perf_counter()
     t, x, y = res
     return SceneResult(scene, mod, t, x, y, res.stats, method, rtol, t1 - t0, t2 - t1)
+
+
+# ---------------------------------------------------------------------------------------------
+# Which law made a value that is not finite (the module names the state; bgc, holding the
+# equations, finds the element and, where known, a remedy)
+
+#: Most assignments a diagnosis evaluates (it runs on failure only; sympy is slow).
+_DIAGNOSE_MAX = 5000
+
+
+def _num(expr, vals):
+    """expr's value at vals (symbol -> float): a complex, or None if it cannot be evaluated."""
+    import sympy as sp
+
+    try:
+        v = expr.xreplace({s: sp.Float(vals[s]) for s in expr.free_symbols if s in vals})
+        if v.free_symbols:
+            return None
+        if v.has(sp.nan):
+            return complex(np.nan)
+        if v.has(sp.zoo, sp.oo, -sp.oo):
+            return complex(-np.inf if v == -sp.oo else np.inf)
+        return complex(v.evalf())
+    except (TypeError, ValueError, ArithmeticError, AttributeError):
+        return complex(np.nan)
+
+
+def _show(expr, limit: int = 160) -> str:
+    """An expression for a one-line message, cut to ``limit`` characters."""
+    text = " ".join(str(expr).split())
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def _finite(v) -> bool:
+    return v is None or (np.isfinite(v.real) and np.isfinite(v.imag) and v.imag == 0)
+
+
+def _element_of(why: str) -> str | None:
+    """The element id an assignment's description starts with (see equations.derive)."""
+    for prefix in ("0-junction ", "1-junction "):
+        if why.startswith(prefix):
+            return why[len(prefix):].split(":", 1)[0]
+    if why.startswith("derived parameter "):
+        return None
+    head = why.split(" (", 1)[0]
+    return head or None
+
+
+def _remedy(expr, vals, wrt=None) -> str:
+    """A known cure for the law expr, at the point vals, that gave a non-finite value (or,
+    with wrt, an infinite slope): a fractional power of zero, a log of zero, a division by
+    zero, the root of a negative number."""
+    import sympy as sp
+
+    for node in sp.preorder_traversal(expr):
+        if isinstance(node, sp.Pow) and node.exp.is_number:
+            base = _num(node.base, vals)
+            if base is None:
+                continue
+            e = float(node.exp)
+            if abs(base) == 0 and 0 < e < 1:
+                return (f" ({_show(node, 50)} at {_show(node.base, 40)} = 0): regularise it, "
+                        "e.g. sqrt(abs(e) + eps**2) - eps for sqrt(abs(e)), or give it a "
+                        "laminar (linear) region near 0")
+            if abs(base) == 0 and e < 0:
+                return f" (it divides by {_show(node.base, 60)}, which is 0 here)"
+            if base.real < 0 and not float(e).is_integer():
+                return (f" (it takes a fractional power of {_show(node.base, 60)}, which is "
+                        "negative here: keep the argument positive)")
+        if isinstance(node, sp.log):
+            arg = _num(node.args[0], vals)
+            if arg is not None and arg.real <= 0:
+                return (f" (it takes the log of {_show(node.args[0], 60)}, which is "
+                        f"{arg.real:g} here)")
+    return ""
+
+
+def simulation_failed(c, mod, scene, exc, p=None) -> SimulationFailed:
+    """The user's error for the module's SimulationError ``exc``: at the scene, or for a value
+    that is not finite at the law that made it, with a remedy where one is known."""
+    coord, why = scene.coord, ""
+    if getattr(exc, "where", None) is not None:  # a NonFiniteError: which law, and why
+        with np.errstate(all="ignore"):
+            found = nonfinite_culprit(c, mod, exc, p)
+        if found is not None:
+            coord, why = found[0] or scene.coord, found[1]
+    return SimulationFailed(coord, f"simulation failed: {exc}{why}")
+
+
+def check_start(c, mod, scene, p=None) -> None:
+    """The model's rhs and Jacobian are finite where the scene starts: a short Radau run
+    (it evaluates both at t0 first); a value that is not finite there is the located
+    SimulationFailed of :func:`simulation_failed`. Other failures are left to the caller."""
+    t0, t1 = scene.t_span
+    span = (t0, t0 + 1e-9 * (t1 - t0))
+    try:
+        with np.errstate(all="ignore"):
+            mod.simulate(span, t_eval=span[:1], method="Radau", p=p, rtol=1e-3, atol=1e-6,
+                         max_steps=100)
+    except mod.NonFiniteError as exc:
+        raise simulation_failed(c, mod, scene, exc, p) from None
+    except Exception:  # noqa: BLE001 - only the non-finite start is checked here
+        pass
+
+
+def nonfinite_culprit(c, mod, exc, p=None):
+    """(coord, text) naming the element whose law made the NonFiniteError ``exc``, and a
+    remedy where one is known; None if it cannot be told (the module's message stands)."""
+    import sympy as sp
+
+    eq = c.equations
+    try:
+        b = int(exc.instance or 0)
+        t = float(exc.t)
+        pv, _ = mod._params(p)
+
+        def pick(v):
+            a = np.asarray(v, dtype=float).ravel()
+            return float(a[b] if a.size > b else a[0])
+
+        vals = {}
+        names = [s for pvar in eq.params for s in pvar.symbols] + [d.symbol for d in eq.derived]
+        for s, v in zip(names, pv):
+            vals[s] = pick(v)
+        if eq.inputs:
+            uv = mod._inputs(t, pv, None)
+            for s, v in zip((s for iv in eq.inputs for s in iv.symbols), uv):
+                vals[s] = pick(v)
+        for sv, v in zip(eq.states, np.asarray(exc.x, dtype=float)):
+            vals[sv.symbol] = float(v)
+    except Exception:  # noqa: BLE001 - a diagnosis is best effort
+        return None
+    where = exc.where
+    if where == "initial state":
+        row = eq.states[exc.index].initial
+        rows = [row]
+    else:
+        i = exc.index if where == "rhs" else exc.index[0]
+        rows = [eq.derivatives[i]]
+    j = exc.index[1] if where == "jacobian" else None
+
+    def located(owner, text):
+        try:
+            coord = c.graph.element(owner).coord
+        except Exception:  # noqa: BLE001 - a state's owner, or not an element
+            coord = None
+        return coord, text
+
+    def param_coord(pid):
+        return next((fp.coord for fp in c.graph.params if fp.id == pid), None)
+
+    # parameters and inputs the failing row reads: one that is itself not finite is the cause
+    by_sym = {a.symbol: a for a in eq.assignments}
+    need, todo = set(), set().union(*(r.free_symbols for r in rows))
+    while todo and len(need) < _DIAGNOSE_MAX:
+        s = todo.pop()
+        if s in need:
+            continue
+        need.add(s)
+        if s in by_sym:
+            todo |= by_sym[s].expr.free_symbols
+    for pvar in eq.params:
+        for s in pvar.symbols:
+            if s in need and not np.isfinite(vals.get(s, 0.0)):
+                return param_coord(pvar.id), f"; parameter {pvar.id!r} is {vals[s]:g}"
+    for d in eq.derived:
+        if d.symbol in need and not np.isfinite(vals.get(d.symbol, 0.0)):
+            pid = d.why[len("derived parameter "):] if d.why.startswith("derived parameter ") \
+                else None
+            return param_coord(pid), (f"; the {d.why} is {vals[d.symbol]:g} (= "
+                                      f"{_show(d.expr)} with the parameters' values)"
+                                      + _remedy(d.expr, vals))
+    for iv in eq.inputs:
+        for s in iv.symbols:
+            if s in need and not np.isfinite(vals.get(s, 0.0)):
+                return None, f"; input {iv.name!r} is {vals[s]:g} at t = {t:g}"
+    if where == "initial state" or len(need) > _DIAGNOSE_MAX:
+        return None
+    dep = {eq.states[j].symbol} if j is not None else set()
+    for a in eq.assignments:
+        if a.symbol not in need:
+            continue
+        v = _num(a.expr, vals)
+        vals[a.symbol] = complex(np.nan) if v is None else v
+        owner = _element_of(a.why)
+        if not _finite(v):
+            shown = ("nan" if v is None or np.isnan(v.real) else
+                     f"{v.real:g}" if v.imag == 0 or np.isinf(v.real) else f"complex ({v:g})")
+            return located(owner, f"; it comes from {a.why}: {_show(a.expr, 120)} is {shown} here"
+                           + _remedy(a.expr, vals))
+        vals[a.symbol] = v.real
+        if j is None or not (a.expr.free_symbols & dep):
+            continue
+        dep.add(a.symbol)
+        from .equations import _clean
+
+        for s in sorted(a.expr.free_symbols & dep, key=str):
+            try:
+                d = _clean(sp.diff(a.expr, s))
+            except Exception:  # noqa: BLE001
+                continue
+            if not _finite(_num(d, vals)):
+                return located(owner, f"; it comes from {a.why}: {_show(a.expr, 120)} has an infinite "
+                                      f"slope at {s} = {vals[s]:g}" + _remedy(a.expr, vals, s))
+    return None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -176,10 +386,11 @@ class Explanation:
         compare the equations' arithmetic."""
         sc = self.scene
         t = 0.5 * (sc.t_span[0] + sc.t_span[1])
-        if self.same:
-            c = rhs_cost([self.module], [None], t, rounds)[0]
-            return c, c
-        a, b = rhs_cost([self.full_module, self.module], [None, None], t, rounds)
+        with np.errstate(all="ignore"):  # timing only: no numpy warnings on the terminal
+            if self.same:
+                c = rhs_cost([self.module], [None], t, rounds)[0]
+                return c, c
+            a, b = rhs_cost([self.full_module, self.module], [None, None], t, rounds)
         return a, b
 
 
