@@ -437,7 +437,10 @@ def run_case(case: Case, corpus: Path = CORPUS, timeout: float | None = None,
     for d in (work, tmp, res):
         d.mkdir()
     try:
-        _setup(work, Path(corpus), case)
+        try:
+            _setup(work, Path(corpus), case)
+        except Exception as exc:  # noqa: BLE001 - the corpus is broken, not bgc
+            return Outcome(case, False, [f"setup failed: {exc!r}"], 0.0, [], ["", ""])
         before = snapshot(work)
         limit = _vm_size() + MEM_LIMIT
         sys.stdout.flush()
@@ -669,6 +672,12 @@ def run_all(cases, corpus: Path = CORPUS, verbose: bool = False, out=sys.stdout)
     return outcomes
 
 
+def problem_kind(p: str) -> str:
+    """A problem without its details (for counting)."""
+    p = re.sub(r"\d+(\.\d+)?", "N", p)
+    return re.split(r"[:(\[{/]", p, maxsplit=1)[0].strip()[:60]
+
+
 def summary(outcomes, out=sys.stdout) -> None:
     cats: dict[str, list] = {}
     for o in outcomes:
@@ -688,6 +697,14 @@ def summary(outcomes, out=sys.stdout) -> None:
         print(f"per case: median {walls[len(walls) // 2]:.3f} s, max {walls[-1]:.2f} s",
               file=out)
     fails = [o for o in outcomes if not o.ok]
+    kinds: dict[str, int] = {}
+    for o in fails:
+        for k in {problem_kind(p) for p in o.problems}:
+            kinds[k] = kinds.get(k, 0) + 1
+    if kinds:
+        print("\nproblems (cases showing each):", file=out)
+        for k, n in sorted(kinds.items(), key=lambda kv: -kv[1]):
+            print(f"  {n:>4}  {k}", file=out)
     if fails:
         print("\nfailing cases:", file=out)
         for o in fails:

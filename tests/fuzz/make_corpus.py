@@ -239,7 +239,7 @@ class Corpus:
 
     def scene_case(self, category, cname, *, expect, key=None, message=None, note="",
                    simulate=False, model_changes=None, scene_name="scene.yaml", line=None,
-                   argv=None, outputs=None, setup=(), exit=(2,), located=True, **changes):
+                   argv=None, out_files=None, setup=(), exit=(2,), located=True, **changes):
         """A scene for the msd model: compile --scene (or simulate)."""
         name = cname
         cid = f"{category}/{name}"
@@ -252,12 +252,12 @@ class Corpus:
         if argv is None:
             if simulate:
                 argv = ["simulate", scene_name, "--out", "r.npz", "-q"]
-                outputs = ["r.npz"] if outputs is None else outputs
+                out_files = ["r.npz"] if out_files is None else out_files
             else:
                 argv = ["compile", "model.yaml", "--scene", scene_name, "-o", "out.py", "-q"]
-                outputs = ["out.py"] if outputs is None else outputs
+                out_files = ["out.py"] if out_files is None else out_files
         self.add(category, name, argv=argv, expect=expect,
-                 files={scene_name: srel, "model.yaml": mrel}, outputs=outputs or [],
+                 files={scene_name: srel, "model.yaml": mrel}, outputs=out_files or [],
                  message=message, line=line if expect != "ok" else None, setup=setup,
                  note=note, exit=exit, located=located)
 
@@ -400,20 +400,20 @@ def build(root: Path, private: bool = False, seed: int = 0) -> Corpus:
     for pname, s, exp in texts[:2]:
         C.scene_case("text", f"plot_title_{pname}", expect=exp, simulate=True,
                      argv=["simulate", "scene.yaml", "--out", "r.npz", "--plot", "figs", "-q"],
-                     outputs=["r.npz", "figs/"],
+                     out_files=["r.npz", "figs/"],
                      _after=["plots:", f"  - {{kind: time, outputs: [position], title: {dq(s)}, "
                                        f"labels: [{dq(s)}]}}"],
                      note="plot titles reach matplotlib only")
     C.scene_case("text", "plot_title_mathtext", expect="any", simulate=True,
                  argv=["simulate", "scene.yaml", "--out", "r.npz", "--plot", "figs", "-q"],
-                 outputs=["r.npz", "figs/"],
+                 out_files=["r.npz", "figs/"],
                  _after=["plots:", '  - {kind: time, outputs: [position], title: "$\\\\frac{$"}'],
                  note="broken mathtext in a title")
     # explain imports both modules inside bgc
     for pname, s, exp in texts[:2]:
         C.scene_case("text", f"explain_{pname}", expect="any",
                      model_changes={"desc": f"description: {dq(s)}"},
-                     argv=["explain", "scene.yaml", "--rounds", "1", "-q"], outputs=[],
+                     argv=["explain", "scene.yaml", "--rounds", "1", "-q"], out_files=[],
                      note="bgc explain imports the modules it generates")
 
     # names: a full match, no trailing newline; refused with a located message
@@ -468,6 +468,8 @@ def build(root: Path, private: bool = False, seed: int = 0) -> Corpus:
     for sname, (doc, key, fmt) in slots.items():
         for nname, spelling, exp, msg in numbers:
             e, m = exp, msg
+            if nname.startswith("neg") and m:
+                m += "|positive|negative|below|min"
             if sname == "param_min" and nname in ("neg_inf", "inf"):
                 e, m = "any", None  # an infinite bound is arguably no bound
             if sname in ("bond_n", "version"):
@@ -486,11 +488,15 @@ def build(root: Path, private: bool = False, seed: int = 0) -> Corpus:
     }
     for sname, (key, fmt) in scene_slots.items():
         for nname, spelling, exp, msg in numbers[: (6 if private else 8)]:
-            e = exp
-            if sname == "breakpoint" and nname in ("neg_inf", "neg_e309"):
-                e = "error"
+            e, line = exp, None
+            if nname.startswith("neg") and msg:
+                msg += "|positive|negative|below|after|before"
+            if sname in ("duration", "t_span_end"):  # the scene's start, or the entry
+                _, w = SCENE.make(C.header("x", e, "y"), **{key: fmt(spelling)})
+                line = [w["bgc_scene"], w[key]]
             C.scene_case("numbers", f"scene_{sname}_{nname}", expect=e, key=key, message=msg,
-                         **{key: fmt(spelling)}, note=f"{spelling[:20]} in the scene's {sname}")
+                         **{key: fmt(spelling)}, line=line,
+                         note=f"{spelling[:20]} in the scene's {sname}")
 
     # ---- 3. expressions: whitelist, size and value ------------------------------------
     bad_syntax = [
@@ -530,8 +536,10 @@ def build(root: Path, private: bool = False, seed: int = 0) -> Corpus:
                       ("percent", "k % m"), ("not", "not k"), ("is", "k is m")]
     for xname, text in bad_syntax:
         hint = {"caret": r"\*\*", "signum": r"\bsign\b"}.get(xname, "spring")
+        _, w = MSD.make(C.header("x", "error", "y"))
         C.model_case("expr", f"syntax_{xname}", MSD, expect="error", key="e_spring",
-                     message=hint, e_spring=f"  spring: {{type: C, stiffness: {dq(text)}}}",
+                     message=hint, line=[w["e_spring"], w["e_spring"] + 1] if "\n" in text
+                     else None, e_spring=f"  spring: {{type: C, stiffness: {dq(text)}}}",
                      note="an expression outside the whitelist: located, naming the element")
     bad_values = [  # (name, law text of the spring, expectation, message)
         ("float_inf", "1e999", "error", "finite|inf|large"),
@@ -565,7 +573,7 @@ def build(root: Path, private: bool = False, seed: int = 0) -> Corpus:
                      note="a constant that is not finite and real, or too much work")
     # derived parameters with bad values (the parameter's line)
     for xname, text, exp, msg in [("sqrt_neg", "sqrt(-1)", "error", "complex|real|imag"),
-                                  ("inf", "1e308*10", "error", "finite|inf"),
+                                  ("inf", "1e308*10", "error", "finite|inf|large"),
                                   ("self", "F0b + 1", "error", "F0b|itself|cycle|circular"),
                                   ("nan", "0*1e999", "error", "finite|nan|inf")]:
         C.model_case("expr", f"derived_{xname}", MSD, expect=exp, key="p_F0", message=msg,
@@ -632,8 +640,9 @@ def build(root: Path, private: bool = False, seed: int = 0) -> Corpus:
                                 p_k="  kk: {value: 200.0, unit: N/m}",
                                 e_spring='  spring: {type: C, stiffness: "kk"}')
         twin = C.write(f"semantic/shadow_{nm}.twin.yaml", twin_text)
+        _, w = MSD.make(C.header("x", "any", "y"))
         C.model_case("semantic", f"shadow_{nm}", MSD, expect="any", key="p_k",
-                     message=None, twin="twin.yaml", extra_files={"twin.yaml": twin},
+                     message=None, line=[w["p_k"], w["e_spring"]], twin="twin.yaml", extra_files={"twin.yaml": twin},
                      p_k=f"  {nm}: {{value: 200.0, unit: N/m}}",
                      e_spring=f'  spring: {{type: C, stiffness: "{nm}"}}',
                      note="a parameter named like a local of the module: refused, or the same "
@@ -683,6 +692,7 @@ def build(root: Path, private: bool = False, seed: int = 0) -> Corpus:
                                     "target": "/dev/urandom"}], message=nonreg, line=1)
     res_case("model_directory", [{"kind": "mkdir", "name": "model.yaml"}],
              message="regular|not a file|directory|read", line=1)
+    C.cases[-1]["usage"] = True  # click's own check of the argument may answer first
     res_case("model_sparse_10g", [{"kind": "sparse", "name": "model.yaml", "size": 10 << 30}],
              message="size|large|MB|bytes|limit", line=1, note="10 GB, no room taken")
     res_case("model_6mb", [{"kind": "repeat", "name": "model.yaml", "head": base_text +
@@ -743,6 +753,8 @@ def build(root: Path, private: bool = False, seed: int = 0) -> Corpus:
         ("missing", "nothere.yaml", [], "exist|not found|no such"),
     ]
     for iname, target, setup, msg in import_targets:
+        if iname in ("fifo", "dev_zero"):
+            msg += "|exist"  # refused before it is opened: the word may be "does not exist"
         rel = C.write(f"{R}/import_{iname}.yaml",
                       f"# fuzz case resources/import_{iname}: expect error\n" +
                       imp.replace("TARGET", target))
@@ -779,26 +791,26 @@ def build(root: Path, private: bool = False, seed: int = 0) -> Corpus:
                  duration="t_span: [1.0e300, 1.0000000000000002e300]",
                  message="t_span|time|range|resolution|dt|sample|step|large|limit")
     C.scene_case(SC, "scene_fifo", expect="error", line=1, argv=["simulate", "pipe.yaml",
-                 "--out", "r.npz", "-q"], outputs=[],
+                 "--out", "r.npz", "-q"], out_files=[],
                  setup=[{"kind": "fifo", "name": "pipe.yaml"}], message=nonreg)
     C.scene_case(SC, "scene_dev_zero", expect="error", line=1, argv=["simulate", "z.yaml", "-q"],
-                 outputs=[], setup=[{"kind": "symlink", "name": "z.yaml",
+                 out_files=[], setup=[{"kind": "symlink", "name": "z.yaml",
                                      "target": "/dev/zero"}], message=nonreg)
     C.scene_case(SC, "scene_6mb", expect="error", line=1,
-                 argv=["simulate", "big.yaml", "-q"], outputs=[],
+                 argv=["simulate", "big.yaml", "-q"], out_files=[],
                  setup=[{"kind": "repeat", "name": "big.yaml",
                          "head": "bgc_scene: 1\nmodel: model.yaml\nduration: 1.0\n# ",
                          "item": "y" * 64, "count": 100000, "tail": "\n"}],
                  message="size|large|MB|bytes|limit")
     C.scene_case(SC, "scene_model_fifo", expect="error", key="model",
                  model="model: pipe.yaml", setup=[{"kind": "fifo", "name": "pipe.yaml"}],
-                 argv=["simulate", "scene.yaml", "-q"], outputs=[], message=nonreg)
+                 argv=["simulate", "scene.yaml", "-q"], out_files=[], message=nonreg + "|exist")
     C.scene_case(SC, "scene_model_dev_zero", expect="error", key="model",
                  model="model: zero.yaml", setup=[{"kind": "symlink", "name": "zero.yaml",
                                                    "target": "/dev/zero"}],
-                 argv=["simulate", "scene.yaml", "-q"], outputs=[], message=nonreg)
+                 argv=["simulate", "scene.yaml", "-q"], out_files=[], message=nonreg + "|exist")
     C.scene_case(SC, "scene_model_itself", expect="error",
-                 model="model: scene.yaml", argv=["simulate", "scene.yaml", "-q"], outputs=[],
+                 model="model: scene.yaml", argv=["simulate", "scene.yaml", "-q"], out_files=[],
                  message="model|missing|key|bgc|scene")
     C.scene_case(SC, "scene_breakpoints_many", expect="error", simulate=True,
                  key="breakpoints", breakpoints="breakpoints: !!str BPS", setup=[],
@@ -811,26 +823,45 @@ def build(root: Path, private: bool = False, seed: int = 0) -> Corpus:
                       "item": "0.5, ", "count": 200000, "tail": "0.5]" + tail}]
 
     # ---- 6. numerical failures during a run (simulate) ---------------------------------
-    orifice = {"e_damper": '  damper: {type: R, flow: "sign(e(damper))*sqrt(abs(e(damper)))"}',
-               "p_c": "  c: 4.0"}
+    tanks = ("bgc: 1\nname: tanks\nparameters: {C1: 1.0, C2: 1.0, a: 1.0}\nelements:\n"
+             '  tank1: {type: C, compliance: "C1", initial: 1.0}\n'
+             '  tank2: {type: C, compliance: "C2", initial: 1.0}\n'
+             '  n1: {type: "0"}\n  n2: {type: "0"}\n  pipe: {type: "1"}\n'
+             '  orifice: {type: R, flow: "a*sign(e(orifice))*sqrt(abs(e(orifice)))"}\n'
+             "bonds:\n  - [n1, tank1]\n  - [n1, pipe]\n  - [pipe, orifice]\n"
+             "  - [pipe, n2]\n  - [n2, tank2]\n"
+             'outputs: {level1: "q(tank1)", level2: "q(tank2)"}\n')
+    trel = C.write("runtime/tanks.yaml", "# two tanks at the same level joined by an orifice: "
+                   "the law's slope is infinite at zero pressure difference\n" + tanks)
     for meth in (["Radau", "BDF", "Rodas4", "RK45"] if not private else ["LSODA", "DOP853"]):
-        C.scene_case("runtime", f"orifice_{meth}", expect="error", simulate=True,
-                     model_changes=orifice, inputs='inputs: {F: "0"}', parameters=None,
-                     solver=f"solver: {{method: {meth}}}",
-                     message="damper", exit=(2, 3), located=False,
-                     note="a law with infinite slope at zero: one message naming the element")
+        exp = "error" if meth in ("Radau", "BDF", "Rodas4", "LSODA") else "any"
+        cid = f"orifice_{meth}"
+        srel = C.write(f"runtime/{cid}.yaml",
+                       f"# fuzz case runtime/{cid}: expect {exp}\nbgc_scene: 1\nname: drain\n"
+                       f"model: model.yaml\nduration: 1.0\nsolver: {{method: {meth}}}\n")
+        C.add("runtime", cid, argv=["simulate", "scene.yaml", "--out", "r.npz", "-q"],
+              expect=exp, files={"scene.yaml": srel, "model.yaml": trel}, outputs=["r.npz"],
+              message="orifice" if exp == "error" else None, exit=(2, 3), located=False,
+              check=None, note="a law with infinite slope at zero (the orifice at equal levels)"
+                               ": one message naming the element, no numpy warning")
     C.scene_case("runtime", "blowup_exp", expect="error", simulate=True,
-                 model_changes={"e_spring": '  spring: {type: C, effort: "exp(exp(q(spring)*50))"}'},
-                 inputs='inputs: {F: "100"}', parameters=None,
-                 message="spring", exit=(2, 3), located=False,
-                 note="a state that overflows: one message naming the element, no warning")
+                 model_changes={"s_W": '  W: {initial: 0, derivative: "exp(exp(W))"}',
+                                "o_vel": ['  velocity: "f(mass)"', '  work: "W"']},
+                 outputs="outputs: [position, work]",
+                 message=r"\bW\b", exit=(2, 3), located=False,
+                 note="dW/dt = exp(exp(W)) from 0 reaches infinity at t = E1(1) = 0.219 s: "
+                      "one message naming the state, no warning")
     C.scene_case("runtime", "sqrt_negative_state", expect="error", simulate=True,
-                 model_changes={"e_damper": '  damper: {type: R, effort: "sqrt(f(damper) - 1)"}'},
+                 model_changes={"e_damper": '  damper: {type: R, effort: "sqrt(f(damper) - 1)",'
+                                            " effects: [damping]}"},
                  message="damper", exit=(2, 3), located=False,
                  note="sqrt of a negative value at X0: complex/NaN, a diagnostic naming it")
 
     # ---- 7. command lines: output paths and options ------------------------------------
     Cl = "cli"
+    if private:
+        _private_cli(C, base_rel)
+        return _sample(C, rng)
     scene_text, _ = SCENE.make(["# a valid scene"])
     srel = C.write(f"{Cl}/scene.yaml", scene_text)
     mfiles = {"model.yaml": base_rel}
@@ -916,6 +947,54 @@ def build(root: Path, private: bool = False, seed: int = 0) -> Corpus:
         expect="ok", message=None, outputs=["r.npz"])
     # every ok case expects the umask's permissions: 0644 under umask 022
     C.cases = [c for c in C.cases if c is not None]
+    return C
+
+
+def _private_cli(C: Corpus, base_rel: str) -> None:
+    """Command lines of the private set: other paths and values than the committed ones."""
+    scene_text, _ = SCENE.make(["# a valid scene"])
+    srel = C.write("cli/scene.yaml", scene_text)
+    mf, sf = {"model.yaml": base_rel}, {"model.yaml": base_rel, "scene.yaml": srel}
+    outerr = "output|write|path|file|name|directory|exist|permission|long|empty|device|regular"
+    for name, argv, files, setup, msg, usage in [
+        ("o_256", ["compile", "model.yaml", "-o", "b" * 256, "-q"], mf, [], outerr, False),
+        ("o_sys", ["compile", "model.yaml", "-o", "/sys/bgc.py", "-q"], mf, [], outerr, False),
+        ("o_dotdot_model", ["compile", "model.yaml", "-o", "d/../model.yaml", "-q"], mf,
+         [{"kind": "mkdir", "name": "d"}], "input|model|overwrite|same|itself", False),
+        ("o_hardlink_like", ["compile", "model.yaml", "-o", "./model.yaml", "-q"], mf, [],
+         "input|model|overwrite|same|itself", False),
+        ("graph_dev", ["graph", "model.yaml", "-o", "n.dot"], mf,
+         [{"kind": "nulldev", "name": "n.dot"}], "regular|device|special", False),
+        ("sim_out_dir_scene", ["simulate", "scene.yaml", "--out", "./scene.yaml", "-q"], sf, [],
+         "input|scene|overwrite|same|itself", False),
+        ("sim_rtol_neg_inf", ["simulate", "scene.yaml", "--rtol", "-inf", "-q"], sf, [], "rtol",
+         True),
+        ("sim_rtol_zero", ["simulate", "scene.yaml", "--rtol", "0", "-q"], sf, [], "rtol", True),
+        ("sim_out_link_dev", ["simulate", "scene.yaml", "--out", "z.npz", "-q"], sf,
+         [{"kind": "symlink", "name": "z.npz", "target": "/dev/null"}],
+         "regular|device|special|link", False),
+    ]:
+        C.add("cli", name, argv=argv, files=files, expect="error", message=msg, setup=setup,
+              usage=usage, located=False, check=None)
+
+
+def _sample(C: Corpus, rng: random.Random, caps=None) -> Corpus:
+    """About a hundred cases, drawn per category; files no case uses are removed."""
+    caps = caps or {"text": 20, "names": 15, "numbers": 20, "expr": 12, "semantic": 8,
+                    "resources": 10, "runtime": 4, "cli": 9}
+    keep = []
+    for cat, cap in caps.items():
+        cs = [c for c in C.cases if c["category"] == cat]
+        keep += rng.sample(cs, min(cap, len(cs)))
+    order = {id(c): i for i, c in enumerate(C.cases)}
+    C.cases = sorted(keep, key=lambda c: order[id(c)])
+    used = {v for c in C.cases for v in c["files"].values()}
+    for p in sorted(C.root.rglob("*"), reverse=True):
+        rel = p.relative_to(C.root).as_posix()
+        if p.is_file() and rel not in used:
+            p.unlink()
+        elif p.is_dir() and not any(p.iterdir()):
+            p.rmdir()
     return C
 
 
