@@ -409,6 +409,15 @@ def build(root: Path, private: bool = False, seed: int = 0) -> Corpus:
                  out_files=["r.npz", "figs/"],
                  _after=["plots:", '  - {kind: time, outputs: [position], title: "$\\\\frac{$"}'],
                  note="broken mathtext in a title")
+    # plots whose outputs have the wrong shape for their kind (scalars on a 3-D path)
+    for kind in ("path3d", "loci"):
+        C.scene_case("semantic", f"plot_shape_{kind}", expect="error", simulate=True,
+                     key="_after", out_files=[],
+                     argv=["simulate", "scene.yaml", "--out", "r.npz", "--plot", "figs", "-q"],
+                     _after=["plots:", f"  - {{kind: {kind}, outputs: [position, velocity]}}"],
+                     message=f"{kind}|shape|vector|3|size|matri",
+                     note="a plot's outputs must have the shape its kind draws")
+        C.cases[-1]["line"] = [C.cases[-1]["line"], C.cases[-1]["line"] + 1]
     # explain imports both modules inside bgc
     for pname, s, exp in texts[:2]:
         C.scene_case("text", f"explain_{pname}", expect="any",
@@ -632,7 +641,7 @@ def build(root: Path, private: bool = False, seed: int = 0) -> Corpus:
     # the module's own locals and imports as model names: refused, or harmless (same rhs)
     locals_ = ["x0", "P", "X0", "N_STATES", "PARAM_DEFAULTS", "SimulationError", "q_spring",
                "p_mass", "e_b3", "f_b2", "u_F", "rtol", "dt", "np_", "J", "dx", "scipy",
-               "self", "SimResult", "METHODS"]
+               "self", "SimResult", "METHODS", "np", "rhs", "numpy", "simulate"]
     if private:
         locals_ = ["x0", "method", "t_span", "JAC_SPARSITY", "STATE_NAMES", "p_spring"]
     for nm in locals_:
