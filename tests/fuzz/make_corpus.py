@@ -1012,7 +1012,8 @@ def write_manifest(C: Corpus, root: Path, private: bool) -> None:
             "tests/fuzz/make_corpus.py;\n# regenerate, do not edit). Fields: "
             "tests/fuzz/harness.py (class Case).\n")
     data = {"private": private, "cases": C.cases}
-    text = yaml.safe_dump(data, sort_keys=False, allow_unicode=False, width=100)
+    text = yaml.safe_dump(data, sort_keys=False, allow_unicode=False, width=100,
+                          default_flow_style=None)
     (root / "expected.yaml").write_text(head + text, encoding="utf-8")
 
 
