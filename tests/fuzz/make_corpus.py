@@ -850,20 +850,20 @@ def build(root: Path, private: bool = False, seed: int = 0) -> Corpus:
                        f"model: model.yaml\nduration: 1.0\nsolver: {{method: {meth}}}\n")
         C.add("runtime", cid, argv=["simulate", "scene.yaml", "--out", "r.npz", "-q"],
               expect=exp, files={"scene.yaml": srel, "model.yaml": trel}, outputs=["r.npz"],
-              message="orifice" if exp == "error" else None, exit=(2, 3), located=False,
+              message="orifice" if exp == "error" else None, exit=(1, 2), located=False,
               check=None, note="a law with infinite slope at zero (the orifice at equal levels)"
                                ": one message naming the element, no numpy warning")
     C.scene_case("runtime", "blowup_exp", expect="error", simulate=True,
                  model_changes={"s_W": '  W: {initial: 0, derivative: "exp(exp(W))"}',
                                 "o_vel": ['  velocity: "f(mass)"', '  work: "W"']},
                  outputs="outputs: [position, work]",
-                 message=r"\bW\b", exit=(2, 3), located=False,
+                 message=r"\bW\b", exit=(1, 2), located=False,
                  note="dW/dt = exp(exp(W)) from 0 reaches infinity at t = E1(1) = 0.219 s: "
                       "one message naming the state, no warning")
     C.scene_case("runtime", "sqrt_negative_state", expect="error", simulate=True,
                  model_changes={"e_damper": '  damper: {type: R, effort: "sqrt(f(damper) - 1)",'
                                             " effects: [damping]}"},
-                 message="damper", exit=(2, 3), located=False,
+                 message="damper", exit=(1, 2), located=False,
                  note="sqrt of a negative value at X0: complex/NaN, a diagnostic naming it")
 
     # ---- 7. command lines: output paths and options ------------------------------------
