@@ -275,7 +275,7 @@ def text_payloads(rng: random.Random, private: bool) -> list[tuple[str, str, str
         return [
             ("triple_dq", f'x"""\nimport os; {PWN}\n"""', "ok"),
             ("triple_sq", f"x'''\n{PWN}\n'''", "ok"),
-            ("dq_expr", f'"""+__import__("os").system("touch pwned")+"""', "ok"),
+            ("dq_expr", '"""+__import__("os").system("touch pwned")+"""', "ok"),
             ("backslash_N", "\\N{BULLET} and \\N", "ok"),
             ("trailing_backslash", "ends in a backslash \\", "ok"),
             ("escaped_quote", 'a \\""" b', "ok"),
