@@ -334,6 +334,10 @@ OUTPUT_SHAPES = {
     'dissipated': (),
     'joint_gap': (5,),
 }
+INPUT_LABELS = ('vd[0]', 'vd[1]', 'vd[2]', )  # columns of B and D
+OUTPUT_LABELS = ('theta1', 'theta2', 'theta3', 'theta4', 'p3[0]', 'p3[1]', 'p3[2]', 'p3_desired[0]', 'p3_desired[1]', 'p3_desired[2]', 'p3_projected[0]', 'p3_projected[1]', 'p3_projected[2]', 'R4[0,0]', 'R4[0,1]', 'R4[0,2]', 'R4[1,0]', 'R4[1,1]', 'R4[1,2]', 'R4[2,0]', 'R4[2,1]', 'R4[2,2]', 'energy', 'P_drive', 'P_diss', 'work_drive', 'dissipated', 'joint_gap[0]', 'joint_gap[1]', 'joint_gap[2]', 'joint_gap[3]', 'joint_gap[4]', )  # rows of C and D
+TABLE_BREAKPOINTS = {  # input -> the knots of its table where it is not smooth
+}
 JAC_SPARSITY = np.zeros((101, 101), dtype=bool)
 JAC_SPARSITY[
     [0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 24, 24, 24, 24, 24, 24, 24, 24, 24, 24, 24, 24, 24, 25, 25, 25, 25, 25, 25, 25, 25, 25, 25, 25, 25, 25, 26, 26, 26, 26, 26, 26, 26, 26, 26, 26, 26, 26, 26, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 36, 36, 36, 36, 36, 36, 36, 36, 36, 36, 36, 36, 36, 37, 37, 37, 37, 37, 37, 37, 37, 37, 37, 37, 37, 37, 38, 38, 38, 38, 38, 38, 38, 38, 38, 38, 38, 38, 38, 39, 39, 39, 39, 39, 39, 39, 39, 39, 39, 39, 39, 40, 40, 40, 40, 40, 40, 40, 40, 40, 40, 40, 40, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 45, 45, 45, 45, 45, 45, 45, 45, 45, 45, 45, 45, 45, 46, 46, 46, 46, 46, 46, 46, 46, 46, 46, 46, 46, 46, 47, 47, 47, 47, 47, 47, 47, 47, 47, 47, 47, 47, 47, 48, 48, 48, 48, 48, 48, 48, 48, 48, 48, 48, 48, 49, 49, 49, 49, 49, 49, 49, 49, 49, 49, 49, 49, 50, 50, 50, 50, 50, 50, 50, 50, 50, 50, 50, 50, 51, 51, 51, 51, 51, 51, 51, 51, 51, 51, 51, 51, 52, 52, 52, 52, 52, 52, 52, 52, 52, 52, 52, 52, 53, 53, 53, 53, 53, 53, 53, 53, 53, 53, 53, 53, 54, 54, 54, 54, 54, 54, 54, 54, 54, 54, 54, 54, 55, 55, 55, 55, 55, 55, 55, 55, 55, 55, 55, 55, 56, 56, 56, 56, 56, 56, 56, 56, 56, 56, 56, 56, 57, 58, 59, 60, 60, 60, 60, 60, 60, 60, 60, 60, 60, 60, 60, 61, 61, 61, 61, 61, 61, 61, 61, 61, 61, 61, 61, 62, 62, 62, 62, 62, 62, 62, 62, 62, 62, 62, 62, 63, 63, 63, 63, 63, 63, 63, 63, 63, 63, 63, 63, 64, 64, 64, 64, 64, 64, 64, 64, 64, 64, 64, 64, 65, 65, 65, 65, 65, 65, 65, 65, 65, 65, 65, 65, 66, 66, 66, 66, 66, 66, 66, 66, 66, 66, 66, 66, 67, 67, 67, 67, 67, 67, 67, 67, 67, 67, 67, 67, 68, 68, 68, 68, 68, 68, 68, 68, 68, 68, 68, 68, 69, 70, 71, 72, 72, 72, 72, 72, 72, 72, 72, 72, 72, 72, 72, 73, 73, 73, 73, 73, 73, 73, 73, 73, 73, 73, 73, 74, 74, 74, 74, 74, 74, 74, 74, 74, 74, 74, 74, 75, 75, 75, 75, 75, 75, 75, 75, 75, 75, 75, 75, 76, 76, 76, 76, 76, 76, 76, 76, 76, 76, 76, 76, 77, 77, 77, 77, 77, 77, 77, 77, 77, 77, 77, 77, 78, 78, 78, 78, 78, 78, 78, 78, 78, 78, 78, 78, 79, 79, 79, 79, 79, 79, 79, 79, 79, 79, 79, 79, 80, 80, 80, 80, 80, 80, 80, 80, 80, 80, 80, 80, 81, 82, 83, 84, 84, 84, 84, 84, 84, 84, 84, 84, 84, 84, 84, 85, 85, 85, 85, 85, 85, 85, 85, 85, 85, 85, 85, 86, 86, 86, 86, 86, 86, 86, 86, 86, 86, 86, 86, 87, 87, 87, 87, 87, 87, 87, 87, 87, 87, 87, 87, 88, 88, 88, 88, 88, 88, 88, 88, 88, 88, 88, 88, 89, 89, 89, 89, 89, 89, 89, 89, 89, 89, 89, 89, 90, 90, 90, 90, 90, 90, 90, 90, 90, 90, 90, 90, 91, 91, 91, 91, 91, 91, 91, 91, 91, 91, 91, 91, 92, 92, 92, 92, 92, 92, 92, 92, 92, 92, 92, 92, 93, 94, 95, 99, 99, 99, 99, 99, 99, 99, 99, 99, 99, 99, 99, 99, 99, 99, 99, 99, 99, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, ],
@@ -7719,6 +7723,2142 @@ def outputs(t, x, p=None, u=None):
     }
 
 
+def input_jacobian(t, x, p=None, u=None):
+    """d(rhs)/du, analytic (forward mode along the causal order): (n, m, *batch), the columns
+    in INPUT_LABELS order (INPUT_NAMES, a vector input's components in order)."""
+    _pv, _bshape = _params(p)
+    l3 = _pv[2]
+    m3 = _pv[6]
+    k_d = _pv[19]
+    r_d = _pv[20]
+    link3__Ixx = _pv[26]
+    link3__Iyy = _pv[27]
+    _uv = _inputs(t, _pv, u)
+    u_vd_0 = _uv[0]
+    u_vd_1 = _uv[1]
+    u_vd_2 = _uv[2]
+
+    x = np.asarray(x, dtype=float)
+    _, _, _, _, _, _, _, _, _, _, _, _, p_link3__It_0, p_link3__It_1, p_link3__It_2, p_link3__Ir_0, p_link3__Ir_1, p_link3__Ir_2, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, q_jd__C_0, q_jd__C_1, q_jd__C_2, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, s_link3__R_0_0, s_link3__R_0_1, s_link3__R_0_2, s_link3__R_1_0, s_link3__R_1_1, s_link3__R_1_2, s_link3__R_2_0, s_link3__R_2_1, s_link3__R_2_2, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, = x
+    _c0 = 1/m3
+    # link3.It (I, integral): flow from momentum
+    f_link3__b2_0 = _c0*p_link3__It_0
+    # link3.It (I, integral): flow from momentum
+    f_link3__b2_1 = _c0*p_link3__It_1
+    # link3.It (I, integral): flow from momentum
+    f_link3__b2_2 = _c0*p_link3__It_2
+    _c1 = 1/link3__Ixx
+    _c2 = 1/link3__Iyy
+    _c3 = _c1*s_link3__R_0_0
+    _c4 = _c2*s_link3__R_0_1
+    _c5 = _c2*s_link3__R_0_2
+    _c6 = _c3*s_link3__R_1_0 + _c4*s_link3__R_1_1 + _c5*s_link3__R_1_2
+    _c7 = _c3*s_link3__R_2_0 + _c4*s_link3__R_2_1 + _c5*s_link3__R_2_2
+    # link3.Ir (I, integral): flow from momentum
+    f_link3__b3_0 = _c6*p_link3__Ir_1 + _c7*p_link3__Ir_2 + p_link3__Ir_0*(_c1*s_link3__R_0_0*s_link3__R_0_0 + _c2*s_link3__R_0_1*s_link3__R_0_1 + _c2*s_link3__R_0_2*s_link3__R_0_2)
+    _c8 = _c1*s_link3__R_1_0*s_link3__R_2_0 + _c2*s_link3__R_1_1*s_link3__R_2_1 + _c2*s_link3__R_1_2*s_link3__R_2_2
+    # link3.Ir (I, integral): flow from momentum
+    f_link3__b3_1 = _c6*p_link3__Ir_0 + _c8*p_link3__Ir_2 + p_link3__Ir_1*(_c1*s_link3__R_1_0*s_link3__R_1_0 + _c2*s_link3__R_1_1*s_link3__R_1_1 + _c2*s_link3__R_1_2*s_link3__R_1_2)
+    # link3.Ir (I, integral): flow from momentum
+    f_link3__b3_2 = _c7*p_link3__Ir_0 + _c8*p_link3__Ir_1 + p_link3__Ir_2*(_c1*s_link3__R_2_0*s_link3__R_2_0 + _c2*s_link3__R_2_1*s_link3__R_2_1 + _c2*s_link3__R_2_2*s_link3__R_2_2)
+    _c9 = (1/2)*l3
+    _c10 = _c9*s_link3__R_2_0
+    # link3.mP (MTF): f2 = M f1
+    f_link3__b9_0 = _c10*f_link3__b3_1 - _c9*f_link3__b3_2*s_link3__R_1_0
+    # link3.mP (MTF): f2 = M f1
+    f_link3__b9_1 = -_c10*f_link3__b3_0 + (1/2)*f_link3__b3_2*l3*s_link3__R_0_0
+    _c11 = _c9*s_link3__R_1_0
+    _c12 = _c9*s_link3__R_0_0
+    # link3.mP (MTF): f2 = M f1
+    f_link3__b9_2 = _c11*f_link3__b3_0 - _c12*f_link3__b3_1
+    # 0-junction link3.sP: flow balance
+    f_link3__b11_0 = f_link3__b2_0 + f_link3__b9_0
+    # 0-junction link3.sP: flow balance
+    f_link3__b11_1 = f_link3__b2_1 + f_link3__b9_1
+    # 0-junction link3.sP: flow balance
+    f_link3__b11_2 = f_link3__b2_2 + f_link3__b9_2
+    # 0-junction jd.J: flow balance
+    f_jd__b1_0 = u_vd_0 - f_link3__b11_0
+    # 0-junction jd.J: flow balance
+    f_jd__b1_1 = u_vd_1 - f_link3__b11_1
+    # 0-junction jd.J: flow balance
+    f_jd__b1_2 = u_vd_2 - f_link3__b11_2
+    # jd.C (C, integral): effort from displacement
+    e_jd__b2_0 = k_d*q_jd__C_0
+    # jd.C (C, integral): effort from displacement
+    e_jd__b2_1 = k_d*q_jd__C_1
+    # jd.C (C, integral): effort from displacement
+    e_jd__b2_2 = k_d*q_jd__C_2
+    _c13 = f_jd__b1_0*r_d
+    # jd.R (R): effort = r f
+    e_jd__b3_0 = _c13
+    # 1-junction jd.rel: effort balance
+    e_jd__b1_0 = e_jd__b2_0 + e_jd__b3_0
+    _c14 = f_jd__b1_1*r_d
+    # jd.R (R): effort = r f
+    e_jd__b3_1 = _c14
+    # 1-junction jd.rel: effort balance
+    e_jd__b1_1 = e_jd__b2_1 + e_jd__b3_1
+    _c15 = f_jd__b1_2*r_d
+    # jd.R (R): effort = r f
+    e_jd__b3_2 = _c15
+    # 1-junction jd.rel: effort balance
+    e_jd__b1_2 = e_jd__b2_2 + e_jd__b3_2
+    _c16 = _c11*r_d
+    _du0 = _c16
+    _c17 = _c12*r_d
+    _du1 = -_c17
+    _c18 = _c10*r_d
+    _du2 = _c18
+    _du3 = -_c16
+    _du4 = -_c18
+    _du5 = _c17
+
+    B = np.zeros((101, 3) + np.broadcast_shapes(x.shape[1:], _bshape))
+    B[12, 0] = r_d
+    B[13, 1] = r_d
+    B[14, 2] = r_d
+    B[15, 1] = -_du2
+    B[15, 2] = -_du3
+    B[16, 0] = -_du4
+    B[16, 2] = -_du5
+    B[17, 0] = -_du0
+    B[17, 1] = -_du1
+    B[45, 0] = 1
+    B[46, 1] = 1
+    B[47, 2] = 1
+    B[96, 0] = 1
+    B[97, 1] = 1
+    B[98, 2] = 1
+    B[99, 0] = e_jd__b1_0 + r_d*u_vd_0
+    B[99, 1] = e_jd__b1_1 + r_d*u_vd_1
+    B[99, 2] = e_jd__b1_2 + r_d*u_vd_2
+    B[100, 0] = _c13 + e_jd__b3_0
+    B[100, 1] = _c14 + e_jd__b3_1
+    B[100, 2] = _c15 + e_jd__b3_2
+    return B
+
+
+def output_jacobian(t, x, p=None, u=None):
+    """(C, D) = (d(outputs)/dx, d(outputs)/du), analytic: (ny, n, *batch) and (ny, m, *batch),
+    the rows in OUTPUT_LABELS order (OUTPUT_NAMES, each output's components row-major), the
+    columns in STATE_NAMES and INPUT_LABELS order."""
+    _pv, _bshape = _params(p)
+    l1 = _pv[0]
+    l2 = _pv[1]
+    l3 = _pv[2]
+    l4 = _pv[3]
+    m1 = _pv[4]
+    m2 = _pv[5]
+    m3 = _pv[6]
+    m4 = _pv[7]
+    g = _pv[9]
+    k_t = _pv[14]
+    r_t = _pv[15]
+    r_t5 = _pv[16]
+    k_r = _pv[17]
+    r_r = _pv[18]
+    k_d = _pv[19]
+    r_d = _pv[20]
+    link1__Ixx = _pv[22]
+    link1__Iyy = _pv[23]
+    link2__Ixx = _pv[24]
+    link2__Iyy = _pv[25]
+    link3__Ixx = _pv[26]
+    link3__Iyy = _pv[27]
+    link4__Ixx = _pv[28]
+    link4__Iyy = _pv[29]
+    P4_0 = _pv[51]
+    P4_1 = _pv[52]
+    P4_2 = _pv[53]
+    _uv = _inputs(t, _pv, u)
+    u_vd_0 = _uv[0]
+    u_vd_1 = _uv[1]
+    u_vd_2 = _uv[2]
+
+    x = np.asarray(x, dtype=float)
+    p_link1__It_0, p_link1__It_1, p_link1__It_2, p_link1__Ir_0, p_link1__Ir_1, p_link1__Ir_2, p_link2__It_0, p_link2__It_1, p_link2__It_2, p_link2__Ir_0, p_link2__Ir_1, p_link2__Ir_2, p_link3__It_0, p_link3__It_1, p_link3__It_2, p_link3__Ir_0, p_link3__Ir_1, p_link3__Ir_2, p_link4__It_0, p_link4__It_1, p_link4__It_2, p_link4__Ir_0, p_link4__Ir_1, p_link4__Ir_2, q_j1__C_0, q_j1__C_1, q_j1__C_2, q_j2__C_0, q_j2__C_1, q_j2__C_2, q_j3__C_0, q_j3__C_1, q_j3__C_2, q_j4__C_0, q_j4__C_1, q_j4__C_2, q_j5__C_0, q_j5__C_1, q_j5__C_2, q_r1__C_0, q_r1__C_1, q_r2__C_0, q_r2__C_1, q_r3__C_0, q_r3__C_1, q_jd__C_0, q_jd__C_1, q_jd__C_2, s_link1__R_0_0, s_link1__R_0_1, s_link1__R_0_2, s_link1__R_1_0, s_link1__R_1_1, s_link1__R_1_2, s_link1__R_2_0, s_link1__R_2_1, s_link1__R_2_2, _, _, _, s_link2__R_0_0, s_link2__R_0_1, s_link2__R_0_2, s_link2__R_1_0, s_link2__R_1_1, s_link2__R_1_2, s_link2__R_2_0, s_link2__R_2_1, s_link2__R_2_2, _, _, _, s_link3__R_0_0, s_link3__R_0_1, s_link3__R_0_2, s_link3__R_1_0, s_link3__R_1_1, s_link3__R_1_2, s_link3__R_2_0, s_link3__R_2_1, s_link3__R_2_2, _, _, _, s_link4__R_0_0, s_link4__R_0_1, s_link4__R_0_2, s_link4__R_1_0, s_link4__R_1_1, s_link4__R_1_2, s_link4__R_2_0, s_link4__R_2_1, s_link4__R_2_2, _, _, _, s_pd_0, s_pd_1, s_pd_2, _, _, = x
+    _c0 = 1/m1
+    # link1.It (I, integral): flow from momentum
+    f_link1__b2_0 = _c0*p_link1__It_0
+    # link1.It (I, integral): flow from momentum
+    f_link1__b2_1 = _c0*p_link1__It_1
+    # link1.It (I, integral): flow from momentum
+    f_link1__b2_2 = _c0*p_link1__It_2
+    _c1 = 1/link1__Ixx
+    _c2 = s_link1__R_0_0*s_link1__R_0_0
+    _c3 = 1/link1__Iyy
+    _c4 = _c1*_c2 + _c3*s_link1__R_0_1*s_link1__R_0_1 + _c3*s_link1__R_0_2*s_link1__R_0_2
+    _c5 = _c1*s_link1__R_0_0
+    _c6 = _c3*s_link1__R_0_1
+    _c7 = _c3*s_link1__R_0_2
+    _c8 = _c5*s_link1__R_1_0 + _c6*s_link1__R_1_1 + _c7*s_link1__R_1_2
+    _c9 = _c5*s_link1__R_2_0 + _c6*s_link1__R_2_1 + _c7*s_link1__R_2_2
+    # link1.Ir (I, integral): flow from momentum
+    f_link1__b3_0 = _c4*p_link1__Ir_0 + _c8*p_link1__Ir_1 + _c9*p_link1__Ir_2
+    _c10 = s_link1__R_1_0*s_link1__R_1_0
+    _c11 = _c1*_c10 + _c3*s_link1__R_1_1*s_link1__R_1_1 + _c3*s_link1__R_1_2*s_link1__R_1_2
+    _c12 = _c1*s_link1__R_1_0
+    _c13 = _c3*s_link1__R_1_1
+    _c14 = _c3*s_link1__R_1_2
+    _c15 = _c12*s_link1__R_2_0 + _c13*s_link1__R_2_1 + _c14*s_link1__R_2_2
+    # link1.Ir (I, integral): flow from momentum
+    f_link1__b3_1 = _c11*p_link1__Ir_1 + _c15*p_link1__Ir_2 + _c8*p_link1__Ir_0
+    _c16 = _c1*s_link1__R_2_0*s_link1__R_2_0 + _c3*s_link1__R_2_1*s_link1__R_2_1 + _c3*s_link1__R_2_2*s_link1__R_2_2
+    # link1.Ir (I, integral): flow from momentum
+    f_link1__b3_2 = _c15*p_link1__Ir_1 + _c16*p_link1__Ir_2 + _c9*p_link1__Ir_0
+    _c17 = (1/2)*f_link1__b3_1
+    _c18 = _c17*l1
+    _c19 = _c18*s_link1__R_2_0 - 1/2*f_link1__b3_2*l1*s_link1__R_1_0
+    # link1.mQ (MTF): f2 = M f1
+    f_link1__b5_0 = -_c19
+    _c20 = (1/2)*f_link1__b3_0
+    _c21 = _c20*l1
+    _c22 = (1/2)*f_link1__b3_2
+    _c23 = _c22*l1
+    _c24 = _c21*s_link1__R_2_0 - _c23*s_link1__R_0_0
+    # link1.mQ (MTF): f2 = M f1
+    f_link1__b5_1 = _c24
+    _c25 = _c21*s_link1__R_1_0 - 1/2*f_link1__b3_1*l1*s_link1__R_0_0
+    # link1.mQ (MTF): f2 = M f1
+    f_link1__b5_2 = -_c25
+    # link1.mP (MTF): f2 = M f1
+    f_link1__b9_0 = _c19
+    # link1.mP (MTF): f2 = M f1
+    f_link1__b9_1 = -_c24
+    # link1.mP (MTF): f2 = M f1
+    f_link1__b9_2 = _c25
+    # 0-junction link1.sQ: flow balance
+    f_link1__b7_0 = f_link1__b2_0 + f_link1__b5_0
+    # 0-junction link1.sQ: flow balance
+    f_link1__b7_1 = f_link1__b2_1 + f_link1__b5_1
+    # 0-junction link1.sQ: flow balance
+    f_link1__b7_2 = f_link1__b2_2 + f_link1__b5_2
+    # 0-junction link1.sP: flow balance
+    f_link1__b11_0 = f_link1__b2_0 + f_link1__b9_0
+    # 0-junction link1.sP: flow balance
+    f_link1__b11_1 = f_link1__b2_1 + f_link1__b9_1
+    # 0-junction link1.sP: flow balance
+    f_link1__b11_2 = f_link1__b2_2 + f_link1__b9_2
+    _c26 = 1/m2
+    # link2.It (I, integral): flow from momentum
+    f_link2__b2_0 = _c26*p_link2__It_0
+    # link2.It (I, integral): flow from momentum
+    f_link2__b2_1 = _c26*p_link2__It_1
+    # link2.It (I, integral): flow from momentum
+    f_link2__b2_2 = _c26*p_link2__It_2
+    _c27 = 1/link2__Ixx
+    _c28 = 1/link2__Iyy
+    _c29 = _c27*s_link2__R_0_0*s_link2__R_0_0 + _c28*s_link2__R_0_1*s_link2__R_0_1 + _c28*s_link2__R_0_2*s_link2__R_0_2
+    _c30 = _c27*s_link2__R_0_0
+    _c31 = _c28*s_link2__R_0_1
+    _c32 = _c28*s_link2__R_0_2
+    _c33 = _c30*s_link2__R_1_0 + _c31*s_link2__R_1_1 + _c32*s_link2__R_1_2
+    _c34 = _c30*s_link2__R_2_0 + _c31*s_link2__R_2_1 + _c32*s_link2__R_2_2
+    # link2.Ir (I, integral): flow from momentum
+    f_link2__b3_0 = _c29*p_link2__Ir_0 + _c33*p_link2__Ir_1 + _c34*p_link2__Ir_2
+    _c35 = _c27*s_link2__R_1_0*s_link2__R_1_0 + _c28*s_link2__R_1_1*s_link2__R_1_1 + _c28*s_link2__R_1_2*s_link2__R_1_2
+    _c36 = _c27*s_link2__R_1_0
+    _c37 = _c28*s_link2__R_1_1
+    _c38 = _c28*s_link2__R_1_2
+    _c39 = _c36*s_link2__R_2_0 + _c37*s_link2__R_2_1 + _c38*s_link2__R_2_2
+    # link2.Ir (I, integral): flow from momentum
+    f_link2__b3_1 = _c33*p_link2__Ir_0 + _c35*p_link2__Ir_1 + _c39*p_link2__Ir_2
+    _c40 = _c27*s_link2__R_2_0*s_link2__R_2_0 + _c28*s_link2__R_2_1*s_link2__R_2_1 + _c28*s_link2__R_2_2*s_link2__R_2_2
+    # link2.Ir (I, integral): flow from momentum
+    f_link2__b3_2 = _c34*p_link2__Ir_0 + _c39*p_link2__Ir_1 + _c40*p_link2__Ir_2
+    _c41 = (1/2)*f_link2__b3_1
+    _c42 = _c41*l2
+    _c43 = _c42*s_link2__R_2_0 - 1/2*f_link2__b3_2*l2*s_link2__R_1_0
+    # link2.mQ (MTF): f2 = M f1
+    f_link2__b5_0 = -_c43
+    _c44 = (1/2)*f_link2__b3_0
+    _c45 = _c44*l2
+    _c46 = (1/2)*f_link2__b3_2
+    _c47 = _c46*l2
+    _c48 = _c45*s_link2__R_2_0 - _c47*s_link2__R_0_0
+    # link2.mQ (MTF): f2 = M f1
+    f_link2__b5_1 = _c48
+    _c49 = _c45*s_link2__R_1_0 - 1/2*f_link2__b3_1*l2*s_link2__R_0_0
+    # link2.mQ (MTF): f2 = M f1
+    f_link2__b5_2 = -_c49
+    # link2.mP (MTF): f2 = M f1
+    f_link2__b9_0 = _c43
+    # link2.mP (MTF): f2 = M f1
+    f_link2__b9_1 = -_c48
+    # link2.mP (MTF): f2 = M f1
+    f_link2__b9_2 = _c49
+    # 0-junction link2.sQ: flow balance
+    f_link2__b7_0 = f_link2__b2_0 + f_link2__b5_0
+    # 0-junction link2.sQ: flow balance
+    f_link2__b7_1 = f_link2__b2_1 + f_link2__b5_1
+    # 0-junction link2.sQ: flow balance
+    f_link2__b7_2 = f_link2__b2_2 + f_link2__b5_2
+    # 0-junction link2.sP: flow balance
+    f_link2__b11_0 = f_link2__b2_0 + f_link2__b9_0
+    # 0-junction link2.sP: flow balance
+    f_link2__b11_1 = f_link2__b2_1 + f_link2__b9_1
+    # 0-junction link2.sP: flow balance
+    f_link2__b11_2 = f_link2__b2_2 + f_link2__b9_2
+    _c50 = 1/m3
+    # link3.It (I, integral): flow from momentum
+    f_link3__b2_0 = _c50*p_link3__It_0
+    # link3.It (I, integral): flow from momentum
+    f_link3__b2_1 = _c50*p_link3__It_1
+    # link3.It (I, integral): flow from momentum
+    f_link3__b2_2 = _c50*p_link3__It_2
+    _c51 = 1/link3__Ixx
+    _c52 = 1/link3__Iyy
+    _c53 = _c51*s_link3__R_0_0*s_link3__R_0_0 + _c52*s_link3__R_0_1*s_link3__R_0_1 + _c52*s_link3__R_0_2*s_link3__R_0_2
+    _c54 = _c51*s_link3__R_0_0
+    _c55 = _c52*s_link3__R_0_1
+    _c56 = _c52*s_link3__R_0_2
+    _c57 = _c54*s_link3__R_1_0 + _c55*s_link3__R_1_1 + _c56*s_link3__R_1_2
+    _c58 = _c54*s_link3__R_2_0 + _c55*s_link3__R_2_1 + _c56*s_link3__R_2_2
+    # link3.Ir (I, integral): flow from momentum
+    f_link3__b3_0 = _c53*p_link3__Ir_0 + _c57*p_link3__Ir_1 + _c58*p_link3__Ir_2
+    _c59 = _c51*s_link3__R_1_0*s_link3__R_1_0 + _c52*s_link3__R_1_1*s_link3__R_1_1 + _c52*s_link3__R_1_2*s_link3__R_1_2
+    _c60 = _c51*s_link3__R_1_0
+    _c61 = _c52*s_link3__R_1_1
+    _c62 = _c52*s_link3__R_1_2
+    _c63 = _c60*s_link3__R_2_0 + _c61*s_link3__R_2_1 + _c62*s_link3__R_2_2
+    # link3.Ir (I, integral): flow from momentum
+    f_link3__b3_1 = _c57*p_link3__Ir_0 + _c59*p_link3__Ir_1 + _c63*p_link3__Ir_2
+    _c64 = _c51*s_link3__R_2_0*s_link3__R_2_0 + _c52*s_link3__R_2_1*s_link3__R_2_1 + _c52*s_link3__R_2_2*s_link3__R_2_2
+    # link3.Ir (I, integral): flow from momentum
+    f_link3__b3_2 = _c58*p_link3__Ir_0 + _c63*p_link3__Ir_1 + _c64*p_link3__Ir_2
+    _c65 = (1/2)*l3
+    _c66 = _c65*f_link3__b3_1
+    _c67 = _c66*s_link3__R_2_0 - 1/2*f_link3__b3_2*l3*s_link3__R_1_0
+    # link3.mQ (MTF): f2 = M f1
+    f_link3__b5_0 = -_c67
+    _c68 = _c65*f_link3__b3_0
+    _c69 = _c65*f_link3__b3_2
+    _c70 = _c68*s_link3__R_2_0 - _c69*s_link3__R_0_0
+    # link3.mQ (MTF): f2 = M f1
+    f_link3__b5_1 = _c70
+    _c71 = _c68*s_link3__R_1_0 - 1/2*f_link3__b3_1*l3*s_link3__R_0_0
+    # link3.mQ (MTF): f2 = M f1
+    f_link3__b5_2 = -_c71
+    # link3.mP (MTF): f2 = M f1
+    f_link3__b9_0 = _c67
+    # link3.mP (MTF): f2 = M f1
+    f_link3__b9_1 = -_c70
+    # link3.mP (MTF): f2 = M f1
+    f_link3__b9_2 = _c71
+    # 0-junction link3.sQ: flow balance
+    f_link3__b7_0 = f_link3__b2_0 + f_link3__b5_0
+    # 0-junction link3.sQ: flow balance
+    f_link3__b7_1 = f_link3__b2_1 + f_link3__b5_1
+    # 0-junction link3.sQ: flow balance
+    f_link3__b7_2 = f_link3__b2_2 + f_link3__b5_2
+    # 0-junction link3.sP: flow balance
+    f_link3__b11_0 = f_link3__b2_0 + f_link3__b9_0
+    # 0-junction link3.sP: flow balance
+    f_link3__b11_1 = f_link3__b2_1 + f_link3__b9_1
+    # 0-junction link3.sP: flow balance
+    f_link3__b11_2 = f_link3__b2_2 + f_link3__b9_2
+    _c72 = 1/m4
+    # link4.It (I, integral): flow from momentum
+    f_link4__b2_0 = _c72*p_link4__It_0
+    # link4.It (I, integral): flow from momentum
+    f_link4__b2_1 = _c72*p_link4__It_1
+    # link4.It (I, integral): flow from momentum
+    f_link4__b2_2 = _c72*p_link4__It_2
+    _c73 = 1/link4__Ixx
+    _c74 = 1/link4__Iyy
+    _c75 = _c73*s_link4__R_0_0*s_link4__R_0_0 + _c74*s_link4__R_0_1*s_link4__R_0_1 + _c74*s_link4__R_0_2*s_link4__R_0_2
+    _c76 = _c73*s_link4__R_0_0
+    _c77 = _c74*s_link4__R_0_1
+    _c78 = _c74*s_link4__R_0_2
+    _c79 = _c76*s_link4__R_1_0 + _c77*s_link4__R_1_1 + _c78*s_link4__R_1_2
+    _c80 = _c76*s_link4__R_2_0 + _c77*s_link4__R_2_1 + _c78*s_link4__R_2_2
+    # link4.Ir (I, integral): flow from momentum
+    f_link4__b3_0 = _c75*p_link4__Ir_0 + _c79*p_link4__Ir_1 + _c80*p_link4__Ir_2
+    _c81 = _c73*s_link4__R_1_0*s_link4__R_1_0 + _c74*s_link4__R_1_1*s_link4__R_1_1 + _c74*s_link4__R_1_2*s_link4__R_1_2
+    _c82 = _c73*s_link4__R_1_0
+    _c83 = _c74*s_link4__R_1_1
+    _c84 = _c74*s_link4__R_1_2
+    _c85 = _c82*s_link4__R_2_0 + _c83*s_link4__R_2_1 + _c84*s_link4__R_2_2
+    # link4.Ir (I, integral): flow from momentum
+    f_link4__b3_1 = _c79*p_link4__Ir_0 + _c81*p_link4__Ir_1 + _c85*p_link4__Ir_2
+    _c86 = _c73*s_link4__R_2_0*s_link4__R_2_0 + _c74*s_link4__R_2_1*s_link4__R_2_1 + _c74*s_link4__R_2_2*s_link4__R_2_2
+    # link4.Ir (I, integral): flow from momentum
+    f_link4__b3_2 = _c80*p_link4__Ir_0 + _c85*p_link4__Ir_1 + _c86*p_link4__Ir_2
+    _c87 = (1/2)*f_link4__b3_1
+    _c88 = _c87*l4
+    _c89 = _c88*s_link4__R_2_0 - 1/2*f_link4__b3_2*l4*s_link4__R_1_0
+    # link4.mQ (MTF): f2 = M f1
+    f_link4__b5_0 = -_c89
+    _c90 = (1/2)*f_link4__b3_0
+    _c91 = _c90*l4
+    _c92 = (1/2)*f_link4__b3_2
+    _c93 = _c92*l4
+    _c94 = _c91*s_link4__R_2_0 - _c93*s_link4__R_0_0
+    # link4.mQ (MTF): f2 = M f1
+    f_link4__b5_1 = _c94
+    _c95 = _c91*s_link4__R_1_0 - 1/2*f_link4__b3_1*l4*s_link4__R_0_0
+    # link4.mQ (MTF): f2 = M f1
+    f_link4__b5_2 = -_c95
+    # link4.mP (MTF): f2 = M f1
+    f_link4__b9_0 = _c89
+    # link4.mP (MTF): f2 = M f1
+    f_link4__b9_1 = -_c94
+    # link4.mP (MTF): f2 = M f1
+    f_link4__b9_2 = _c95
+    # 0-junction link4.sQ: flow balance
+    f_link4__b7_0 = f_link4__b2_0 + f_link4__b5_0
+    # 0-junction link4.sQ: flow balance
+    f_link4__b7_1 = f_link4__b2_1 + f_link4__b5_1
+    # 0-junction link4.sQ: flow balance
+    f_link4__b7_2 = f_link4__b2_2 + f_link4__b5_2
+    # 0-junction link4.sP: flow balance
+    f_link4__b11_0 = f_link4__b2_0 + f_link4__b9_0
+    # 0-junction link4.sP: flow balance
+    f_link4__b11_1 = f_link4__b2_1 + f_link4__b9_1
+    # 0-junction link4.sP: flow balance
+    f_link4__b11_2 = f_link4__b2_2 + f_link4__b9_2
+    _c96 = k_t*q_j1__C_0
+    # j1.C (C, integral): effort from displacement
+    e_j1__b2_0 = _c96
+    _c97 = k_t*q_j1__C_1
+    # j1.C (C, integral): effort from displacement
+    e_j1__b2_1 = _c97
+    _c98 = k_t*q_j1__C_2
+    # j1.C (C, integral): effort from displacement
+    e_j1__b2_2 = _c98
+    # j1.R (R): effort = r f
+    e_j1__b3_0 = -f_link1__b7_0*r_t
+    # j1.R (R): effort = r f
+    e_j1__b3_1 = -f_link1__b7_1*r_t
+    # j1.R (R): effort = r f
+    e_j1__b3_2 = -f_link1__b7_2*r_t
+    # 0-junction j2.J: flow balance
+    f_j2__b1_0 = f_link1__b11_0 - f_link2__b7_0
+    # 0-junction j2.J: flow balance
+    f_j2__b1_1 = f_link1__b11_1 - f_link2__b7_1
+    # 0-junction j2.J: flow balance
+    f_j2__b1_2 = f_link1__b11_2 - f_link2__b7_2
+    _c99 = k_t*q_j2__C_0
+    # j2.C (C, integral): effort from displacement
+    e_j2__b2_0 = _c99
+    _c100 = k_t*q_j2__C_1
+    # j2.C (C, integral): effort from displacement
+    e_j2__b2_1 = _c100
+    _c101 = k_t*q_j2__C_2
+    # j2.C (C, integral): effort from displacement
+    e_j2__b2_2 = _c101
+    # j2.R (R): effort = r f
+    e_j2__b3_0 = f_j2__b1_0*r_t
+    # j2.R (R): effort = r f
+    e_j2__b3_1 = f_j2__b1_1*r_t
+    # j2.R (R): effort = r f
+    e_j2__b3_2 = f_j2__b1_2*r_t
+    # 0-junction j3.J: flow balance
+    f_j3__b1_0 = f_link2__b11_0 - f_link3__b7_0
+    # 0-junction j3.J: flow balance
+    f_j3__b1_1 = f_link2__b11_1 - f_link3__b7_1
+    # 0-junction j3.J: flow balance
+    f_j3__b1_2 = f_link2__b11_2 - f_link3__b7_2
+    _c102 = k_t*q_j3__C_0
+    # j3.C (C, integral): effort from displacement
+    e_j3__b2_0 = _c102
+    _c103 = k_t*q_j3__C_1
+    # j3.C (C, integral): effort from displacement
+    e_j3__b2_1 = _c103
+    _c104 = k_t*q_j3__C_2
+    # j3.C (C, integral): effort from displacement
+    e_j3__b2_2 = _c104
+    # j3.R (R): effort = r f
+    e_j3__b3_0 = f_j3__b1_0*r_t
+    # j3.R (R): effort = r f
+    e_j3__b3_1 = f_j3__b1_1*r_t
+    # j3.R (R): effort = r f
+    e_j3__b3_2 = f_j3__b1_2*r_t
+    # 0-junction j4.J: flow balance
+    f_j4__b1_0 = f_link3__b11_0 - f_link4__b7_0
+    # 0-junction j4.J: flow balance
+    f_j4__b1_1 = f_link3__b11_1 - f_link4__b7_1
+    # 0-junction j4.J: flow balance
+    f_j4__b1_2 = f_link3__b11_2 - f_link4__b7_2
+    _c105 = k_t*q_j4__C_0
+    # j4.C (C, integral): effort from displacement
+    e_j4__b2_0 = _c105
+    _c106 = k_t*q_j4__C_1
+    # j4.C (C, integral): effort from displacement
+    e_j4__b2_1 = _c106
+    _c107 = k_t*q_j4__C_2
+    # j4.C (C, integral): effort from displacement
+    e_j4__b2_2 = _c107
+    # j4.R (R): effort = r f
+    e_j4__b3_0 = f_j4__b1_0*r_t
+    # j4.R (R): effort = r f
+    e_j4__b3_1 = f_j4__b1_1*r_t
+    # j4.R (R): effort = r f
+    e_j4__b3_2 = f_j4__b1_2*r_t
+    _c108 = k_t*q_j5__C_0
+    # j5.C (C, integral): effort from displacement
+    e_j5__b2_0 = _c108
+    _c109 = k_t*q_j5__C_1
+    # j5.C (C, integral): effort from displacement
+    e_j5__b2_1 = _c109
+    _c110 = k_t*q_j5__C_2
+    # j5.C (C, integral): effort from displacement
+    e_j5__b2_2 = _c110
+    # j5.R (R): effort = r f
+    e_j5__b3_0 = f_link4__b11_0*r_t5
+    # j5.R (R): effort = r f
+    e_j5__b3_1 = f_link4__b11_1*r_t5
+    # j5.R (R): effort = r f
+    e_j5__b3_2 = f_link4__b11_2*r_t5
+    # r1.M (MTF): f2 = M f1
+    f_r1__b2_0 = f_link1__b3_0*s_link1__R_0_0 + f_link1__b3_1*s_link1__R_1_0 + f_link1__b3_2*s_link1__R_2_0
+    # r1.M (MTF): f2 = M f1
+    f_r1__b2_1 = f_link1__b3_0*s_link1__R_0_1 + f_link1__b3_1*s_link1__R_1_1 + f_link1__b3_2*s_link1__R_2_1
+    _c111 = k_r*q_r1__C_0
+    # r1.C (C, integral): effort from displacement
+    e_r1__b3_0 = _c111
+    _c112 = k_r*q_r1__C_1
+    # r1.C (C, integral): effort from displacement
+    e_r1__b3_1 = _c112
+    # r1.R (R): effort = r f
+    e_r1__b4_0 = f_r1__b2_0*r_r
+    # r1.R (R): effort = r f
+    e_r1__b4_1 = f_r1__b2_1*r_r
+    # 0-junction r2.J: flow balance
+    f_r2__b1_0 = f_link2__b3_0 - f_link1__b3_0
+    # 0-junction r2.J: flow balance
+    f_r2__b1_1 = f_link2__b3_1 - f_link1__b3_1
+    # 0-junction r2.J: flow balance
+    f_r2__b1_2 = f_link2__b3_2 - f_link1__b3_2
+    # r2.M (MTF): f2 = M f1
+    f_r2__b2_0 = f_r2__b1_0*s_link2__R_0_0 + f_r2__b1_1*s_link2__R_1_0 + f_r2__b1_2*s_link2__R_2_0
+    # r2.M (MTF): f2 = M f1
+    f_r2__b2_1 = f_r2__b1_0*s_link2__R_0_1 + f_r2__b1_1*s_link2__R_1_1 + f_r2__b1_2*s_link2__R_2_1
+    _c113 = k_r*q_r2__C_0
+    # r2.C (C, integral): effort from displacement
+    e_r2__b3_0 = _c113
+    _c114 = k_r*q_r2__C_1
+    # r2.C (C, integral): effort from displacement
+    e_r2__b3_1 = _c114
+    # r2.R (R): effort = r f
+    e_r2__b4_0 = f_r2__b2_0*r_r
+    # r2.R (R): effort = r f
+    e_r2__b4_1 = f_r2__b2_1*r_r
+    # 0-junction r3.J: flow balance
+    f_r3__b1_0 = f_link3__b3_0 - f_link2__b3_0
+    # 0-junction r3.J: flow balance
+    f_r3__b1_1 = f_link3__b3_1 - f_link2__b3_1
+    # 0-junction r3.J: flow balance
+    f_r3__b1_2 = f_link3__b3_2 - f_link2__b3_2
+    # r3.M (MTF): f2 = M f1
+    f_r3__b2_0 = f_r3__b1_0*s_link3__R_0_0 + f_r3__b1_1*s_link3__R_1_0 + f_r3__b1_2*s_link3__R_2_0
+    # r3.M (MTF): f2 = M f1
+    f_r3__b2_1 = f_r3__b1_0*s_link3__R_0_1 + f_r3__b1_1*s_link3__R_1_1 + f_r3__b1_2*s_link3__R_2_1
+    _c115 = k_r*q_r3__C_0
+    # r3.C (C, integral): effort from displacement
+    e_r3__b3_0 = _c115
+    _c116 = k_r*q_r3__C_1
+    # r3.C (C, integral): effort from displacement
+    e_r3__b3_1 = _c116
+    # r3.R (R): effort = r f
+    e_r3__b4_0 = f_r3__b2_0*r_r
+    # r3.R (R): effort = r f
+    e_r3__b4_1 = f_r3__b2_1*r_r
+    # 0-junction jd.J: flow balance
+    f_jd__b1_0 = u_vd_0 - f_link3__b11_0
+    # 0-junction jd.J: flow balance
+    f_jd__b1_1 = u_vd_1 - f_link3__b11_1
+    # 0-junction jd.J: flow balance
+    f_jd__b1_2 = u_vd_2 - f_link3__b11_2
+    _c117 = k_d*q_jd__C_0
+    # jd.C (C, integral): effort from displacement
+    e_jd__b2_0 = _c117
+    _c118 = k_d*q_jd__C_1
+    # jd.C (C, integral): effort from displacement
+    e_jd__b2_1 = _c118
+    _c119 = k_d*q_jd__C_2
+    # jd.C (C, integral): effort from displacement
+    e_jd__b2_2 = _c119
+    _c120 = f_jd__b1_0*r_d
+    # jd.R (R): effort = r f
+    e_jd__b3_0 = _c120
+    # 1-junction jd.rel: effort balance
+    e_jd__b1_0 = e_jd__b2_0 + e_jd__b3_0
+    _c121 = f_jd__b1_1*r_d
+    # jd.R (R): effort = r f
+    e_jd__b3_1 = _c121
+    # 1-junction jd.rel: effort balance
+    e_jd__b1_1 = e_jd__b2_1 + e_jd__b3_1
+    _c122 = f_jd__b1_2*r_d
+    # jd.R (R): effort = r f
+    e_jd__b3_2 = _c122
+    # 1-junction jd.rel: effort balance
+    e_jd__b1_2 = e_jd__b2_2 + e_jd__b3_2
+    _dx0 = _c0
+    _dx1 = _c0
+    _dx2 = _c0
+    _dx3 = _c4
+    _dx4 = _c8
+    _dx5 = _c9
+    _c123 = _c12*p_link1__Ir_1
+    _c124 = _c1*s_link1__R_2_0
+    _c125 = _c124*p_link1__Ir_2
+    _c126 = _c5*p_link1__Ir_0
+    _dx6 = _c123 + _c125 + 2*_c126
+    _c127 = _c13*p_link1__Ir_1
+    _c128 = _c3*p_link1__Ir_2
+    _c129 = _c128*s_link1__R_2_1
+    _c130 = _c6*p_link1__Ir_0
+    _dx7 = _c127 + _c129 + 2*_c130
+    _c131 = _c14*p_link1__Ir_1
+    _c132 = _c128*s_link1__R_2_2
+    _c133 = _c7*p_link1__Ir_0
+    _dx8 = _c131 + _c132 + 2*_c133
+    _dx9 = _c5*p_link1__Ir_1
+    _dx10 = _c6*p_link1__Ir_1
+    _dx11 = _c7*p_link1__Ir_1
+    _dx12 = _c5*p_link1__Ir_2
+    _dx13 = _c6*p_link1__Ir_2
+    _dx14 = _c7*p_link1__Ir_2
+    _dx15 = _c8
+    _dx16 = _c11
+    _dx17 = _c15
+    _dx18 = _c12*p_link1__Ir_0
+    _dx19 = _c13*p_link1__Ir_0
+    _dx20 = _c14*p_link1__Ir_0
+    _dx21 = _c125 + _c126 + 2*_c123
+    _dx22 = _c129 + _c130 + 2*_c127
+    _dx23 = _c132 + _c133 + 2*_c131
+    _dx24 = _c12*p_link1__Ir_2
+    _dx25 = _c13*p_link1__Ir_2
+    _dx26 = _c14*p_link1__Ir_2
+    _dx27 = _c9
+    _dx28 = _c15
+    _dx29 = _c16
+    _dx30 = _c124*p_link1__Ir_0
+    _c134 = _c3*p_link1__Ir_0
+    _dx31 = _c134*s_link1__R_2_1
+    _dx32 = _c134*s_link1__R_2_2
+    _dx33 = _c124*p_link1__Ir_1
+    _c135 = _c3*p_link1__Ir_1
+    _dx34 = _c135*s_link1__R_2_1
+    _dx35 = _c135*s_link1__R_2_2
+    _dx36 = _c123 + _c126 + 2*_c125
+    _dx37 = _c127 + _c130 + 2*_c129
+    _dx38 = _c131 + _c133 + 2*_c132
+    _c136 = (1/2)*l1
+    _c137 = _c136*s_link1__R_2_0
+    _c138 = _c137*_dx15 - 1/2*_dx27*l1*s_link1__R_1_0
+    _dx39 = -_c138
+    _c139 = _c137*_dx16 - 1/2*_dx28*l1*s_link1__R_1_0
+    _dx40 = -_c139
+    _c140 = _c137*_dx17 - 1/2*_dx29*l1*s_link1__R_1_0
+    _dx41 = -_c140
+    _c141 = _c137*_dx18 - 1/2*_dx30*l1*s_link1__R_1_0
+    _dx42 = -_c141
+    _c142 = _c137*_dx19 - 1/2*_dx31*l1*s_link1__R_1_0
+    _dx43 = -_c142
+    _c143 = _c137*_dx20 - 1/2*_dx32*l1*s_link1__R_1_0
+    _dx44 = -_c143
+    _c144 = _c136*s_link1__R_1_0
+    _c145 = _c23 + _c144*_dx33 - _c137*_dx21
+    _dx45 = _c145
+    _c146 = _c137*_dx22 - 1/2*_dx34*l1*s_link1__R_1_0
+    _dx46 = -_c146
+    _c147 = _c137*_dx23 - 1/2*_dx35*l1*s_link1__R_1_0
+    _dx47 = -_c147
+    _c148 = _c18 + _c137*_dx24 - 1/2*_dx36*l1*s_link1__R_1_0
+    _dx48 = -_c148
+    _c149 = _c137*_dx25 - 1/2*_dx37*l1*s_link1__R_1_0
+    _dx49 = -_c149
+    _c150 = _c137*_dx26 - 1/2*_dx38*l1*s_link1__R_1_0
+    _dx50 = -_c150
+    _c151 = _c136*s_link1__R_0_0
+    _c152 = _c151*_dx27 - 1/2*_dx3*l1*s_link1__R_2_0
+    _dx51 = -_c152
+    _c153 = _c151*_dx28 - 1/2*_dx4*l1*s_link1__R_2_0
+    _dx52 = -_c153
+    _c154 = _c151*_dx29 - 1/2*_dx5*l1*s_link1__R_2_0
+    _dx53 = -_c154
+    _c155 = _c23 + _c151*_dx30 - 1/2*_dx6*l1*s_link1__R_2_0
+    _dx54 = -_c155
+    _c156 = _c151*_dx31 - 1/2*_dx7*l1*s_link1__R_2_0
+    _dx55 = -_c156
+    _c157 = _c151*_dx32 - 1/2*_dx8*l1*s_link1__R_2_0
+    _dx56 = -_c157
+    _c158 = _c151*_dx33 - 1/2*_dx9*l1*s_link1__R_2_0
+    _dx57 = -_c158
+    _c159 = _c137*_dx10 - _c151*_dx34
+    _dx58 = _c159
+    _c160 = _c137*_dx11 - _c151*_dx35
+    _dx59 = _c160
+    _c161 = _c21 + _c137*_dx12 - _c151*_dx36
+    _dx60 = _c161
+    _c162 = _c137*_dx13 - _c151*_dx37
+    _dx61 = _c162
+    _c163 = _c137*_dx14 - _c151*_dx38
+    _dx62 = _c163
+    _c164 = _c151*_dx15 - _c144*_dx3
+    _dx63 = _c164
+    _c165 = _c151*_dx16 - _c144*_dx4
+    _dx64 = _c165
+    _c166 = _c151*_dx17 - _c144*_dx5
+    _dx65 = _c166
+    _c167 = _c18 + _c151*_dx18 - _c144*_dx6
+    _dx66 = _c167
+    _c168 = _c151*_dx19 - _c144*_dx7
+    _dx67 = _c168
+    _c169 = _c151*_dx20 - _c144*_dx8
+    _dx68 = _c169
+    _c170 = _c21 + _c144*_dx9 - 1/2*_dx21*l1*s_link1__R_0_0
+    _dx69 = -_c170
+    _c171 = _c144*_dx10 - 1/2*_dx22*l1*s_link1__R_0_0
+    _dx70 = -_c171
+    _c172 = _c144*_dx11 - 1/2*_dx23*l1*s_link1__R_0_0
+    _dx71 = -_c172
+    _c173 = _c144*_dx12 - 1/2*_dx24*l1*s_link1__R_0_0
+    _dx72 = -_c173
+    _c174 = _c144*_dx13 - 1/2*_dx25*l1*s_link1__R_0_0
+    _dx73 = -_c174
+    _c175 = _c144*_dx14 - 1/2*_dx26*l1*s_link1__R_0_0
+    _dx74 = -_c175
+    _dx75 = _c138
+    _dx76 = _c139
+    _dx77 = _c140
+    _dx78 = _c141
+    _dx79 = _c142
+    _dx80 = _c143
+    _dx81 = -_c145
+    _dx82 = _c146
+    _dx83 = _c147
+    _dx84 = _c148
+    _dx85 = _c149
+    _dx86 = _c150
+    _dx87 = _c152
+    _dx88 = _c153
+    _dx89 = _c154
+    _dx90 = _c155
+    _dx91 = _c156
+    _dx92 = _c157
+    _dx93 = _c158
+    _dx94 = -_c159
+    _dx95 = -_c160
+    _dx96 = -_c161
+    _dx97 = -_c162
+    _dx98 = -_c163
+    _dx99 = -_c164
+    _dx100 = -_c165
+    _dx101 = -_c166
+    _dx102 = -_c167
+    _dx103 = -_c168
+    _dx104 = -_c169
+    _dx105 = _c170
+    _dx106 = _c171
+    _dx107 = _c172
+    _dx108 = _c173
+    _dx109 = _c174
+    _dx110 = _c175
+    _dx111 = _c26
+    _dx112 = _c26
+    _dx113 = _c26
+    _dx114 = _c29
+    _dx115 = _c33
+    _dx116 = _c34
+    _c176 = _c36*p_link2__Ir_1
+    _c177 = _c27*s_link2__R_2_0
+    _c178 = _c177*p_link2__Ir_2
+    _c179 = _c30*p_link2__Ir_0
+    _dx117 = _c176 + _c178 + 2*_c179
+    _c180 = _c37*p_link2__Ir_1
+    _c181 = _c28*p_link2__Ir_2
+    _c182 = _c181*s_link2__R_2_1
+    _c183 = _c31*p_link2__Ir_0
+    _dx118 = _c180 + _c182 + 2*_c183
+    _c184 = _c38*p_link2__Ir_1
+    _c185 = _c181*s_link2__R_2_2
+    _c186 = _c32*p_link2__Ir_0
+    _dx119 = _c184 + _c185 + 2*_c186
+    _dx120 = _c30*p_link2__Ir_1
+    _dx121 = _c31*p_link2__Ir_1
+    _dx122 = _c32*p_link2__Ir_1
+    _dx123 = _c30*p_link2__Ir_2
+    _dx124 = _c31*p_link2__Ir_2
+    _dx125 = _c32*p_link2__Ir_2
+    _dx126 = _c33
+    _dx127 = _c35
+    _dx128 = _c39
+    _dx129 = _c36*p_link2__Ir_0
+    _dx130 = _c37*p_link2__Ir_0
+    _dx131 = _c38*p_link2__Ir_0
+    _dx132 = _c178 + _c179 + 2*_c176
+    _dx133 = _c182 + _c183 + 2*_c180
+    _dx134 = _c185 + _c186 + 2*_c184
+    _dx135 = _c36*p_link2__Ir_2
+    _dx136 = _c37*p_link2__Ir_2
+    _dx137 = _c38*p_link2__Ir_2
+    _dx138 = _c34
+    _dx139 = _c39
+    _dx140 = _c40
+    _dx141 = _c177*p_link2__Ir_0
+    _c187 = _c28*p_link2__Ir_0
+    _dx142 = _c187*s_link2__R_2_1
+    _dx143 = _c187*s_link2__R_2_2
+    _dx144 = _c177*p_link2__Ir_1
+    _c188 = _c28*p_link2__Ir_1
+    _dx145 = _c188*s_link2__R_2_1
+    _dx146 = _c188*s_link2__R_2_2
+    _dx147 = _c176 + _c179 + 2*_c178
+    _dx148 = _c180 + _c183 + 2*_c182
+    _dx149 = _c184 + _c186 + 2*_c185
+    _c189 = (1/2)*l2
+    _c190 = _c189*s_link2__R_2_0
+    _c191 = _c190*_dx126 - 1/2*_dx138*l2*s_link2__R_1_0
+    _dx150 = -_c191
+    _c192 = _c190*_dx127 - 1/2*_dx139*l2*s_link2__R_1_0
+    _dx151 = -_c192
+    _c193 = _c190*_dx128 - 1/2*_dx140*l2*s_link2__R_1_0
+    _dx152 = -_c193
+    _c194 = _c190*_dx129 - 1/2*_dx141*l2*s_link2__R_1_0
+    _dx153 = -_c194
+    _c195 = _c190*_dx130 - 1/2*_dx142*l2*s_link2__R_1_0
+    _dx154 = -_c195
+    _c196 = _c190*_dx131 - 1/2*_dx143*l2*s_link2__R_1_0
+    _dx155 = -_c196
+    _c197 = _c189*s_link2__R_1_0
+    _c198 = _c47 + _c197*_dx144 - _c190*_dx132
+    _dx156 = _c198
+    _c199 = _c190*_dx133 - 1/2*_dx145*l2*s_link2__R_1_0
+    _dx157 = -_c199
+    _c200 = _c190*_dx134 - 1/2*_dx146*l2*s_link2__R_1_0
+    _dx158 = -_c200
+    _c201 = _c42 + _c190*_dx135 - 1/2*_dx147*l2*s_link2__R_1_0
+    _dx159 = -_c201
+    _c202 = _c190*_dx136 - 1/2*_dx148*l2*s_link2__R_1_0
+    _dx160 = -_c202
+    _c203 = _c190*_dx137 - 1/2*_dx149*l2*s_link2__R_1_0
+    _dx161 = -_c203
+    _c204 = _c189*s_link2__R_0_0
+    _c205 = _c190*_dx114 - _c204*_dx138
+    _dx162 = _c205
+    _c206 = _c190*_dx115 - _c204*_dx139
+    _dx163 = _c206
+    _c207 = _c190*_dx116 - _c204*_dx140
+    _dx164 = _c207
+    _c208 = _c47 + _c204*_dx141 - 1/2*_dx117*l2*s_link2__R_2_0
+    _dx165 = -_c208
+    _c209 = _c190*_dx118 - _c204*_dx142
+    _dx166 = _c209
+    _c210 = _c190*_dx119 - _c204*_dx143
+    _dx167 = _c210
+    _c211 = _c190*_dx120 - _c204*_dx144
+    _dx168 = _c211
+    _c212 = _c190*_dx121 - _c204*_dx145
+    _dx169 = _c212
+    _c213 = _c190*_dx122 - _c204*_dx146
+    _dx170 = _c213
+    _c214 = _c45 + _c190*_dx123 - _c204*_dx147
+    _dx171 = _c214
+    _c215 = _c190*_dx124 - _c204*_dx148
+    _dx172 = _c215
+    _c216 = _c190*_dx125 - _c204*_dx149
+    _dx173 = _c216
+    _c217 = _c197*_dx114 - 1/2*_dx126*l2*s_link2__R_0_0
+    _dx174 = -_c217
+    _c218 = _c197*_dx115 - 1/2*_dx127*l2*s_link2__R_0_0
+    _dx175 = -_c218
+    _c219 = _c197*_dx116 - 1/2*_dx128*l2*s_link2__R_0_0
+    _dx176 = -_c219
+    _c220 = _c42 + _c204*_dx129 - _c197*_dx117
+    _dx177 = _c220
+    _c221 = _c197*_dx118 - 1/2*_dx130*l2*s_link2__R_0_0
+    _dx178 = -_c221
+    _c222 = _c197*_dx119 - 1/2*_dx131*l2*s_link2__R_0_0
+    _dx179 = -_c222
+    _c223 = _c45 + _c197*_dx120 - 1/2*_dx132*l2*s_link2__R_0_0
+    _dx180 = -_c223
+    _c224 = _c197*_dx121 - 1/2*_dx133*l2*s_link2__R_0_0
+    _dx181 = -_c224
+    _c225 = _c197*_dx122 - 1/2*_dx134*l2*s_link2__R_0_0
+    _dx182 = -_c225
+    _c226 = _c197*_dx123 - 1/2*_dx135*l2*s_link2__R_0_0
+    _dx183 = -_c226
+    _c227 = _c197*_dx124 - 1/2*_dx136*l2*s_link2__R_0_0
+    _dx184 = -_c227
+    _c228 = _c197*_dx125 - 1/2*_dx137*l2*s_link2__R_0_0
+    _dx185 = -_c228
+    _dx186 = _c191
+    _dx187 = _c192
+    _dx188 = _c193
+    _dx189 = _c194
+    _dx190 = _c195
+    _dx191 = _c196
+    _dx192 = -_c198
+    _dx193 = _c199
+    _dx194 = _c200
+    _dx195 = _c201
+    _dx196 = _c202
+    _dx197 = _c203
+    _dx198 = -_c205
+    _dx199 = -_c206
+    _dx200 = -_c207
+    _dx201 = _c208
+    _dx202 = -_c209
+    _dx203 = -_c210
+    _dx204 = -_c211
+    _dx205 = -_c212
+    _dx206 = -_c213
+    _dx207 = -_c214
+    _dx208 = -_c215
+    _dx209 = -_c216
+    _dx210 = _c217
+    _dx211 = _c218
+    _dx212 = _c219
+    _dx213 = -_c220
+    _dx214 = _c221
+    _dx215 = _c222
+    _dx216 = _c223
+    _dx217 = _c224
+    _dx218 = _c225
+    _dx219 = _c226
+    _dx220 = _c227
+    _dx221 = _c228
+    _dx222 = _c50
+    _dx223 = _c50
+    _dx224 = _c50
+    _dx225 = _c53
+    _dx226 = _c57
+    _dx227 = _c58
+    _c229 = _c60*p_link3__Ir_1
+    _c230 = _c51*s_link3__R_2_0
+    _c231 = _c230*p_link3__Ir_2
+    _c232 = _c54*p_link3__Ir_0
+    _dx228 = _c229 + _c231 + 2*_c232
+    _c233 = _c61*p_link3__Ir_1
+    _c234 = _c52*p_link3__Ir_2
+    _c235 = _c234*s_link3__R_2_1
+    _c236 = _c55*p_link3__Ir_0
+    _dx229 = _c233 + _c235 + 2*_c236
+    _c237 = _c62*p_link3__Ir_1
+    _c238 = _c234*s_link3__R_2_2
+    _c239 = _c56*p_link3__Ir_0
+    _dx230 = _c237 + _c238 + 2*_c239
+    _dx231 = _c54*p_link3__Ir_1
+    _dx232 = _c55*p_link3__Ir_1
+    _dx233 = _c56*p_link3__Ir_1
+    _dx234 = _c54*p_link3__Ir_2
+    _dx235 = _c55*p_link3__Ir_2
+    _dx236 = _c56*p_link3__Ir_2
+    _dx237 = _c57
+    _dx238 = _c59
+    _dx239 = _c63
+    _dx240 = _c60*p_link3__Ir_0
+    _dx241 = _c61*p_link3__Ir_0
+    _dx242 = _c62*p_link3__Ir_0
+    _dx243 = _c231 + _c232 + 2*_c229
+    _dx244 = _c235 + _c236 + 2*_c233
+    _dx245 = _c238 + _c239 + 2*_c237
+    _dx246 = _c60*p_link3__Ir_2
+    _dx247 = _c61*p_link3__Ir_2
+    _dx248 = _c62*p_link3__Ir_2
+    _dx249 = _c58
+    _dx250 = _c63
+    _dx251 = _c64
+    _dx252 = _c230*p_link3__Ir_0
+    _c240 = _c52*p_link3__Ir_0
+    _dx253 = _c240*s_link3__R_2_1
+    _dx254 = _c240*s_link3__R_2_2
+    _dx255 = _c230*p_link3__Ir_1
+    _c241 = _c52*p_link3__Ir_1
+    _dx256 = _c241*s_link3__R_2_1
+    _dx257 = _c241*s_link3__R_2_2
+    _dx258 = _c229 + _c232 + 2*_c231
+    _dx259 = _c233 + _c236 + 2*_c235
+    _dx260 = _c237 + _c239 + 2*_c238
+    _c242 = _c65*s_link3__R_2_0
+    _c243 = _c242*_dx237 - 1/2*_dx249*l3*s_link3__R_1_0
+    _dx261 = -_c243
+    _c244 = _c242*_dx238 - 1/2*_dx250*l3*s_link3__R_1_0
+    _dx262 = -_c244
+    _c245 = _c242*_dx239 - 1/2*_dx251*l3*s_link3__R_1_0
+    _dx263 = -_c245
+    _c246 = _c242*_dx240 - 1/2*_dx252*l3*s_link3__R_1_0
+    _dx264 = -_c246
+    _c247 = _c242*_dx241 - 1/2*_dx253*l3*s_link3__R_1_0
+    _dx265 = -_c247
+    _c248 = _c242*_dx242 - 1/2*_dx254*l3*s_link3__R_1_0
+    _dx266 = -_c248
+    _c249 = _c65*s_link3__R_1_0
+    _c250 = _c69 + _c249*_dx255 - _c242*_dx243
+    _dx267 = _c250
+    _c251 = _c242*_dx244 - 1/2*_dx256*l3*s_link3__R_1_0
+    _dx268 = -_c251
+    _c252 = _c242*_dx245 - 1/2*_dx257*l3*s_link3__R_1_0
+    _dx269 = -_c252
+    _c253 = _c66 + _c242*_dx246 - 1/2*_dx258*l3*s_link3__R_1_0
+    _dx270 = -_c253
+    _c254 = _c242*_dx247 - 1/2*_dx259*l3*s_link3__R_1_0
+    _dx271 = -_c254
+    _c255 = _c242*_dx248 - 1/2*_dx260*l3*s_link3__R_1_0
+    _dx272 = -_c255
+    _c256 = _c65*s_link3__R_0_0
+    _c257 = _c242*_dx225 - _c256*_dx249
+    _dx273 = _c257
+    _c258 = _c242*_dx226 - _c256*_dx250
+    _dx274 = _c258
+    _c259 = _c242*_dx227 - _c256*_dx251
+    _dx275 = _c259
+    _c260 = _c69 + _c256*_dx252 - 1/2*_dx228*l3*s_link3__R_2_0
+    _dx276 = -_c260
+    _c261 = _c242*_dx229 - _c256*_dx253
+    _dx277 = _c261
+    _c262 = _c242*_dx230 - _c256*_dx254
+    _dx278 = _c262
+    _c263 = _c242*_dx231 - _c256*_dx255
+    _dx279 = _c263
+    _c264 = _c242*_dx232 - _c256*_dx256
+    _dx280 = _c264
+    _c265 = _c242*_dx233 - _c256*_dx257
+    _dx281 = _c265
+    _c266 = _c68 + _c242*_dx234 - _c256*_dx258
+    _dx282 = _c266
+    _c267 = _c242*_dx235 - _c256*_dx259
+    _dx283 = _c267
+    _c268 = _c242*_dx236 - _c256*_dx260
+    _dx284 = _c268
+    _c269 = _c249*_dx225 - 1/2*_dx237*l3*s_link3__R_0_0
+    _dx285 = -_c269
+    _c270 = _c249*_dx226 - 1/2*_dx238*l3*s_link3__R_0_0
+    _dx286 = -_c270
+    _c271 = _c249*_dx227 - 1/2*_dx239*l3*s_link3__R_0_0
+    _dx287 = -_c271
+    _c272 = _c66 + _c256*_dx240 - _c249*_dx228
+    _dx288 = _c272
+    _c273 = _c249*_dx229 - 1/2*_dx241*l3*s_link3__R_0_0
+    _dx289 = -_c273
+    _c274 = _c249*_dx230 - 1/2*_dx242*l3*s_link3__R_0_0
+    _dx290 = -_c274
+    _c275 = _c68 + _c249*_dx231 - 1/2*_dx243*l3*s_link3__R_0_0
+    _dx291 = -_c275
+    _c276 = _c249*_dx232 - 1/2*_dx244*l3*s_link3__R_0_0
+    _dx292 = -_c276
+    _c277 = _c249*_dx233 - 1/2*_dx245*l3*s_link3__R_0_0
+    _dx293 = -_c277
+    _c278 = _c249*_dx234 - 1/2*_dx246*l3*s_link3__R_0_0
+    _dx294 = -_c278
+    _c279 = _c249*_dx235 - 1/2*_dx247*l3*s_link3__R_0_0
+    _dx295 = -_c279
+    _c280 = _c249*_dx236 - 1/2*_dx248*l3*s_link3__R_0_0
+    _dx296 = -_c280
+    _dx297 = _c243
+    _dx298 = _c244
+    _dx299 = _c245
+    _dx300 = _c246
+    _dx301 = _c247
+    _dx302 = _c248
+    _dx303 = -_c250
+    _dx304 = _c251
+    _dx305 = _c252
+    _dx306 = _c253
+    _dx307 = _c254
+    _dx308 = _c255
+    _dx309 = -_c257
+    _dx310 = -_c258
+    _dx311 = -_c259
+    _dx312 = _c260
+    _dx313 = -_c261
+    _dx314 = -_c262
+    _dx315 = -_c263
+    _dx316 = -_c264
+    _dx317 = -_c265
+    _dx318 = -_c266
+    _dx319 = -_c267
+    _dx320 = -_c268
+    _dx321 = _c269
+    _dx322 = _c270
+    _dx323 = _c271
+    _dx324 = -_c272
+    _dx325 = _c273
+    _dx326 = _c274
+    _dx327 = _c275
+    _dx328 = _c276
+    _dx329 = _c277
+    _dx330 = _c278
+    _dx331 = _c279
+    _dx332 = _c280
+    _dx333 = _c72
+    _dx334 = _c72
+    _dx335 = _c72
+    _dx336 = _c75
+    _dx337 = _c79
+    _dx338 = _c80
+    _c281 = _c82*p_link4__Ir_1
+    _c282 = _c73*s_link4__R_2_0
+    _c283 = _c282*p_link4__Ir_2
+    _c284 = _c76*p_link4__Ir_0
+    _dx339 = _c281 + _c283 + 2*_c284
+    _c285 = _c83*p_link4__Ir_1
+    _c286 = _c74*p_link4__Ir_2
+    _c287 = _c286*s_link4__R_2_1
+    _c288 = _c77*p_link4__Ir_0
+    _dx340 = _c285 + _c287 + 2*_c288
+    _c289 = _c84*p_link4__Ir_1
+    _c290 = _c286*s_link4__R_2_2
+    _c291 = _c78*p_link4__Ir_0
+    _dx341 = _c289 + _c290 + 2*_c291
+    _dx342 = _c76*p_link4__Ir_1
+    _dx343 = _c77*p_link4__Ir_1
+    _dx344 = _c78*p_link4__Ir_1
+    _dx345 = _c76*p_link4__Ir_2
+    _dx346 = _c77*p_link4__Ir_2
+    _dx347 = _c78*p_link4__Ir_2
+    _dx348 = _c79
+    _dx349 = _c81
+    _dx350 = _c85
+    _dx351 = _c82*p_link4__Ir_0
+    _dx352 = _c83*p_link4__Ir_0
+    _dx353 = _c84*p_link4__Ir_0
+    _dx354 = _c283 + _c284 + 2*_c281
+    _dx355 = _c287 + _c288 + 2*_c285
+    _dx356 = _c290 + _c291 + 2*_c289
+    _dx357 = _c82*p_link4__Ir_2
+    _dx358 = _c83*p_link4__Ir_2
+    _dx359 = _c84*p_link4__Ir_2
+    _dx360 = _c80
+    _dx361 = _c85
+    _dx362 = _c86
+    _dx363 = _c282*p_link4__Ir_0
+    _c292 = _c74*p_link4__Ir_0
+    _dx364 = _c292*s_link4__R_2_1
+    _dx365 = _c292*s_link4__R_2_2
+    _dx366 = _c282*p_link4__Ir_1
+    _c293 = _c74*p_link4__Ir_1
+    _dx367 = _c293*s_link4__R_2_1
+    _dx368 = _c293*s_link4__R_2_2
+    _dx369 = _c281 + _c284 + 2*_c283
+    _dx370 = _c285 + _c288 + 2*_c287
+    _dx371 = _c289 + _c291 + 2*_c290
+    _c294 = (1/2)*l4
+    _c295 = _c294*s_link4__R_2_0
+    _c296 = _c295*_dx348 - 1/2*_dx360*l4*s_link4__R_1_0
+    _dx372 = -_c296
+    _c297 = _c295*_dx349 - 1/2*_dx361*l4*s_link4__R_1_0
+    _dx373 = -_c297
+    _c298 = _c295*_dx350 - 1/2*_dx362*l4*s_link4__R_1_0
+    _dx374 = -_c298
+    _c299 = _c295*_dx351 - 1/2*_dx363*l4*s_link4__R_1_0
+    _dx375 = -_c299
+    _c300 = _c295*_dx352 - 1/2*_dx364*l4*s_link4__R_1_0
+    _dx376 = -_c300
+    _c301 = _c295*_dx353 - 1/2*_dx365*l4*s_link4__R_1_0
+    _dx377 = -_c301
+    _c302 = _c294*s_link4__R_1_0
+    _c303 = _c93 + _c302*_dx366 - _c295*_dx354
+    _dx378 = _c303
+    _c304 = _c295*_dx355 - 1/2*_dx367*l4*s_link4__R_1_0
+    _dx379 = -_c304
+    _c305 = _c295*_dx356 - 1/2*_dx368*l4*s_link4__R_1_0
+    _dx380 = -_c305
+    _c306 = _c88 + _c295*_dx357 - 1/2*_dx369*l4*s_link4__R_1_0
+    _dx381 = -_c306
+    _c307 = _c295*_dx358 - 1/2*_dx370*l4*s_link4__R_1_0
+    _dx382 = -_c307
+    _c308 = _c295*_dx359 - 1/2*_dx371*l4*s_link4__R_1_0
+    _dx383 = -_c308
+    _c309 = _c294*s_link4__R_0_0
+    _c310 = _c295*_dx336 - _c309*_dx360
+    _dx384 = _c310
+    _c311 = _c295*_dx337 - _c309*_dx361
+    _dx385 = _c311
+    _c312 = _c295*_dx338 - _c309*_dx362
+    _dx386 = _c312
+    _c313 = _c93 + _c309*_dx363 - 1/2*_dx339*l4*s_link4__R_2_0
+    _dx387 = -_c313
+    _c314 = _c295*_dx340 - _c309*_dx364
+    _dx388 = _c314
+    _c315 = _c295*_dx341 - _c309*_dx365
+    _dx389 = _c315
+    _c316 = _c295*_dx342 - _c309*_dx366
+    _dx390 = _c316
+    _c317 = _c295*_dx343 - _c309*_dx367
+    _dx391 = _c317
+    _c318 = _c295*_dx344 - _c309*_dx368
+    _dx392 = _c318
+    _c319 = _c91 + _c295*_dx345 - _c309*_dx369
+    _dx393 = _c319
+    _c320 = _c295*_dx346 - _c309*_dx370
+    _dx394 = _c320
+    _c321 = _c295*_dx347 - _c309*_dx371
+    _dx395 = _c321
+    _c322 = _c302*_dx336 - 1/2*_dx348*l4*s_link4__R_0_0
+    _dx396 = -_c322
+    _c323 = _c302*_dx337 - 1/2*_dx349*l4*s_link4__R_0_0
+    _dx397 = -_c323
+    _c324 = _c302*_dx338 - 1/2*_dx350*l4*s_link4__R_0_0
+    _dx398 = -_c324
+    _c325 = _c88 + _c309*_dx351 - _c302*_dx339
+    _dx399 = _c325
+    _c326 = _c302*_dx340 - 1/2*_dx352*l4*s_link4__R_0_0
+    _dx400 = -_c326
+    _c327 = _c302*_dx341 - 1/2*_dx353*l4*s_link4__R_0_0
+    _dx401 = -_c327
+    _c328 = _c91 + _c302*_dx342 - 1/2*_dx354*l4*s_link4__R_0_0
+    _dx402 = -_c328
+    _c329 = _c302*_dx343 - 1/2*_dx355*l4*s_link4__R_0_0
+    _dx403 = -_c329
+    _c330 = _c302*_dx344 - 1/2*_dx356*l4*s_link4__R_0_0
+    _dx404 = -_c330
+    _c331 = _c302*_dx345 - 1/2*_dx357*l4*s_link4__R_0_0
+    _dx405 = -_c331
+    _c332 = _c302*_dx346 - 1/2*_dx358*l4*s_link4__R_0_0
+    _dx406 = -_c332
+    _c333 = _c302*_dx347 - 1/2*_dx359*l4*s_link4__R_0_0
+    _dx407 = -_c333
+    _dx408 = _c296
+    _dx409 = _c297
+    _dx410 = _c298
+    _dx411 = _c299
+    _dx412 = _c300
+    _dx413 = _c301
+    _dx414 = -_c303
+    _dx415 = _c304
+    _dx416 = _c305
+    _dx417 = _c306
+    _dx418 = _c307
+    _dx419 = _c308
+    _dx420 = -_c310
+    _dx421 = -_c311
+    _dx422 = -_c312
+    _dx423 = _c313
+    _dx424 = -_c314
+    _dx425 = -_c315
+    _dx426 = -_c316
+    _dx427 = -_c317
+    _dx428 = -_c318
+    _dx429 = -_c319
+    _dx430 = -_c320
+    _dx431 = -_c321
+    _dx432 = _c322
+    _dx433 = _c323
+    _dx434 = _c324
+    _dx435 = -_c325
+    _dx436 = _c326
+    _dx437 = _c327
+    _dx438 = _c328
+    _dx439 = _c329
+    _dx440 = _c330
+    _dx441 = _c331
+    _dx442 = _c332
+    _dx443 = _c333
+    _c334 = _dx0*r_t
+    _dx444 = -_c334
+    _dx445 = -_dx39*r_t
+    _dx446 = -_dx40*r_t
+    _dx447 = -_dx41*r_t
+    _dx448 = -_dx42*r_t
+    _dx449 = -_dx43*r_t
+    _dx450 = -_dx44*r_t
+    _dx451 = -_dx45*r_t
+    _dx452 = -_dx46*r_t
+    _dx453 = -_dx47*r_t
+    _dx454 = -_dx48*r_t
+    _dx455 = -_dx49*r_t
+    _dx456 = -_dx50*r_t
+    _c335 = _dx1*r_t
+    _dx457 = -_c335
+    _dx458 = -_dx51*r_t
+    _dx459 = -_dx52*r_t
+    _dx460 = -_dx53*r_t
+    _dx461 = -_dx54*r_t
+    _dx462 = -_dx55*r_t
+    _dx463 = -_dx56*r_t
+    _dx464 = -_dx57*r_t
+    _dx465 = -_dx58*r_t
+    _dx466 = -_dx59*r_t
+    _dx467 = -_dx60*r_t
+    _dx468 = -_dx61*r_t
+    _dx469 = -_dx62*r_t
+    _c336 = _dx2*r_t
+    _dx470 = -_c336
+    _dx471 = -_dx63*r_t
+    _dx472 = -_dx64*r_t
+    _dx473 = -_dx65*r_t
+    _dx474 = -_dx66*r_t
+    _dx475 = -_dx67*r_t
+    _dx476 = -_dx68*r_t
+    _dx477 = -_dx69*r_t
+    _dx478 = -_dx70*r_t
+    _dx479 = -_dx71*r_t
+    _dx480 = -_dx72*r_t
+    _dx481 = -_dx73*r_t
+    _dx482 = -_dx74*r_t
+    _dx483 = _c334
+    _dx484 = _dx75*r_t
+    _dx485 = _dx76*r_t
+    _dx486 = _dx77*r_t
+    _c337 = _dx111*r_t
+    _dx487 = -_c337
+    _dx488 = -_dx150*r_t
+    _dx489 = -_dx151*r_t
+    _dx490 = -_dx152*r_t
+    _dx491 = _dx78*r_t
+    _dx492 = _dx79*r_t
+    _dx493 = _dx80*r_t
+    _dx494 = _dx81*r_t
+    _dx495 = _dx82*r_t
+    _dx496 = _dx83*r_t
+    _dx497 = _dx84*r_t
+    _dx498 = _dx85*r_t
+    _dx499 = _dx86*r_t
+    _dx500 = -_dx153*r_t
+    _dx501 = -_dx154*r_t
+    _dx502 = -_dx155*r_t
+    _dx503 = -_dx156*r_t
+    _dx504 = -_dx157*r_t
+    _dx505 = -_dx158*r_t
+    _dx506 = -_dx159*r_t
+    _dx507 = -_dx160*r_t
+    _dx508 = -_dx161*r_t
+    _dx509 = _c335
+    _dx510 = _dx87*r_t
+    _dx511 = _dx88*r_t
+    _dx512 = _dx89*r_t
+    _c338 = _dx112*r_t
+    _dx513 = -_c338
+    _dx514 = -_dx162*r_t
+    _dx515 = -_dx163*r_t
+    _dx516 = -_dx164*r_t
+    _dx517 = _dx90*r_t
+    _dx518 = _dx91*r_t
+    _dx519 = _dx92*r_t
+    _dx520 = _dx93*r_t
+    _dx521 = _dx94*r_t
+    _dx522 = _dx95*r_t
+    _dx523 = _dx96*r_t
+    _dx524 = _dx97*r_t
+    _dx525 = _dx98*r_t
+    _dx526 = -_dx165*r_t
+    _dx527 = -_dx166*r_t
+    _dx528 = -_dx167*r_t
+    _dx529 = -_dx168*r_t
+    _dx530 = -_dx169*r_t
+    _dx531 = -_dx170*r_t
+    _dx532 = -_dx171*r_t
+    _dx533 = -_dx172*r_t
+    _dx534 = -_dx173*r_t
+    _dx535 = _c336
+    _dx536 = _dx99*r_t
+    _dx537 = _dx100*r_t
+    _dx538 = _dx101*r_t
+    _c339 = _dx113*r_t
+    _dx539 = -_c339
+    _dx540 = -_dx174*r_t
+    _dx541 = -_dx175*r_t
+    _dx542 = -_dx176*r_t
+    _dx543 = _dx102*r_t
+    _dx544 = _dx103*r_t
+    _dx545 = _dx104*r_t
+    _dx546 = _dx105*r_t
+    _dx547 = _dx106*r_t
+    _dx548 = _dx107*r_t
+    _dx549 = _dx108*r_t
+    _dx550 = _dx109*r_t
+    _dx551 = _dx110*r_t
+    _dx552 = -_dx177*r_t
+    _dx553 = -_dx178*r_t
+    _dx554 = -_dx179*r_t
+    _dx555 = -_dx180*r_t
+    _dx556 = -_dx181*r_t
+    _dx557 = -_dx182*r_t
+    _dx558 = -_dx183*r_t
+    _dx559 = -_dx184*r_t
+    _dx560 = -_dx185*r_t
+    _dx561 = _c337
+    _dx562 = _dx186*r_t
+    _dx563 = _dx187*r_t
+    _dx564 = _dx188*r_t
+    _c340 = _dx222*r_t
+    _dx565 = -_c340
+    _dx566 = -_dx261*r_t
+    _dx567 = -_dx262*r_t
+    _dx568 = -_dx263*r_t
+    _dx569 = _dx189*r_t
+    _dx570 = _dx190*r_t
+    _dx571 = _dx191*r_t
+    _dx572 = _dx192*r_t
+    _dx573 = _dx193*r_t
+    _dx574 = _dx194*r_t
+    _dx575 = _dx195*r_t
+    _dx576 = _dx196*r_t
+    _dx577 = _dx197*r_t
+    _dx578 = -_dx264*r_t
+    _dx579 = -_dx265*r_t
+    _dx580 = -_dx266*r_t
+    _dx581 = -_dx267*r_t
+    _dx582 = -_dx268*r_t
+    _dx583 = -_dx269*r_t
+    _dx584 = -_dx270*r_t
+    _dx585 = -_dx271*r_t
+    _dx586 = -_dx272*r_t
+    _dx587 = _c338
+    _dx588 = _dx198*r_t
+    _dx589 = _dx199*r_t
+    _dx590 = _dx200*r_t
+    _c341 = _dx223*r_t
+    _dx591 = -_c341
+    _dx592 = -_dx273*r_t
+    _dx593 = -_dx274*r_t
+    _dx594 = -_dx275*r_t
+    _dx595 = _dx201*r_t
+    _dx596 = _dx202*r_t
+    _dx597 = _dx203*r_t
+    _dx598 = _dx204*r_t
+    _dx599 = _dx205*r_t
+    _dx600 = _dx206*r_t
+    _dx601 = _dx207*r_t
+    _dx602 = _dx208*r_t
+    _dx603 = _dx209*r_t
+    _dx604 = -_dx276*r_t
+    _dx605 = -_dx277*r_t
+    _dx606 = -_dx278*r_t
+    _dx607 = -_dx279*r_t
+    _dx608 = -_dx280*r_t
+    _dx609 = -_dx281*r_t
+    _dx610 = -_dx282*r_t
+    _dx611 = -_dx283*r_t
+    _dx612 = -_dx284*r_t
+    _dx613 = _c339
+    _dx614 = _dx210*r_t
+    _dx615 = _dx211*r_t
+    _dx616 = _dx212*r_t
+    _c342 = _dx224*r_t
+    _dx617 = -_c342
+    _dx618 = -_dx285*r_t
+    _dx619 = -_dx286*r_t
+    _dx620 = -_dx287*r_t
+    _dx621 = _dx213*r_t
+    _dx622 = _dx214*r_t
+    _dx623 = _dx215*r_t
+    _dx624 = _dx216*r_t
+    _dx625 = _dx217*r_t
+    _dx626 = _dx218*r_t
+    _dx627 = _dx219*r_t
+    _dx628 = _dx220*r_t
+    _dx629 = _dx221*r_t
+    _dx630 = -_dx288*r_t
+    _dx631 = -_dx289*r_t
+    _dx632 = -_dx290*r_t
+    _dx633 = -_dx291*r_t
+    _dx634 = -_dx292*r_t
+    _dx635 = -_dx293*r_t
+    _dx636 = -_dx294*r_t
+    _dx637 = -_dx295*r_t
+    _dx638 = -_dx296*r_t
+    _dx639 = _c340
+    _dx640 = _dx297*r_t
+    _dx641 = _dx298*r_t
+    _dx642 = _dx299*r_t
+    _dx643 = -_dx333*r_t
+    _dx644 = -_dx372*r_t
+    _dx645 = -_dx373*r_t
+    _dx646 = -_dx374*r_t
+    _dx647 = _dx300*r_t
+    _dx648 = _dx301*r_t
+    _dx649 = _dx302*r_t
+    _dx650 = _dx303*r_t
+    _dx651 = _dx304*r_t
+    _dx652 = _dx305*r_t
+    _dx653 = _dx306*r_t
+    _dx654 = _dx307*r_t
+    _dx655 = _dx308*r_t
+    _dx656 = -_dx375*r_t
+    _dx657 = -_dx376*r_t
+    _dx658 = -_dx377*r_t
+    _dx659 = -_dx378*r_t
+    _dx660 = -_dx379*r_t
+    _dx661 = -_dx380*r_t
+    _dx662 = -_dx381*r_t
+    _dx663 = -_dx382*r_t
+    _dx664 = -_dx383*r_t
+    _dx665 = _c341
+    _dx666 = _dx309*r_t
+    _dx667 = _dx310*r_t
+    _dx668 = _dx311*r_t
+    _dx669 = -_dx334*r_t
+    _dx670 = -_dx384*r_t
+    _dx671 = -_dx385*r_t
+    _dx672 = -_dx386*r_t
+    _dx673 = _dx312*r_t
+    _dx674 = _dx313*r_t
+    _dx675 = _dx314*r_t
+    _dx676 = _dx315*r_t
+    _dx677 = _dx316*r_t
+    _dx678 = _dx317*r_t
+    _dx679 = _dx318*r_t
+    _dx680 = _dx319*r_t
+    _dx681 = _dx320*r_t
+    _dx682 = -_dx387*r_t
+    _dx683 = -_dx388*r_t
+    _dx684 = -_dx389*r_t
+    _dx685 = -_dx390*r_t
+    _dx686 = -_dx391*r_t
+    _dx687 = -_dx392*r_t
+    _dx688 = -_dx393*r_t
+    _dx689 = -_dx394*r_t
+    _dx690 = -_dx395*r_t
+    _dx691 = _c342
+    _dx692 = _dx321*r_t
+    _dx693 = _dx322*r_t
+    _dx694 = _dx323*r_t
+    _dx695 = -_dx335*r_t
+    _dx696 = -_dx396*r_t
+    _dx697 = -_dx397*r_t
+    _dx698 = -_dx398*r_t
+    _dx699 = _dx324*r_t
+    _dx700 = _dx325*r_t
+    _dx701 = _dx326*r_t
+    _dx702 = _dx327*r_t
+    _dx703 = _dx328*r_t
+    _dx704 = _dx329*r_t
+    _dx705 = _dx330*r_t
+    _dx706 = _dx331*r_t
+    _dx707 = _dx332*r_t
+    _dx708 = -_dx399*r_t
+    _dx709 = -_dx400*r_t
+    _dx710 = -_dx401*r_t
+    _dx711 = -_dx402*r_t
+    _dx712 = -_dx403*r_t
+    _dx713 = -_dx404*r_t
+    _dx714 = -_dx405*r_t
+    _dx715 = -_dx406*r_t
+    _dx716 = -_dx407*r_t
+    _dx717 = _dx333*r_t5
+    _dx718 = _dx408*r_t5
+    _dx719 = _dx409*r_t5
+    _dx720 = _dx410*r_t5
+    _dx721 = _dx411*r_t5
+    _dx722 = _dx412*r_t5
+    _dx723 = _dx413*r_t5
+    _dx724 = _dx414*r_t5
+    _dx725 = _dx415*r_t5
+    _dx726 = _dx416*r_t5
+    _dx727 = _dx417*r_t5
+    _dx728 = _dx418*r_t5
+    _dx729 = _dx419*r_t5
+    _dx730 = _dx334*r_t5
+    _dx731 = _dx420*r_t5
+    _dx732 = _dx421*r_t5
+    _dx733 = _dx422*r_t5
+    _dx734 = _dx423*r_t5
+    _dx735 = _dx424*r_t5
+    _dx736 = _dx425*r_t5
+    _dx737 = _dx426*r_t5
+    _dx738 = _dx427*r_t5
+    _dx739 = _dx428*r_t5
+    _dx740 = _dx429*r_t5
+    _dx741 = _dx430*r_t5
+    _dx742 = _dx431*r_t5
+    _dx743 = _dx335*r_t5
+    _dx744 = _dx432*r_t5
+    _dx745 = _dx433*r_t5
+    _dx746 = _dx434*r_t5
+    _dx747 = _dx435*r_t5
+    _dx748 = _dx436*r_t5
+    _dx749 = _dx437*r_t5
+    _dx750 = _dx438*r_t5
+    _dx751 = _dx439*r_t5
+    _dx752 = _dx440*r_t5
+    _dx753 = _dx441*r_t5
+    _dx754 = _dx442*r_t5
+    _dx755 = _dx443*r_t5
+    _dx756 = _dx15*s_link1__R_1_0 + _dx27*s_link1__R_2_0 + _dx3*s_link1__R_0_0
+    _dx757 = _dx16*s_link1__R_1_0 + _dx28*s_link1__R_2_0 + _dx4*s_link1__R_0_0
+    _dx758 = _dx17*s_link1__R_1_0 + _dx29*s_link1__R_2_0 + _dx5*s_link1__R_0_0
+    _dx759 = f_link1__b3_0 + _dx18*s_link1__R_1_0 + _dx30*s_link1__R_2_0 + _dx6*s_link1__R_0_0
+    _dx760 = _dx19*s_link1__R_1_0 + _dx31*s_link1__R_2_0 + _dx7*s_link1__R_0_0
+    _dx761 = _dx20*s_link1__R_1_0 + _dx32*s_link1__R_2_0 + _dx8*s_link1__R_0_0
+    _dx762 = f_link1__b3_1 + _dx21*s_link1__R_1_0 + _dx33*s_link1__R_2_0 + _dx9*s_link1__R_0_0
+    _dx763 = _dx10*s_link1__R_0_0 + _dx22*s_link1__R_1_0 + _dx34*s_link1__R_2_0
+    _dx764 = _dx11*s_link1__R_0_0 + _dx23*s_link1__R_1_0 + _dx35*s_link1__R_2_0
+    _dx765 = f_link1__b3_2 + _dx12*s_link1__R_0_0 + _dx24*s_link1__R_1_0 + _dx36*s_link1__R_2_0
+    _dx766 = _dx13*s_link1__R_0_0 + _dx25*s_link1__R_1_0 + _dx37*s_link1__R_2_0
+    _dx767 = _dx14*s_link1__R_0_0 + _dx26*s_link1__R_1_0 + _dx38*s_link1__R_2_0
+    _dx768 = _dx15*s_link1__R_1_1 + _dx27*s_link1__R_2_1 + _dx3*s_link1__R_0_1
+    _dx769 = _dx16*s_link1__R_1_1 + _dx28*s_link1__R_2_1 + _dx4*s_link1__R_0_1
+    _dx770 = _dx17*s_link1__R_1_1 + _dx29*s_link1__R_2_1 + _dx5*s_link1__R_0_1
+    _dx771 = _dx18*s_link1__R_1_1 + _dx30*s_link1__R_2_1 + _dx6*s_link1__R_0_1
+    _dx772 = f_link1__b3_0 + _dx19*s_link1__R_1_1 + _dx31*s_link1__R_2_1 + _dx7*s_link1__R_0_1
+    _dx773 = _dx20*s_link1__R_1_1 + _dx32*s_link1__R_2_1 + _dx8*s_link1__R_0_1
+    _dx774 = _dx21*s_link1__R_1_1 + _dx33*s_link1__R_2_1 + _dx9*s_link1__R_0_1
+    _dx775 = f_link1__b3_1 + _dx10*s_link1__R_0_1 + _dx22*s_link1__R_1_1 + _dx34*s_link1__R_2_1
+    _dx776 = _dx11*s_link1__R_0_1 + _dx23*s_link1__R_1_1 + _dx35*s_link1__R_2_1
+    _dx777 = _dx12*s_link1__R_0_1 + _dx24*s_link1__R_1_1 + _dx36*s_link1__R_2_1
+    _dx778 = f_link1__b3_2 + _dx13*s_link1__R_0_1 + _dx25*s_link1__R_1_1 + _dx37*s_link1__R_2_1
+    _dx779 = _dx14*s_link1__R_0_1 + _dx26*s_link1__R_1_1 + _dx38*s_link1__R_2_1
+    _dx780 = _dx756*r_r
+    _dx781 = _dx757*r_r
+    _dx782 = _dx758*r_r
+    _dx783 = _dx759*r_r
+    _dx784 = _dx760*r_r
+    _dx785 = _dx761*r_r
+    _dx786 = _dx762*r_r
+    _dx787 = _dx763*r_r
+    _dx788 = _dx764*r_r
+    _dx789 = _dx765*r_r
+    _dx790 = _dx766*r_r
+    _dx791 = _dx767*r_r
+    _dx792 = _dx768*r_r
+    _dx793 = _dx769*r_r
+    _dx794 = _dx770*r_r
+    _dx795 = _dx771*r_r
+    _dx796 = _dx772*r_r
+    _dx797 = _dx773*r_r
+    _dx798 = _dx774*r_r
+    _dx799 = _dx775*r_r
+    _dx800 = _dx776*r_r
+    _dx801 = _dx777*r_r
+    _dx802 = _dx778*r_r
+    _dx803 = _dx779*r_r
+    _dx804 = -_dx15*s_link2__R_1_0 - _dx27*s_link2__R_2_0 - _dx3*s_link2__R_0_0
+    _dx805 = -_dx16*s_link2__R_1_0 - _dx28*s_link2__R_2_0 - _dx4*s_link2__R_0_0
+    _dx806 = -_dx17*s_link2__R_1_0 - _dx29*s_link2__R_2_0 - _dx5*s_link2__R_0_0
+    _dx807 = _dx114*s_link2__R_0_0 + _dx126*s_link2__R_1_0 + _dx138*s_link2__R_2_0
+    _dx808 = _dx115*s_link2__R_0_0 + _dx127*s_link2__R_1_0 + _dx139*s_link2__R_2_0
+    _dx809 = _dx116*s_link2__R_0_0 + _dx128*s_link2__R_1_0 + _dx140*s_link2__R_2_0
+    _dx810 = -_dx18*s_link2__R_1_0 - _dx30*s_link2__R_2_0 - _dx6*s_link2__R_0_0
+    _dx811 = -_dx19*s_link2__R_1_0 - _dx31*s_link2__R_2_0 - _dx7*s_link2__R_0_0
+    _dx812 = -_dx20*s_link2__R_1_0 - _dx32*s_link2__R_2_0 - _dx8*s_link2__R_0_0
+    _dx813 = -_dx21*s_link2__R_1_0 - _dx33*s_link2__R_2_0 - _dx9*s_link2__R_0_0
+    _dx814 = -_dx10*s_link2__R_0_0 - _dx22*s_link2__R_1_0 - _dx34*s_link2__R_2_0
+    _dx815 = -_dx11*s_link2__R_0_0 - _dx23*s_link2__R_1_0 - _dx35*s_link2__R_2_0
+    _dx816 = -_dx12*s_link2__R_0_0 - _dx24*s_link2__R_1_0 - _dx36*s_link2__R_2_0
+    _dx817 = -_dx13*s_link2__R_0_0 - _dx25*s_link2__R_1_0 - _dx37*s_link2__R_2_0
+    _dx818 = -_dx14*s_link2__R_0_0 - _dx26*s_link2__R_1_0 - _dx38*s_link2__R_2_0
+    _dx819 = f_r2__b1_0 + _dx117*s_link2__R_0_0 + _dx129*s_link2__R_1_0 + _dx141*s_link2__R_2_0
+    _dx820 = _dx118*s_link2__R_0_0 + _dx130*s_link2__R_1_0 + _dx142*s_link2__R_2_0
+    _dx821 = _dx119*s_link2__R_0_0 + _dx131*s_link2__R_1_0 + _dx143*s_link2__R_2_0
+    _dx822 = f_r2__b1_1 + _dx120*s_link2__R_0_0 + _dx132*s_link2__R_1_0 + _dx144*s_link2__R_2_0
+    _dx823 = _dx121*s_link2__R_0_0 + _dx133*s_link2__R_1_0 + _dx145*s_link2__R_2_0
+    _dx824 = _dx122*s_link2__R_0_0 + _dx134*s_link2__R_1_0 + _dx146*s_link2__R_2_0
+    _dx825 = f_r2__b1_2 + _dx123*s_link2__R_0_0 + _dx135*s_link2__R_1_0 + _dx147*s_link2__R_2_0
+    _dx826 = _dx124*s_link2__R_0_0 + _dx136*s_link2__R_1_0 + _dx148*s_link2__R_2_0
+    _dx827 = _dx125*s_link2__R_0_0 + _dx137*s_link2__R_1_0 + _dx149*s_link2__R_2_0
+    _dx828 = -_dx15*s_link2__R_1_1 - _dx27*s_link2__R_2_1 - _dx3*s_link2__R_0_1
+    _dx829 = -_dx16*s_link2__R_1_1 - _dx28*s_link2__R_2_1 - _dx4*s_link2__R_0_1
+    _dx830 = -_dx17*s_link2__R_1_1 - _dx29*s_link2__R_2_1 - _dx5*s_link2__R_0_1
+    _dx831 = _dx114*s_link2__R_0_1 + _dx126*s_link2__R_1_1 + _dx138*s_link2__R_2_1
+    _dx832 = _dx115*s_link2__R_0_1 + _dx127*s_link2__R_1_1 + _dx139*s_link2__R_2_1
+    _dx833 = _dx116*s_link2__R_0_1 + _dx128*s_link2__R_1_1 + _dx140*s_link2__R_2_1
+    _dx834 = -_dx18*s_link2__R_1_1 - _dx30*s_link2__R_2_1 - _dx6*s_link2__R_0_1
+    _dx835 = -_dx19*s_link2__R_1_1 - _dx31*s_link2__R_2_1 - _dx7*s_link2__R_0_1
+    _dx836 = -_dx20*s_link2__R_1_1 - _dx32*s_link2__R_2_1 - _dx8*s_link2__R_0_1
+    _dx837 = -_dx21*s_link2__R_1_1 - _dx33*s_link2__R_2_1 - _dx9*s_link2__R_0_1
+    _dx838 = -_dx10*s_link2__R_0_1 - _dx22*s_link2__R_1_1 - _dx34*s_link2__R_2_1
+    _dx839 = -_dx11*s_link2__R_0_1 - _dx23*s_link2__R_1_1 - _dx35*s_link2__R_2_1
+    _dx840 = -_dx12*s_link2__R_0_1 - _dx24*s_link2__R_1_1 - _dx36*s_link2__R_2_1
+    _dx841 = -_dx13*s_link2__R_0_1 - _dx25*s_link2__R_1_1 - _dx37*s_link2__R_2_1
+    _dx842 = -_dx14*s_link2__R_0_1 - _dx26*s_link2__R_1_1 - _dx38*s_link2__R_2_1
+    _dx843 = _dx117*s_link2__R_0_1 + _dx129*s_link2__R_1_1 + _dx141*s_link2__R_2_1
+    _dx844 = f_r2__b1_0 + _dx118*s_link2__R_0_1 + _dx130*s_link2__R_1_1 + _dx142*s_link2__R_2_1
+    _dx845 = _dx119*s_link2__R_0_1 + _dx131*s_link2__R_1_1 + _dx143*s_link2__R_2_1
+    _dx846 = _dx120*s_link2__R_0_1 + _dx132*s_link2__R_1_1 + _dx144*s_link2__R_2_1
+    _dx847 = f_r2__b1_1 + _dx121*s_link2__R_0_1 + _dx133*s_link2__R_1_1 + _dx145*s_link2__R_2_1
+    _dx848 = _dx122*s_link2__R_0_1 + _dx134*s_link2__R_1_1 + _dx146*s_link2__R_2_1
+    _dx849 = _dx123*s_link2__R_0_1 + _dx135*s_link2__R_1_1 + _dx147*s_link2__R_2_1
+    _dx850 = f_r2__b1_2 + _dx124*s_link2__R_0_1 + _dx136*s_link2__R_1_1 + _dx148*s_link2__R_2_1
+    _dx851 = _dx125*s_link2__R_0_1 + _dx137*s_link2__R_1_1 + _dx149*s_link2__R_2_1
+    _dx852 = _dx804*r_r
+    _dx853 = _dx805*r_r
+    _dx854 = _dx806*r_r
+    _dx855 = _dx807*r_r
+    _dx856 = _dx808*r_r
+    _dx857 = _dx809*r_r
+    _dx858 = _dx810*r_r
+    _dx859 = _dx811*r_r
+    _dx860 = _dx812*r_r
+    _dx861 = _dx813*r_r
+    _dx862 = _dx814*r_r
+    _dx863 = _dx815*r_r
+    _dx864 = _dx816*r_r
+    _dx865 = _dx817*r_r
+    _dx866 = _dx818*r_r
+    _dx867 = _dx819*r_r
+    _dx868 = _dx820*r_r
+    _dx869 = _dx821*r_r
+    _dx870 = _dx822*r_r
+    _dx871 = _dx823*r_r
+    _dx872 = _dx824*r_r
+    _dx873 = _dx825*r_r
+    _dx874 = _dx826*r_r
+    _dx875 = _dx827*r_r
+    _dx876 = _dx828*r_r
+    _dx877 = _dx829*r_r
+    _dx878 = _dx830*r_r
+    _dx879 = _dx831*r_r
+    _dx880 = _dx832*r_r
+    _dx881 = _dx833*r_r
+    _dx882 = _dx834*r_r
+    _dx883 = _dx835*r_r
+    _dx884 = _dx836*r_r
+    _dx885 = _dx837*r_r
+    _dx886 = _dx838*r_r
+    _dx887 = _dx839*r_r
+    _dx888 = _dx840*r_r
+    _dx889 = _dx841*r_r
+    _dx890 = _dx842*r_r
+    _dx891 = _dx843*r_r
+    _dx892 = _dx844*r_r
+    _dx893 = _dx845*r_r
+    _dx894 = _dx846*r_r
+    _dx895 = _dx847*r_r
+    _dx896 = _dx848*r_r
+    _dx897 = _dx849*r_r
+    _dx898 = _dx850*r_r
+    _dx899 = _dx851*r_r
+    _dx900 = -_dx114*s_link3__R_0_0 - _dx126*s_link3__R_1_0 - _dx138*s_link3__R_2_0
+    _dx901 = -_dx115*s_link3__R_0_0 - _dx127*s_link3__R_1_0 - _dx139*s_link3__R_2_0
+    _dx902 = -_dx116*s_link3__R_0_0 - _dx128*s_link3__R_1_0 - _dx140*s_link3__R_2_0
+    _dx903 = _dx225*s_link3__R_0_0 + _dx237*s_link3__R_1_0 + _dx249*s_link3__R_2_0
+    _dx904 = _dx226*s_link3__R_0_0 + _dx238*s_link3__R_1_0 + _dx250*s_link3__R_2_0
+    _dx905 = _dx227*s_link3__R_0_0 + _dx239*s_link3__R_1_0 + _dx251*s_link3__R_2_0
+    _dx906 = -_dx117*s_link3__R_0_0 - _dx129*s_link3__R_1_0 - _dx141*s_link3__R_2_0
+    _dx907 = -_dx118*s_link3__R_0_0 - _dx130*s_link3__R_1_0 - _dx142*s_link3__R_2_0
+    _dx908 = -_dx119*s_link3__R_0_0 - _dx131*s_link3__R_1_0 - _dx143*s_link3__R_2_0
+    _dx909 = -_dx120*s_link3__R_0_0 - _dx132*s_link3__R_1_0 - _dx144*s_link3__R_2_0
+    _dx910 = -_dx121*s_link3__R_0_0 - _dx133*s_link3__R_1_0 - _dx145*s_link3__R_2_0
+    _dx911 = -_dx122*s_link3__R_0_0 - _dx134*s_link3__R_1_0 - _dx146*s_link3__R_2_0
+    _dx912 = -_dx123*s_link3__R_0_0 - _dx135*s_link3__R_1_0 - _dx147*s_link3__R_2_0
+    _dx913 = -_dx124*s_link3__R_0_0 - _dx136*s_link3__R_1_0 - _dx148*s_link3__R_2_0
+    _dx914 = -_dx125*s_link3__R_0_0 - _dx137*s_link3__R_1_0 - _dx149*s_link3__R_2_0
+    _dx915 = f_r3__b1_0 + _dx228*s_link3__R_0_0 + _dx240*s_link3__R_1_0 + _dx252*s_link3__R_2_0
+    _dx916 = _dx229*s_link3__R_0_0 + _dx241*s_link3__R_1_0 + _dx253*s_link3__R_2_0
+    _dx917 = _dx230*s_link3__R_0_0 + _dx242*s_link3__R_1_0 + _dx254*s_link3__R_2_0
+    _dx918 = f_r3__b1_1 + _dx231*s_link3__R_0_0 + _dx243*s_link3__R_1_0 + _dx255*s_link3__R_2_0
+    _dx919 = _dx232*s_link3__R_0_0 + _dx244*s_link3__R_1_0 + _dx256*s_link3__R_2_0
+    _dx920 = _dx233*s_link3__R_0_0 + _dx245*s_link3__R_1_0 + _dx257*s_link3__R_2_0
+    _dx921 = f_r3__b1_2 + _dx234*s_link3__R_0_0 + _dx246*s_link3__R_1_0 + _dx258*s_link3__R_2_0
+    _dx922 = _dx235*s_link3__R_0_0 + _dx247*s_link3__R_1_0 + _dx259*s_link3__R_2_0
+    _dx923 = _dx236*s_link3__R_0_0 + _dx248*s_link3__R_1_0 + _dx260*s_link3__R_2_0
+    _dx924 = -_dx114*s_link3__R_0_1 - _dx126*s_link3__R_1_1 - _dx138*s_link3__R_2_1
+    _dx925 = -_dx115*s_link3__R_0_1 - _dx127*s_link3__R_1_1 - _dx139*s_link3__R_2_1
+    _dx926 = -_dx116*s_link3__R_0_1 - _dx128*s_link3__R_1_1 - _dx140*s_link3__R_2_1
+    _dx927 = _dx225*s_link3__R_0_1 + _dx237*s_link3__R_1_1 + _dx249*s_link3__R_2_1
+    _dx928 = _dx226*s_link3__R_0_1 + _dx238*s_link3__R_1_1 + _dx250*s_link3__R_2_1
+    _dx929 = _dx227*s_link3__R_0_1 + _dx239*s_link3__R_1_1 + _dx251*s_link3__R_2_1
+    _dx930 = -_dx117*s_link3__R_0_1 - _dx129*s_link3__R_1_1 - _dx141*s_link3__R_2_1
+    _dx931 = -_dx118*s_link3__R_0_1 - _dx130*s_link3__R_1_1 - _dx142*s_link3__R_2_1
+    _dx932 = -_dx119*s_link3__R_0_1 - _dx131*s_link3__R_1_1 - _dx143*s_link3__R_2_1
+    _dx933 = -_dx120*s_link3__R_0_1 - _dx132*s_link3__R_1_1 - _dx144*s_link3__R_2_1
+    _dx934 = -_dx121*s_link3__R_0_1 - _dx133*s_link3__R_1_1 - _dx145*s_link3__R_2_1
+    _dx935 = -_dx122*s_link3__R_0_1 - _dx134*s_link3__R_1_1 - _dx146*s_link3__R_2_1
+    _dx936 = -_dx123*s_link3__R_0_1 - _dx135*s_link3__R_1_1 - _dx147*s_link3__R_2_1
+    _dx937 = -_dx124*s_link3__R_0_1 - _dx136*s_link3__R_1_1 - _dx148*s_link3__R_2_1
+    _dx938 = -_dx125*s_link3__R_0_1 - _dx137*s_link3__R_1_1 - _dx149*s_link3__R_2_1
+    _dx939 = _dx228*s_link3__R_0_1 + _dx240*s_link3__R_1_1 + _dx252*s_link3__R_2_1
+    _dx940 = f_r3__b1_0 + _dx229*s_link3__R_0_1 + _dx241*s_link3__R_1_1 + _dx253*s_link3__R_2_1
+    _dx941 = _dx230*s_link3__R_0_1 + _dx242*s_link3__R_1_1 + _dx254*s_link3__R_2_1
+    _dx942 = _dx231*s_link3__R_0_1 + _dx243*s_link3__R_1_1 + _dx255*s_link3__R_2_1
+    _dx943 = f_r3__b1_1 + _dx232*s_link3__R_0_1 + _dx244*s_link3__R_1_1 + _dx256*s_link3__R_2_1
+    _dx944 = _dx233*s_link3__R_0_1 + _dx245*s_link3__R_1_1 + _dx257*s_link3__R_2_1
+    _dx945 = _dx234*s_link3__R_0_1 + _dx246*s_link3__R_1_1 + _dx258*s_link3__R_2_1
+    _dx946 = f_r3__b1_2 + _dx235*s_link3__R_0_1 + _dx247*s_link3__R_1_1 + _dx259*s_link3__R_2_1
+    _dx947 = _dx236*s_link3__R_0_1 + _dx248*s_link3__R_1_1 + _dx260*s_link3__R_2_1
+    _dx948 = _dx900*r_r
+    _dx949 = _dx901*r_r
+    _dx950 = _dx902*r_r
+    _dx951 = _dx903*r_r
+    _dx952 = _dx904*r_r
+    _dx953 = _dx905*r_r
+    _dx954 = _dx906*r_r
+    _dx955 = _dx907*r_r
+    _dx956 = _dx908*r_r
+    _dx957 = _dx909*r_r
+    _dx958 = _dx910*r_r
+    _dx959 = _dx911*r_r
+    _dx960 = _dx912*r_r
+    _dx961 = _dx913*r_r
+    _dx962 = _dx914*r_r
+    _dx963 = _dx915*r_r
+    _dx964 = _dx916*r_r
+    _dx965 = _dx917*r_r
+    _dx966 = _dx918*r_r
+    _dx967 = _dx919*r_r
+    _dx968 = _dx920*r_r
+    _dx969 = _dx921*r_r
+    _dx970 = _dx922*r_r
+    _dx971 = _dx923*r_r
+    _dx972 = _dx924*r_r
+    _dx973 = _dx925*r_r
+    _dx974 = _dx926*r_r
+    _dx975 = _dx927*r_r
+    _dx976 = _dx928*r_r
+    _dx977 = _dx929*r_r
+    _dx978 = _dx930*r_r
+    _dx979 = _dx931*r_r
+    _dx980 = _dx932*r_r
+    _dx981 = _dx933*r_r
+    _dx982 = _dx934*r_r
+    _dx983 = _dx935*r_r
+    _dx984 = _dx936*r_r
+    _dx985 = _dx937*r_r
+    _dx986 = _dx938*r_r
+    _dx987 = _dx939*r_r
+    _dx988 = _dx940*r_r
+    _dx989 = _dx941*r_r
+    _dx990 = _dx942*r_r
+    _dx991 = _dx943*r_r
+    _dx992 = _dx944*r_r
+    _dx993 = _dx945*r_r
+    _dx994 = _dx946*r_r
+    _dx995 = _dx947*r_r
+    _dx996 = -_dx222*r_d
+    _dx997 = -_dx297*r_d
+    _dx998 = -_dx298*r_d
+    _dx999 = -_dx299*r_d
+    _dx1000 = -_dx300*r_d
+    _dx1001 = -_dx301*r_d
+    _dx1002 = -_dx302*r_d
+    _dx1003 = -_dx303*r_d
+    _dx1004 = -_dx304*r_d
+    _dx1005 = -_dx305*r_d
+    _dx1006 = -_dx306*r_d
+    _dx1007 = -_dx307*r_d
+    _dx1008 = -_dx308*r_d
+    _dx1009 = -_dx223*r_d
+    _dx1010 = -_dx309*r_d
+    _dx1011 = -_dx310*r_d
+    _dx1012 = -_dx311*r_d
+    _dx1013 = -_dx312*r_d
+    _dx1014 = -_dx313*r_d
+    _dx1015 = -_dx314*r_d
+    _dx1016 = -_dx315*r_d
+    _dx1017 = -_dx316*r_d
+    _dx1018 = -_dx317*r_d
+    _dx1019 = -_dx318*r_d
+    _dx1020 = -_dx319*r_d
+    _dx1021 = -_dx320*r_d
+    _dx1022 = -_dx224*r_d
+    _dx1023 = -_dx321*r_d
+    _dx1024 = -_dx322*r_d
+    _dx1025 = -_dx323*r_d
+    _dx1026 = -_dx324*r_d
+    _dx1027 = -_dx325*r_d
+    _dx1028 = -_dx326*r_d
+    _dx1029 = -_dx327*r_d
+    _dx1030 = -_dx328*r_d
+    _dx1031 = -_dx329*r_d
+    _dx1032 = -_dx330*r_d
+    _dx1033 = -_dx331*r_d
+    _dx1034 = -_dx332*r_d
+    _c343 = 1/(_c10 + _c2)
+    _c344 = s_link1__R_0_0*s_link2__R_0_0 + s_link1__R_1_0*s_link2__R_1_0 + s_link1__R_2_0*s_link2__R_2_0
+    _c345 = s_link1__R_1_0*s_link2__R_2_0 - s_link1__R_2_0*s_link2__R_1_0
+    _c346 = s_link1__R_2_0*s_link2__R_0_0 - s_link1__R_0_0*s_link2__R_2_0
+    _c347 = s_link1__R_0_0*s_link2__R_1_0 - s_link1__R_1_0*s_link2__R_0_0
+    _c348 = _c345*s_link2__R_0_2 + _c346*s_link2__R_1_2 + _c347*s_link2__R_2_2
+    _c349 = 1/(_c344*_c344 + _c348*_c348)
+    _c350 = -_c348*_c349
+    _c351 = _c344*_c349
+    _c352 = s_link2__R_0_0*s_link3__R_0_0 + s_link2__R_1_0*s_link3__R_1_0 + s_link2__R_2_0*s_link3__R_2_0
+    _c353 = s_link2__R_1_0*s_link3__R_2_0 - s_link2__R_2_0*s_link3__R_1_0
+    _c354 = s_link2__R_2_0*s_link3__R_0_0 - s_link2__R_0_0*s_link3__R_2_0
+    _c355 = s_link2__R_0_0*s_link3__R_1_0 - s_link2__R_1_0*s_link3__R_0_0
+    _c356 = _c353*s_link3__R_0_2 + _c354*s_link3__R_1_2 + _c355*s_link3__R_2_2
+    _c357 = 1/(_c352*_c352 + _c356*_c356)
+    _c358 = -_c356*_c357
+    _c359 = s_link3__R_1_0*s_link3__R_2_2 - s_link3__R_1_2*s_link3__R_2_0
+    _c360 = _c352*_c357
+    _c361 = s_link3__R_0_0*s_link3__R_2_2 - s_link3__R_0_2*s_link3__R_2_0
+    _c362 = s_link3__R_0_0*s_link3__R_1_2 - s_link3__R_0_2*s_link3__R_1_0
+    _c363 = s_link3__R_0_0*s_link4__R_0_0 + s_link3__R_1_0*s_link4__R_1_0 + s_link3__R_2_0*s_link4__R_2_0
+    _c364 = s_link3__R_1_0*s_link4__R_2_0 - s_link3__R_2_0*s_link4__R_1_0
+    _c365 = s_link3__R_2_0*s_link4__R_0_0 - s_link3__R_0_0*s_link4__R_2_0
+    _c366 = s_link3__R_0_0*s_link4__R_1_0 - s_link3__R_1_0*s_link4__R_0_0
+    _c367 = _c364*s_link3__R_0_2 + _c365*s_link3__R_1_2 + _c366*s_link3__R_2_2
+    _c368 = 1/(_c363*_c363 + _c367*_c367)
+    _c369 = -_c367*_c368
+    _c370 = _c363*_c368
+    _c371 = P4_0 - s_pd_0
+    _c372 = -_c371
+    _c373 = P4_1 - s_pd_1
+    _c374 = -_c373
+    _c375 = P4_2 - s_pd_2
+    _c376 = -_c375
+    _c377 = _c372*_c372 + _c374*_c374 + _c376*_c376
+    _c378 = l4/np.sqrt(_c377)
+    _c379 = l4/_c377**(3/2)
+    _c380 = _c372*_c379
+    _c381 = _c374*_c379
+    _c382 = _c376*_c379
+    _c383 = (1/2)*p_link1__Ir_1
+    _c384 = (1/2)*p_link1__Ir_2
+    _c385 = (1/2)*p_link1__Ir_0
+    _c386 = (1/2)*p_link2__Ir_0
+    _c387 = (1/2)*p_link2__Ir_1
+    _c388 = (1/2)*p_link2__Ir_2
+    _c389 = (1/2)*p_link3__Ir_0
+    _c390 = (1/2)*p_link3__Ir_1
+    _c391 = (1/2)*p_link3__Ir_2
+    _c392 = (1/2)*p_link4__Ir_0
+    _c393 = (1/2)*p_link4__Ir_1
+    _c394 = (1/2)*p_link4__Ir_2
+    _c395 = 1/np.sqrt(q_j1__C_0*q_j1__C_0 + q_j1__C_1*q_j1__C_1 + q_j1__C_2*q_j1__C_2)
+    _c396 = 1/np.sqrt(q_j2__C_0*q_j2__C_0 + q_j2__C_1*q_j2__C_1 + q_j2__C_2*q_j2__C_2)
+    _c397 = 1/np.sqrt(q_j3__C_0*q_j3__C_0 + q_j3__C_1*q_j3__C_1 + q_j3__C_2*q_j3__C_2)
+    _c398 = 1/np.sqrt(q_j4__C_0*q_j4__C_0 + q_j4__C_1*q_j4__C_1 + q_j4__C_2*q_j4__C_2)
+    _c399 = 1/np.sqrt(q_j5__C_0*q_j5__C_0 + q_j5__C_1*q_j5__C_1 + q_j5__C_2*q_j5__C_2)
+
+    _bs = np.broadcast_shapes(x.shape[1:], _bshape)
+    C = np.zeros((32, 101) + _bs)
+    D = np.zeros((32, 3) + _bs)
+    C[0, 48] = -_c343*s_link1__R_1_0
+    C[0, 51] = _c343*s_link1__R_0_0
+    C[1, 48] = _c350*s_link2__R_0_0 + _c351*(s_link2__R_1_0*s_link2__R_2_2 - s_link2__R_1_2*s_link2__R_2_0)
+    C[1, 51] = _c350*s_link2__R_1_0 + _c351*(s_link2__R_0_2*s_link2__R_2_0 - s_link2__R_0_0*s_link2__R_2_2)
+    C[1, 54] = _c350*s_link2__R_2_0 + _c351*(s_link2__R_0_0*s_link2__R_1_2 - s_link2__R_0_2*s_link2__R_1_0)
+    C[1, 60] = _c350*s_link1__R_0_0 + _c351*(s_link1__R_2_0*s_link2__R_1_2 - s_link1__R_1_0*s_link2__R_2_2)
+    C[1, 62] = _c345*_c351
+    C[1, 63] = _c350*s_link1__R_1_0 + _c351*(s_link1__R_0_0*s_link2__R_2_2 - s_link1__R_2_0*s_link2__R_0_2)
+    C[1, 65] = _c346*_c351
+    C[1, 66] = _c350*s_link1__R_2_0 + _c351*(s_link1__R_1_0*s_link2__R_0_2 - s_link1__R_0_0*s_link2__R_1_2)
+    C[1, 68] = _c347*_c351
+    C[2, 60] = _c358*s_link3__R_0_0 + _c359*_c360
+    C[2, 63] = _c358*s_link3__R_1_0 - _c360*_c361
+    C[2, 66] = _c358*s_link3__R_2_0 + _c360*_c362
+    C[2, 72] = _c358*s_link2__R_0_0 + _c360*(s_link2__R_2_0*s_link3__R_1_2 - s_link2__R_1_0*s_link3__R_2_2)
+    C[2, 74] = _c353*_c360
+    C[2, 75] = _c358*s_link2__R_1_0 + _c360*(s_link2__R_0_0*s_link3__R_2_2 - s_link2__R_2_0*s_link3__R_0_2)
+    C[2, 77] = _c354*_c360
+    C[2, 78] = _c358*s_link2__R_2_0 + _c360*(s_link2__R_1_0*s_link3__R_0_2 - s_link2__R_0_0*s_link3__R_1_2)
+    C[2, 80] = _c355*_c360
+    C[3, 72] = _c369*s_link4__R_0_0 + _c370*(s_link3__R_2_2*s_link4__R_1_0 - s_link3__R_1_2*s_link4__R_2_0)
+    C[3, 74] = _c364*_c370
+    C[3, 75] = _c369*s_link4__R_1_0 + _c370*(s_link3__R_0_2*s_link4__R_2_0 - s_link3__R_2_2*s_link4__R_0_0)
+    C[3, 77] = _c365*_c370
+    C[3, 78] = _c369*s_link4__R_2_0 + _c370*(s_link3__R_1_2*s_link4__R_0_0 - s_link3__R_0_2*s_link4__R_1_0)
+    C[3, 80] = _c366*_c370
+    C[3, 84] = _c369*s_link3__R_0_0 - _c359*_c370
+    C[3, 87] = _c361*_c370 + _c369*s_link3__R_1_0
+    C[3, 90] = _c369*s_link3__R_2_0 - _c362*_c370
+    C[4, 72] = _c65
+    C[4, 81] = 1
+    C[5, 75] = _c65
+    C[5, 82] = 1
+    C[6, 78] = _c65
+    C[6, 83] = 1
+    C[7, 96] = 1
+    C[8, 97] = 1
+    C[9, 98] = 1
+    C[10, 96] = _c378 + _c371*_c380
+    C[10, 97] = _c373*_c380
+    C[10, 98] = _c375*_c380
+    C[11, 96] = _c371*_c381
+    C[11, 97] = _c378 + _c373*_c381
+    C[11, 98] = _c375*_c381
+    C[12, 96] = _c371*_c382
+    C[12, 97] = _c373*_c382
+    C[12, 98] = _c378 + _c375*_c382
+    C[13, 84] = 1
+    C[14, 85] = 1
+    C[15, 86] = 1
+    C[16, 87] = 1
+    C[17, 88] = 1
+    C[18, 89] = 1
+    C[19, 90] = 1
+    C[20, 91] = 1
+    C[21, 92] = 1
+    C[22, 0] = (1/2)*f_link1__b2_0 + (1/2)*_dx0*p_link1__It_0
+    C[22, 1] = (1/2)*f_link1__b2_1 + (1/2)*_dx1*p_link1__It_1
+    C[22, 2] = (1/2)*f_link1__b2_2 + (1/2)*_dx2*p_link1__It_2
+    C[22, 3] = _c20 + _c383*_dx15 + _c384*_dx27 + _c385*_dx3
+    C[22, 4] = _c17 + _c383*_dx16 + _c384*_dx28 + _c385*_dx4
+    C[22, 5] = _c22 + _c383*_dx17 + _c384*_dx29 + _c385*_dx5
+    C[22, 6] = (1/2)*f_link2__b2_0 + (1/2)*_dx111*p_link2__It_0
+    C[22, 7] = (1/2)*f_link2__b2_1 + (1/2)*_dx112*p_link2__It_1
+    C[22, 8] = (1/2)*f_link2__b2_2 + (1/2)*_dx113*p_link2__It_2
+    C[22, 9] = _c44 + _c386*_dx114 + _c387*_dx126 + _c388*_dx138
+    C[22, 10] = _c41 + _c386*_dx115 + _c387*_dx127 + _c388*_dx139
+    C[22, 11] = _c46 + _c386*_dx116 + _c387*_dx128 + _c388*_dx140
+    C[22, 12] = (1/2)*f_link3__b2_0 + (1/2)*_dx222*p_link3__It_0
+    C[22, 13] = (1/2)*f_link3__b2_1 + (1/2)*_dx223*p_link3__It_1
+    C[22, 14] = (1/2)*f_link3__b2_2 + (1/2)*_dx224*p_link3__It_2
+    C[22, 15] = (1/2)*f_link3__b3_0 + _c389*_dx225 + _c390*_dx237 + _c391*_dx249
+    C[22, 16] = (1/2)*f_link3__b3_1 + _c389*_dx226 + _c390*_dx238 + _c391*_dx250
+    C[22, 17] = (1/2)*f_link3__b3_2 + _c389*_dx227 + _c390*_dx239 + _c391*_dx251
+    C[22, 18] = (1/2)*f_link4__b2_0 + (1/2)*_dx333*p_link4__It_0
+    C[22, 19] = (1/2)*f_link4__b2_1 + (1/2)*_dx334*p_link4__It_1
+    C[22, 20] = (1/2)*f_link4__b2_2 + (1/2)*_dx335*p_link4__It_2
+    C[22, 21] = _c90 + _c392*_dx336 + _c393*_dx348 + _c394*_dx360
+    C[22, 22] = _c87 + _c392*_dx337 + _c393*_dx349 + _c394*_dx361
+    C[22, 23] = _c92 + _c392*_dx338 + _c393*_dx350 + _c394*_dx362
+    C[22, 24] = (1/2)*_c96 + (1/2)*e_j1__b2_0
+    C[22, 25] = (1/2)*_c97 + (1/2)*e_j1__b2_1
+    C[22, 26] = (1/2)*_c98 + (1/2)*e_j1__b2_2
+    C[22, 27] = (1/2)*_c99 + (1/2)*e_j2__b2_0
+    C[22, 28] = (1/2)*_c100 + (1/2)*e_j2__b2_1
+    C[22, 29] = (1/2)*_c101 + (1/2)*e_j2__b2_2
+    C[22, 30] = (1/2)*_c102 + (1/2)*e_j3__b2_0
+    C[22, 31] = (1/2)*_c103 + (1/2)*e_j3__b2_1
+    C[22, 32] = (1/2)*_c104 + (1/2)*e_j3__b2_2
+    C[22, 33] = (1/2)*_c105 + (1/2)*e_j4__b2_0
+    C[22, 34] = (1/2)*_c106 + (1/2)*e_j4__b2_1
+    C[22, 35] = (1/2)*_c107 + (1/2)*e_j4__b2_2
+    C[22, 36] = (1/2)*_c108 + (1/2)*e_j5__b2_0
+    C[22, 37] = (1/2)*_c109 + (1/2)*e_j5__b2_1
+    C[22, 38] = (1/2)*_c110 + (1/2)*e_j5__b2_2
+    C[22, 39] = (1/2)*_c111 + (1/2)*e_r1__b3_0
+    C[22, 40] = (1/2)*_c112 + (1/2)*e_r1__b3_1
+    C[22, 41] = (1/2)*_c113 + (1/2)*e_r2__b3_0
+    C[22, 42] = (1/2)*_c114 + (1/2)*e_r2__b3_1
+    C[22, 43] = (1/2)*_c115 + (1/2)*e_r3__b3_0
+    C[22, 44] = (1/2)*_c116 + (1/2)*e_r3__b3_1
+    C[22, 45] = (1/2)*_c117 + (1/2)*e_jd__b2_0
+    C[22, 46] = (1/2)*_c118 + (1/2)*e_jd__b2_1
+    C[22, 47] = (1/2)*_c119 + (1/2)*e_jd__b2_2
+    C[22, 48] = _c383*_dx18 + _c384*_dx30 + _c385*_dx6
+    C[22, 49] = _c383*_dx19 + _c384*_dx31 + _c385*_dx7
+    C[22, 50] = _c383*_dx20 + _c384*_dx32 + _c385*_dx8
+    C[22, 51] = _c383*_dx21 + _c384*_dx33 + _c385*_dx9
+    C[22, 52] = _c383*_dx22 + _c384*_dx34 + _c385*_dx10
+    C[22, 53] = _c383*_dx23 + _c384*_dx35 + _c385*_dx11
+    C[22, 54] = _c383*_dx24 + _c384*_dx36 + _c385*_dx12
+    C[22, 55] = _c383*_dx25 + _c384*_dx37 + _c385*_dx13
+    C[22, 56] = _c383*_dx26 + _c384*_dx38 + _c385*_dx14
+    C[22, 59] = g*m1
+    C[22, 60] = _c386*_dx117 + _c387*_dx129 + _c388*_dx141
+    C[22, 61] = _c386*_dx118 + _c387*_dx130 + _c388*_dx142
+    C[22, 62] = _c386*_dx119 + _c387*_dx131 + _c388*_dx143
+    C[22, 63] = _c386*_dx120 + _c387*_dx132 + _c388*_dx144
+    C[22, 64] = _c386*_dx121 + _c387*_dx133 + _c388*_dx145
+    C[22, 65] = _c386*_dx122 + _c387*_dx134 + _c388*_dx146
+    C[22, 66] = _c386*_dx123 + _c387*_dx135 + _c388*_dx147
+    C[22, 67] = _c386*_dx124 + _c387*_dx136 + _c388*_dx148
+    C[22, 68] = _c386*_dx125 + _c387*_dx137 + _c388*_dx149
+    C[22, 71] = g*m2
+    C[22, 72] = _c389*_dx228 + _c390*_dx240 + _c391*_dx252
+    C[22, 73] = _c389*_dx229 + _c390*_dx241 + _c391*_dx253
+    C[22, 74] = _c389*_dx230 + _c390*_dx242 + _c391*_dx254
+    C[22, 75] = _c389*_dx231 + _c390*_dx243 + _c391*_dx255
+    C[22, 76] = _c389*_dx232 + _c390*_dx244 + _c391*_dx256
+    C[22, 77] = _c389*_dx233 + _c390*_dx245 + _c391*_dx257
+    C[22, 78] = _c389*_dx234 + _c390*_dx246 + _c391*_dx258
+    C[22, 79] = _c389*_dx235 + _c390*_dx247 + _c391*_dx259
+    C[22, 80] = _c389*_dx236 + _c390*_dx248 + _c391*_dx260
+    C[22, 83] = g*m3
+    C[22, 84] = _c392*_dx339 + _c393*_dx351 + _c394*_dx363
+    C[22, 85] = _c392*_dx340 + _c393*_dx352 + _c394*_dx364
+    C[22, 86] = _c392*_dx341 + _c393*_dx353 + _c394*_dx365
+    C[22, 87] = _c392*_dx342 + _c393*_dx354 + _c394*_dx366
+    C[22, 88] = _c392*_dx343 + _c393*_dx355 + _c394*_dx367
+    C[22, 89] = _c392*_dx344 + _c393*_dx356 + _c394*_dx368
+    C[22, 90] = _c392*_dx345 + _c393*_dx357 + _c394*_dx369
+    C[22, 91] = _c392*_dx346 + _c393*_dx358 + _c394*_dx370
+    C[22, 92] = _c392*_dx347 + _c393*_dx359 + _c394*_dx371
+    C[22, 95] = g*m4
+    C[23, 12] = _dx996*u_vd_0
+    C[23, 13] = _dx1009*u_vd_1
+    C[23, 14] = _dx1022*u_vd_2
+    C[23, 15] = _dx1010*u_vd_1 + _dx1023*u_vd_2 + _dx997*u_vd_0
+    C[23, 16] = _dx1011*u_vd_1 + _dx1024*u_vd_2 + _dx998*u_vd_0
+    C[23, 17] = _dx1012*u_vd_1 + _dx1025*u_vd_2 + _dx999*u_vd_0
+    C[23, 45] = k_d*u_vd_0
+    C[23, 46] = k_d*u_vd_1
+    C[23, 47] = k_d*u_vd_2
+    C[23, 72] = _dx1000*u_vd_0 + _dx1013*u_vd_1 + _dx1026*u_vd_2
+    C[23, 73] = _dx1001*u_vd_0 + _dx1014*u_vd_1 + _dx1027*u_vd_2
+    C[23, 74] = _dx1002*u_vd_0 + _dx1015*u_vd_1 + _dx1028*u_vd_2
+    C[23, 75] = _dx1003*u_vd_0 + _dx1016*u_vd_1 + _dx1029*u_vd_2
+    C[23, 76] = _dx1004*u_vd_0 + _dx1017*u_vd_1 + _dx1030*u_vd_2
+    C[23, 77] = _dx1005*u_vd_0 + _dx1018*u_vd_1 + _dx1031*u_vd_2
+    C[23, 78] = _dx1006*u_vd_0 + _dx1019*u_vd_1 + _dx1032*u_vd_2
+    C[23, 79] = _dx1007*u_vd_0 + _dx1020*u_vd_1 + _dx1033*u_vd_2
+    C[23, 80] = _dx1008*u_vd_0 + _dx1021*u_vd_1 + _dx1034*u_vd_2
+    C[24, 0] = _dx0*e_j2__b3_0 + _dx483*f_j2__b1_0 - _dx0*e_j1__b3_0 - _dx444*f_link1__b7_0
+    C[24, 1] = _dx1*e_j2__b3_1 + _dx509*f_j2__b1_1 - _dx1*e_j1__b3_1 - _dx457*f_link1__b7_1
+    C[24, 2] = _dx2*e_j2__b3_2 + _dx535*f_j2__b1_2 - _dx2*e_j1__b3_2 - _dx470*f_link1__b7_2
+    C[24, 3] = _dx484*f_j2__b1_0 + _dx510*f_j2__b1_1 + _dx536*f_j2__b1_2 + _dx75*e_j2__b3_0 + _dx756*e_r1__b4_0 + _dx768*e_r1__b4_1 + _dx780*f_r1__b2_0 + _dx792*f_r1__b2_1 + _dx804*e_r2__b4_0 + _dx828*e_r2__b4_1 + _dx852*f_r2__b2_0 + _dx87*e_j2__b3_1 + _dx876*f_r2__b2_1 + _dx99*e_j2__b3_2 - _dx39*e_j1__b3_0 - _dx445*f_link1__b7_0 - _dx458*f_link1__b7_1 - _dx471*f_link1__b7_2 - _dx51*e_j1__b3_1 - _dx63*e_j1__b3_2
+    C[24, 4] = _dx100*e_j2__b3_2 + _dx485*f_j2__b1_0 + _dx511*f_j2__b1_1 + _dx537*f_j2__b1_2 + _dx757*e_r1__b4_0 + _dx76*e_j2__b3_0 + _dx769*e_r1__b4_1 + _dx781*f_r1__b2_0 + _dx793*f_r1__b2_1 + _dx805*e_r2__b4_0 + _dx829*e_r2__b4_1 + _dx853*f_r2__b2_0 + _dx877*f_r2__b2_1 + _dx88*e_j2__b3_1 - _dx40*e_j1__b3_0 - _dx446*f_link1__b7_0 - _dx459*f_link1__b7_1 - _dx472*f_link1__b7_2 - _dx52*e_j1__b3_1 - _dx64*e_j1__b3_2
+    C[24, 5] = _dx101*e_j2__b3_2 + _dx486*f_j2__b1_0 + _dx512*f_j2__b1_1 + _dx538*f_j2__b1_2 + _dx758*e_r1__b4_0 + _dx77*e_j2__b3_0 + _dx770*e_r1__b4_1 + _dx782*f_r1__b2_0 + _dx794*f_r1__b2_1 + _dx806*e_r2__b4_0 + _dx830*e_r2__b4_1 + _dx854*f_r2__b2_0 + _dx878*f_r2__b2_1 + _dx89*e_j2__b3_1 - _dx41*e_j1__b3_0 - _dx447*f_link1__b7_0 - _dx460*f_link1__b7_1 - _dx473*f_link1__b7_2 - _dx53*e_j1__b3_1 - _dx65*e_j1__b3_2
+    C[24, 6] = _dx111*e_j3__b3_0 + _dx487*f_j2__b1_0 + _dx561*f_j3__b1_0 - _dx111*e_j2__b3_0
+    C[24, 7] = _dx112*e_j3__b3_1 + _dx513*f_j2__b1_1 + _dx587*f_j3__b1_1 - _dx112*e_j2__b3_1
+    C[24, 8] = _dx113*e_j3__b3_2 + _dx539*f_j2__b1_2 + _dx613*f_j3__b1_2 - _dx113*e_j2__b3_2
+    C[24, 9] = _dx186*e_j3__b3_0 + _dx198*e_j3__b3_1 + _dx210*e_j3__b3_2 + _dx488*f_j2__b1_0 + _dx514*f_j2__b1_1 + _dx540*f_j2__b1_2 + _dx562*f_j3__b1_0 + _dx588*f_j3__b1_1 + _dx614*f_j3__b1_2 + _dx807*e_r2__b4_0 + _dx831*e_r2__b4_1 + _dx855*f_r2__b2_0 + _dx879*f_r2__b2_1 + _dx900*e_r3__b4_0 + _dx924*e_r3__b4_1 + _dx948*f_r3__b2_0 + _dx972*f_r3__b2_1 - _dx150*e_j2__b3_0 - _dx162*e_j2__b3_1 - _dx174*e_j2__b3_2
+    C[24, 10] = _dx187*e_j3__b3_0 + _dx199*e_j3__b3_1 + _dx211*e_j3__b3_2 + _dx489*f_j2__b1_0 + _dx515*f_j2__b1_1 + _dx541*f_j2__b1_2 + _dx563*f_j3__b1_0 + _dx589*f_j3__b1_1 + _dx615*f_j3__b1_2 + _dx808*e_r2__b4_0 + _dx832*e_r2__b4_1 + _dx856*f_r2__b2_0 + _dx880*f_r2__b2_1 + _dx901*e_r3__b4_0 + _dx925*e_r3__b4_1 + _dx949*f_r3__b2_0 + _dx973*f_r3__b2_1 - _dx151*e_j2__b3_0 - _dx163*e_j2__b3_1 - _dx175*e_j2__b3_2
+    C[24, 11] = _dx188*e_j3__b3_0 + _dx200*e_j3__b3_1 + _dx212*e_j3__b3_2 + _dx490*f_j2__b1_0 + _dx516*f_j2__b1_1 + _dx542*f_j2__b1_2 + _dx564*f_j3__b1_0 + _dx590*f_j3__b1_1 + _dx616*f_j3__b1_2 + _dx809*e_r2__b4_0 + _dx833*e_r2__b4_1 + _dx857*f_r2__b2_0 + _dx881*f_r2__b2_1 + _dx902*e_r3__b4_0 + _dx926*e_r3__b4_1 + _dx950*f_r3__b2_0 + _dx974*f_r3__b2_1 - _dx152*e_j2__b3_0 - _dx164*e_j2__b3_1 - _dx176*e_j2__b3_2
+    C[24, 12] = _dx222*e_j4__b3_0 + _dx565*f_j3__b1_0 + _dx639*f_j4__b1_0 + _dx996*f_jd__b1_0 - _dx222*e_j3__b3_0 - _dx222*e_jd__b3_0
+    C[24, 13] = _dx1009*f_jd__b1_1 + _dx223*e_j4__b3_1 + _dx591*f_j3__b1_1 + _dx665*f_j4__b1_1 - _dx223*e_j3__b3_1 - _dx223*e_jd__b3_1
+    C[24, 14] = _dx1022*f_jd__b1_2 + _dx224*e_j4__b3_2 + _dx617*f_j3__b1_2 + _dx691*f_j4__b1_2 - _dx224*e_j3__b3_2 - _dx224*e_jd__b3_2
+    C[24, 15] = _dx1010*f_jd__b1_1 + _dx1023*f_jd__b1_2 + _dx297*e_j4__b3_0 + _dx309*e_j4__b3_1 + _dx321*e_j4__b3_2 + _dx566*f_j3__b1_0 + _dx592*f_j3__b1_1 + _dx618*f_j3__b1_2 + _dx640*f_j4__b1_0 + _dx666*f_j4__b1_1 + _dx692*f_j4__b1_2 + _dx903*e_r3__b4_0 + _dx927*e_r3__b4_1 + _dx951*f_r3__b2_0 + _dx975*f_r3__b2_1 + _dx997*f_jd__b1_0 - _dx261*e_j3__b3_0 - _dx273*e_j3__b3_1 - _dx285*e_j3__b3_2 - _dx297*e_jd__b3_0 - _dx309*e_jd__b3_1 - _dx321*e_jd__b3_2
+    C[24, 16] = _dx1011*f_jd__b1_1 + _dx1024*f_jd__b1_2 + _dx298*e_j4__b3_0 + _dx310*e_j4__b3_1 + _dx322*e_j4__b3_2 + _dx567*f_j3__b1_0 + _dx593*f_j3__b1_1 + _dx619*f_j3__b1_2 + _dx641*f_j4__b1_0 + _dx667*f_j4__b1_1 + _dx693*f_j4__b1_2 + _dx904*e_r3__b4_0 + _dx928*e_r3__b4_1 + _dx952*f_r3__b2_0 + _dx976*f_r3__b2_1 + _dx998*f_jd__b1_0 - _dx262*e_j3__b3_0 - _dx274*e_j3__b3_1 - _dx286*e_j3__b3_2 - _dx298*e_jd__b3_0 - _dx310*e_jd__b3_1 - _dx322*e_jd__b3_2
+    C[24, 17] = _dx1012*f_jd__b1_1 + _dx1025*f_jd__b1_2 + _dx299*e_j4__b3_0 + _dx311*e_j4__b3_1 + _dx323*e_j4__b3_2 + _dx568*f_j3__b1_0 + _dx594*f_j3__b1_1 + _dx620*f_j3__b1_2 + _dx642*f_j4__b1_0 + _dx668*f_j4__b1_1 + _dx694*f_j4__b1_2 + _dx905*e_r3__b4_0 + _dx929*e_r3__b4_1 + _dx953*f_r3__b2_0 + _dx977*f_r3__b2_1 + _dx999*f_jd__b1_0 - _dx263*e_j3__b3_0 - _dx275*e_j3__b3_1 - _dx287*e_j3__b3_2 - _dx299*e_jd__b3_0 - _dx311*e_jd__b3_1 - _dx323*e_jd__b3_2
+    C[24, 18] = _dx333*e_j5__b3_0 + _dx643*f_j4__b1_0 + _dx717*f_link4__b11_0 - _dx333*e_j4__b3_0
+    C[24, 19] = _dx334*e_j5__b3_1 + _dx669*f_j4__b1_1 + _dx730*f_link4__b11_1 - _dx334*e_j4__b3_1
+    C[24, 20] = _dx335*e_j5__b3_2 + _dx695*f_j4__b1_2 + _dx743*f_link4__b11_2 - _dx335*e_j4__b3_2
+    C[24, 21] = _dx408*e_j5__b3_0 + _dx420*e_j5__b3_1 + _dx432*e_j5__b3_2 + _dx644*f_j4__b1_0 + _dx670*f_j4__b1_1 + _dx696*f_j4__b1_2 + _dx718*f_link4__b11_0 + _dx731*f_link4__b11_1 + _dx744*f_link4__b11_2 - _dx372*e_j4__b3_0 - _dx384*e_j4__b3_1 - _dx396*e_j4__b3_2
+    C[24, 22] = _dx409*e_j5__b3_0 + _dx421*e_j5__b3_1 + _dx433*e_j5__b3_2 + _dx645*f_j4__b1_0 + _dx671*f_j4__b1_1 + _dx697*f_j4__b1_2 + _dx719*f_link4__b11_0 + _dx732*f_link4__b11_1 + _dx745*f_link4__b11_2 - _dx373*e_j4__b3_0 - _dx385*e_j4__b3_1 - _dx397*e_j4__b3_2
+    C[24, 23] = _dx410*e_j5__b3_0 + _dx422*e_j5__b3_1 + _dx434*e_j5__b3_2 + _dx646*f_j4__b1_0 + _dx672*f_j4__b1_1 + _dx698*f_j4__b1_2 + _dx720*f_link4__b11_0 + _dx733*f_link4__b11_1 + _dx746*f_link4__b11_2 - _dx374*e_j4__b3_0 - _dx386*e_j4__b3_1 - _dx398*e_j4__b3_2
+    C[24, 48] = _dx102*e_j2__b3_2 + _dx491*f_j2__b1_0 + _dx517*f_j2__b1_1 + _dx543*f_j2__b1_2 + _dx759*e_r1__b4_0 + _dx771*e_r1__b4_1 + _dx78*e_j2__b3_0 + _dx783*f_r1__b2_0 + _dx795*f_r1__b2_1 + _dx810*e_r2__b4_0 + _dx834*e_r2__b4_1 + _dx858*f_r2__b2_0 + _dx882*f_r2__b2_1 + _dx90*e_j2__b3_1 - _dx42*e_j1__b3_0 - _dx448*f_link1__b7_0 - _dx461*f_link1__b7_1 - _dx474*f_link1__b7_2 - _dx54*e_j1__b3_1 - _dx66*e_j1__b3_2
+    C[24, 49] = _dx103*e_j2__b3_2 + _dx492*f_j2__b1_0 + _dx518*f_j2__b1_1 + _dx544*f_j2__b1_2 + _dx760*e_r1__b4_0 + _dx772*e_r1__b4_1 + _dx784*f_r1__b2_0 + _dx79*e_j2__b3_0 + _dx796*f_r1__b2_1 + _dx811*e_r2__b4_0 + _dx835*e_r2__b4_1 + _dx859*f_r2__b2_0 + _dx883*f_r2__b2_1 + _dx91*e_j2__b3_1 - _dx43*e_j1__b3_0 - _dx449*f_link1__b7_0 - _dx462*f_link1__b7_1 - _dx475*f_link1__b7_2 - _dx55*e_j1__b3_1 - _dx67*e_j1__b3_2
+    C[24, 50] = _dx104*e_j2__b3_2 + _dx493*f_j2__b1_0 + _dx519*f_j2__b1_1 + _dx545*f_j2__b1_2 + _dx761*e_r1__b4_0 + _dx773*e_r1__b4_1 + _dx785*f_r1__b2_0 + _dx797*f_r1__b2_1 + _dx80*e_j2__b3_0 + _dx812*e_r2__b4_0 + _dx836*e_r2__b4_1 + _dx860*f_r2__b2_0 + _dx884*f_r2__b2_1 + _dx92*e_j2__b3_1 - _dx44*e_j1__b3_0 - _dx450*f_link1__b7_0 - _dx463*f_link1__b7_1 - _dx476*f_link1__b7_2 - _dx56*e_j1__b3_1 - _dx68*e_j1__b3_2
+    C[24, 51] = _dx105*e_j2__b3_2 + _dx494*f_j2__b1_0 + _dx520*f_j2__b1_1 + _dx546*f_j2__b1_2 + _dx762*e_r1__b4_0 + _dx774*e_r1__b4_1 + _dx786*f_r1__b2_0 + _dx798*f_r1__b2_1 + _dx81*e_j2__b3_0 + _dx813*e_r2__b4_0 + _dx837*e_r2__b4_1 + _dx861*f_r2__b2_0 + _dx885*f_r2__b2_1 + _dx93*e_j2__b3_1 - _dx45*e_j1__b3_0 - _dx451*f_link1__b7_0 - _dx464*f_link1__b7_1 - _dx477*f_link1__b7_2 - _dx57*e_j1__b3_1 - _dx69*e_j1__b3_2
+    C[24, 52] = _dx106*e_j2__b3_2 + _dx495*f_j2__b1_0 + _dx521*f_j2__b1_1 + _dx547*f_j2__b1_2 + _dx763*e_r1__b4_0 + _dx775*e_r1__b4_1 + _dx787*f_r1__b2_0 + _dx799*f_r1__b2_1 + _dx814*e_r2__b4_0 + _dx82*e_j2__b3_0 + _dx838*e_r2__b4_1 + _dx862*f_r2__b2_0 + _dx886*f_r2__b2_1 + _dx94*e_j2__b3_1 - _dx452*f_link1__b7_0 - _dx46*e_j1__b3_0 - _dx465*f_link1__b7_1 - _dx478*f_link1__b7_2 - _dx58*e_j1__b3_1 - _dx70*e_j1__b3_2
+    C[24, 53] = _dx107*e_j2__b3_2 + _dx496*f_j2__b1_0 + _dx522*f_j2__b1_1 + _dx548*f_j2__b1_2 + _dx764*e_r1__b4_0 + _dx776*e_r1__b4_1 + _dx788*f_r1__b2_0 + _dx800*f_r1__b2_1 + _dx815*e_r2__b4_0 + _dx83*e_j2__b3_0 + _dx839*e_r2__b4_1 + _dx863*f_r2__b2_0 + _dx887*f_r2__b2_1 + _dx95*e_j2__b3_1 - _dx453*f_link1__b7_0 - _dx466*f_link1__b7_1 - _dx47*e_j1__b3_0 - _dx479*f_link1__b7_2 - _dx59*e_j1__b3_1 - _dx71*e_j1__b3_2
+    C[24, 54] = _dx108*e_j2__b3_2 + _dx497*f_j2__b1_0 + _dx523*f_j2__b1_1 + _dx549*f_j2__b1_2 + _dx765*e_r1__b4_0 + _dx777*e_r1__b4_1 + _dx789*f_r1__b2_0 + _dx801*f_r1__b2_1 + _dx816*e_r2__b4_0 + _dx84*e_j2__b3_0 + _dx840*e_r2__b4_1 + _dx864*f_r2__b2_0 + _dx888*f_r2__b2_1 + _dx96*e_j2__b3_1 - _dx454*f_link1__b7_0 - _dx467*f_link1__b7_1 - _dx48*e_j1__b3_0 - _dx480*f_link1__b7_2 - _dx60*e_j1__b3_1 - _dx72*e_j1__b3_2
+    C[24, 55] = _dx109*e_j2__b3_2 + _dx498*f_j2__b1_0 + _dx524*f_j2__b1_1 + _dx550*f_j2__b1_2 + _dx766*e_r1__b4_0 + _dx778*e_r1__b4_1 + _dx790*f_r1__b2_0 + _dx802*f_r1__b2_1 + _dx817*e_r2__b4_0 + _dx841*e_r2__b4_1 + _dx85*e_j2__b3_0 + _dx865*f_r2__b2_0 + _dx889*f_r2__b2_1 + _dx97*e_j2__b3_1 - _dx455*f_link1__b7_0 - _dx468*f_link1__b7_1 - _dx481*f_link1__b7_2 - _dx49*e_j1__b3_0 - _dx61*e_j1__b3_1 - _dx73*e_j1__b3_2
+    C[24, 56] = _dx110*e_j2__b3_2 + _dx499*f_j2__b1_0 + _dx525*f_j2__b1_1 + _dx551*f_j2__b1_2 + _dx767*e_r1__b4_0 + _dx779*e_r1__b4_1 + _dx791*f_r1__b2_0 + _dx803*f_r1__b2_1 + _dx818*e_r2__b4_0 + _dx842*e_r2__b4_1 + _dx86*e_j2__b3_0 + _dx866*f_r2__b2_0 + _dx890*f_r2__b2_1 + _dx98*e_j2__b3_1 - _dx456*f_link1__b7_0 - _dx469*f_link1__b7_1 - _dx482*f_link1__b7_2 - _dx50*e_j1__b3_0 - _dx62*e_j1__b3_1 - _dx74*e_j1__b3_2
+    C[24, 60] = _dx189*e_j3__b3_0 + _dx201*e_j3__b3_1 + _dx213*e_j3__b3_2 + _dx500*f_j2__b1_0 + _dx526*f_j2__b1_1 + _dx552*f_j2__b1_2 + _dx569*f_j3__b1_0 + _dx595*f_j3__b1_1 + _dx621*f_j3__b1_2 + _dx819*e_r2__b4_0 + _dx843*e_r2__b4_1 + _dx867*f_r2__b2_0 + _dx891*f_r2__b2_1 + _dx906*e_r3__b4_0 + _dx930*e_r3__b4_1 + _dx954*f_r3__b2_0 + _dx978*f_r3__b2_1 - _dx153*e_j2__b3_0 - _dx165*e_j2__b3_1 - _dx177*e_j2__b3_2
+    C[24, 61] = _dx190*e_j3__b3_0 + _dx202*e_j3__b3_1 + _dx214*e_j3__b3_2 + _dx501*f_j2__b1_0 + _dx527*f_j2__b1_1 + _dx553*f_j2__b1_2 + _dx570*f_j3__b1_0 + _dx596*f_j3__b1_1 + _dx622*f_j3__b1_2 + _dx820*e_r2__b4_0 + _dx844*e_r2__b4_1 + _dx868*f_r2__b2_0 + _dx892*f_r2__b2_1 + _dx907*e_r3__b4_0 + _dx931*e_r3__b4_1 + _dx955*f_r3__b2_0 + _dx979*f_r3__b2_1 - _dx154*e_j2__b3_0 - _dx166*e_j2__b3_1 - _dx178*e_j2__b3_2
+    C[24, 62] = _dx191*e_j3__b3_0 + _dx203*e_j3__b3_1 + _dx215*e_j3__b3_2 + _dx502*f_j2__b1_0 + _dx528*f_j2__b1_1 + _dx554*f_j2__b1_2 + _dx571*f_j3__b1_0 + _dx597*f_j3__b1_1 + _dx623*f_j3__b1_2 + _dx821*e_r2__b4_0 + _dx845*e_r2__b4_1 + _dx869*f_r2__b2_0 + _dx893*f_r2__b2_1 + _dx908*e_r3__b4_0 + _dx932*e_r3__b4_1 + _dx956*f_r3__b2_0 + _dx980*f_r3__b2_1 - _dx155*e_j2__b3_0 - _dx167*e_j2__b3_1 - _dx179*e_j2__b3_2
+    C[24, 63] = _dx192*e_j3__b3_0 + _dx204*e_j3__b3_1 + _dx216*e_j3__b3_2 + _dx503*f_j2__b1_0 + _dx529*f_j2__b1_1 + _dx555*f_j2__b1_2 + _dx572*f_j3__b1_0 + _dx598*f_j3__b1_1 + _dx624*f_j3__b1_2 + _dx822*e_r2__b4_0 + _dx846*e_r2__b4_1 + _dx870*f_r2__b2_0 + _dx894*f_r2__b2_1 + _dx909*e_r3__b4_0 + _dx933*e_r3__b4_1 + _dx957*f_r3__b2_0 + _dx981*f_r3__b2_1 - _dx156*e_j2__b3_0 - _dx168*e_j2__b3_1 - _dx180*e_j2__b3_2
+    C[24, 64] = _dx193*e_j3__b3_0 + _dx205*e_j3__b3_1 + _dx217*e_j3__b3_2 + _dx504*f_j2__b1_0 + _dx530*f_j2__b1_1 + _dx556*f_j2__b1_2 + _dx573*f_j3__b1_0 + _dx599*f_j3__b1_1 + _dx625*f_j3__b1_2 + _dx823*e_r2__b4_0 + _dx847*e_r2__b4_1 + _dx871*f_r2__b2_0 + _dx895*f_r2__b2_1 + _dx910*e_r3__b4_0 + _dx934*e_r3__b4_1 + _dx958*f_r3__b2_0 + _dx982*f_r3__b2_1 - _dx157*e_j2__b3_0 - _dx169*e_j2__b3_1 - _dx181*e_j2__b3_2
+    C[24, 65] = _dx194*e_j3__b3_0 + _dx206*e_j3__b3_1 + _dx218*e_j3__b3_2 + _dx505*f_j2__b1_0 + _dx531*f_j2__b1_1 + _dx557*f_j2__b1_2 + _dx574*f_j3__b1_0 + _dx600*f_j3__b1_1 + _dx626*f_j3__b1_2 + _dx824*e_r2__b4_0 + _dx848*e_r2__b4_1 + _dx872*f_r2__b2_0 + _dx896*f_r2__b2_1 + _dx911*e_r3__b4_0 + _dx935*e_r3__b4_1 + _dx959*f_r3__b2_0 + _dx983*f_r3__b2_1 - _dx158*e_j2__b3_0 - _dx170*e_j2__b3_1 - _dx182*e_j2__b3_2
+    C[24, 66] = _dx195*e_j3__b3_0 + _dx207*e_j3__b3_1 + _dx219*e_j3__b3_2 + _dx506*f_j2__b1_0 + _dx532*f_j2__b1_1 + _dx558*f_j2__b1_2 + _dx575*f_j3__b1_0 + _dx601*f_j3__b1_1 + _dx627*f_j3__b1_2 + _dx825*e_r2__b4_0 + _dx849*e_r2__b4_1 + _dx873*f_r2__b2_0 + _dx897*f_r2__b2_1 + _dx912*e_r3__b4_0 + _dx936*e_r3__b4_1 + _dx960*f_r3__b2_0 + _dx984*f_r3__b2_1 - _dx159*e_j2__b3_0 - _dx171*e_j2__b3_1 - _dx183*e_j2__b3_2
+    C[24, 67] = _dx196*e_j3__b3_0 + _dx208*e_j3__b3_1 + _dx220*e_j3__b3_2 + _dx507*f_j2__b1_0 + _dx533*f_j2__b1_1 + _dx559*f_j2__b1_2 + _dx576*f_j3__b1_0 + _dx602*f_j3__b1_1 + _dx628*f_j3__b1_2 + _dx826*e_r2__b4_0 + _dx850*e_r2__b4_1 + _dx874*f_r2__b2_0 + _dx898*f_r2__b2_1 + _dx913*e_r3__b4_0 + _dx937*e_r3__b4_1 + _dx961*f_r3__b2_0 + _dx985*f_r3__b2_1 - _dx160*e_j2__b3_0 - _dx172*e_j2__b3_1 - _dx184*e_j2__b3_2
+    C[24, 68] = _dx197*e_j3__b3_0 + _dx209*e_j3__b3_1 + _dx221*e_j3__b3_2 + _dx508*f_j2__b1_0 + _dx534*f_j2__b1_1 + _dx560*f_j2__b1_2 + _dx577*f_j3__b1_0 + _dx603*f_j3__b1_1 + _dx629*f_j3__b1_2 + _dx827*e_r2__b4_0 + _dx851*e_r2__b4_1 + _dx875*f_r2__b2_0 + _dx899*f_r2__b2_1 + _dx914*e_r3__b4_0 + _dx938*e_r3__b4_1 + _dx962*f_r3__b2_0 + _dx986*f_r3__b2_1 - _dx161*e_j2__b3_0 - _dx173*e_j2__b3_1 - _dx185*e_j2__b3_2
+    C[24, 72] = _dx1000*f_jd__b1_0 + _dx1013*f_jd__b1_1 + _dx1026*f_jd__b1_2 + _dx300*e_j4__b3_0 + _dx312*e_j4__b3_1 + _dx324*e_j4__b3_2 + _dx578*f_j3__b1_0 + _dx604*f_j3__b1_1 + _dx630*f_j3__b1_2 + _dx647*f_j4__b1_0 + _dx673*f_j4__b1_1 + _dx699*f_j4__b1_2 + _dx915*e_r3__b4_0 + _dx939*e_r3__b4_1 + _dx963*f_r3__b2_0 + _dx987*f_r3__b2_1 - _dx264*e_j3__b3_0 - _dx276*e_j3__b3_1 - _dx288*e_j3__b3_2 - _dx300*e_jd__b3_0 - _dx312*e_jd__b3_1 - _dx324*e_jd__b3_2
+    C[24, 73] = _dx1001*f_jd__b1_0 + _dx1014*f_jd__b1_1 + _dx1027*f_jd__b1_2 + _dx301*e_j4__b3_0 + _dx313*e_j4__b3_1 + _dx325*e_j4__b3_2 + _dx579*f_j3__b1_0 + _dx605*f_j3__b1_1 + _dx631*f_j3__b1_2 + _dx648*f_j4__b1_0 + _dx674*f_j4__b1_1 + _dx700*f_j4__b1_2 + _dx916*e_r3__b4_0 + _dx940*e_r3__b4_1 + _dx964*f_r3__b2_0 + _dx988*f_r3__b2_1 - _dx265*e_j3__b3_0 - _dx277*e_j3__b3_1 - _dx289*e_j3__b3_2 - _dx301*e_jd__b3_0 - _dx313*e_jd__b3_1 - _dx325*e_jd__b3_2
+    C[24, 74] = _dx1002*f_jd__b1_0 + _dx1015*f_jd__b1_1 + _dx1028*f_jd__b1_2 + _dx302*e_j4__b3_0 + _dx314*e_j4__b3_1 + _dx326*e_j4__b3_2 + _dx580*f_j3__b1_0 + _dx606*f_j3__b1_1 + _dx632*f_j3__b1_2 + _dx649*f_j4__b1_0 + _dx675*f_j4__b1_1 + _dx701*f_j4__b1_2 + _dx917*e_r3__b4_0 + _dx941*e_r3__b4_1 + _dx965*f_r3__b2_0 + _dx989*f_r3__b2_1 - _dx266*e_j3__b3_0 - _dx278*e_j3__b3_1 - _dx290*e_j3__b3_2 - _dx302*e_jd__b3_0 - _dx314*e_jd__b3_1 - _dx326*e_jd__b3_2
+    C[24, 75] = _dx1003*f_jd__b1_0 + _dx1016*f_jd__b1_1 + _dx1029*f_jd__b1_2 + _dx303*e_j4__b3_0 + _dx315*e_j4__b3_1 + _dx327*e_j4__b3_2 + _dx581*f_j3__b1_0 + _dx607*f_j3__b1_1 + _dx633*f_j3__b1_2 + _dx650*f_j4__b1_0 + _dx676*f_j4__b1_1 + _dx702*f_j4__b1_2 + _dx918*e_r3__b4_0 + _dx942*e_r3__b4_1 + _dx966*f_r3__b2_0 + _dx990*f_r3__b2_1 - _dx267*e_j3__b3_0 - _dx279*e_j3__b3_1 - _dx291*e_j3__b3_2 - _dx303*e_jd__b3_0 - _dx315*e_jd__b3_1 - _dx327*e_jd__b3_2
+    C[24, 76] = _dx1004*f_jd__b1_0 + _dx1017*f_jd__b1_1 + _dx1030*f_jd__b1_2 + _dx304*e_j4__b3_0 + _dx316*e_j4__b3_1 + _dx328*e_j4__b3_2 + _dx582*f_j3__b1_0 + _dx608*f_j3__b1_1 + _dx634*f_j3__b1_2 + _dx651*f_j4__b1_0 + _dx677*f_j4__b1_1 + _dx703*f_j4__b1_2 + _dx919*e_r3__b4_0 + _dx943*e_r3__b4_1 + _dx967*f_r3__b2_0 + _dx991*f_r3__b2_1 - _dx268*e_j3__b3_0 - _dx280*e_j3__b3_1 - _dx292*e_j3__b3_2 - _dx304*e_jd__b3_0 - _dx316*e_jd__b3_1 - _dx328*e_jd__b3_2
+    C[24, 77] = _dx1005*f_jd__b1_0 + _dx1018*f_jd__b1_1 + _dx1031*f_jd__b1_2 + _dx305*e_j4__b3_0 + _dx317*e_j4__b3_1 + _dx329*e_j4__b3_2 + _dx583*f_j3__b1_0 + _dx609*f_j3__b1_1 + _dx635*f_j3__b1_2 + _dx652*f_j4__b1_0 + _dx678*f_j4__b1_1 + _dx704*f_j4__b1_2 + _dx920*e_r3__b4_0 + _dx944*e_r3__b4_1 + _dx968*f_r3__b2_0 + _dx992*f_r3__b2_1 - _dx269*e_j3__b3_0 - _dx281*e_j3__b3_1 - _dx293*e_j3__b3_2 - _dx305*e_jd__b3_0 - _dx317*e_jd__b3_1 - _dx329*e_jd__b3_2
+    C[24, 78] = _dx1006*f_jd__b1_0 + _dx1019*f_jd__b1_1 + _dx1032*f_jd__b1_2 + _dx306*e_j4__b3_0 + _dx318*e_j4__b3_1 + _dx330*e_j4__b3_2 + _dx584*f_j3__b1_0 + _dx610*f_j3__b1_1 + _dx636*f_j3__b1_2 + _dx653*f_j4__b1_0 + _dx679*f_j4__b1_1 + _dx705*f_j4__b1_2 + _dx921*e_r3__b4_0 + _dx945*e_r3__b4_1 + _dx969*f_r3__b2_0 + _dx993*f_r3__b2_1 - _dx270*e_j3__b3_0 - _dx282*e_j3__b3_1 - _dx294*e_j3__b3_2 - _dx306*e_jd__b3_0 - _dx318*e_jd__b3_1 - _dx330*e_jd__b3_2
+    C[24, 79] = _dx1007*f_jd__b1_0 + _dx1020*f_jd__b1_1 + _dx1033*f_jd__b1_2 + _dx307*e_j4__b3_0 + _dx319*e_j4__b3_1 + _dx331*e_j4__b3_2 + _dx585*f_j3__b1_0 + _dx611*f_j3__b1_1 + _dx637*f_j3__b1_2 + _dx654*f_j4__b1_0 + _dx680*f_j4__b1_1 + _dx706*f_j4__b1_2 + _dx922*e_r3__b4_0 + _dx946*e_r3__b4_1 + _dx970*f_r3__b2_0 + _dx994*f_r3__b2_1 - _dx271*e_j3__b3_0 - _dx283*e_j3__b3_1 - _dx295*e_j3__b3_2 - _dx307*e_jd__b3_0 - _dx319*e_jd__b3_1 - _dx331*e_jd__b3_2
+    C[24, 80] = _dx1008*f_jd__b1_0 + _dx1021*f_jd__b1_1 + _dx1034*f_jd__b1_2 + _dx308*e_j4__b3_0 + _dx320*e_j4__b3_1 + _dx332*e_j4__b3_2 + _dx586*f_j3__b1_0 + _dx612*f_j3__b1_1 + _dx638*f_j3__b1_2 + _dx655*f_j4__b1_0 + _dx681*f_j4__b1_1 + _dx707*f_j4__b1_2 + _dx923*e_r3__b4_0 + _dx947*e_r3__b4_1 + _dx971*f_r3__b2_0 + _dx995*f_r3__b2_1 - _dx272*e_j3__b3_0 - _dx284*e_j3__b3_1 - _dx296*e_j3__b3_2 - _dx308*e_jd__b3_0 - _dx320*e_jd__b3_1 - _dx332*e_jd__b3_2
+    C[24, 84] = _dx411*e_j5__b3_0 + _dx423*e_j5__b3_1 + _dx435*e_j5__b3_2 + _dx656*f_j4__b1_0 + _dx682*f_j4__b1_1 + _dx708*f_j4__b1_2 + _dx721*f_link4__b11_0 + _dx734*f_link4__b11_1 + _dx747*f_link4__b11_2 - _dx375*e_j4__b3_0 - _dx387*e_j4__b3_1 - _dx399*e_j4__b3_2
+    C[24, 85] = _dx412*e_j5__b3_0 + _dx424*e_j5__b3_1 + _dx436*e_j5__b3_2 + _dx657*f_j4__b1_0 + _dx683*f_j4__b1_1 + _dx709*f_j4__b1_2 + _dx722*f_link4__b11_0 + _dx735*f_link4__b11_1 + _dx748*f_link4__b11_2 - _dx376*e_j4__b3_0 - _dx388*e_j4__b3_1 - _dx400*e_j4__b3_2
+    C[24, 86] = _dx413*e_j5__b3_0 + _dx425*e_j5__b3_1 + _dx437*e_j5__b3_2 + _dx658*f_j4__b1_0 + _dx684*f_j4__b1_1 + _dx710*f_j4__b1_2 + _dx723*f_link4__b11_0 + _dx736*f_link4__b11_1 + _dx749*f_link4__b11_2 - _dx377*e_j4__b3_0 - _dx389*e_j4__b3_1 - _dx401*e_j4__b3_2
+    C[24, 87] = _dx414*e_j5__b3_0 + _dx426*e_j5__b3_1 + _dx438*e_j5__b3_2 + _dx659*f_j4__b1_0 + _dx685*f_j4__b1_1 + _dx711*f_j4__b1_2 + _dx724*f_link4__b11_0 + _dx737*f_link4__b11_1 + _dx750*f_link4__b11_2 - _dx378*e_j4__b3_0 - _dx390*e_j4__b3_1 - _dx402*e_j4__b3_2
+    C[24, 88] = _dx415*e_j5__b3_0 + _dx427*e_j5__b3_1 + _dx439*e_j5__b3_2 + _dx660*f_j4__b1_0 + _dx686*f_j4__b1_1 + _dx712*f_j4__b1_2 + _dx725*f_link4__b11_0 + _dx738*f_link4__b11_1 + _dx751*f_link4__b11_2 - _dx379*e_j4__b3_0 - _dx391*e_j4__b3_1 - _dx403*e_j4__b3_2
+    C[24, 89] = _dx416*e_j5__b3_0 + _dx428*e_j5__b3_1 + _dx440*e_j5__b3_2 + _dx661*f_j4__b1_0 + _dx687*f_j4__b1_1 + _dx713*f_j4__b1_2 + _dx726*f_link4__b11_0 + _dx739*f_link4__b11_1 + _dx752*f_link4__b11_2 - _dx380*e_j4__b3_0 - _dx392*e_j4__b3_1 - _dx404*e_j4__b3_2
+    C[24, 90] = _dx417*e_j5__b3_0 + _dx429*e_j5__b3_1 + _dx441*e_j5__b3_2 + _dx662*f_j4__b1_0 + _dx688*f_j4__b1_1 + _dx714*f_j4__b1_2 + _dx727*f_link4__b11_0 + _dx740*f_link4__b11_1 + _dx753*f_link4__b11_2 - _dx381*e_j4__b3_0 - _dx393*e_j4__b3_1 - _dx405*e_j4__b3_2
+    C[24, 91] = _dx418*e_j5__b3_0 + _dx430*e_j5__b3_1 + _dx442*e_j5__b3_2 + _dx663*f_j4__b1_0 + _dx689*f_j4__b1_1 + _dx715*f_j4__b1_2 + _dx728*f_link4__b11_0 + _dx741*f_link4__b11_1 + _dx754*f_link4__b11_2 - _dx382*e_j4__b3_0 - _dx394*e_j4__b3_1 - _dx406*e_j4__b3_2
+    C[24, 92] = _dx419*e_j5__b3_0 + _dx431*e_j5__b3_1 + _dx443*e_j5__b3_2 + _dx664*f_j4__b1_0 + _dx690*f_j4__b1_1 + _dx716*f_j4__b1_2 + _dx729*f_link4__b11_0 + _dx742*f_link4__b11_1 + _dx755*f_link4__b11_2 - _dx383*e_j4__b3_0 - _dx395*e_j4__b3_1 - _dx407*e_j4__b3_2
+    C[25, 99] = 1
+    C[26, 100] = 1
+    C[27, 24] = _c395*q_j1__C_0
+    C[27, 25] = _c395*q_j1__C_1
+    C[27, 26] = _c395*q_j1__C_2
+    C[28, 27] = _c396*q_j2__C_0
+    C[28, 28] = _c396*q_j2__C_1
+    C[28, 29] = _c396*q_j2__C_2
+    C[29, 30] = _c397*q_j3__C_0
+    C[29, 31] = _c397*q_j3__C_1
+    C[29, 32] = _c397*q_j3__C_2
+    C[30, 33] = _c398*q_j4__C_0
+    C[30, 34] = _c398*q_j4__C_1
+    C[30, 35] = _c398*q_j4__C_2
+    C[31, 36] = _c399*q_j5__C_0
+    C[31, 37] = _c399*q_j5__C_1
+    C[31, 38] = _c399*q_j5__C_2
+    D[23, 0] = e_jd__b1_0 + r_d*u_vd_0
+    D[23, 1] = e_jd__b1_1 + r_d*u_vd_1
+    D[23, 2] = e_jd__b1_2 + r_d*u_vd_2
+    D[24, 0] = _c120 + e_jd__b3_0
+    D[24, 1] = _c121 + e_jd__b3_1
+    D[24, 2] = _c122 + e_jd__b3_2
+    return C, D
+
+
 class SimulationError(RuntimeError):
     """The integrator failed or was stopped (the message says why): .t where, .stats the counts."""
 
@@ -8212,6 +10352,11 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
     t0, t1 = float(t_span[0]), float(t_span[1])
     path = _Trajectory(t0, t1, y, _output_times(t0, t1, t_eval, dt))
     stats = {"nfev": 0, "njev": 0, "nlu": 0, "nsteps": 0, "nstiff": 0}
+    # a table input that is not smooth at its knots (linear, previous) adds them (unless u
+    # replaces that input)
+    breakpoints = tuple(breakpoints) + tuple(
+        k for name, knots in TABLE_BREAKPOINTS.items() if u is None or name not in u
+        for k in knots)
     segments = _segments(t0, t1, breakpoints)
     watch = None
     if stiff_check and method in _STABILITY and segments:
@@ -8255,3 +10400,186 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
         name: np.asarray(v)[..., None] if np.ndim(v) > _PARAM_NDIM[name] else v
         for name, v in p_raw.items()}
     return SimResult(t, X, outputs(t, X, pt, u), stats)
+
+
+# --------------------------------------------------------------------------------------------
+# Table inputs: data compiled into the module as numbers, evaluated by these functions.
+
+
+_PCHIP_SLOPES = {}  # table index -> slopes, computed on first use
+
+
+def _pchip_slopes(t, v):
+    """Fritsch-Carlson slopes of the monotone piecewise cubic Hermite interpolant: weighted
+    harmonic means of the neighbouring secants, zero at a local extremum; the end slopes by
+    the one-sided three-point formula, limited to keep the shape."""
+    h = np.diff(t)
+    s = np.diff(v) / h
+    d = np.zeros_like(v)
+    if len(t) == 2:
+        d[:] = s[0]
+        return d
+    w1 = 2 * h[1:] + h[:-1]
+    w2 = h[1:] + 2 * h[:-1]
+    same = (s[:-1] * s[1:]) > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        hm = (w1 + w2) / (w1 / s[:-1] + w2 / s[1:])
+    d[1:-1] = np.where(same, hm, 0.0)
+    for end, (h0, h1, s0, s1) in ((0, (h[0], h[1], s[0], s[1])),
+                                  (-1, (h[-1], h[-2], s[-1], s[-2]))):
+        de = ((2 * h0 + h1) * s0 - h0 * s1) / (h0 + h1)
+        if np.sign(de) != np.sign(s0):
+            de = 0.0
+        elif np.sign(s0) != np.sign(s1) and abs(de) > abs(3 * s0):
+            de = 3 * s0
+        d[end] = de
+    return d
+
+
+def _table_eval(t, k, interp, extrapolate, name):
+    """The value of a table input at t (scalar or array): linear, pchip or previous
+    (zero-order hold: the value at the last knot at or before t); outside the knots the end
+    value is held, or ValueError with extrapolate='error'."""
+    tk, vk = _TABLES[k]
+    t = np.asarray(t, dtype=float)
+    if extrapolate == "error" and (np.any(t < tk[0]) or np.any(t > tk[-1])):
+        raise ValueError(f"input {name!r}: t = {np.min(t) if np.any(t < tk[0]) else np.max(t):g}"
+                         f" is outside its table [{tk[0]:g}, {tk[-1]:g}] (extrapolate: error)")
+    tc = np.clip(t, tk[0], tk[-1])
+    if interp == "linear":
+        return np.interp(tc, tk, vk)
+    if interp == "previous":
+        i = np.clip(np.searchsorted(tk, tc, side="right") - 1, 0, len(tk) - 1)
+        return vk[i]
+    if k not in _PCHIP_SLOPES:
+        _PCHIP_SLOPES[k] = _pchip_slopes(tk, vk)
+    dk = _PCHIP_SLOPES[k]
+    i = np.clip(np.searchsorted(tk, tc, side="right") - 1, 0, len(tk) - 2)
+    h = tk[i + 1] - tk[i]
+    s = (tc - tk[i]) / h
+    h00, h10 = (1 + 2 * s) * (1 - s) ** 2, s * (1 - s) ** 2
+    h01, h11 = s * s * (3 - 2 * s), s * s * (s - 1)
+    return h00 * vk[i] + h10 * h * dk[i] + h01 * vk[i + 1] + h11 * h * dk[i + 1]
+
+
+# --------------------------------------------------------------------------------------------
+# Linearisation and equilibrium, from the analytic derivatives of the model part.
+
+
+def _signals(u):
+    """Input overrides as callables: a number or an array is held constant."""
+    if u is None:
+        return None
+    return {k: (v if callable(v) else (lambda t, _v=np.asarray(v, dtype=float): _v))
+            for k, v in u.items()}
+
+
+def linearize(t, x, u=None, p=None):
+    """The linearisation at (t, x): (A, B, C, D) with dx = A x + B u, y = C x + D u,
+    analytic. A: (n, n), B: (n, m), C: (ny, n), D: (ny, m), each with x's batch axes after
+    them. The columns of B and D follow INPUT_LABELS (m = 0 for a model without inputs), the
+    rows of C and D OUTPUT_LABELS (each output of OUTPUT_NAMES flattened row-major). u:
+    {name: callable(t) or value} overrides of the inputs; p: parameter overrides."""
+    u = _signals(u)
+    p = _params(p)
+    x = np.asarray(x, dtype=float)
+    A = jacobian(t, x, p, u)
+    B = input_jacobian(t, x, p, u)
+    C, D = output_jacobian(t, x, p, u)
+    return A, B, C, D
+
+
+class EquilibriumInfo:
+    """What equilibrium() found: converged (bool per batch instance), residual (max |rhs|),
+    iterations, rank of the Jacobian, and free: per instance, the free directions (the null
+    space of the Jacobian, where the equilibrium is not unique: a position with no stiffness),
+    each a dict {state name: component} of its largest components. For an unbatched call,
+    converged, residual and rank are scalars and free is one list."""
+
+    def __init__(self, converged, residual, iterations, rank, free, null_space):
+        self.converged, self.residual, self.iterations = converged, residual, iterations
+        self.rank, self.free, self.null_space = rank, free, null_space
+
+    def __repr__(self):
+        return (f"EquilibriumInfo(converged={self.converged!r}, residual={self.residual!r}, "
+                f"iterations={self.iterations}, rank={self.rank!r}, free={self.free!r})")
+
+
+def _free_directions(V, names, top=4):
+    out = []
+    for v in V.T:
+        order = np.argsort(-np.abs(v))[:top]
+        out.append({names[i]: float(v[i]) for i in order if abs(v[i]) > 1e-3})
+    return out
+
+
+def equilibrium(u=None, p=None, x0=None, t=0.0, tol=1e-10, max_iter=100, rcond=1e-9):
+    """A state where rhs = 0, inputs held at their values at t: Newton's method with the
+    analytic Jacobian and a backtracking line search on |rhs|^2. Where the Jacobian is
+    singular (a free position: no stiffness holds it), each step is the least-squares,
+    minimum-norm one (pseudo-inverse by SVD, singular values below rcond times the largest
+    treated as zero), so the free directions keep their values from x0; they are reported in
+    info.free by state name. Batched like rhs: x0 (n, *batch) and array parameters.
+    Returns (x, info); converged where max |rhs| <= tol * (1 + max |rhs(x0)|)."""
+    u = _signals(u)
+    p = _params(p)
+    x0 = initial_state(p) if x0 is None else np.asarray(x0, dtype=float)
+    x0, batch = _batched(x0, p)
+    n = N_STATES
+    nb = int(np.prod(batch)) if batch else 1
+
+    def f(xf):  # (nb, n) -> (nb, n)
+        return np.moveaxis(rhs(t, np.moveaxis(xf.reshape(batch + (n,)), -1, 0), p, u)
+                           .reshape((n,) + batch), 0, -1).reshape(nb, n)
+
+    def jac(xf):  # (nb, n) -> (nb, n, n)
+        J = jacobian(t, np.moveaxis(xf.reshape(batch + (n,)), -1, 0), p, u)
+        J = np.broadcast_to(J, (n, n) + batch).reshape(n, n, nb)
+        return np.moveaxis(J, -1, 0)
+
+    x = np.moveaxis(np.array(x0, dtype=float).reshape(n, nb), 0, -1).copy()
+    r = f(x)
+    scale = 1.0 + np.max(np.abs(r), axis=1)
+    res = np.max(np.abs(r), axis=1)
+    done = res <= tol * scale
+    it = 0
+    for it in range(1, max_iter + 1):
+        if np.all(done):
+            it -= 1
+            break
+        J = jac(x)
+        U, S, Vt = np.linalg.svd(J)
+        keep = S > rcond * np.maximum(S[:, :1], 1e-300)
+        Sinv = np.where(keep, 1.0 / np.where(keep, S, 1.0), 0.0)
+        step = -np.einsum("bji,bj,bkj,bk->bi", Vt, Sinv, U, r)
+        step[done] = 0.0
+        phi = np.sum(r * r, axis=1)
+        lam = np.ones(nb)
+        for _ in range(30):  # backtracking (Armijo) per instance
+            xt = x + lam[:, None] * step
+            rt = f(xt)
+            pt = np.sum(rt * rt, axis=1)
+            ok = (pt <= (1 - 1e-4 * lam) * phi) | done | ~np.isfinite(phi)
+            if np.all(ok):
+                break
+            lam = np.where(ok, lam, lam * 0.5)
+        # where no decrease is possible (a least-squares minimum), stay
+        better = pt < phi
+        x = np.where(better[:, None], xt, x)
+        r = np.where(better[:, None], rt, r)
+        res = np.max(np.abs(r), axis=1)
+        small = np.max(np.abs(step), axis=1) <= 1e-14 * (1 + np.max(np.abs(x), axis=1))
+        done = done | (res <= tol * scale) | ~better | small
+    J = jac(x)
+    _, S, Vt = np.linalg.svd(J)
+    keep = S > rcond * np.maximum(S[:, :1], 1e-300)
+    rank = keep.sum(axis=1)
+    null = [Vt[b][~keep[b]].T for b in range(nb)]
+    free = [_free_directions(V, STATE_NAMES) for V in null]
+    conv = res <= tol * scale
+    xs = np.moveaxis(x.reshape(batch + (n,)), -1, 0)
+    if not batch:
+        return xs, EquilibriumInfo(bool(conv[0]), float(res[0]), it, int(rank[0]), free[0],
+                                   null[0])
+    return xs, EquilibriumInfo(conv.reshape(batch), res.reshape(batch), it,
+                               rank.reshape(batch), free, null)

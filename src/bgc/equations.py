@@ -817,3 +817,107 @@ def _check_names(bg: BondGraph, ctx: _Ctx, state_vars) -> None:
             raise ModelError(bg.model.coord, f"name clash in generated code: {who} and "
                                              f"{seen[ident]} both become {ident!r}; rename one")
         seen[ident] = who
+
+
+# ---------------------------------------------------------------------------------------------
+# Linearisation: the derivatives of rhs with respect to the inputs (B) and of the outputs with
+# respect to the states and the inputs (C, D), in forward mode along the same assignments as
+# the state Jacobian. Computed on demand (emit asks for them), so derive() is unchanged.
+
+
+@dataclass(frozen=True)
+class LinearParts:
+    """Nonzero entries of B = d(rhs)/du, C = d(y)/dx, D = d(y)/du, keyed (row, column), with
+    the forward-mode intermediates each needs. Inputs are flattened in INPUT_NAMES order (a
+    vector input contributes its components in order), outputs in OUTPUT_NAMES order (each
+    output's components in row-major order)."""
+
+    B: dict
+    B_assignments: tuple[Assignment, ...]
+    C: dict
+    D: dict
+    CD_assignments: tuple[Assignment, ...]
+    input_labels: tuple[str, ...]
+    output_labels: tuple[str, ...]
+
+
+def forward_mode(kept, seeds: dict, finals: list, prefix: str):
+    """Forward-mode derivatives of ``finals`` with respect to the seed symbols (symbol ->
+    column) along the assignments ``kept``. Returns ({(row, column): expression}, new
+    intermediate assignments named ``<prefix><k>``)."""
+    D: dict = {s: {j: sp.Integer(1)} for s, j in seeds.items()}
+    assign: list[Assignment] = []
+    counter = itertools.count()
+
+    def grad(expr) -> dict:
+        acc: dict = {}
+        for s in expr.free_symbols:
+            ds = D.get(s)
+            if not ds:
+                continue
+            partial = _clean(sp.diff(expr, s))
+            if partial == 0:
+                continue
+            for j, dj in ds.items():
+                term = partial * dj
+                acc[j] = acc[j] + term if j in acc else term
+        return {j: v for j, v in acc.items() if v != 0}
+
+    need: set = set()  # only the assignments the finals depend on (linear in model size)
+    for e in finals:
+        need |= e.free_symbols
+    used = []
+    for a in reversed(kept):
+        if a.symbol in need:
+            used.append(a)
+            need |= a.expr.free_symbols
+    for a in reversed(used):
+        g = grad(a.expr)
+        if not g:
+            continue
+        dv = {}
+        for j, v in sorted(g.items()):
+            if _trivial(v):
+                dv[j] = v
+            else:
+                s = _sym(f"{prefix}{next(counter)}")
+                assign.append(Assignment(s, v, ""))
+                dv[j] = s
+        D[a.symbol] = dv
+    out = {}
+    for i, expr in enumerate(finals):
+        for j, v in grad(expr).items():
+            out[(i, j)] = v
+    return out, assign
+
+
+def _label(name: str, shape, k: int) -> str:
+    if not shape:
+        return name
+    if len(shape) == 1:
+        return f"{name}[{k}]"
+    return f"{name}[{k // shape[1]},{k % shape[1]}]"
+
+
+def linear_parts(eq: Equations) -> LinearParts:
+    """B, C and D of the linearisation (A is ``eq.jacobian``)."""
+    useeds = {}
+    ilabels = []
+    for iv in eq.inputs:
+        for k, s in enumerate(iv.symbols):
+            useeds[s] = len(ilabels)
+            ilabels.append(_label(iv.name, iv.shape, k))
+    xseeds = {sv.symbol: j for j, sv in enumerate(eq.states)}
+    youts, olabels = [], []
+    for name, shp, vals in eq.outputs:
+        for k, v in enumerate(vals):
+            youts.append(v)
+            olabels.append(_label(name, shp, k))
+    kept = list(eq.assignments)
+    B, b_assign = forward_mode(kept, useeds, list(eq.derivatives), "_du")
+    C, c_assign = forward_mode(kept, xseeds, youts, "_dx")
+    D, d_assign = forward_mode(kept, useeds, youts, "_du")
+    # B's and D's intermediates share a prefix: they live in different generated functions
+    # except D's, which sits beside C's (prefix _dx): no clash inside one function.
+    return LinearParts(B, tuple(b_assign), C, D, tuple(c_assign) + tuple(d_assign),
+                       tuple(ilabels), tuple(olabels))
