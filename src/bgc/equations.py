@@ -79,6 +79,7 @@ class InputVar:
     symbols: tuple
     shape: tuple[int, ...]
     default: tuple  # flat sympy expressions of t and parameters
+    table: object = None  # a bgc.tables.Table: the input is data (emit evaluates it)
 
 
 @dataclass(frozen=True)
@@ -299,7 +300,8 @@ def _inputs_value(self: _Ctx, name: str, coord: Coord):
             raise ModelError(inp.default.coord, f"input {name!r}: default has shape "
                                                 f"{_shape_name(shape_of(default))}, declared "
                                                 f"{_shape_name(shape_of(syms))}")
-        self.inputs[name] = InputVar(name, tuple(flat(syms)), inp.shape, tuple(flat(default)))
+        self.inputs[name] = InputVar(name, tuple(flat(syms)), inp.shape, tuple(flat(default)),
+                                     getattr(inp, "table", None))
         self.cache[("input", name)] = syms
     elif self.inputs[name] is None:
         raise ModelError(coord, f"input {name!r} refers to itself")

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import yaml
 
+from . import tables as _tables
 from .errors import Coord, ModelError
 from .expr import BOND_FUNCTIONS, FUNCTIONS, Expr, check
 from .limits import LIMITS
@@ -89,6 +90,7 @@ class Input:
     shape: tuple[int, ...]
     coord: Coord
     unit: str = ""
+    table: object = None  # a bgc.tables.Table: the input is data (default is then "0")
 
 
 @dataclass(frozen=True)
@@ -518,6 +520,12 @@ def parse_text(text: str, path: str = "<model>", _imports: _Imports | None = Non
     if "inputs" in top:
         for iname, (kn, vn) in r.mapping(top["inputs"][1], "inputs").items():
             check_name(iname, r.coord(kn), "input")
+            if _tables.is_table(r, vn):  # data: {table: FILE.csv, columns, interp, ...}
+                tb = _tables.read_table(r, vn, f"input {iname!r}", ("unit", "description"))
+                im = r.mapping(vn, f"input {iname!r}")
+                unit = r.string(im["unit"][1], "unit") if "unit" in im else ""
+                inputs.append(Input(iname, Expr("0", tb.coord), (), r.coord(kn), unit, tb))
+                continue
             if isinstance(vn, yaml.MappingNode):
                 im = r.mapping(vn, f"input {iname!r}")
                 _require(r, im, vn, ("default", "shape", "unit", "description"),
