@@ -84,3 +84,45 @@ def test_3r2s_hangs_at_its_equilibrium(gen):
     w_fast = np.max(np.abs(lam.imag))
     est = _slender_estimate(m)
     assert 0.7 < w_fast / est < 1.5, (w_fast, est)
+
+
+def _qc_scene(tmp_path, initial: str):
+    import os
+
+    qc = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "models",
+                      "quarter_car.yaml")
+    path = tmp_path / "s.yaml"
+    path.write_text(f"bgc_scene: 1\nmodel: {qc}\nduration: 0.5\ninitial: {initial}\n"
+                    "solver: {method: Radau, rtol: 1.0e-8, atol: 1.0e-10, dt: 0.05}\n")
+    return path
+
+
+def test_scene_initial_equilibrium_stays_put(tmp_path):
+    from bgc.runner import run_scene
+
+    r = run_scene(_qc_scene(tmp_path, "equilibrium"))
+    np.testing.assert_allclose(r.y["suspension_travel"], -QC["m_s"] * QC["g"] / QC["k_s"],
+                               rtol=1e-9)
+    assert np.max(np.abs(r.y["body_velocity"])) < 1e-9
+
+
+def test_scene_initial_values_by_state_and_element(tmp_path):
+    from bgc.runner import run_scene
+
+    r = run_scene(_qc_scene(tmp_path, "{spring.q: -0.1, tyre: -0.02, sprung.p: 25.0}"))
+    assert r.y["suspension_travel"][0] == -0.1 and r.y["wheel_height"][0] == -0.02
+    assert r.y["body_velocity"][0] == pytest.approx(25.0 / QC["m_s"])
+
+
+@pytest.mark.parametrize("initial, message", [
+    ("{sprung.x: 1.0}", "no state 'sprung.x'"),
+    ("{spring: [1.0, 2.0]}", "2 value(s) for 1 state(s)"),
+    ("somewhere", "write 'equilibrium'"),
+])
+def test_scene_initial_errors_are_located(tmp_path, initial, message):
+    from bgc.errors import ModelError
+    from bgc.runner import run_scene
+
+    with pytest.raises(ModelError) as ei:
+        run_scene(_qc_scene(tmp_path, initial))
+    assert message in ei.value.message and ei.value.coord.line == 4

@@ -21,7 +21,7 @@ K_T = 160000.0
 def _scene(tmp_path, inputs: str, extra: str = "", name="s.yaml"):
     path = tmp_path / name
     path.write_text(f"bgc_scene: 1\nmodel: {QC}\nduration: 2.0\ninputs:\n  zr: {inputs}\n"
-                    f"solver: {{method: Radau, rtol: 1.0e-9, atol: 1.0e-12, dt: 0.01}}\n{extra}")
+                    f"solver: {{method: Radau, rtol: 1.0e-8, atol: 1.0e-10, dt: 0.01}}\n{extra}")
     return path
 
 
