@@ -54,6 +54,8 @@ INPUT_LABELS = ()  # columns of B and D
 OUTPUT_LABELS = ('theta', 'omega', 'energy', )  # rows of C and D
 TABLE_BREAKPOINTS = {  # input -> the knots of its table where it is not smooth
 }
+TABLE_MAX_STEP = {  # input -> the smallest knot spacing of its smooth (pchip) table
+}
 JAC_SPARSITY = np.zeros((2, 2), dtype=bool)
 JAC_SPARSITY[
     [0, 1, ],
@@ -701,6 +703,9 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
     breakpoints = tuple(breakpoints) + tuple(
         k for name, knots in TABLE_BREAKPOINTS.items() if u is None or name not in u
         for k in knots)
+    # a smooth (pchip) table needs no breakpoints, but no step may skip its knots
+    max_step = min([max_step] + [h for name, h in TABLE_MAX_STEP.items()
+                                 if u is None or name not in u])
     segments = _segments(t0, t1, breakpoints)
     watch = None
     if stiff_check and method in _STABILITY and segments:

@@ -415,7 +415,7 @@ _MODEL_TOP = {
     "Assign": {"BGC_VERSION", "MODEL_HASH", "N_STATES", "STATE_NAMES", "PARAM_DEFAULTS",
                "PARAM_UNITS", "_PARAM_NDIM", "INPUT_NAMES", "OUTPUT_NAMES", "OUTPUT_SHAPES",
                "JAC_SPARSITY", "_P0", "X0", "INPUT_LABELS", "OUTPUT_LABELS", "_TABLES",
-               "TABLE_BREAKPOINTS"},
+               "TABLE_BREAKPOINTS", "TABLE_MAX_STEP"},
     "FunctionDef": {"_unpack", "_params", "_inputs", "initial_state", "rhs", "jacobian",
                     "outputs", "input_jacobian", "output_jacobian"},
     "ClassDef": {"_Unpacked"},

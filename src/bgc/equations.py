@@ -11,6 +11,7 @@ right-hand side. No ``simplify`` anywhere.
 from __future__ import annotations
 
 import heapq
+import sys
 import itertools
 from dataclasses import dataclass, field
 
@@ -923,3 +924,18 @@ def linear_parts(eq: Equations) -> LinearParts:
     # except D's, which sits beside C's (prefix _dx): no clash inside one function.
     return LinearParts(B, tuple(b_assign), C, D, tuple(c_assign) + tuple(d_assign),
                        tuple(ilabels), tuple(olabels))
+
+
+# ---------------------------------------------------------------------------------------------
+# ``bgc.equations(model)`` is the public API's function (bgc.api.equations), but ``bgc.equations``
+# is also this module's name: once imported, the package attribute is this module. Calling the
+# module calls the API function, so both spellings work whatever was imported first.
+
+class _CallableModule(type(sys.modules[__name__])):
+    def __call__(self, *args, **kwargs):
+        from .api import equations
+
+        return equations(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableModule

@@ -19,6 +19,7 @@ INPUT_NAMES: tuple
 INPUT_LABELS: tuple
 OUTPUT_LABELS: tuple
 TABLE_BREAKPOINTS: dict
+TABLE_MAX_STEP: dict
 _TABLES: tuple
 rhs = jacobian = outputs = initial_state = _params = None  # the model's, in a generated module
 input_jacobian = output_jacobian = None
@@ -522,6 +523,9 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
     breakpoints = tuple(breakpoints) + tuple(
         k for name, knots in TABLE_BREAKPOINTS.items() if u is None or name not in u
         for k in knots)
+    # a smooth (pchip) table needs no breakpoints, but no step may skip its knots
+    max_step = min([max_step] + [h for name, h in TABLE_MAX_STEP.items()
+                                 if u is None or name not in u])
     segments = _segments(t0, t1, breakpoints)
     watch = None
     if stiff_check and method in _STABILITY and segments:
