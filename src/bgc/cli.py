@@ -355,6 +355,72 @@ def linearize_cmd(target, at, out, bode, quiet):
             prog(f"wrote {png}")
 
 
+@main.command("equations")
+@click.argument("model", type=click.Path(dir_okay=False))
+@click.option("--latex", is_flag=True, help="LaTeX (an aligned block) instead of plain text")
+@click.option("--explicit", is_flag=True,
+              help="substitute the causal assignments: dx/dt in states, parameters, inputs only")
+def equations_cmd(model, latex, explicit):
+    """The state equations of MODEL: the causal assignments, then dx/dt (sympy)."""
+    from .api import equations
+
+    eq = equations(model)
+    if latex:
+        click.echo(eq.latex(explicit=explicit))
+        return
+    if explicit:
+        for s, e in zip(eq.states, eq.explicit()):
+            click.echo(f"d{s}/dt = {e}")
+        return
+    for a in eq.assignments:
+        click.echo(f"{a.lhs} = {a.rhs}")
+    for s, d in zip(eq.states, eq.derivatives):
+        click.echo(f"d{s}/dt = {d.rhs}")
+
+
+@main.command("examples")
+@click.argument("directory", type=click.Path(file_okay=False))
+def examples_cmd(directory):
+    """Copy the example models and scenes (and the format reference) into DIRECTORY; nothing
+    that already exists there is overwritten (then nothing is copied)."""
+    import shutil
+
+    files = _example_files()
+    dest = Path(directory)
+    clash = [rel for rel in files if (dest / rel).exists()]
+    if clash:
+        raise ModelError(None, f"{dest}: {len(clash)} file(s) exist already (e.g. {clash[0]}); "
+                               "nothing copied: choose an empty or new directory")
+    for rel, src in files.items():
+        (dest / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(src, dest / rel)
+    click.echo(f"copied {len(files)} files to {dest} (try: bgc simulate "
+               f"{dest / 'models' / 'scenes' / 'msd_step.yaml'} --plot figs/)")
+
+
+def _example_files() -> dict:
+    """relative path -> source file: the repository's models/ and docs/model-format.md in a
+    source checkout, else the installed copies (bgc.examples, bgc.docs)."""
+    root = Path(__file__).resolve().parent.parent.parent
+    if (root / "models" / "msd.yaml").is_file():
+        models, docs = root / "models", root / "docs"
+    else:  # installed wheel
+        from importlib import resources
+
+        models = Path(str(resources.files("bgc.examples")))
+        docs = Path(str(resources.files("bgc.docs")))
+    out = {}
+    for f in sorted(models.glob("*.yaml")):
+        out[f"models/{f.name}"] = f
+    for f in sorted((models / "scenes").glob("*")):
+        if f.suffix in (".yaml", ".csv"):
+            out[f"models/scenes/{f.name}"] = f
+    for name in ("model-format.md", "api.md"):
+        if (docs / name).is_file():
+            out[f"docs/{name}"] = docs / name
+    return out
+
+
 def _register_accuracy():
     from .accuracy import register
 
@@ -362,6 +428,23 @@ def _register_accuracy():
 
 
 _register_accuracy()
+
+_DOCS = "Docs: docs/model-format.md (the format), docs/api.md (Python), README.md."
+_EXAMPLES = {
+    "compile": "bgc compile models/msd.yaml -o msd.py",
+    "check": "bgc check models/3r2s.yaml",
+    "graph": "bgc graph models/msd.yaml -o msd.svg",
+    "simulate": "bgc simulate models/scenes/msd_step.yaml --out r.npz --plot figs/",
+    "explain": "bgc explain models/scenes/motor_load_motion_cold.yaml",
+    "accuracy": "bgc accuracy models/scenes/msd_step.yaml --out acc/",
+    "linearize": "bgc linearize models/quarter_car.yaml --out lin/ --bode zr:body_height",
+    "equations": "bgc equations models/msd.yaml --latex",
+    "examples": "bgc examples my_models/",
+}
+main.epilog = "\b\nExample:\n  bgc simulate models/scenes/msd_step.yaml --plot figs/\n\n" + _DOCS
+for _name, _cmd in main.commands.items():
+    if _name in _EXAMPLES:
+        _cmd.epilog = f"\b\nExample:\n  {_EXAMPLES[_name]}\n\n{_DOCS}"
 
 
 if __name__ == "__main__":  # pragma: no cover
