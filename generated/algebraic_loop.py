@@ -60,6 +60,8 @@ OUTPUT_SHAPES = {
     'i_R2': (),
     'i_C': (),
 }
+INPUT_UNITS = {'Vs': 'V', }
+OUTPUT_UNITS = {'v_C': '', 'v_node': '', 'i_R1': '', 'i_R2': '', 'i_C': '', }
 INPUT_LABELS = ('Vs', )  # columns of B and D
 OUTPUT_LABELS = ('v_C', 'v_node', 'i_R1', 'i_R2', 'i_C', )  # rows of C and D
 TABLE_BREAKPOINTS = {  # input -> the knots of its table where it is not smooth

@@ -334,6 +334,8 @@ OUTPUT_SHAPES = {
     'dissipated': (),
     'joint_gap': (5,),
 }
+INPUT_UNITS = {'vd': 'm/s', }
+OUTPUT_UNITS = {'theta1': '', 'theta2': '', 'theta3': '', 'theta4': '', 'p3': '', 'p3_desired': '', 'p3_projected': '', 'R4': '', 'energy': '', 'P_drive': '', 'P_diss': '', 'work_drive': '', 'dissipated': '', 'joint_gap': '', }
 INPUT_LABELS = ('vd[0]', 'vd[1]', 'vd[2]', )  # columns of B and D
 OUTPUT_LABELS = ('theta1', 'theta2', 'theta3', 'theta4', 'p3[0]', 'p3[1]', 'p3[2]', 'p3_desired[0]', 'p3_desired[1]', 'p3_desired[2]', 'p3_projected[0]', 'p3_projected[1]', 'p3_projected[2]', 'R4[0,0]', 'R4[0,1]', 'R4[0,2]', 'R4[1,0]', 'R4[1,1]', 'R4[1,2]', 'R4[2,0]', 'R4[2,1]', 'R4[2,2]', 'energy', 'P_drive', 'P_diss', 'work_drive', 'dissipated', 'joint_gap[0]', 'joint_gap[1]', 'joint_gap[2]', 'joint_gap[3]', 'joint_gap[4]', )  # rows of C and D
 TABLE_BREAKPOINTS = {  # input -> the knots of its table where it is not smooth

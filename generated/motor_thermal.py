@@ -129,6 +129,8 @@ OUTPUT_SHAPES = {
     'winding_temp': (),
     'housing_temp': (),
 }
+INPUT_UNITS = {'V': 'V', 'TL': 'N*m', }
+OUTPUT_UNITS = {'current': '', 'motor_speed': '', 'load_speed': '', 'load_angle': '', 'shaft_torque': '', 'power_in': '', 'copper_loss': '', 'copper_energy': '', 'winding_temp': '', 'housing_temp': '', }
 INPUT_LABELS = ('V', 'TL', )  # columns of B and D
 OUTPUT_LABELS = ('current', 'motor_speed', 'load_speed', 'load_angle', 'shaft_torque', 'power_in', 'copper_loss', 'copper_energy', 'winding_temp', 'housing_temp', )  # rows of C and D
 TABLE_BREAKPOINTS = {  # input -> the knots of its table where it is not smooth

@@ -50,6 +50,8 @@ OUTPUT_SHAPES = {
     'omega': (),
     'energy': (),
 }
+INPUT_UNITS = {}
+OUTPUT_UNITS = {'theta': '', 'omega': '', 'energy': '', }
 INPUT_LABELS = ()  # columns of B and D
 OUTPUT_LABELS = ('theta', 'omega', 'energy', )  # rows of C and D
 TABLE_BREAKPOINTS = {  # input -> the knots of its table where it is not smooth

@@ -58,6 +58,8 @@ OUTPUT_SHAPES = {
     'velocity': (3,),
     'spring_force': (3,),
 }
+INPUT_UNITS = {}
+OUTPUT_UNITS = {'position': '', 'velocity': '', 'spring_force': '', }
 INPUT_LABELS = ()  # columns of B and D
 OUTPUT_LABELS = ('position[0]', 'position[1]', 'position[2]', 'velocity[0]', 'velocity[1]', 'velocity[2]', 'spring_force[0]', 'spring_force[1]', 'spring_force[2]', )  # rows of C and D
 TABLE_BREAKPOINTS = {  # input -> the knots of its table where it is not smooth

@@ -60,6 +60,8 @@ OUTPUT_SHAPES = {
     'energy_in': (),
     'energy_R': (),
 }
+INPUT_UNITS = {'Vs': 'V', }
+OUTPUT_UNITS = {'charge': '', 'current': '', 'v_C': '', 'stored_energy': '', 'energy_in': '', 'energy_R': '', }
 INPUT_LABELS = ('Vs', )  # columns of B and D
 OUTPUT_LABELS = ('charge', 'current', 'v_C', 'stored_energy', 'energy_in', 'energy_R', )  # rows of C and D
 TABLE_BREAKPOINTS = {  # input -> the knots of its table where it is not smooth

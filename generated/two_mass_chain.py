@@ -71,6 +71,8 @@ OUTPUT_SHAPES = {
     'vel2': (),
     'link_force': (),
 }
+INPUT_UNITS = {'F': 'N', }
+OUTPUT_UNITS = {'x1': '', 'x2': '', 'vel1': '', 'vel2': '', 'link_force': '', }
 INPUT_LABELS = ('F', )  # columns of B and D
 OUTPUT_LABELS = ('x1', 'x2', 'vel1', 'vel2', 'link_force', )  # rows of C and D
 TABLE_BREAKPOINTS = {  # input -> the knots of its table where it is not smooth

@@ -78,6 +78,8 @@ OUTPUT_SHAPES = {
     'volume_in': (),
     'volume_out': (),
 }
+INPUT_UNITS = {'Qin': 'm^3/s', }
+OUTPUT_UNITS = {'h1': '', 'h2': '', 'vol1': '', 'vol2': '', 'flow12': '', 'outflow': '', 'volume_in': '', 'volume_out': '', }
 INPUT_LABELS = ('Qin', )  # columns of B and D
 OUTPUT_LABELS = ('h1', 'h2', 'vol1', 'vol2', 'flow12', 'outflow', 'volume_in', 'volume_out', )  # rows of C and D
 TABLE_BREAKPOINTS = {  # input -> the knots of its table where it is not smooth

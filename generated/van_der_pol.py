@@ -55,6 +55,8 @@ OUTPUT_SHAPES = {
     'i_L': (),
     'i_R': (),
 }
+INPUT_UNITS = {}
+OUTPUT_UNITS = {'v': '', 'dv_dt': '', 'i_L': '', 'i_R': '', }
 INPUT_LABELS = ()  # columns of B and D
 OUTPUT_LABELS = ('v', 'dv_dt', 'i_L', 'i_R', )  # rows of C and D
 TABLE_BREAKPOINTS = {  # input -> the knots of its table where it is not smooth

@@ -193,7 +193,8 @@ def simulate_cmd(scene, out, plot_dir, method, rtol, max_wall, quiet):
     if plot_dir:
         from .plots import write_plots
 
-        for p in write_plots(res.scene, res.t, res.y, plot_dir):
+        for p in write_plots(res.scene, res.t, res.y, plot_dir,
+                             units=getattr(res.module, "OUTPUT_UNITS", None)):
             prog(f"wrote {p}")
     st = res.stats
     click.echo(f"{res.scene.name}: t = {res.t[0]:g}..{res.t[-1]:g} s, {len(res.t)} points, "
@@ -345,12 +346,13 @@ def linearize_cmd(target, at, out, bode, quiet):
         tmp.write_bytes(data.getvalue())
         tmp.replace(npz)
         prog(f"wrote {npz}")
-        units = dict(getattr(mod, "INPUT_UNITS", {}))
+        iu, ou = dict(getattr(mod, "INPUT_UNITS", {})), dict(getattr(mod, "OUTPUT_UNITS", {}))
         for i_name, o_name in pairs:
             png = d / f"bode_{i_name}_{o_name}.png".replace("[", "_").replace("]", "")
             tmp = png.with_name(f".{png.stem}.tmp.png")
             bode_plot(tmp, lin, mod.INPUT_LABELS.index(i_name), mod.OUTPUT_LABELS.index(o_name),
-                      i_name, o_name, units.get(i_name.split("[")[0], ""))
+                      i_name, o_name, iu.get(i_name.split("[")[0], ""),
+                      ou.get(o_name.split("[")[0], ""))
             tmp.replace(png)
             prog(f"wrote {png}")
 
@@ -404,11 +406,9 @@ def _example_files() -> dict:
     root = Path(__file__).resolve().parent.parent.parent
     if (root / "models" / "msd.yaml").is_file():
         models, docs = root / "models", root / "docs"
-    else:  # installed wheel
-        from importlib import resources
-
-        models = Path(str(resources.files("bgc.examples")))
-        docs = Path(str(resources.files("bgc.docs")))
+    else:  # installed wheel: bgc/examples and bgc/docs beside this file
+        here = Path(__file__).resolve().parent
+        models, docs = here / "examples", here / "docs"
     out = {}
     for f in sorted(models.glob("*.yaml")):
         out[f"models/{f.name}"] = f

@@ -300,7 +300,8 @@ def _pyrepr(v) -> str:
 
 
 def render(eq: Equations, *, source: str, source_hash: str, description: str = "",
-           header_notes: tuple[str, ...] = (), progress=None) -> str:
+           header_notes: tuple[str, ...] = (), progress=None,
+           output_units: dict | None = None, input_units: dict | None = None) -> str:
     printer = BgcPrinter()
     n = len(eq.states)
     say = progress or (lambda msg: None)
@@ -335,13 +336,13 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
             tables.append({"input": iv.name, "t": [float(v) for v in tb.t],
                            "v": [float(v) for v in tb.v], "interp": tb.interp})
             inputs.append({"name": iv.name, "symbols": [str(s) for s in iv.symbols],
-                           "shape": iv.shape,
+                           "shape": iv.shape, "unit": (input_units or {}).get(iv.name, ""),
                            "default": [f"_table_eval(t, {len(tables) - 1}, "
                                        f"{lit(tb.interp)}, {lit(tb.extrapolate)}, "
                                        f"{lit(iv.name)})"]})
             continue
         inputs.append({"name": iv.name, "symbols": [str(s) for s in iv.symbols],
-                       "shape": iv.shape,
+                       "shape": iv.shape, "unit": (input_units or {}).get(iv.name, ""),
                        "default": [printer.doprint(d) for d in iv.default]})
     input_params = sorted({str(s) for iv in eq.inputs for d in iv.default for s in d.free_symbols
                            if s != T})
@@ -356,7 +357,9 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
                              undefined=jinja2.StrictUndefined, autoescape=False)
     env.filters.update(lit=lit, oneline=oneline, comment=comment, docstring=docstring)
     tpl = env.get_template(f"{_TEMPLATES}/module.py.j2")
-    outputs = [{"name": name, "shape": shp, "size": len(vals)} for name, shp, vals in eq.outputs]
+    ounits = output_units or {}
+    outputs = [{"name": name, "shape": shp, "size": len(vals), "unit": ounits.get(name, "")}
+               for name, shp, vals in eq.outputs]
     text = tpl.render(
         name=eq.name, version=__version__, source=source, source_hash=source_hash,
         description=description, notes=list(header_notes) + list(eq.loops),
@@ -415,7 +418,7 @@ _MODEL_TOP = {
     "Assign": {"BGC_VERSION", "MODEL_HASH", "N_STATES", "STATE_NAMES", "PARAM_DEFAULTS",
                "PARAM_UNITS", "_PARAM_NDIM", "INPUT_NAMES", "OUTPUT_NAMES", "OUTPUT_SHAPES",
                "JAC_SPARSITY", "_P0", "X0", "INPUT_LABELS", "OUTPUT_LABELS", "_TABLES",
-               "TABLE_BREAKPOINTS", "TABLE_MAX_STEP"},
+               "TABLE_BREAKPOINTS", "TABLE_MAX_STEP", "OUTPUT_UNITS", "INPUT_UNITS"},
     "FunctionDef": {"_unpack", "_params", "_inputs", "initial_state", "rhs", "jacobian",
                     "outputs", "input_jacobian", "output_jacobian"},
     "ClassDef": {"_Unpacked"},

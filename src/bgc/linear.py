@@ -88,9 +88,9 @@ def bode_plot(path, lin, i_in, i_out, in_label, out_label, in_unit="", out_unit=
         mag = 20 * np.log10(np.abs(H))
     phase = np.degrees(np.unwrap(np.angle(H)))
     fig, (a1, a2) = plt.subplots(2, 1, sharex=True, figsize=(7, 6))
-    unit = f" [{out_unit}/{in_unit}]" if out_unit and in_unit else ""
+    ref = f" re 1 {out_unit}/{in_unit}" if out_unit and in_unit else ""
     a1.semilogx(f, mag)
-    a1.set_ylabel(f"|{out_label}/{in_label}|{unit} [dB]")
+    a1.set_ylabel(f"|{out_label}/{in_label}| [dB{ref}]")
     a1.grid(True, which="both", alpha=0.3)
     a2.semilogx(f, phase)
     a2.set_ylabel("phase [deg]")

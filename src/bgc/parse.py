@@ -133,6 +133,7 @@ class Output:
     name: str
     expr: Expr
     coord: Coord
+    unit: str = ""  # for plot axes ({expr: ..., unit: ...} in the model)
 
 
 @dataclass(frozen=True)
@@ -649,6 +650,13 @@ def _body(r: _Reader, top: dict, node, what: str, is_component: bool) -> Body:
             raise ModelError(r.coord(top["outputs"][0]), f"{what}: outputs belong to the model")
         for oname, (kn, vn) in r.mapping(top["outputs"][1], "outputs").items():
             check_name(oname, r.coord(kn), "output", allow_reserved=True)
+            if isinstance(vn, yaml.MappingNode):  # {expr: "...", unit: "m"}
+                om = r.mapping(vn, f"output {oname!r}")
+                _require(r, om, vn, ("expr", "unit"), f"output {oname!r}", required=("expr",))
+                unit = r.string(om["unit"][1], "unit") if "unit" in om else ""
+                outputs.append(Output(oname, r.expr(om["expr"][1], f"output {oname!r}"),
+                                      r.coord(kn), unit))
+                continue
             outputs.append(Output(oname, r.expr(vn, f"output {oname!r}"), r.coord(kn)))
     return Body(tuple(params), tuple(elements), tuple(bonds), tuple(states), tuple(outputs))
 

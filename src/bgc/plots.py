@@ -48,7 +48,11 @@ def _label(labels, k, default):
     return labels[k] if k < len(labels) else default
 
 
-def plot_time(t, y, names, path, title="", labels=()):
+def _with_unit(label, unit):
+    return f"{label} [{unit}]" if unit else label
+
+
+def plot_time(t, y, names, path, title="", labels=(), units=None):
     plt = _mpl()
     fig, axes = plt.subplots(len(names), 1, sharex=True, squeeze=False,
                              figsize=(7.5, 1.2 + 1.75 * len(names)))
@@ -56,7 +60,7 @@ def plot_time(t, y, names, path, title="", labels=()):
         comps = _components(name, y[name])
         for lab, series in comps:
             ax.plot(t, series, lw=1.4, label=lab)
-        ax.set_ylabel(_label(labels, k, name))
+        ax.set_ylabel(_with_unit(_label(labels, k, name), (units or {}).get(name, "")))
         if len(comps) > 1:
             ax.legend(loc="best", fontsize=7, ncol=min(len(comps), 3))
     axes[-1, 0].set_xlabel("t [s]")
@@ -83,7 +87,7 @@ def _equal_3d(ax, pts):
 _STYLES = ["--", ":", "-", "-."]
 
 
-def plot_path3d(t, y, names, path, title="", labels=()):
+def plot_path3d(t, y, names, path, title="", labels=(), units=None):
     plt = _mpl()
     fig = plt.figure(figsize=(11, 5))
     ax = fig.add_subplot(1, 2, 1, projection="3d")
@@ -96,14 +100,16 @@ def plot_path3d(t, y, names, path, title="", labels=()):
         top.plot(a[0, :1], a[1, :1], "o", ms=4, color=line.get_color())
     allpts = np.concatenate([np.asarray(y[n]).reshape(3, -1) for n in names], axis=1)
     _equal_3d(ax, allpts)
-    ax.set_xlabel("X0")
-    ax.set_ylabel("Y0")
-    ax.set_zlabel("Z0")
+    u = {(units or {}).get(n, "") for n in names}
+    u = u.pop() if len(u) == 1 else ""  # one unit for all paths: on the axes
+    ax.set_xlabel(_with_unit("X0", u))
+    ax.set_ylabel(_with_unit("Y0", u))
+    ax.set_zlabel(_with_unit("Z0", u))
     ax.set_title("3-D view")
     ax.legend(loc="upper left", fontsize=8)
     top.set_aspect("equal", adjustable="datalim")
-    top.set_xlabel("X0")
-    top.set_ylabel("Y0")
+    top.set_xlabel(_with_unit("X0", u))
+    top.set_ylabel(_with_unit("Y0", u))
     top.set_title("seen from above (dots: start)")
     fig.suptitle(title or "path")
     fig.tight_layout()
@@ -111,7 +117,7 @@ def plot_path3d(t, y, names, path, title="", labels=()):
     plt.close(fig)
 
 
-def plot_loci(t, y, names, path, title="", labels=()):
+def plot_loci(t, y, names, path, title="", labels=(), units=None):
     """Loci of the columns of a rotation matrix output (unit vectors)."""
     plt = _mpl()
     (name,) = names[:1]
@@ -136,19 +142,21 @@ def plot_loci(t, y, names, path, title="", labels=()):
     plt.close(fig)
 
 
-def write_plots(scene, t, y, outdir) -> list[Path]:
+def write_plots(scene, t, y, outdir, units=None) -> list[Path]:
+    """The scene's figures (or one per output); ``units``: output name -> unit for the axes
+    (the module's OUTPUT_UNITS)."""
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     written = []
     if not scene.plots:
         for name in y:
             p = outdir / f"{scene.name}_{name}.png"
-            plot_time(t, y, [name], p)
+            plot_time(t, y, [name], p, units=units)
             written.append(p)
         return written
     fns = {"time": plot_time, "path3d": plot_path3d, "loci": plot_loci}
     for k, pl in enumerate(scene.plots):
         p = outdir / f"{scene.name}_{k + 1}_{pl.kind}.png"
-        fns[pl.kind](t, y, list(pl.outputs), p, pl.title, pl.labels)
+        fns[pl.kind](t, y, list(pl.outputs), p, pl.title, pl.labels, units=units)
         written.append(p)
     return written
