@@ -172,3 +172,31 @@ def test_cli_linearize_writes_modes_matrices_and_bode(bgc_cli, tmp_path):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     bad = bgc_cli("linearize", "models/quarter_car.yaml", "--bode", "zr:nope", "-q")
     assert bad.returncode == 2 and "nope" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_cli_linearize_a_scene_at_a_time(bgc_cli, tmp_path):
+    """A scene (its signals compiled in) at t = 0: the initial state; the DC motor's A has the
+    hand-derived eigenvalues of [[-R/L, -K/J], [K/L, -b/J]] (states L i, J w)."""
+    r = bgc_cli("linearize", "models/scenes/dc_motor_load_step.yaml", "--at", "0",
+                "--out", str(tmp_path), "-q")
+    assert r.returncode == 0, r.stderr
+    z = np.load(next(tmp_path.glob("*_linear.npz")))
+    R, L, K, J, b = 2.0, 5e-3, 0.05, 1e-4, 1e-5
+    A = np.array([[-R / L, -K / J], [K / L, -b / J]])
+    np.testing.assert_allclose(np.sort(z["eigenvalues"].real), np.sort(np.linalg.eigvals(A).real),
+                               rtol=1e-10)
+    assert "t = 0 s" in r.stdout
+
+
+def test_api_linearize_gives_modes_and_statespace():
+    import bgc
+
+    from pathlib import Path
+
+    lin = bgc.linearize(Path(__file__).resolve().parents[1] / "models" / "quarter_car.yaml")
+    want = np.linalg.eigvals(_qc_A(**QC))
+    got = sorted(m.wn for m in lin.modes)
+    np.testing.assert_allclose(got, np.sort(np.abs(want))[::2], rtol=1e-10)
+    assert lin.inputs == ("zr",) and lin.states[2] == "spring.q"
+    if lin.statespace is not None:
+        np.testing.assert_allclose(lin.statespace.A, lin.A)
