@@ -36,24 +36,39 @@ def _model(src):
     return parse_file(src)
 
 
-def _cached(key: str, build):
-    """Through the compile cache when bgc.cache exists (another part of bgc), else build."""
+def _through_cache(path, scene, target, name, build):
+    """(compiled or None, module) through the compile cache (bgc.cache and bgc.backends,
+    when this bgc has them: ``backends.load`` reads a hit without compiling), else
+    (compiled, module) compiled now and loaded from memory."""
+    from .scene import load_module
+
     try:
-        from . import cache  # noqa: F401
+        from . import backends, cache
     except ImportError:
-        return build()
-    fn = getattr(cache, "cached", None)
-    return fn(key, build) if callable(fn) else build()
+        backends = cache = None
+    if backends is not None and hasattr(backends, "load") and hasattr(cache, "key"):
+        key = None if path is None else cache.key(target, path, scene)
+        return backends.load(name, target, key, build, cache.Cache() if key else None)
+    if target != "numpy":
+        raise ModelError(None, f"unknown target {target!r} (this bgc has: numpy)")
+    compiled = build()
+    return compiled, load_module(compiled.source, name)
 
 
 def compile(path_or_text, scene=None, target: str = "numpy") -> "CompiledModel":  # noqa: A001
     """Compile a model (path or YAML text), optionally specialised to a scene file, and return
     the loaded module wrapped in a :class:`CompiledModel` (attributes go to the module)."""
     from .compiler import compile_model
-    from .scene import load_module
 
-    if target not in TARGETS:
-        raise ModelError(None, f"unknown target {target!r} (one of {', '.join(TARGETS)})")
+    try:
+        from .backends import BACKENDS as targets
+    except ImportError:
+        targets = TARGETS
+    if target not in targets:
+        raise ModelError(None, f"unknown target {target!r} (one of {', '.join(targets)})")
+    path = None if _is_text(path_or_text) else path_or_text
+    if path is not None and not Path(path).is_file():
+        raise ModelError(Coord(str(path), 1, 1), "model file does not exist")
     if scene is not None:
         from .graph import build_graph
         from .scene import apply_scene, check_outputs, parse_scene, plan_for
@@ -63,15 +78,19 @@ def compile(path_or_text, scene=None, target: str = "numpy") -> "CompiledModel":
                 path_or_text).resolve():
             raise ModelError(sc.model_coord, f"the scene is for {sc.model_path}, not "
                                              f"{'the text given' if _is_text(path_or_text) else path_or_text}")
-        m = apply_scene(_model(path_or_text), sc)
-        c = compile_model(m, None, plan_for(sc, build_graph(m).params))
-        check_outputs(sc, [o[0] for o in c.equations.outputs])
-        name = f"{c.model.name}_{sc.name}"
+
+        def build():
+            m = apply_scene(_model(path_or_text), sc)
+            c = compile_model(m, None, plan_for(sc, build_graph(m).params))
+            check_outputs(sc, [o[0] for o in c.equations.outputs])
+            return c
+        name = f"{Path(path).stem}_{sc.name}"
     else:
-        m = _model(path_or_text)
-        c = _cached(m.source_hash, lambda: compile_model(m))
-        name = c.model.name
-    return CompiledModel(load_module(c.source, name), c)
+        def build():
+            return compile_model(_model(path_or_text))
+        name = Path(path).stem if path is not None else "string"
+    c, mod = _through_cache(path, scene, target, name, build)
+    return CompiledModel(mod, c, path_or_text)
 
 
 class CompiledModel:
@@ -80,12 +99,35 @@ class CompiledModel:
     module itself, ``.source`` its text, ``.compiled`` bgc's record of the compilation. In
     Jupyter it shows a summary and the bond graph (SVG, when Graphviz is installed)."""
 
-    def __init__(self, module, compiled):
+    def __init__(self, module, compiled=None, origin=None):
         self.module = module
-        self.compiled = compiled
-        self.source = compiled.source
+        self.compiled = compiled  # None when the module came from the compile cache
+        self.origin = origin  # the path or text it was compiled from
+
+    @property
+    def source(self) -> str:
+        """The generated module's text."""
+        return self.compiled.source if self.compiled is not None else \
+            self.module.__loader__.get_source(self.module.__name__)
+
+    @property
+    def name(self) -> str:
+        return self.compiled.model.name if self.compiled is not None else \
+            self.module.__name__.removeprefix("bgc_generated_")
+
+    def _graph(self):
+        """(bond graph, causality) for the drawing (rebuilt after a cache hit: cheap)."""
+        if self.compiled is not None:
+            return self.compiled.graph, self.compiled.causality
+        from .causality import assign_causality
+        from .graph import build_graph
+
+        bg = build_graph(_model(self.origin))
+        return bg, assign_causality(bg, allow_derivative=True)
 
     def __getattr__(self, name):
+        if name.startswith("__"):
+            raise AttributeError(name)
         return getattr(self.__dict__["module"], name)
 
     def __dir__(self):
@@ -93,12 +135,12 @@ class CompiledModel:
 
     def __repr__(self):
         m = self.module
-        return (f"<bgc model {self.compiled.model.name!r}: {m.N_STATES} states, "
+        return (f"<bgc model {self.name!r}: {m.N_STATES} states, "
                 f"{len(m.PARAM_DEFAULTS)} parameters, inputs {list(m.INPUT_NAMES)}, outputs "
                 f"{list(m.OUTPUT_NAMES)}>")
 
     def _repr_svg_(self):
-        return _svg(self.compiled.graph, self.compiled.causality)
+        return _svg(*self._graph())
 
     def _repr_html_(self):
         m = self.module
@@ -108,8 +150,7 @@ class CompiledModel:
                                          for k, v in m.PARAM_DEFAULTS.items())),
                 ("inputs", ", ".join(m.INPUT_NAMES) or "none"),
                 ("outputs", ", ".join(m.OUTPUT_NAMES))]
-        return _html(f"bgc model {self.compiled.model.name}", rows,
-                     _svg(self.compiled.graph, self.compiled.causality))
+        return _html(f"bgc model {self.name}", rows, _svg(*self._graph()))
 
 
 def _svg(graph, caus):

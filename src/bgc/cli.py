@@ -328,7 +328,8 @@ def linearize_cmd(target, at, out, bode, quiet):
         lam = md.eigenvalue
         ev = f"{lam.real:.4g}" + (f" +/- {lam.imag:.4g}j" if lam.imag > 0 else "")
         dom = ", ".join(f"{nm} ({w:.2f})" for nm, w in md.states)
-        buf.write(f"{ev:>30}  {md.wn:11.4g}  {md.hz:10.4g}  {md.zeta:8.3f}  {dom}\n")
+        zeta = "-" if md.wn == 0 else f"{md.zeta:.3f}"  # a zero eigenvalue has none
+        buf.write(f"{ev:>30}  {md.wn:11.4g}  {md.hz:10.4g}  {zeta:>8}  {dom}\n")
     click.echo(buf.getvalue(), nl=False)
     if pairs and not out:
         raise ModelError(None, "--bode needs --out DIR for its plots")

@@ -121,8 +121,11 @@ def load_csv(base: Path, rel: str, columns, coord: Coord, what: str):
     for c in cols:
         if isinstance(c, str):
             if header is None or c not in header:
+                from .emit import oneline  # the file is untrusted: show little of it
+
+                shown = oneline(", ".join(h[:24] for h in header[:8]), 120) if header else "none"
                 raise ModelError(coord, f"{what}: table {rel!r} has no column {c!r} "
-                                        f"(header: {', '.join(header) if header else 'none'})")
+                                        f"(header: {shown})")
             idx.append(header.index(c))
         else:
             idx.append(c)
