@@ -135,3 +135,22 @@ def test_cli_equations_and_examples(bgc_cli, tmp_path):
     assert sorted(p.name for p in (tmp_path / "ex" / "models").iterdir()) == before
     r = bgc_cli("linearize", "--help")
     assert "Example:" in r.stdout and "docs/" in r.stdout
+
+
+def test_bond_graph_display(monkeypatch):
+    """SVG through Graphviz when its `dot` is installed; without it no SVG, and the HTML
+    summary still shows the model."""
+    import shutil
+
+    mod = bgc.compile(ROOT / "models" / "msd.yaml")
+    svg = mod._repr_svg_()
+    if shutil.which("dot"):
+        assert svg.lstrip().startswith("<?xml") or "<svg" in svg
+    else:
+        assert svg is None
+    monkeypatch.setattr(shutil, "which", lambda name: None)
+    assert mod._repr_svg_() is None
+    html = mod._repr_html_()
+    assert "<svg" not in html and "spring.q" in html and "position" in html
+    chk = bgc.check(ROOT / "models" / "msd.yaml")
+    assert "digraph" in chk.dot and "bgc check msd" in chk._repr_html_()
