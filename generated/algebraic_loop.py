@@ -227,7 +227,7 @@ def input_jacobian(t, x, p=None, u=None):
     x = np.asarray(x, dtype=float)
     _c0 = 1/R3
     _c1 = 1/R2
-    _c2 = R1*_c1
+    _c2 = _c1*R1
     _c3 = 1/(1 + _c2)
     _du0 = _c0*(1 - _c2*_c3)/(1 + _c0*(R1 - _c1*_c3*R1*R1))
 
@@ -250,19 +250,19 @@ def output_jacobian(t, x, p=None, u=None):
     _dx0 = 1/C1
     _c0 = 1/R3
     _c1 = 1/R2
-    _c2 = R1*_c1
+    _c2 = _c1*R1
     _c3 = 1/(1 + _c2)
     _c4 = _c0/(1 + _c0*(R1 - _c1*_c3*R1*R1))
     _c5 = _c2*_c3
     _c6 = _dx0*(-_c4 + _c4*_c5)
     _dx1 = _c6
-    _dx2 = -R1*_c6
+    _dx2 = -_c6*R1
     _c7 = _c4*_dx0
     _dx3 = _c5*_c7
     _dx4 = -_c7
     _c8 = _c4*(1 - _c5)
     _c9 = _c3*(_c1 - _c2*_c8)
-    _c10 = _c8 + _c9
+    _c10 = _c9 + _c8
     _du0 = _c10
     _du1 = 1 - R1*_c10
     _du2 = _c9

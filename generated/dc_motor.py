@@ -280,7 +280,7 @@ def output_jacobian(t, x, p=None, u=None):
     C[1, 1] = _dx2
     C[2, 1] = _dx3
     C[3, 0] = _dx1
-    C[4, 0] = _dx0*u_V
+    C[4, 0] = u_V*_dx0
     D[4, 0] = f_b3
     return C, D
 

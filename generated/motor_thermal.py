@@ -483,7 +483,7 @@ def output_jacobian(t, x, p=None, u=None):
     _c1 = 1/C_w
     # C_wind (C, integral): effort from displacement
     e_b10 = _c1*q_C_wind
-    _c2 = R_a*(1 + alpha*e_b10)
+    _c2 = R_a*(1 + e_b10*alpha)
     # winding_R (R): effort = r f
     e_b2 = _c2*f_b3
     _dx0 = _c0
@@ -491,7 +491,7 @@ def output_jacobian(t, x, p=None, u=None):
     _dx2 = 1/J_L
     _dx3 = _c1
     _dx4 = _c2*_dx0
-    _dx5 = R_a*_dx3*alpha*f_b3
+    _dx5 = R_a*f_b3*_dx3*alpha
     _dx6 = 1/C_h
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
@@ -502,9 +502,9 @@ def output_jacobian(t, x, p=None, u=None):
     C[2, 3] = _dx2
     C[3, 6] = 1
     C[4, 2] = k_s
-    C[5, 0] = _dx0*u_V
-    C[6, 0] = _dx0*e_b2 + _dx4*f_b3
-    C[6, 4] = _dx5*f_b3
+    C[5, 0] = u_V*_dx0
+    C[6, 0] = e_b2*_dx0 + f_b3*_dx4
+    C[6, 4] = f_b3*_dx5
     C[7, 7] = 1
     C[8, 4] = _dx3
     C[9, 5] = _dx6

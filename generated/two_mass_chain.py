@@ -280,8 +280,8 @@ def output_jacobian(t, x, p=None, u=None):
     x = np.asarray(x, dtype=float)
     _dx0 = 1/m1
     _dx1 = 1/m2
-    _dx2 = -_dx0*c2
-    _dx3 = _dx1*c2
+    _dx2 = -c2*_dx0
+    _dx3 = c2*_dx1
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
     C = np.zeros((5, 4) + _bs)

@@ -230,7 +230,7 @@ def output_jacobian(t, x, p=None, u=None):
     e_b1 = _c0*q_cap
     _dx0 = _c0
     _dx1 = 1/L
-    _dx2 = _dx0*g*(-1 + e_b1*e_b1/(V0*V0))
+    _dx2 = g*_dx0*(-1 + e_b1*e_b1/(V0*V0))
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
     C = np.zeros((4, 2) + _bs)
