@@ -229,7 +229,7 @@ def input_jacobian(t, x, p=None, u=None):
     _c1 = 1/R2
     _c2 = _c1*R1
     _c3 = 1/(1 + _c2)
-    _du0 = _c0*(1 - _c2*_c3)/(1 + _c0*(R1 - _c1*_c3*R1*R1))
+    _du0 = _c0*(1 - _c2*_c3)/(1 + _c0*(-_c1*_c3*R1*R1 + R1))
 
     B = np.zeros((1, 1) + np.broadcast_shapes(x.shape[1:], _bshape))
     B[0, 0] = _du0
@@ -252,9 +252,9 @@ def output_jacobian(t, x, p=None, u=None):
     _c1 = 1/R2
     _c2 = _c1*R1
     _c3 = 1/(1 + _c2)
-    _c4 = _c0/(1 + _c0*(R1 - _c1*_c3*R1*R1))
+    _c4 = _c0/(1 + _c0*(-_c1*_c3*R1*R1 + R1))
     _c5 = _c2*_c3
-    _c6 = _dx0*(-_c4 + _c4*_c5)
+    _c6 = _dx0*(_c4*_c5 - _c4)
     _dx1 = _c6
     _dx2 = -_c6*R1
     _c7 = _c4*_dx0

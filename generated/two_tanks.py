@@ -304,30 +304,30 @@ def output_jacobian(t, x, p=None, u=None):
 
     x = np.asarray(x, dtype=float)
     q_tank1, q_tank2, _, _, = x
-    _c0 = g*rho
-    _c1 = _c0/A1
+    _c0 = 1/A1
+    _c1 = g*rho
     # tank1 (C, integral): effort from displacement
-    e_b2 = _c1*q_tank1
-    _c2 = _c0/A2
+    e_b2 = _c0*_c1*q_tank1
+    _c2 = 1/A2
     # tank2 (C, integral): effort from displacement
-    e_b6 = _c2*q_tank2
+    e_b6 = _c1*_c2*q_tank2
     # 1-junction j12: effort balance
     e_b4 = e_b2 - e_b6
-    _dx0 = _c1
-    _dx1 = _c2
+    _dx0 = _c0*g*rho
+    _dx1 = _c2*g*rho
     _c3 = 1/rho
     _c4 = (1/2)*Cd*np.sqrt(2)*np.sqrt(_c3)
     _c5 = _c4*a12*np.sign(e_b4)*np.sign(e_b4)/np.sqrt(abs(e_b4))
     _dx2 = _c5*_dx0
     _dx3 = -_c5*_dx1
     _dx4 = _c4*_dx1*aout*np.sign(e_b6)*np.sign(e_b6)/np.sqrt(abs(e_b6))
-    _c6 = _c3/g
+    _c6 = 1/g
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
     C = np.zeros((8, 4) + _bs)
     D = np.zeros((8, 1) + _bs)
-    C[0, 0] = _c6*_dx0
-    C[1, 1] = _c6*_dx1
+    C[0, 0] = _c3*_c6*_dx0
+    C[1, 1] = _c3*_c6*_dx1
     C[2, 0] = 1
     C[3, 1] = 1
     C[4, 0] = _dx2

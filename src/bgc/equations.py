@@ -847,21 +847,31 @@ class LinearParts:
 def forward_mode(kept, seeds: dict, finals: list, prefix: str):
     """Forward-mode derivatives of ``finals`` with respect to the seed symbols (symbol ->
     column) along the assignments ``kept``. Returns ({(row, column): expression}, new
-    intermediate assignments named ``<prefix><k>``)."""
+    intermediate assignments named ``<prefix><k>``). The chain rule as in :func:`_jacobian`
+    (symengine's derivatives when it is installed, else sympy's)."""
     D: dict = {s: {j: sp.Integer(1)} for s, j in seeds.items()}
     assign: list[Assignment] = []
     counter = itertools.count()
+    bridge = fastsym.Bridge() if fastsym.available() else None
 
     def grad(expr) -> dict:
+        syms = sorted((s for s in expr.free_symbols if D.get(s)), key=str)  # deterministic
+        if not syms:
+            return {}
+        parts = fastsym.partials(bridge, expr, syms) if bridge is not None else None
+        if parts is not None:
+            acc_se: dict = {}
+            for s, partial in parts.items():
+                for j, dj in D[s].items():
+                    term = partial * bridge.to_se(dj)
+                    acc_se[j] = acc_se[j] + term if j in acc_se else term
+            return {j: bridge.from_se(v) for j, v in acc_se.items() if v != 0}
         acc: dict = {}
-        for s in expr.free_symbols:
-            ds = D.get(s)
-            if not ds:
-                continue
+        for s in syms:
             partial = _clean(sp.diff(expr, s))
             if partial == 0:
                 continue
-            for j, dj in ds.items():
+            for j, dj in D[s].items():
                 term = partial * dj
                 acc[j] = acc[j] + term if j in acc else term
         return {j: v for j, v in acc.items() if v != 0}
