@@ -142,7 +142,7 @@ def test_errors_are_located(tmp_path):
     assert e.coord.line == 5 and "cannot read" in e.message
     (tmp_path / "adir").mkdir()
     e = _err(tmp_path, "{table: adir}")
-    assert "not a regular file" in e.message
+    assert "folder" in e.message and e.coord.line == 5
     e = _err(tmp_path, "{table: /etc/hostname}")
     assert "absolute" in e.message
     e = _err(tmp_path, "{table: road.csv, columns: [time, speed]}", KNOTS)
@@ -159,10 +159,17 @@ def test_size_is_capped_before_reading(tmp_path, monkeypatch):
     _csv(tmp_path, KNOTS)
     monkeypatch.setattr(bgc.tables, "MAX_BYTES", 20)
     e = _err(tmp_path, "{table: road.csv}")
-    assert "limit 20" in e.message and e.coord.line == 5
+    assert "limit of 20 bytes" in e.message and e.coord.line == 5
 
 
 def test_cli_error_for_a_bad_table(tmp_path, bgc_cli):
     _csv(tmp_path, [(0, 0), (0, 1)])
     r = bgc_cli("simulate", str(_scene(tmp_path, "{table: road.csv}")), "-q")
     assert r.returncode == 2 and "road.csv:3:1:" in r.stderr and "Traceback" not in r.stderr
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs here")
+def test_a_fifo_is_refused_without_blocking(tmp_path):
+    os.mkfifo(tmp_path / "road.csv")
+    e = _err(tmp_path, "{table: road.csv}")
+    assert "not a regular file" in e.message and e.coord.line == 5

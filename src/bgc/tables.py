@@ -11,8 +11,6 @@ from __future__ import annotations
 import csv
 import io
 import math
-import os
-import stat
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -85,24 +83,9 @@ def load_csv(base: Path, rel: str, columns, coord: Coord, what: str):
         raise ModelError(coord, f"{what}: the table file is given relative to this file, not "
                                 f"as an absolute path ({rel!r})")
     path = base / rel
-    try:
-        st = os.stat(path)
-    except OSError as exc:
-        raise ModelError(coord, f"{what}: cannot read table {rel!r}: "
-                                f"{exc.strerror or exc}") from None
-    if not stat.S_ISREG(st.st_mode):
-        raise ModelError(coord, f"{what}: table {rel!r} is not a regular file")
-    if st.st_size > MAX_BYTES:
-        raise ModelError(coord, f"{what}: table {rel!r} is {st.st_size} bytes (limit "
-                                f"{MAX_BYTES})")
-    try:
-        with open(path, "rb") as fh:
-            data = fh.read(MAX_BYTES + 1)
-        text = data.decode("utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ModelError(coord, f"{what}: cannot read table {rel!r}: {exc}") from None
-    if len(data) > MAX_BYTES:
-        raise ModelError(coord, f"{what}: table {rel!r} is larger than {MAX_BYTES} bytes")
+    from .safeio import read_text_bounded  # regular files only, size checked before reading
+
+    text = read_text_bounded(path, coord, f"{what}: table", MAX_BYTES).removeprefix("\ufeff")
     rows = []
     for lineno, line in enumerate(io.StringIO(text), start=1):
         s = line.strip()
