@@ -160,6 +160,10 @@ def test_size_is_capped_before_reading(tmp_path, monkeypatch):
     monkeypatch.setattr(bgc.tables, "MAX_BYTES", 20)
     e = _err(tmp_path, "{table: road.csv}")
     assert "limit of 20 bytes" in e.message and e.coord.line == 5
+    monkeypatch.setattr(bgc.tables, "MAX_BYTES", 10_000)
+    monkeypatch.setattr(bgc.tables, "MAX_ROWS", 4)
+    e = _err(tmp_path, "{table: road.csv}")
+    assert "more than 4 rows" in e.message and e.coord.line == 6  # header, then row 5
 
 
 def test_cli_error_for_a_bad_table(tmp_path, bgc_cli):

@@ -17,6 +17,7 @@ from pathlib import Path
 from .errors import Coord, ModelError
 
 MAX_BYTES = 16 * 1024 * 1024
+MAX_ROWS = 200_000  # every row becomes two float literals in the generated module
 INTERP = ("linear", "pchip", "previous")
 EXTRAPOLATE = ("hold", "error")
 
@@ -127,6 +128,9 @@ def load_csv(base: Path, rel: str, columns, coord: Coord, what: str):
             if not math.isfinite(x):
                 raise ModelError(where(lineno), f"{what}: the {name} (column {k}) is not finite")
             vals.append(x)
+        if len(t) >= MAX_ROWS:
+            raise ModelError(where(lineno), f"{what}: more than {MAX_ROWS} rows (the limit for "
+                                            "a table compiled into the module)")
         if t and not vals[0] > t[-1]:
             raise ModelError(where(lineno), f"{what}: time {vals[0]:g} does not increase "
                                             f"(previous row {t[-1]:g})")
