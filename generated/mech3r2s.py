@@ -438,6 +438,14 @@ OUTPUT_SHAPES = {
     'dissipated': (),
     'joint_gap': (5,),
 }
+INPUT_UNITS = {'vd': 'm/s', }
+OUTPUT_UNITS = {'theta1': '', 'theta2': '', 'theta3': '', 'theta4': '', 'p3': '', 'p3_desired': '', 'p3_projected': '', 'R4': '', 'energy': '', 'P_drive': '', 'P_diss': '', 'work_drive': '', 'dissipated': '', 'joint_gap': '', }
+INPUT_LABELS = ('vd[0]', 'vd[1]', 'vd[2]', )  # columns of B and D
+OUTPUT_LABELS = ('theta1', 'theta2', 'theta3', 'theta4', 'p3[0]', 'p3[1]', 'p3[2]', 'p3_desired[0]', 'p3_desired[1]', 'p3_desired[2]', 'p3_projected[0]', 'p3_projected[1]', 'p3_projected[2]', 'R4[0,0]', 'R4[0,1]', 'R4[0,2]', 'R4[1,0]', 'R4[1,1]', 'R4[1,2]', 'R4[2,0]', 'R4[2,1]', 'R4[2,2]', 'energy', 'P_drive', 'P_diss', 'work_drive', 'dissipated', 'joint_gap[0]', 'joint_gap[1]', 'joint_gap[2]', 'joint_gap[3]', 'joint_gap[4]', )  # rows of C and D
+TABLE_BREAKPOINTS = {  # input -> the knots of its table where it is not smooth
+}
+TABLE_MAX_STEP = {  # input -> the smallest knot spacing of its smooth (pchip) table
+}
 JAC_SPARSITY = np.zeros((101, 101), dtype=bool)
 JAC_SPARSITY[
     [0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 5, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 9, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 11, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 12, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 14, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 15, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 17, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 18, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 19, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 21, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 22, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 23, 24, 24, 24, 24, 24, 24, 24, 24, 24, 24, 24, 24, 24, 25, 25, 25, 25, 25, 25, 25, 25, 25, 25, 25, 25, 25, 26, 26, 26, 26, 26, 26, 26, 26, 26, 26, 26, 26, 26, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 27, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 28, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 29, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 30, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 31, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 32, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 33, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 34, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 35, 36, 36, 36, 36, 36, 36, 36, 36, 36, 36, 36, 36, 36, 37, 37, 37, 37, 37, 37, 37, 37, 37, 37, 37, 37, 37, 38, 38, 38, 38, 38, 38, 38, 38, 38, 38, 38, 38, 38, 39, 39, 39, 39, 39, 39, 39, 39, 39, 39, 39, 39, 40, 40, 40, 40, 40, 40, 40, 40, 40, 40, 40, 40, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 41, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 42, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 43, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 44, 45, 45, 45, 45, 45, 45, 45, 45, 45, 45, 45, 45, 45, 46, 46, 46, 46, 46, 46, 46, 46, 46, 46, 46, 46, 46, 47, 47, 47, 47, 47, 47, 47, 47, 47, 47, 47, 47, 47, 48, 48, 48, 48, 48, 48, 48, 48, 48, 48, 48, 48, 49, 49, 49, 49, 49, 49, 49, 49, 49, 49, 49, 49, 50, 50, 50, 50, 50, 50, 50, 50, 50, 50, 50, 50, 51, 51, 51, 51, 51, 51, 51, 51, 51, 51, 51, 51, 52, 52, 52, 52, 52, 52, 52, 52, 52, 52, 52, 52, 53, 53, 53, 53, 53, 53, 53, 53, 53, 53, 53, 53, 54, 54, 54, 54, 54, 54, 54, 54, 54, 54, 54, 54, 55, 55, 55, 55, 55, 55, 55, 55, 55, 55, 55, 55, 56, 56, 56, 56, 56, 56, 56, 56, 56, 56, 56, 56, 57, 58, 59, 60, 60, 60, 60, 60, 60, 60, 60, 60, 60, 60, 60, 61, 61, 61, 61, 61, 61, 61, 61, 61, 61, 61, 61, 62, 62, 62, 62, 62, 62, 62, 62, 62, 62, 62, 62, 63, 63, 63, 63, 63, 63, 63, 63, 63, 63, 63, 63, 64, 64, 64, 64, 64, 64, 64, 64, 64, 64, 64, 64, 65, 65, 65, 65, 65, 65, 65, 65, 65, 65, 65, 65, 66, 66, 66, 66, 66, 66, 66, 66, 66, 66, 66, 66, 67, 67, 67, 67, 67, 67, 67, 67, 67, 67, 67, 67, 68, 68, 68, 68, 68, 68, 68, 68, 68, 68, 68, 68, 69, 70, 71, 72, 72, 72, 72, 72, 72, 72, 72, 72, 72, 72, 72, 73, 73, 73, 73, 73, 73, 73, 73, 73, 73, 73, 73, 74, 74, 74, 74, 74, 74, 74, 74, 74, 74, 74, 74, 75, 75, 75, 75, 75, 75, 75, 75, 75, 75, 75, 75, 76, 76, 76, 76, 76, 76, 76, 76, 76, 76, 76, 76, 77, 77, 77, 77, 77, 77, 77, 77, 77, 77, 77, 77, 78, 78, 78, 78, 78, 78, 78, 78, 78, 78, 78, 78, 79, 79, 79, 79, 79, 79, 79, 79, 79, 79, 79, 79, 80, 80, 80, 80, 80, 80, 80, 80, 80, 80, 80, 80, 81, 82, 83, 84, 84, 84, 84, 84, 84, 84, 84, 84, 84, 84, 84, 85, 85, 85, 85, 85, 85, 85, 85, 85, 85, 85, 85, 86, 86, 86, 86, 86, 86, 86, 86, 86, 86, 86, 86, 87, 87, 87, 87, 87, 87, 87, 87, 87, 87, 87, 87, 88, 88, 88, 88, 88, 88, 88, 88, 88, 88, 88, 88, 89, 89, 89, 89, 89, 89, 89, 89, 89, 89, 89, 89, 90, 90, 90, 90, 90, 90, 90, 90, 90, 90, 90, 90, 91, 91, 91, 91, 91, 91, 91, 91, 91, 91, 91, 91, 92, 92, 92, 92, 92, 92, 92, 92, 92, 92, 92, 92, 93, 94, 95, 99, 99, 99, 99, 99, 99, 99, 99, 99, 99, 99, 99, 99, 99, 99, 99, 99, 99, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, 100, ],
@@ -7823,6 +7831,2326 @@ def outputs(t, x, p=None, u=None):
     }
 
 
+def input_jacobian(t, x, p=None, u=None):
+    """d(rhs)/du, analytic (forward mode along the causal order): (n, m, *batch), the columns
+    in INPUT_LABELS order (INPUT_NAMES, a vector input's components in order)."""
+    _pv, _bshape = _params(p)
+    l3 = _pv[2]
+    m3 = _pv[6]
+    k_d = _pv[19]
+    r_d = _pv[20]
+    link3__Ixx = _pv[26]
+    link3__Iyy = _pv[27]
+    _uv = _inputs(t, _pv, u)
+    u_vd_0 = _uv[0]
+    u_vd_1 = _uv[1]
+    u_vd_2 = _uv[2]
+
+    x = np.asarray(x, dtype=float)
+    _, _, _, _, _, _, _, _, _, _, _, _, p_link3__It_0, p_link3__It_1, p_link3__It_2, p_link3__Ir_0, p_link3__Ir_1, p_link3__Ir_2, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, q_jd__C_0, q_jd__C_1, q_jd__C_2, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, s_link3__R_0_0, s_link3__R_0_1, s_link3__R_0_2, s_link3__R_1_0, s_link3__R_1_1, s_link3__R_1_2, s_link3__R_2_0, s_link3__R_2_1, s_link3__R_2_2, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, _, = x
+    _c0 = 1/m3
+    # link3.It (I, integral): flow from momentum
+    f_link3__b2_0 = _c0*p_link3__It_0
+    # link3.It (I, integral): flow from momentum
+    f_link3__b2_1 = _c0*p_link3__It_1
+    # link3.It (I, integral): flow from momentum
+    f_link3__b2_2 = _c0*p_link3__It_2
+    _c1 = 1/link3__Iyy
+    _c2 = _c1*s_link3__R_2_2
+    _c3 = _c1*s_link3__R_2_1
+    _c4 = 1/link3__Ixx
+    _c5 = _c4*s_link3__R_2_0
+    _c6 = _c5*s_link3__R_0_0 + _c3*s_link3__R_0_1 + _c2*s_link3__R_0_2
+    _c7 = _c4*s_link3__R_1_0*s_link3__R_0_0 + _c1*s_link3__R_1_1*s_link3__R_0_1 + _c1*s_link3__R_1_2*s_link3__R_0_2
+    # link3.Ir (I, integral): flow from momentum
+    f_link3__b3_0 = (_c4*s_link3__R_0_0*s_link3__R_0_0 + _c1*s_link3__R_0_1*s_link3__R_0_1 + _c1*s_link3__R_0_2*s_link3__R_0_2)*p_link3__Ir_0 + _c7*p_link3__Ir_1 + _c6*p_link3__Ir_2
+    _c8 = _c5*s_link3__R_1_0 + _c3*s_link3__R_1_1 + _c2*s_link3__R_1_2
+    # link3.Ir (I, integral): flow from momentum
+    f_link3__b3_1 = _c7*p_link3__Ir_0 + (_c4*s_link3__R_1_0*s_link3__R_1_0 + _c1*s_link3__R_1_1*s_link3__R_1_1 + _c1*s_link3__R_1_2*s_link3__R_1_2)*p_link3__Ir_1 + _c8*p_link3__Ir_2
+    # link3.Ir (I, integral): flow from momentum
+    f_link3__b3_2 = _c6*p_link3__Ir_0 + _c8*p_link3__Ir_1 + (_c4*s_link3__R_2_0*s_link3__R_2_0 + _c1*s_link3__R_2_1*s_link3__R_2_1 + _c1*s_link3__R_2_2*s_link3__R_2_2)*p_link3__Ir_2
+    _c9 = (1/2)*l3
+    _c10 = _c9*s_link3__R_1_0
+    _c11 = _c9*s_link3__R_2_0
+    # link3.mP (MTF): f2 = M f1
+    f_link3__b9_0 = _c11*f_link3__b3_1 - _c10*f_link3__b3_2
+    _c12 = _c9*s_link3__R_0_0
+    # link3.mP (MTF): f2 = M f1
+    f_link3__b9_1 = _c12*f_link3__b3_2 - _c11*f_link3__b3_0
+    # link3.mP (MTF): f2 = M f1
+    f_link3__b9_2 = _c10*f_link3__b3_0 - _c12*f_link3__b3_1
+    # 0-junction link3.sP: flow balance
+    f_link3__b11_0 = f_link3__b2_0 + f_link3__b9_0
+    # 0-junction link3.sP: flow balance
+    f_link3__b11_1 = f_link3__b2_1 + f_link3__b9_1
+    # 0-junction link3.sP: flow balance
+    f_link3__b11_2 = f_link3__b2_2 + f_link3__b9_2
+    # 0-junction jd.J: flow balance
+    f_jd__b1_0 = u_vd_0 - f_link3__b11_0
+    # 0-junction jd.J: flow balance
+    f_jd__b1_1 = u_vd_1 - f_link3__b11_1
+    # 0-junction jd.J: flow balance
+    f_jd__b1_2 = u_vd_2 - f_link3__b11_2
+    # jd.C (C, integral): effort from displacement
+    e_jd__b2_0 = k_d*q_jd__C_0
+    # jd.C (C, integral): effort from displacement
+    e_jd__b2_1 = k_d*q_jd__C_1
+    # jd.C (C, integral): effort from displacement
+    e_jd__b2_2 = k_d*q_jd__C_2
+    _c13 = r_d*f_jd__b1_0
+    # jd.R (R): effort = r f
+    e_jd__b3_0 = _c13
+    # 1-junction jd.rel: effort balance
+    e_jd__b1_0 = e_jd__b2_0 + e_jd__b3_0
+    _c14 = r_d*f_jd__b1_1
+    # jd.R (R): effort = r f
+    e_jd__b3_1 = _c14
+    # 1-junction jd.rel: effort balance
+    e_jd__b1_1 = e_jd__b2_1 + e_jd__b3_1
+    _c15 = r_d*f_jd__b1_2
+    # jd.R (R): effort = r f
+    e_jd__b3_2 = _c15
+    # 1-junction jd.rel: effort balance
+    e_jd__b1_2 = e_jd__b2_2 + e_jd__b3_2
+    _c16 = _c9*r_d
+    _c17 = _c16*s_link3__R_1_0
+    _du0 = _c17
+    _c18 = _c16*s_link3__R_0_0
+    _du1 = -_c18
+    _c19 = _c16*s_link3__R_2_0
+    _du2 = _c19
+    _du3 = -_c17
+    _du4 = -_c19
+    _du5 = _c18
+
+    B = np.zeros((101, 3) + np.broadcast_shapes(x.shape[1:], _bshape))
+    B[12, 0] = r_d
+    B[13, 1] = r_d
+    B[14, 2] = r_d
+    B[15, 1] = -_du2
+    B[15, 2] = -_du3
+    B[16, 0] = -_du4
+    B[16, 2] = -_du5
+    B[17, 0] = -_du0
+    B[17, 1] = -_du1
+    B[45, 0] = 1
+    B[46, 1] = 1
+    B[47, 2] = 1
+    B[96, 0] = 1
+    B[97, 1] = 1
+    B[98, 2] = 1
+    B[99, 0] = e_jd__b1_0 + r_d*u_vd_0
+    B[99, 1] = e_jd__b1_1 + r_d*u_vd_1
+    B[99, 2] = e_jd__b1_2 + r_d*u_vd_2
+    B[100, 0] = e_jd__b3_0 + _c13
+    B[100, 1] = e_jd__b3_1 + _c14
+    B[100, 2] = e_jd__b3_2 + _c15
+    return B
+
+
+def output_jacobian(t, x, p=None, u=None):
+    """(C, D) = (d(outputs)/dx, d(outputs)/du), analytic: (ny, n, *batch) and (ny, m, *batch),
+    the rows in OUTPUT_LABELS order (OUTPUT_NAMES, each output's components row-major), the
+    columns in STATE_NAMES and INPUT_LABELS order."""
+    _pv, _bshape = _params(p)
+    l1 = _pv[0]
+    l2 = _pv[1]
+    l3 = _pv[2]
+    l4 = _pv[3]
+    m1 = _pv[4]
+    m2 = _pv[5]
+    m3 = _pv[6]
+    m4 = _pv[7]
+    g = _pv[9]
+    k_t = _pv[14]
+    r_t = _pv[15]
+    r_t5 = _pv[16]
+    k_r = _pv[17]
+    r_r = _pv[18]
+    k_d = _pv[19]
+    r_d = _pv[20]
+    link1__Ixx = _pv[22]
+    link1__Iyy = _pv[23]
+    link2__Ixx = _pv[24]
+    link2__Iyy = _pv[25]
+    link3__Ixx = _pv[26]
+    link3__Iyy = _pv[27]
+    link4__Ixx = _pv[28]
+    link4__Iyy = _pv[29]
+    P4_0 = _pv[51]
+    P4_1 = _pv[52]
+    P4_2 = _pv[53]
+    _uv = _inputs(t, _pv, u)
+    u_vd_0 = _uv[0]
+    u_vd_1 = _uv[1]
+    u_vd_2 = _uv[2]
+
+    x = np.asarray(x, dtype=float)
+    p_link1__It_0, p_link1__It_1, p_link1__It_2, p_link1__Ir_0, p_link1__Ir_1, p_link1__Ir_2, p_link2__It_0, p_link2__It_1, p_link2__It_2, p_link2__Ir_0, p_link2__Ir_1, p_link2__Ir_2, p_link3__It_0, p_link3__It_1, p_link3__It_2, p_link3__Ir_0, p_link3__Ir_1, p_link3__Ir_2, p_link4__It_0, p_link4__It_1, p_link4__It_2, p_link4__Ir_0, p_link4__Ir_1, p_link4__Ir_2, q_j1__C_0, q_j1__C_1, q_j1__C_2, q_j2__C_0, q_j2__C_1, q_j2__C_2, q_j3__C_0, q_j3__C_1, q_j3__C_2, q_j4__C_0, q_j4__C_1, q_j4__C_2, q_j5__C_0, q_j5__C_1, q_j5__C_2, q_r1__C_0, q_r1__C_1, q_r2__C_0, q_r2__C_1, q_r3__C_0, q_r3__C_1, q_jd__C_0, q_jd__C_1, q_jd__C_2, s_link1__R_0_0, s_link1__R_0_1, s_link1__R_0_2, s_link1__R_1_0, s_link1__R_1_1, s_link1__R_1_2, s_link1__R_2_0, s_link1__R_2_1, s_link1__R_2_2, _, _, _, s_link2__R_0_0, s_link2__R_0_1, s_link2__R_0_2, s_link2__R_1_0, s_link2__R_1_1, s_link2__R_1_2, s_link2__R_2_0, s_link2__R_2_1, s_link2__R_2_2, _, _, _, s_link3__R_0_0, s_link3__R_0_1, s_link3__R_0_2, s_link3__R_1_0, s_link3__R_1_1, s_link3__R_1_2, s_link3__R_2_0, s_link3__R_2_1, s_link3__R_2_2, _, _, _, s_link4__R_0_0, s_link4__R_0_1, s_link4__R_0_2, s_link4__R_1_0, s_link4__R_1_1, s_link4__R_1_2, s_link4__R_2_0, s_link4__R_2_1, s_link4__R_2_2, _, _, _, s_pd_0, s_pd_1, s_pd_2, _, _, = x
+    _c0 = 1/m1
+    # link1.It (I, integral): flow from momentum
+    f_link1__b2_0 = _c0*p_link1__It_0
+    # link1.It (I, integral): flow from momentum
+    f_link1__b2_1 = _c0*p_link1__It_1
+    # link1.It (I, integral): flow from momentum
+    f_link1__b2_2 = _c0*p_link1__It_2
+    _c1 = 1/link1__Iyy
+    _c11 = s_link1__R_0_0*s_link1__R_0_0
+    _c2 = _c1*s_link1__R_0_1
+    _c3 = _c1*s_link1__R_0_2
+    _c4 = 1/link1__Ixx
+    _c12 = _c4*_c11 + _c1*s_link1__R_0_1*s_link1__R_0_1 + _c1*s_link1__R_0_2*s_link1__R_0_2
+    _c5 = _c4*s_link1__R_0_0
+    _c6 = _c5*s_link1__R_2_0 + _c3*s_link1__R_2_2 + _c2*s_link1__R_2_1
+    _c7 = _c1*s_link1__R_1_2
+    _c8 = _c1*s_link1__R_1_1
+    _c9 = _c4*s_link1__R_1_0
+    _c10 = _c9*s_link1__R_0_0 + _c8*s_link1__R_0_1 + _c7*s_link1__R_0_2
+    # link1.Ir (I, integral): flow from momentum
+    f_link1__b3_0 = _c12*p_link1__Ir_0 + _c10*p_link1__Ir_1 + _c6*p_link1__Ir_2
+    _c13 = _c9*s_link1__R_2_0 + _c8*s_link1__R_2_1 + _c7*s_link1__R_2_2
+    _c14 = s_link1__R_1_0*s_link1__R_1_0
+    _c15 = _c1*s_link1__R_1_1*s_link1__R_1_1 + _c4*_c14 + _c1*s_link1__R_1_2*s_link1__R_1_2
+    # link1.Ir (I, integral): flow from momentum
+    f_link1__b3_1 = _c10*p_link1__Ir_0 + _c15*p_link1__Ir_1 + _c13*p_link1__Ir_2
+    _c16 = _c4*s_link1__R_2_0*s_link1__R_2_0 + _c1*s_link1__R_2_2*s_link1__R_2_2 + _c1*s_link1__R_2_1*s_link1__R_2_1
+    # link1.Ir (I, integral): flow from momentum
+    f_link1__b3_2 = _c13*p_link1__Ir_1 + _c6*p_link1__Ir_0 + _c16*p_link1__Ir_2
+    _c17 = (1/2)*f_link1__b3_1
+    _c18 = l1*_c17
+    _c19 = _c18*s_link1__R_2_0
+    _c20 = (1/2)*f_link1__b3_2
+    _c21 = l1*_c20
+    _c22 = _c21*s_link1__R_1_0
+    # link1.mQ (MTF): f2 = M f1
+    f_link1__b5_0 = _c22 - _c19
+    _c23 = _c21*s_link1__R_0_0
+    _c24 = (1/2)*f_link1__b3_0
+    _c25 = l1*_c24
+    _c26 = _c25*s_link1__R_2_0
+    # link1.mQ (MTF): f2 = M f1
+    f_link1__b5_1 = _c26 - _c23
+    _c27 = _c25*s_link1__R_1_0
+    _c28 = _c18*s_link1__R_0_0
+    # link1.mQ (MTF): f2 = M f1
+    f_link1__b5_2 = _c28 - _c27
+    # link1.mP (MTF): f2 = M f1
+    f_link1__b9_0 = _c19 - _c22
+    # link1.mP (MTF): f2 = M f1
+    f_link1__b9_1 = _c23 - _c26
+    # link1.mP (MTF): f2 = M f1
+    f_link1__b9_2 = _c27 - _c28
+    # 0-junction link1.sQ: flow balance
+    f_link1__b7_0 = f_link1__b2_0 + f_link1__b5_0
+    # 0-junction link1.sQ: flow balance
+    f_link1__b7_1 = f_link1__b2_1 + f_link1__b5_1
+    # 0-junction link1.sQ: flow balance
+    f_link1__b7_2 = f_link1__b2_2 + f_link1__b5_2
+    # 0-junction link1.sP: flow balance
+    f_link1__b11_0 = f_link1__b2_0 + f_link1__b9_0
+    # 0-junction link1.sP: flow balance
+    f_link1__b11_1 = f_link1__b2_1 + f_link1__b9_1
+    # 0-junction link1.sP: flow balance
+    f_link1__b11_2 = f_link1__b2_2 + f_link1__b9_2
+    _c29 = 1/m2
+    # link2.It (I, integral): flow from momentum
+    f_link2__b2_0 = _c29*p_link2__It_0
+    # link2.It (I, integral): flow from momentum
+    f_link2__b2_1 = _c29*p_link2__It_1
+    # link2.It (I, integral): flow from momentum
+    f_link2__b2_2 = _c29*p_link2__It_2
+    _c30 = 1/link2__Iyy
+    _c31 = _c30*s_link2__R_0_2
+    _c32 = _c30*s_link2__R_0_1
+    _c33 = 1/link2__Ixx
+    _c34 = _c33*s_link2__R_0_0
+    _c35 = _c34*s_link2__R_1_0 + _c32*s_link2__R_1_1 + _c31*s_link2__R_1_2
+    _c36 = _c33*s_link2__R_2_0
+    _c37 = _c36*s_link2__R_0_0 + _c32*s_link2__R_2_1 + _c31*s_link2__R_2_2
+    _c38 = _c33*s_link2__R_0_0*s_link2__R_0_0 + _c30*s_link2__R_0_2*s_link2__R_0_2 + _c30*s_link2__R_0_1*s_link2__R_0_1
+    # link2.Ir (I, integral): flow from momentum
+    f_link2__b3_0 = _c38*p_link2__Ir_0 + _c37*p_link2__Ir_2 + _c35*p_link2__Ir_1
+    _c39 = _c30*s_link2__R_1_2
+    _c40 = _c30*s_link2__R_1_1
+    _c41 = _c36*s_link2__R_1_0 + _c40*s_link2__R_2_1 + _c39*s_link2__R_2_2
+    _c42 = _c33*s_link2__R_1_0*s_link2__R_1_0 + _c30*s_link2__R_1_1*s_link2__R_1_1 + _c30*s_link2__R_1_2*s_link2__R_1_2
+    # link2.Ir (I, integral): flow from momentum
+    f_link2__b3_1 = _c35*p_link2__Ir_0 + _c42*p_link2__Ir_1 + _c41*p_link2__Ir_2
+    _c43 = _c33*s_link2__R_2_0*s_link2__R_2_0 + _c30*s_link2__R_2_1*s_link2__R_2_1 + _c30*s_link2__R_2_2*s_link2__R_2_2
+    # link2.Ir (I, integral): flow from momentum
+    f_link2__b3_2 = _c37*p_link2__Ir_0 + _c41*p_link2__Ir_1 + _c43*p_link2__Ir_2
+    _c44 = (1/2)*f_link2__b3_1
+    _c45 = l2*_c44
+    _c46 = _c45*s_link2__R_2_0
+    _c47 = (1/2)*f_link2__b3_2
+    _c48 = l2*_c47
+    _c49 = _c48*s_link2__R_1_0
+    # link2.mQ (MTF): f2 = M f1
+    f_link2__b5_0 = _c49 - _c46
+    _c50 = _c48*s_link2__R_0_0
+    _c51 = (1/2)*f_link2__b3_0
+    _c52 = l2*_c51
+    _c53 = _c52*s_link2__R_2_0
+    # link2.mQ (MTF): f2 = M f1
+    f_link2__b5_1 = _c53 - _c50
+    _c54 = _c52*s_link2__R_1_0
+    _c55 = _c45*s_link2__R_0_0
+    # link2.mQ (MTF): f2 = M f1
+    f_link2__b5_2 = _c55 - _c54
+    # link2.mP (MTF): f2 = M f1
+    f_link2__b9_0 = _c46 - _c49
+    # link2.mP (MTF): f2 = M f1
+    f_link2__b9_1 = _c50 - _c53
+    # link2.mP (MTF): f2 = M f1
+    f_link2__b9_2 = _c54 - _c55
+    # 0-junction link2.sQ: flow balance
+    f_link2__b7_0 = f_link2__b2_0 + f_link2__b5_0
+    # 0-junction link2.sQ: flow balance
+    f_link2__b7_1 = f_link2__b2_1 + f_link2__b5_1
+    # 0-junction link2.sQ: flow balance
+    f_link2__b7_2 = f_link2__b2_2 + f_link2__b5_2
+    # 0-junction link2.sP: flow balance
+    f_link2__b11_0 = f_link2__b2_0 + f_link2__b9_0
+    # 0-junction link2.sP: flow balance
+    f_link2__b11_1 = f_link2__b2_1 + f_link2__b9_1
+    # 0-junction link2.sP: flow balance
+    f_link2__b11_2 = f_link2__b2_2 + f_link2__b9_2
+    _c56 = 1/m3
+    # link3.It (I, integral): flow from momentum
+    f_link3__b2_0 = _c56*p_link3__It_0
+    # link3.It (I, integral): flow from momentum
+    f_link3__b2_1 = _c56*p_link3__It_1
+    # link3.It (I, integral): flow from momentum
+    f_link3__b2_2 = _c56*p_link3__It_2
+    _c57 = 1/link3__Iyy
+    _c58 = _c57*s_link3__R_0_2
+    _c59 = _c57*s_link3__R_0_1
+    _c60 = 1/link3__Ixx
+    _c61 = _c60*s_link3__R_2_0
+    _c62 = _c61*s_link3__R_0_0 + _c59*s_link3__R_2_1 + _c58*s_link3__R_2_2
+    _c63 = _c60*s_link3__R_1_0
+    _c64 = _c63*s_link3__R_0_0 + _c59*s_link3__R_1_1 + _c58*s_link3__R_1_2
+    _c65 = _c57*s_link3__R_0_1*s_link3__R_0_1 + _c60*s_link3__R_0_0*s_link3__R_0_0 + _c57*s_link3__R_0_2*s_link3__R_0_2
+    # link3.Ir (I, integral): flow from momentum
+    f_link3__b3_0 = _c65*p_link3__Ir_0 + _c64*p_link3__Ir_1 + _c62*p_link3__Ir_2
+    _c66 = _c57*s_link3__R_1_2
+    _c67 = _c57*s_link3__R_1_1
+    _c68 = _c63*s_link3__R_2_0 + _c67*s_link3__R_2_1 + _c66*s_link3__R_2_2
+    _c69 = _c60*s_link3__R_1_0*s_link3__R_1_0 + _c57*s_link3__R_1_1*s_link3__R_1_1 + _c57*s_link3__R_1_2*s_link3__R_1_2
+    # link3.Ir (I, integral): flow from momentum
+    f_link3__b3_1 = _c64*p_link3__Ir_0 + _c69*p_link3__Ir_1 + _c68*p_link3__Ir_2
+    _c70 = _c60*s_link3__R_2_0*s_link3__R_2_0 + _c57*s_link3__R_2_1*s_link3__R_2_1 + _c57*s_link3__R_2_2*s_link3__R_2_2
+    # link3.Ir (I, integral): flow from momentum
+    f_link3__b3_2 = _c62*p_link3__Ir_0 + _c68*p_link3__Ir_1 + _c70*p_link3__Ir_2
+    _c71 = (1/2)*f_link3__b3_1
+    _c72 = l3*_c71
+    _c73 = _c72*s_link3__R_2_0
+    _c74 = (1/2)*f_link3__b3_2
+    _c75 = l3*_c74
+    _c76 = _c75*s_link3__R_1_0
+    # link3.mQ (MTF): f2 = M f1
+    f_link3__b5_0 = _c76 - _c73
+    _c77 = _c75*s_link3__R_0_0
+    _c78 = (1/2)*f_link3__b3_0
+    _c79 = l3*_c78
+    _c80 = _c79*s_link3__R_2_0
+    # link3.mQ (MTF): f2 = M f1
+    f_link3__b5_1 = _c80 - _c77
+    _c81 = _c79*s_link3__R_1_0
+    _c82 = _c72*s_link3__R_0_0
+    # link3.mQ (MTF): f2 = M f1
+    f_link3__b5_2 = _c82 - _c81
+    # link3.mP (MTF): f2 = M f1
+    f_link3__b9_0 = _c73 - _c76
+    # link3.mP (MTF): f2 = M f1
+    f_link3__b9_1 = _c77 - _c80
+    # link3.mP (MTF): f2 = M f1
+    f_link3__b9_2 = _c81 - _c82
+    # 0-junction link3.sQ: flow balance
+    f_link3__b7_0 = f_link3__b2_0 + f_link3__b5_0
+    # 0-junction link3.sQ: flow balance
+    f_link3__b7_1 = f_link3__b2_1 + f_link3__b5_1
+    # 0-junction link3.sQ: flow balance
+    f_link3__b7_2 = f_link3__b2_2 + f_link3__b5_2
+    # 0-junction link3.sP: flow balance
+    f_link3__b11_0 = f_link3__b2_0 + f_link3__b9_0
+    # 0-junction link3.sP: flow balance
+    f_link3__b11_1 = f_link3__b2_1 + f_link3__b9_1
+    # 0-junction link3.sP: flow balance
+    f_link3__b11_2 = f_link3__b2_2 + f_link3__b9_2
+    _c83 = 1/m4
+    # link4.It (I, integral): flow from momentum
+    f_link4__b2_0 = _c83*p_link4__It_0
+    # link4.It (I, integral): flow from momentum
+    f_link4__b2_1 = _c83*p_link4__It_1
+    # link4.It (I, integral): flow from momentum
+    f_link4__b2_2 = _c83*p_link4__It_2
+    _c84 = 1/link4__Iyy
+    _c85 = _c84*s_link4__R_0_1
+    _c86 = _c84*s_link4__R_1_2
+    _c87 = 1/link4__Ixx
+    _c88 = _c87*s_link4__R_0_0
+    _c89 = _c88*s_link4__R_1_0 + _c86*s_link4__R_0_2 + _c85*s_link4__R_1_1
+    _c90 = _c84*s_link4__R_0_2
+    _c91 = _c88*s_link4__R_2_0 + _c85*s_link4__R_2_1 + _c90*s_link4__R_2_2
+    _c92 = _c87*s_link4__R_0_0*s_link4__R_0_0 + _c84*s_link4__R_0_1*s_link4__R_0_1 + _c84*s_link4__R_0_2*s_link4__R_0_2
+    # link4.Ir (I, integral): flow from momentum
+    f_link4__b3_0 = _c92*p_link4__Ir_0 + _c91*p_link4__Ir_2 + _c89*p_link4__Ir_1
+    _c93 = _c84*s_link4__R_1_1
+    _c94 = _c87*s_link4__R_1_0
+    _c95 = _c94*s_link4__R_2_0 + _c93*s_link4__R_2_1 + _c86*s_link4__R_2_2
+    _c96 = _c87*s_link4__R_1_0*s_link4__R_1_0 + _c84*s_link4__R_1_1*s_link4__R_1_1 + _c84*s_link4__R_1_2*s_link4__R_1_2
+    # link4.Ir (I, integral): flow from momentum
+    f_link4__b3_1 = _c89*p_link4__Ir_0 + _c96*p_link4__Ir_1 + _c95*p_link4__Ir_2
+    _c97 = _c87*s_link4__R_2_0*s_link4__R_2_0 + _c84*s_link4__R_2_1*s_link4__R_2_1 + _c84*s_link4__R_2_2*s_link4__R_2_2
+    # link4.Ir (I, integral): flow from momentum
+    f_link4__b3_2 = _c91*p_link4__Ir_0 + _c95*p_link4__Ir_1 + _c97*p_link4__Ir_2
+    _c101 = (1/2)*f_link4__b3_2
+    _c102 = l4*_c101
+    _c103 = _c102*s_link4__R_1_0
+    _c98 = (1/2)*f_link4__b3_1
+    _c99 = l4*_c98
+    _c100 = _c99*s_link4__R_2_0
+    # link4.mQ (MTF): f2 = M f1
+    f_link4__b5_0 = _c103 - _c100
+    _c104 = _c102*s_link4__R_0_0
+    _c105 = (1/2)*f_link4__b3_0
+    _c106 = l4*_c105
+    _c107 = _c106*s_link4__R_2_0
+    # link4.mQ (MTF): f2 = M f1
+    f_link4__b5_1 = _c107 - _c104
+    _c108 = _c106*s_link4__R_1_0
+    _c109 = _c99*s_link4__R_0_0
+    # link4.mQ (MTF): f2 = M f1
+    f_link4__b5_2 = _c109 - _c108
+    # link4.mP (MTF): f2 = M f1
+    f_link4__b9_0 = _c100 - _c103
+    # link4.mP (MTF): f2 = M f1
+    f_link4__b9_1 = _c104 - _c107
+    # link4.mP (MTF): f2 = M f1
+    f_link4__b9_2 = _c108 - _c109
+    # 0-junction link4.sQ: flow balance
+    f_link4__b7_0 = f_link4__b2_0 + f_link4__b5_0
+    # 0-junction link4.sQ: flow balance
+    f_link4__b7_1 = f_link4__b2_1 + f_link4__b5_1
+    # 0-junction link4.sQ: flow balance
+    f_link4__b7_2 = f_link4__b2_2 + f_link4__b5_2
+    # 0-junction link4.sP: flow balance
+    f_link4__b11_0 = f_link4__b2_0 + f_link4__b9_0
+    # 0-junction link4.sP: flow balance
+    f_link4__b11_1 = f_link4__b2_1 + f_link4__b9_1
+    # 0-junction link4.sP: flow balance
+    f_link4__b11_2 = f_link4__b2_2 + f_link4__b9_2
+    _c110 = k_t*q_j1__C_0
+    # j1.C (C, integral): effort from displacement
+    e_j1__b2_0 = _c110
+    _c111 = k_t*q_j1__C_1
+    # j1.C (C, integral): effort from displacement
+    e_j1__b2_1 = _c111
+    _c112 = k_t*q_j1__C_2
+    # j1.C (C, integral): effort from displacement
+    e_j1__b2_2 = _c112
+    # j1.R (R): effort = r f
+    e_j1__b3_0 = -r_t*f_link1__b7_0
+    # j1.R (R): effort = r f
+    e_j1__b3_1 = -r_t*f_link1__b7_1
+    # j1.R (R): effort = r f
+    e_j1__b3_2 = -r_t*f_link1__b7_2
+    # 0-junction j2.J: flow balance
+    f_j2__b1_0 = f_link1__b11_0 - f_link2__b7_0
+    # 0-junction j2.J: flow balance
+    f_j2__b1_1 = f_link1__b11_1 - f_link2__b7_1
+    # 0-junction j2.J: flow balance
+    f_j2__b1_2 = f_link1__b11_2 - f_link2__b7_2
+    _c113 = k_t*q_j2__C_0
+    # j2.C (C, integral): effort from displacement
+    e_j2__b2_0 = _c113
+    _c114 = k_t*q_j2__C_1
+    # j2.C (C, integral): effort from displacement
+    e_j2__b2_1 = _c114
+    _c115 = k_t*q_j2__C_2
+    # j2.C (C, integral): effort from displacement
+    e_j2__b2_2 = _c115
+    # j2.R (R): effort = r f
+    e_j2__b3_0 = r_t*f_j2__b1_0
+    # j2.R (R): effort = r f
+    e_j2__b3_1 = r_t*f_j2__b1_1
+    # j2.R (R): effort = r f
+    e_j2__b3_2 = r_t*f_j2__b1_2
+    # 0-junction j3.J: flow balance
+    f_j3__b1_0 = f_link2__b11_0 - f_link3__b7_0
+    # 0-junction j3.J: flow balance
+    f_j3__b1_1 = f_link2__b11_1 - f_link3__b7_1
+    # 0-junction j3.J: flow balance
+    f_j3__b1_2 = f_link2__b11_2 - f_link3__b7_2
+    _c116 = k_t*q_j3__C_0
+    # j3.C (C, integral): effort from displacement
+    e_j3__b2_0 = _c116
+    _c117 = k_t*q_j3__C_1
+    # j3.C (C, integral): effort from displacement
+    e_j3__b2_1 = _c117
+    _c118 = k_t*q_j3__C_2
+    # j3.C (C, integral): effort from displacement
+    e_j3__b2_2 = _c118
+    # j3.R (R): effort = r f
+    e_j3__b3_0 = r_t*f_j3__b1_0
+    # j3.R (R): effort = r f
+    e_j3__b3_1 = r_t*f_j3__b1_1
+    # j3.R (R): effort = r f
+    e_j3__b3_2 = r_t*f_j3__b1_2
+    # 0-junction j4.J: flow balance
+    f_j4__b1_0 = f_link3__b11_0 - f_link4__b7_0
+    # 0-junction j4.J: flow balance
+    f_j4__b1_1 = f_link3__b11_1 - f_link4__b7_1
+    # 0-junction j4.J: flow balance
+    f_j4__b1_2 = f_link3__b11_2 - f_link4__b7_2
+    _c119 = k_t*q_j4__C_0
+    # j4.C (C, integral): effort from displacement
+    e_j4__b2_0 = _c119
+    _c120 = k_t*q_j4__C_1
+    # j4.C (C, integral): effort from displacement
+    e_j4__b2_1 = _c120
+    _c121 = k_t*q_j4__C_2
+    # j4.C (C, integral): effort from displacement
+    e_j4__b2_2 = _c121
+    # j4.R (R): effort = r f
+    e_j4__b3_0 = r_t*f_j4__b1_0
+    # j4.R (R): effort = r f
+    e_j4__b3_1 = r_t*f_j4__b1_1
+    # j4.R (R): effort = r f
+    e_j4__b3_2 = r_t*f_j4__b1_2
+    _c122 = k_t*q_j5__C_0
+    # j5.C (C, integral): effort from displacement
+    e_j5__b2_0 = _c122
+    _c123 = k_t*q_j5__C_1
+    # j5.C (C, integral): effort from displacement
+    e_j5__b2_1 = _c123
+    _c124 = k_t*q_j5__C_2
+    # j5.C (C, integral): effort from displacement
+    e_j5__b2_2 = _c124
+    # j5.R (R): effort = r f
+    e_j5__b3_0 = r_t5*f_link4__b11_0
+    # j5.R (R): effort = r f
+    e_j5__b3_1 = r_t5*f_link4__b11_1
+    # j5.R (R): effort = r f
+    e_j5__b3_2 = r_t5*f_link4__b11_2
+    # r1.M (MTF): f2 = M f1
+    f_r1__b2_0 = s_link1__R_0_0*f_link1__b3_0 + s_link1__R_1_0*f_link1__b3_1 + s_link1__R_2_0*f_link1__b3_2
+    # r1.M (MTF): f2 = M f1
+    f_r1__b2_1 = s_link1__R_0_1*f_link1__b3_0 + s_link1__R_1_1*f_link1__b3_1 + s_link1__R_2_1*f_link1__b3_2
+    _c125 = k_r*q_r1__C_0
+    # r1.C (C, integral): effort from displacement
+    e_r1__b3_0 = _c125
+    _c126 = k_r*q_r1__C_1
+    # r1.C (C, integral): effort from displacement
+    e_r1__b3_1 = _c126
+    # r1.R (R): effort = r f
+    e_r1__b4_0 = r_r*f_r1__b2_0
+    # r1.R (R): effort = r f
+    e_r1__b4_1 = r_r*f_r1__b2_1
+    # 0-junction r2.J: flow balance
+    f_r2__b1_0 = f_link2__b3_0 - f_link1__b3_0
+    # 0-junction r2.J: flow balance
+    f_r2__b1_1 = f_link2__b3_1 - f_link1__b3_1
+    # 0-junction r2.J: flow balance
+    f_r2__b1_2 = f_link2__b3_2 - f_link1__b3_2
+    # r2.M (MTF): f2 = M f1
+    f_r2__b2_0 = s_link2__R_0_0*f_r2__b1_0 + s_link2__R_1_0*f_r2__b1_1 + s_link2__R_2_0*f_r2__b1_2
+    # r2.M (MTF): f2 = M f1
+    f_r2__b2_1 = s_link2__R_0_1*f_r2__b1_0 + s_link2__R_1_1*f_r2__b1_1 + s_link2__R_2_1*f_r2__b1_2
+    _c127 = k_r*q_r2__C_0
+    # r2.C (C, integral): effort from displacement
+    e_r2__b3_0 = _c127
+    _c128 = k_r*q_r2__C_1
+    # r2.C (C, integral): effort from displacement
+    e_r2__b3_1 = _c128
+    # r2.R (R): effort = r f
+    e_r2__b4_0 = r_r*f_r2__b2_0
+    # r2.R (R): effort = r f
+    e_r2__b4_1 = r_r*f_r2__b2_1
+    # 0-junction r3.J: flow balance
+    f_r3__b1_0 = f_link3__b3_0 - f_link2__b3_0
+    # 0-junction r3.J: flow balance
+    f_r3__b1_1 = f_link3__b3_1 - f_link2__b3_1
+    # 0-junction r3.J: flow balance
+    f_r3__b1_2 = f_link3__b3_2 - f_link2__b3_2
+    # r3.M (MTF): f2 = M f1
+    f_r3__b2_0 = s_link3__R_0_0*f_r3__b1_0 + s_link3__R_1_0*f_r3__b1_1 + s_link3__R_2_0*f_r3__b1_2
+    # r3.M (MTF): f2 = M f1
+    f_r3__b2_1 = s_link3__R_0_1*f_r3__b1_0 + s_link3__R_1_1*f_r3__b1_1 + s_link3__R_2_1*f_r3__b1_2
+    _c129 = k_r*q_r3__C_0
+    # r3.C (C, integral): effort from displacement
+    e_r3__b3_0 = _c129
+    _c130 = k_r*q_r3__C_1
+    # r3.C (C, integral): effort from displacement
+    e_r3__b3_1 = _c130
+    # r3.R (R): effort = r f
+    e_r3__b4_0 = r_r*f_r3__b2_0
+    # r3.R (R): effort = r f
+    e_r3__b4_1 = r_r*f_r3__b2_1
+    # 0-junction jd.J: flow balance
+    f_jd__b1_0 = u_vd_0 - f_link3__b11_0
+    # 0-junction jd.J: flow balance
+    f_jd__b1_1 = u_vd_1 - f_link3__b11_1
+    # 0-junction jd.J: flow balance
+    f_jd__b1_2 = u_vd_2 - f_link3__b11_2
+    _c131 = k_d*q_jd__C_0
+    # jd.C (C, integral): effort from displacement
+    e_jd__b2_0 = _c131
+    _c132 = k_d*q_jd__C_1
+    # jd.C (C, integral): effort from displacement
+    e_jd__b2_1 = _c132
+    _c133 = k_d*q_jd__C_2
+    # jd.C (C, integral): effort from displacement
+    e_jd__b2_2 = _c133
+    _c134 = r_d*f_jd__b1_0
+    # jd.R (R): effort = r f
+    e_jd__b3_0 = _c134
+    # 1-junction jd.rel: effort balance
+    e_jd__b1_0 = e_jd__b2_0 + e_jd__b3_0
+    _c135 = r_d*f_jd__b1_1
+    # jd.R (R): effort = r f
+    e_jd__b3_1 = _c135
+    # 1-junction jd.rel: effort balance
+    e_jd__b1_1 = e_jd__b2_1 + e_jd__b3_1
+    _c136 = r_d*f_jd__b1_2
+    # jd.R (R): effort = r f
+    e_jd__b3_2 = _c136
+    # 1-junction jd.rel: effort balance
+    e_jd__b1_2 = e_jd__b2_2 + e_jd__b3_2
+    _dx0 = _c0
+    _dx1 = _c0
+    _dx2 = _c0
+    _dx3 = _c12
+    _dx4 = _c10
+    _dx5 = _c6
+    _c137 = _c4*s_link1__R_2_0
+    _c138 = _c137*p_link1__Ir_2
+    _c139 = _c9*p_link1__Ir_1
+    _c140 = _c4*p_link1__Ir_0
+    _c141 = _c140*s_link1__R_0_0
+    _dx6 = 2*_c141 + _c139 + _c138
+    _c142 = _c1*s_link1__R_2_1
+    _c143 = _c142*p_link1__Ir_2
+    _c144 = _c2*p_link1__Ir_0
+    _c145 = _c8*p_link1__Ir_1
+    _dx7 = _c145 + 2*_c144 + _c143
+    _c146 = _c1*s_link1__R_2_2
+    _c147 = _c146*p_link1__Ir_2
+    _c148 = _c7*p_link1__Ir_1
+    _c149 = _c3*p_link1__Ir_0
+    _dx8 = 2*_c149 + _c148 + _c147
+    _dx9 = _c5*p_link1__Ir_1
+    _dx10 = _c2*p_link1__Ir_1
+    _dx11 = _c3*p_link1__Ir_1
+    _dx12 = _c5*p_link1__Ir_2
+    _dx13 = _c2*p_link1__Ir_2
+    _dx14 = _c3*p_link1__Ir_2
+    _dx15 = _c10
+    _dx16 = _c15
+    _dx17 = _c13
+    _dx18 = _c140*s_link1__R_1_0
+    _dx19 = _c8*p_link1__Ir_0
+    _dx20 = _c7*p_link1__Ir_0
+    _dx21 = _c141 + 2*_c139 + _c138
+    _dx22 = 2*_c145 + _c144 + _c143
+    _dx23 = _c149 + 2*_c148 + _c147
+    _dx24 = _c9*p_link1__Ir_2
+    _dx25 = _c8*p_link1__Ir_2
+    _dx26 = _c7*p_link1__Ir_2
+    _dx27 = _c6
+    _dx28 = _c13
+    _dx29 = _c16
+    _dx30 = _c140*s_link1__R_2_0
+    _dx31 = _c142*p_link1__Ir_0
+    _dx32 = _c146*p_link1__Ir_0
+    _dx33 = _c137*p_link1__Ir_1
+    _dx34 = _c142*p_link1__Ir_1
+    _dx35 = _c146*p_link1__Ir_1
+    _dx36 = _c141 + _c139 + 2*_c138
+    _dx37 = _c145 + _c144 + 2*_c143
+    _dx38 = _c149 + _c148 + 2*_c147
+    _c150 = (1/2)*l1
+    _c151 = _c150*s_link1__R_2_0
+    _c152 = _c151*_dx15
+    _c153 = _c150*s_link1__R_1_0
+    _c154 = _c153*_dx27
+    _dx39 = _c154 - _c152
+    _c155 = _c151*_dx16
+    _c156 = _c153*_dx28
+    _dx40 = _c156 - _c155
+    _c157 = _c151*_dx17
+    _c158 = _c153*_dx29
+    _dx41 = _c158 - _c157
+    _c159 = _c151*_dx18
+    _c160 = _c153*_dx30
+    _dx42 = _c160 - _c159
+    _c161 = _c151*_dx19
+    _c162 = _c153*_dx31
+    _dx43 = _c162 - _c161
+    _c163 = _c151*_dx20
+    _c164 = _c153*_dx32
+    _dx44 = _c164 - _c163
+    _c165 = _c151*_dx21
+    _c166 = _c153*_dx33
+    _dx45 = _c21 + _c166 - _c165
+    _c167 = _c151*_dx22
+    _c168 = _c153*_dx34
+    _dx46 = _c168 - _c167
+    _c169 = _c151*_dx23
+    _c170 = _c153*_dx35
+    _dx47 = _c170 - _c169
+    _c171 = _c151*_dx24
+    _c172 = _c153*_dx36
+    _c173 = -_c18
+    _dx48 = _c173 + _c172 - _c171
+    _c174 = _c151*_dx25
+    _c175 = _c153*_dx37
+    _dx49 = _c175 - _c174
+    _c176 = _c151*_dx26
+    _c177 = _c153*_dx38
+    _dx50 = _c177 - _c176
+    _c178 = _c151*_dx3
+    _c179 = _c150*s_link1__R_0_0
+    _c180 = _c179*_dx27
+    _dx51 = -_c180 + _c178
+    _c181 = _c151*_dx4
+    _c182 = _c179*_dx28
+    _dx52 = -_c182 + _c181
+    _c183 = _c151*_dx5
+    _c184 = _c179*_dx29
+    _dx53 = -_c184 + _c183
+    _c185 = _c151*_dx6
+    _c186 = _c179*_dx30
+    _c187 = -_c21
+    _dx54 = _c187 - _c186 + _c185
+    _c188 = _c151*_dx7
+    _c189 = _c179*_dx31
+    _dx55 = -_c189 + _c188
+    _c190 = _c151*_dx8
+    _c191 = _c179*_dx32
+    _dx56 = -_c191 + _c190
+    _c192 = _c151*_dx9
+    _c193 = _c179*_dx33
+    _dx57 = -_c193 + _c192
+    _c194 = _c151*_dx10
+    _c195 = _c179*_dx34
+    _dx58 = -_c195 + _c194
+    _c196 = _c151*_dx11
+    _c197 = _c179*_dx35
+    _dx59 = -_c197 + _c196
+    _c198 = _c151*_dx12
+    _c199 = _c179*_dx36
+    _dx60 = _c25 - _c199 + _c198
+    _c200 = _c151*_dx13
+    _c201 = _c179*_dx37
+    _dx61 = -_c201 + _c200
+    _c202 = _c151*_dx14
+    _c203 = _c179*_dx38
+    _dx62 = -_c203 + _c202
+    _c204 = _c153*_dx3
+    _c205 = _c179*_dx15
+    _dx63 = _c205 - _c204
+    _c206 = _c153*_dx4
+    _c207 = _c179*_dx16
+    _dx64 = _c207 - _c206
+    _c208 = _c153*_dx5
+    _c209 = _c179*_dx17
+    _dx65 = _c209 - _c208
+    _c210 = _c153*_dx6
+    _c211 = _c179*_dx18
+    _dx66 = _c18 + _c211 - _c210
+    _c212 = _c153*_dx7
+    _c213 = _c179*_dx19
+    _dx67 = _c213 - _c212
+    _c214 = _c153*_dx8
+    _c215 = _c179*_dx20
+    _dx68 = _c215 - _c214
+    _c216 = _c153*_dx9
+    _c217 = _c179*_dx21
+    _c218 = -_c25
+    _dx69 = _c218 + _c217 - _c216
+    _c219 = _c153*_dx10
+    _c220 = _c179*_dx22
+    _dx70 = _c220 - _c219
+    _c221 = _c153*_dx11
+    _c222 = _c179*_dx23
+    _dx71 = _c222 - _c221
+    _c223 = _c153*_dx12
+    _c224 = _c179*_dx24
+    _dx72 = _c224 - _c223
+    _c225 = _c153*_dx13
+    _c226 = _c179*_dx25
+    _dx73 = _c226 - _c225
+    _c227 = _c153*_dx14
+    _c228 = _c179*_dx26
+    _dx74 = _c228 - _c227
+    _dx75 = -_c154 + _c152
+    _dx76 = -_c156 + _c155
+    _dx77 = -_c158 + _c157
+    _dx78 = -_c160 + _c159
+    _dx79 = -_c162 + _c161
+    _dx80 = -_c164 + _c163
+    _dx81 = _c187 - _c166 + _c165
+    _dx82 = -_c168 + _c167
+    _dx83 = -_c170 + _c169
+    _dx84 = _c18 - _c172 + _c171
+    _dx85 = -_c175 + _c174
+    _dx86 = -_c177 + _c176
+    _dx87 = _c180 - _c178
+    _dx88 = _c182 - _c181
+    _dx89 = _c184 - _c183
+    _dx90 = _c21 + _c186 - _c185
+    _dx91 = _c189 - _c188
+    _dx92 = _c191 - _c190
+    _dx93 = _c193 - _c192
+    _dx94 = _c195 - _c194
+    _dx95 = _c197 - _c196
+    _dx96 = _c218 + _c199 - _c198
+    _dx97 = _c201 - _c200
+    _dx98 = _c203 - _c202
+    _dx99 = -_c205 + _c204
+    _dx100 = -_c207 + _c206
+    _dx101 = -_c209 + _c208
+    _dx102 = _c173 - _c211 + _c210
+    _dx103 = -_c213 + _c212
+    _dx104 = -_c215 + _c214
+    _dx105 = _c25 - _c217 + _c216
+    _dx106 = -_c220 + _c219
+    _dx107 = -_c222 + _c221
+    _dx108 = -_c224 + _c223
+    _dx109 = -_c226 + _c225
+    _dx110 = -_c228 + _c227
+    _dx111 = _c29
+    _dx112 = _c29
+    _dx113 = _c29
+    _dx114 = _c38
+    _dx115 = _c35
+    _dx116 = _c37
+    _c229 = _c33*s_link2__R_1_0
+    _c230 = _c229*p_link2__Ir_1
+    _c231 = _c36*p_link2__Ir_2
+    _c232 = _c34*p_link2__Ir_0
+    _dx117 = 2*_c232 + _c231 + _c230
+    _c233 = _c40*p_link2__Ir_1
+    _c234 = _c30*s_link2__R_2_1
+    _c235 = _c234*p_link2__Ir_2
+    _c236 = _c30*p_link2__Ir_0
+    _c237 = _c236*s_link2__R_0_1
+    _dx118 = 2*_c237 + _c235 + _c233
+    _c238 = _c39*p_link2__Ir_1
+    _c239 = _c30*s_link2__R_2_2
+    _c240 = _c239*p_link2__Ir_2
+    _c241 = _c236*s_link2__R_0_2
+    _dx119 = 2*_c241 + _c240 + _c238
+    _dx120 = _c34*p_link2__Ir_1
+    _dx121 = _c32*p_link2__Ir_1
+    _dx122 = _c31*p_link2__Ir_1
+    _dx123 = _c34*p_link2__Ir_2
+    _dx124 = _c32*p_link2__Ir_2
+    _dx125 = _c31*p_link2__Ir_2
+    _dx126 = _c35
+    _dx127 = _c42
+    _dx128 = _c41
+    _dx129 = _c229*p_link2__Ir_0
+    _dx130 = _c236*s_link2__R_1_1
+    _dx131 = _c236*s_link2__R_1_2
+    _dx132 = _c232 + 2*_c230 + _c231
+    _dx133 = _c237 + 2*_c233 + _c235
+    _dx134 = _c241 + 2*_c238 + _c240
+    _dx135 = _c229*p_link2__Ir_2
+    _dx136 = _c40*p_link2__Ir_2
+    _dx137 = _c39*p_link2__Ir_2
+    _dx138 = _c37
+    _dx139 = _c41
+    _dx140 = _c43
+    _dx141 = _c36*p_link2__Ir_0
+    _dx142 = _c236*s_link2__R_2_1
+    _dx143 = _c236*s_link2__R_2_2
+    _dx144 = _c36*p_link2__Ir_1
+    _dx145 = _c234*p_link2__Ir_1
+    _dx146 = _c239*p_link2__Ir_1
+    _dx147 = _c232 + _c230 + 2*_c231
+    _dx148 = _c237 + _c233 + 2*_c235
+    _dx149 = _c241 + _c238 + 2*_c240
+    _c242 = (1/2)*l2
+    _c243 = _c242*s_link2__R_2_0
+    _c244 = _c243*_dx126
+    _c245 = _c242*s_link2__R_1_0
+    _c246 = _c245*_dx138
+    _dx150 = _c246 - _c244
+    _c247 = _c243*_dx127
+    _c248 = _c245*_dx139
+    _dx151 = _c248 - _c247
+    _c249 = _c243*_dx128
+    _c250 = _c245*_dx140
+    _dx152 = _c250 - _c249
+    _c251 = _c243*_dx129
+    _c252 = _c245*_dx141
+    _dx153 = _c252 - _c251
+    _c253 = _c243*_dx130
+    _c254 = _c245*_dx142
+    _dx154 = _c254 - _c253
+    _c255 = _c243*_dx131
+    _c256 = _c245*_dx143
+    _dx155 = _c256 - _c255
+    _c257 = _c243*_dx132
+    _c258 = _c245*_dx144
+    _dx156 = _c48 + _c258 - _c257
+    _c259 = _c243*_dx133
+    _c260 = _c242*_dx145
+    _c261 = _c260*s_link2__R_1_0
+    _dx157 = _c261 - _c259
+    _c262 = _c243*_dx134
+    _c263 = _c245*_dx146
+    _dx158 = _c263 - _c262
+    _c264 = _c243*_dx135
+    _c265 = _c245*_dx147
+    _c266 = -_c45
+    _dx159 = _c266 + _c265 - _c264
+    _c267 = _c243*_dx136
+    _c268 = _c245*_dx148
+    _dx160 = _c268 - _c267
+    _c269 = _c243*_dx137
+    _c270 = _c245*_dx149
+    _dx161 = _c270 - _c269
+    _c271 = _c243*_dx114
+    _c272 = _c242*s_link2__R_0_0
+    _c273 = _c272*_dx138
+    _dx162 = -_c273 + _c271
+    _c274 = _c243*_dx115
+    _c275 = _c272*_dx139
+    _dx163 = -_c275 + _c274
+    _c276 = _c243*_dx116
+    _c277 = _c272*_dx140
+    _dx164 = -_c277 + _c276
+    _c278 = _c243*_dx117
+    _c279 = -_c48
+    _c280 = _c272*_dx141
+    _dx165 = -_c280 + _c279 + _c278
+    _c281 = _c243*_dx118
+    _c282 = _c272*_dx142
+    _dx166 = -_c282 + _c281
+    _c283 = _c243*_dx119
+    _c284 = _c272*_dx143
+    _dx167 = -_c284 + _c283
+    _c285 = _c243*_dx120
+    _c286 = _c272*_dx144
+    _dx168 = -_c286 + _c285
+    _c287 = _c243*_dx121
+    _c288 = _c260*s_link2__R_0_0
+    _dx169 = -_c288 + _c287
+    _c289 = _c243*_dx122
+    _c290 = _c272*_dx146
+    _dx170 = -_c290 + _c289
+    _c291 = _c243*_dx123
+    _c292 = _c272*_dx147
+    _dx171 = _c52 - _c292 + _c291
+    _c293 = _c243*_dx124
+    _c294 = _c272*_dx148
+    _dx172 = -_c294 + _c293
+    _c295 = _c243*_dx125
+    _c296 = _c272*_dx149
+    _dx173 = -_c296 + _c295
+    _c297 = _c245*_dx114
+    _c298 = _c272*_dx126
+    _dx174 = _c298 - _c297
+    _c299 = _c245*_dx115
+    _c300 = _c272*_dx127
+    _dx175 = _c300 - _c299
+    _c301 = _c245*_dx116
+    _c302 = _c272*_dx128
+    _dx176 = _c302 - _c301
+    _c303 = _c245*_dx117
+    _c304 = _c272*_dx129
+    _dx177 = _c45 + _c304 - _c303
+    _c305 = _c245*_dx118
+    _c306 = _c272*_dx130
+    _dx178 = _c306 - _c305
+    _c307 = _c245*_dx119
+    _c308 = _c272*_dx131
+    _dx179 = _c308 - _c307
+    _c309 = _c245*_dx120
+    _c310 = _c272*_dx132
+    _c311 = -_c52
+    _dx180 = _c310 + _c311 - _c309
+    _c312 = _c245*_dx121
+    _c313 = _c272*_dx133
+    _dx181 = _c313 - _c312
+    _c314 = _c245*_dx122
+    _c315 = _c272*_dx134
+    _dx182 = _c315 - _c314
+    _c316 = _c245*_dx123
+    _c317 = _c272*_dx135
+    _dx183 = _c317 - _c316
+    _c318 = _c245*_dx124
+    _c319 = _c272*_dx136
+    _dx184 = _c319 - _c318
+    _c320 = _c245*_dx125
+    _c321 = _c272*_dx137
+    _dx185 = _c321 - _c320
+    _dx186 = -_c246 + _c244
+    _dx187 = -_c248 + _c247
+    _dx188 = -_c250 + _c249
+    _dx189 = -_c252 + _c251
+    _dx190 = -_c254 + _c253
+    _dx191 = -_c256 + _c255
+    _dx192 = -_c258 + _c279 + _c257
+    _dx193 = -_c261 + _c259
+    _dx194 = -_c263 + _c262
+    _dx195 = _c45 - _c265 + _c264
+    _dx196 = -_c268 + _c267
+    _dx197 = -_c270 + _c269
+    _dx198 = _c273 - _c271
+    _dx199 = _c275 - _c274
+    _dx200 = _c277 - _c276
+    _dx201 = _c280 + _c48 - _c278
+    _dx202 = _c282 - _c281
+    _dx203 = _c284 - _c283
+    _dx204 = _c286 - _c285
+    _dx205 = _c288 - _c287
+    _dx206 = _c290 - _c289
+    _dx207 = _c311 + _c292 - _c291
+    _dx208 = _c294 - _c293
+    _dx209 = _c296 - _c295
+    _dx210 = -_c298 + _c297
+    _dx211 = -_c300 + _c299
+    _dx212 = -_c302 + _c301
+    _dx213 = _c266 - _c304 + _c303
+    _dx214 = -_c306 + _c305
+    _dx215 = -_c308 + _c307
+    _dx216 = _c52 - _c310 + _c309
+    _dx217 = -_c313 + _c312
+    _dx218 = -_c315 + _c314
+    _dx219 = -_c317 + _c316
+    _dx220 = -_c319 + _c318
+    _dx221 = -_c321 + _c320
+    _dx222 = _c56
+    _dx223 = _c56
+    _dx224 = _c56
+    _dx225 = _c65
+    _dx226 = _c64
+    _dx227 = _c62
+    _c322 = _c61*p_link3__Ir_2
+    _c323 = _c63*p_link3__Ir_1
+    _c324 = _c60*s_link3__R_0_0
+    _c325 = _c324*p_link3__Ir_0
+    _dx228 = 2*_c325 + _c323 + _c322
+    _c326 = _c57*p_link3__Ir_2
+    _c327 = _c326*s_link3__R_2_1
+    _c328 = _c67*p_link3__Ir_1
+    _c329 = _c59*p_link3__Ir_0
+    _dx229 = 2*_c329 + _c328 + _c327
+    _c330 = _c326*s_link3__R_2_2
+    _c331 = _c66*p_link3__Ir_1
+    _c332 = _c58*p_link3__Ir_0
+    _dx230 = 2*_c332 + _c331 + _c330
+    _c333 = _c60*p_link3__Ir_1
+    _dx231 = _c333*s_link3__R_0_0
+    _dx232 = _c59*p_link3__Ir_1
+    _dx233 = _c58*p_link3__Ir_1
+    _dx234 = _c324*p_link3__Ir_2
+    _dx235 = _c59*p_link3__Ir_2
+    _dx236 = _c58*p_link3__Ir_2
+    _dx237 = _c64
+    _dx238 = _c69
+    _dx239 = _c68
+    _dx240 = _c63*p_link3__Ir_0
+    _c334 = _c57*p_link3__Ir_0
+    _dx241 = _c334*s_link3__R_1_1
+    _dx242 = _c334*s_link3__R_1_2
+    _dx243 = _c325 + 2*_c323 + _c322
+    _dx244 = _c329 + 2*_c328 + _c327
+    _dx245 = _c332 + 2*_c331 + _c330
+    _dx246 = _c63*p_link3__Ir_2
+    _dx247 = _c67*p_link3__Ir_2
+    _dx248 = _c66*p_link3__Ir_2
+    _dx249 = _c62
+    _dx250 = _c68
+    _dx251 = _c70
+    _dx252 = _c61*p_link3__Ir_0
+    _dx253 = _c334*s_link3__R_2_1
+    _dx254 = _c334*s_link3__R_2_2
+    _dx255 = _c333*s_link3__R_2_0
+    _c335 = _c57*p_link3__Ir_1
+    _dx256 = _c335*s_link3__R_2_1
+    _dx257 = _c335*s_link3__R_2_2
+    _dx258 = _c325 + _c323 + 2*_c322
+    _dx259 = _c329 + _c328 + 2*_c327
+    _dx260 = _c332 + _c331 + 2*_c330
+    _c336 = (1/2)*l3
+    _c337 = _c336*s_link3__R_2_0
+    _c338 = _c337*_dx237
+    _c339 = _c336*s_link3__R_1_0
+    _c340 = _c339*_dx249
+    _dx261 = _c340 - _c338
+    _c341 = _c337*_dx238
+    _c342 = _c339*_dx250
+    _dx262 = _c342 - _c341
+    _c343 = _c337*_dx239
+    _c344 = _c339*_dx251
+    _dx263 = _c344 - _c343
+    _c345 = _c337*_dx240
+    _c346 = _c339*_dx252
+    _dx264 = _c346 - _c345
+    _c347 = _c337*_dx241
+    _c348 = _c339*_dx253
+    _dx265 = _c348 - _c347
+    _c349 = _c337*_dx242
+    _c350 = _c339*_dx254
+    _dx266 = _c350 - _c349
+    _c351 = _c337*_dx243
+    _c352 = _c339*_dx255
+    _dx267 = _c75 + _c352 - _c351
+    _c353 = _c337*_dx244
+    _c354 = _c339*_dx256
+    _dx268 = _c354 - _c353
+    _c355 = _c337*_dx245
+    _c356 = _c339*_dx257
+    _dx269 = _c356 - _c355
+    _c357 = _c337*_dx246
+    _c358 = _c339*_dx258
+    _c359 = -_c72
+    _dx270 = _c359 + _c358 - _c357
+    _c360 = _c337*_dx247
+    _c361 = _c339*_dx259
+    _dx271 = _c361 - _c360
+    _c362 = _c337*_dx248
+    _c363 = _c339*_dx260
+    _dx272 = _c363 - _c362
+    _c364 = _c337*_dx225
+    _c365 = _c336*s_link3__R_0_0
+    _c366 = _c365*_dx249
+    _dx273 = -_c366 + _c364
+    _c367 = _c337*_dx226
+    _c368 = _c365*_dx250
+    _dx274 = -_c368 + _c367
+    _c369 = _c337*_dx227
+    _c370 = _c365*_dx251
+    _dx275 = -_c370 + _c369
+    _c371 = _c337*_dx228
+    _c372 = _c365*_dx252
+    _c373 = -_c75
+    _dx276 = _c373 - _c372 + _c371
+    _c374 = _c337*_dx229
+    _c375 = _c365*_dx253
+    _dx277 = -_c375 + _c374
+    _c376 = _c337*_dx230
+    _c377 = _c365*_dx254
+    _dx278 = -_c377 + _c376
+    _c378 = _c337*_dx231
+    _c379 = _c365*_dx255
+    _dx279 = -_c379 + _c378
+    _c380 = _c337*_dx232
+    _c381 = _c365*_dx256
+    _dx280 = -_c381 + _c380
+    _c382 = _c337*_dx233
+    _c383 = _c365*_dx257
+    _dx281 = -_c383 + _c382
+    _c384 = _c337*_dx234
+    _c385 = _c365*_dx258
+    _dx282 = _c79 - _c385 + _c384
+    _c386 = _c337*_dx235
+    _c387 = _c365*_dx259
+    _dx283 = -_c387 + _c386
+    _c388 = _c337*_dx236
+    _c389 = _c365*_dx260
+    _dx284 = -_c389 + _c388
+    _c390 = _c339*_dx225
+    _c391 = _c365*_dx237
+    _dx285 = _c391 - _c390
+    _c392 = _c339*_dx226
+    _c393 = _c365*_dx238
+    _dx286 = _c393 - _c392
+    _c394 = _c339*_dx227
+    _c395 = _c365*_dx239
+    _dx287 = _c395 - _c394
+    _c396 = _c339*_dx228
+    _c397 = _c365*_dx240
+    _dx288 = _c72 + _c397 - _c396
+    _c398 = _c339*_dx229
+    _c399 = _c365*_dx241
+    _dx289 = _c399 - _c398
+    _c400 = _c339*_dx230
+    _c401 = _c365*_dx242
+    _dx290 = _c401 - _c400
+    _c402 = _c339*_dx231
+    _c403 = _c365*_dx243
+    _c404 = -_c79
+    _dx291 = _c404 + _c403 - _c402
+    _c405 = _c339*_dx232
+    _c406 = _c365*_dx244
+    _dx292 = _c406 - _c405
+    _c407 = _c339*_dx233
+    _c408 = _c365*_dx245
+    _dx293 = _c408 - _c407
+    _c409 = _c339*_dx234
+    _c410 = _c365*_dx246
+    _dx294 = _c410 - _c409
+    _c411 = _c339*_dx235
+    _c412 = _c365*_dx247
+    _dx295 = _c412 - _c411
+    _c413 = _c339*_dx236
+    _c414 = _c365*_dx248
+    _dx296 = _c414 - _c413
+    _dx297 = -_c340 + _c338
+    _dx298 = -_c342 + _c341
+    _dx299 = -_c344 + _c343
+    _dx300 = -_c346 + _c345
+    _dx301 = -_c348 + _c347
+    _dx302 = -_c350 + _c349
+    _dx303 = _c373 - _c352 + _c351
+    _dx304 = -_c354 + _c353
+    _dx305 = -_c356 + _c355
+    _dx306 = _c72 - _c358 + _c357
+    _dx307 = -_c361 + _c360
+    _dx308 = -_c363 + _c362
+    _dx309 = _c366 - _c364
+    _dx310 = _c368 - _c367
+    _dx311 = _c370 - _c369
+    _dx312 = _c75 + _c372 - _c371
+    _dx313 = _c375 - _c374
+    _dx314 = _c377 - _c376
+    _dx315 = _c379 - _c378
+    _dx316 = _c381 - _c380
+    _dx317 = _c383 - _c382
+    _dx318 = _c404 + _c385 - _c384
+    _dx319 = _c387 - _c386
+    _dx320 = _c389 - _c388
+    _dx321 = -_c391 + _c390
+    _dx322 = -_c393 + _c392
+    _dx323 = -_c395 + _c394
+    _dx324 = _c359 - _c397 + _c396
+    _dx325 = -_c399 + _c398
+    _dx326 = -_c401 + _c400
+    _dx327 = _c79 - _c403 + _c402
+    _dx328 = -_c406 + _c405
+    _dx329 = -_c408 + _c407
+    _dx330 = -_c410 + _c409
+    _dx331 = -_c412 + _c411
+    _dx332 = -_c414 + _c413
+    _dx333 = _c83
+    _dx334 = _c83
+    _dx335 = _c83
+    _dx336 = _c92
+    _dx337 = _c89
+    _dx338 = _c91
+    _c415 = _c94*p_link4__Ir_1
+    _c416 = _c87*s_link4__R_2_0
+    _c417 = _c416*p_link4__Ir_2
+    _c418 = _c88*p_link4__Ir_0
+    _dx339 = 2*_c418 + _c417 + _c415
+    _c419 = _c84*p_link4__Ir_1
+    _c420 = _c419*s_link4__R_1_1
+    _c421 = _c84*s_link4__R_2_1
+    _c422 = _c421*p_link4__Ir_2
+    _c423 = _c85*p_link4__Ir_0
+    _dx340 = 2*_c423 + _c422 + _c420
+    _c424 = _c419*s_link4__R_1_2
+    _c425 = _c84*s_link4__R_2_2
+    _c426 = _c425*p_link4__Ir_2
+    _c427 = _c90*p_link4__Ir_0
+    _dx341 = 2*_c427 + _c426 + _c424
+    _dx342 = _c88*p_link4__Ir_1
+    _dx343 = _c419*s_link4__R_0_1
+    _dx344 = _c419*s_link4__R_0_2
+    _dx345 = _c88*p_link4__Ir_2
+    _dx346 = _c85*p_link4__Ir_2
+    _dx347 = _c90*p_link4__Ir_2
+    _dx348 = _c89
+    _dx349 = _c96
+    _dx350 = _c95
+    _dx351 = _c94*p_link4__Ir_0
+    _dx352 = _c93*p_link4__Ir_0
+    _dx353 = _c86*p_link4__Ir_0
+    _dx354 = _c418 + 2*_c415 + _c417
+    _dx355 = _c423 + 2*_c420 + _c422
+    _dx356 = _c427 + 2*_c424 + _c426
+    _dx357 = _c94*p_link4__Ir_2
+    _dx358 = _c93*p_link4__Ir_2
+    _dx359 = _c86*p_link4__Ir_2
+    _dx360 = _c91
+    _dx361 = _c95
+    _dx362 = _c97
+    _dx363 = _c416*p_link4__Ir_0
+    _dx364 = _c421*p_link4__Ir_0
+    _dx365 = _c425*p_link4__Ir_0
+    _dx366 = _c416*p_link4__Ir_1
+    _dx367 = _c419*s_link4__R_2_1
+    _dx368 = _c419*s_link4__R_2_2
+    _dx369 = _c418 + _c415 + 2*_c417
+    _dx370 = _c423 + _c420 + 2*_c422
+    _dx371 = _c427 + _c424 + 2*_c426
+    _c428 = (1/2)*l4
+    _c429 = _c428*s_link4__R_2_0
+    _c430 = _c429*_dx348
+    _c431 = _c428*s_link4__R_1_0
+    _c432 = _c431*_dx360
+    _dx372 = _c432 - _c430
+    _c433 = _c429*_dx349
+    _c434 = _c431*_dx361
+    _dx373 = _c434 - _c433
+    _c435 = _c429*_dx350
+    _c436 = _c431*_dx362
+    _dx374 = _c436 - _c435
+    _c437 = _c429*_dx351
+    _c438 = _c431*_dx363
+    _dx375 = _c438 - _c437
+    _c439 = _c429*_dx352
+    _c440 = _c431*_dx364
+    _dx376 = _c440 - _c439
+    _c441 = _c429*_dx353
+    _c442 = _c431*_dx365
+    _dx377 = _c442 - _c441
+    _c443 = _c429*_dx354
+    _c444 = _c431*_dx366
+    _dx378 = _c102 + _c444 - _c443
+    _c445 = _c429*_dx355
+    _c446 = _c431*_dx367
+    _dx379 = _c446 - _c445
+    _c447 = _c429*_dx356
+    _c448 = _c431*_dx368
+    _dx380 = _c448 - _c447
+    _c449 = _c429*_dx357
+    _c450 = _c431*_dx369
+    _c451 = -_c99
+    _dx381 = _c451 + _c450 - _c449
+    _c452 = _c429*_dx358
+    _c453 = _c431*_dx370
+    _dx382 = _c453 - _c452
+    _c454 = _c429*_dx359
+    _c455 = _c431*_dx371
+    _dx383 = _c455 - _c454
+    _c456 = _c429*_dx336
+    _c457 = _c428*s_link4__R_0_0
+    _c458 = _c457*_dx360
+    _dx384 = -_c458 + _c456
+    _c459 = _c429*_dx337
+    _c460 = _c457*_dx361
+    _dx385 = -_c460 + _c459
+    _c461 = _c429*_dx338
+    _c462 = _c457*_dx362
+    _dx386 = -_c462 + _c461
+    _c463 = _c429*_dx339
+    _c464 = _c457*_dx363
+    _c465 = -_c102
+    _dx387 = _c465 - _c464 + _c463
+    _c466 = _c429*_dx340
+    _c467 = _c457*_dx364
+    _dx388 = -_c467 + _c466
+    _c468 = _c429*_dx341
+    _c469 = _c457*_dx365
+    _dx389 = -_c469 + _c468
+    _c470 = _c429*_dx342
+    _c471 = _c457*_dx366
+    _dx390 = -_c471 + _c470
+    _c472 = _c429*_dx343
+    _c473 = _c457*_dx367
+    _dx391 = -_c473 + _c472
+    _c474 = _c429*_dx344
+    _c475 = _c457*_dx368
+    _dx392 = -_c475 + _c474
+    _c476 = _c429*_dx345
+    _c477 = _c457*_dx369
+    _dx393 = _c106 - _c477 + _c476
+    _c478 = _c429*_dx346
+    _c479 = _c457*_dx370
+    _dx394 = -_c479 + _c478
+    _c480 = _c429*_dx347
+    _c481 = _c457*_dx371
+    _dx395 = -_c481 + _c480
+    _c482 = _c431*_dx336
+    _c483 = _c457*_dx348
+    _dx396 = _c483 - _c482
+    _c484 = _c431*_dx337
+    _c485 = _c457*_dx349
+    _dx397 = _c485 - _c484
+    _c486 = _c431*_dx338
+    _c487 = _c457*_dx350
+    _dx398 = _c487 - _c486
+    _c488 = _c431*_dx339
+    _c489 = _c457*_dx351
+    _dx399 = _c99 + _c489 - _c488
+    _c490 = _c431*_dx340
+    _c491 = _c457*_dx352
+    _dx400 = _c491 - _c490
+    _c492 = _c431*_dx341
+    _c493 = _c457*_dx353
+    _dx401 = _c493 - _c492
+    _c494 = _c431*_dx342
+    _c495 = _c457*_dx354
+    _c496 = -_c106
+    _dx402 = _c496 + _c495 - _c494
+    _c497 = _c431*_dx343
+    _c498 = _c457*_dx355
+    _dx403 = _c498 - _c497
+    _c499 = _c431*_dx344
+    _c500 = _c457*_dx356
+    _dx404 = _c500 - _c499
+    _c501 = _c431*_dx345
+    _c502 = _c457*_dx357
+    _dx405 = _c502 - _c501
+    _c503 = _c431*_dx346
+    _c504 = _c457*_dx358
+    _dx406 = _c504 - _c503
+    _c505 = _c431*_dx347
+    _c506 = _c457*_dx359
+    _dx407 = _c506 - _c505
+    _dx408 = -_c432 + _c430
+    _dx409 = -_c434 + _c433
+    _dx410 = -_c436 + _c435
+    _dx411 = -_c438 + _c437
+    _dx412 = -_c440 + _c439
+    _dx413 = -_c442 + _c441
+    _dx414 = _c465 - _c444 + _c443
+    _dx415 = -_c446 + _c445
+    _dx416 = -_c448 + _c447
+    _dx417 = _c99 - _c450 + _c449
+    _dx418 = -_c453 + _c452
+    _dx419 = -_c455 + _c454
+    _dx420 = _c458 - _c456
+    _dx421 = _c460 - _c459
+    _dx422 = _c462 - _c461
+    _dx423 = _c102 + _c464 - _c463
+    _dx424 = _c467 - _c466
+    _dx425 = _c469 - _c468
+    _dx426 = _c471 - _c470
+    _dx427 = _c473 - _c472
+    _dx428 = _c475 - _c474
+    _dx429 = _c496 + _c477 - _c476
+    _dx430 = _c479 - _c478
+    _dx431 = _c481 - _c480
+    _dx432 = -_c483 + _c482
+    _dx433 = -_c485 + _c484
+    _dx434 = -_c487 + _c486
+    _dx435 = _c451 - _c489 + _c488
+    _dx436 = -_c491 + _c490
+    _dx437 = -_c493 + _c492
+    _dx438 = _c106 - _c495 + _c494
+    _dx439 = -_c498 + _c497
+    _dx440 = -_c500 + _c499
+    _dx441 = -_c502 + _c501
+    _dx442 = -_c504 + _c503
+    _dx443 = -_c506 + _c505
+    _c507 = r_t*_dx0
+    _dx444 = -_c507
+    _dx445 = -r_t*_dx39
+    _dx446 = -r_t*_dx40
+    _dx447 = -r_t*_dx41
+    _dx448 = -r_t*_dx42
+    _dx449 = -r_t*_dx43
+    _dx450 = -r_t*_dx44
+    _dx451 = -r_t*_dx45
+    _dx452 = -r_t*_dx46
+    _dx453 = -r_t*_dx47
+    _dx454 = -r_t*_dx48
+    _dx455 = -r_t*_dx49
+    _dx456 = -r_t*_dx50
+    _c508 = r_t*_dx1
+    _dx457 = -_c508
+    _dx458 = -r_t*_dx51
+    _dx459 = -r_t*_dx52
+    _dx460 = -r_t*_dx53
+    _dx461 = -r_t*_dx54
+    _dx462 = -r_t*_dx55
+    _dx463 = -r_t*_dx56
+    _dx464 = -r_t*_dx57
+    _dx465 = -r_t*_dx58
+    _dx466 = -r_t*_dx59
+    _dx467 = -r_t*_dx60
+    _dx468 = -r_t*_dx61
+    _dx469 = -r_t*_dx62
+    _c509 = r_t*_dx2
+    _dx470 = -_c509
+    _dx471 = -r_t*_dx63
+    _dx472 = -r_t*_dx64
+    _dx473 = -r_t*_dx65
+    _dx474 = -r_t*_dx66
+    _dx475 = -r_t*_dx67
+    _dx476 = -r_t*_dx68
+    _dx477 = -r_t*_dx69
+    _dx478 = -r_t*_dx70
+    _dx479 = -r_t*_dx71
+    _dx480 = -r_t*_dx72
+    _dx481 = -r_t*_dx73
+    _dx482 = -r_t*_dx74
+    _dx483 = _c507
+    _dx484 = r_t*_dx75
+    _dx485 = r_t*_dx76
+    _dx486 = r_t*_dx77
+    _c510 = r_t*_dx111
+    _dx487 = -_c510
+    _dx488 = -r_t*_dx150
+    _dx489 = -r_t*_dx151
+    _dx490 = -r_t*_dx152
+    _dx491 = r_t*_dx78
+    _dx492 = r_t*_dx79
+    _dx493 = r_t*_dx80
+    _dx494 = r_t*_dx81
+    _dx495 = r_t*_dx82
+    _dx496 = r_t*_dx83
+    _dx497 = r_t*_dx84
+    _dx498 = r_t*_dx85
+    _dx499 = r_t*_dx86
+    _dx500 = -r_t*_dx153
+    _dx501 = -r_t*_dx154
+    _dx502 = -r_t*_dx155
+    _dx503 = -r_t*_dx156
+    _dx504 = -r_t*_dx157
+    _dx505 = -r_t*_dx158
+    _dx506 = -r_t*_dx159
+    _dx507 = -r_t*_dx160
+    _dx508 = -r_t*_dx161
+    _dx509 = _c508
+    _dx510 = r_t*_dx87
+    _dx511 = r_t*_dx88
+    _dx512 = r_t*_dx89
+    _c511 = r_t*_dx112
+    _dx513 = -_c511
+    _dx514 = -r_t*_dx162
+    _dx515 = -r_t*_dx163
+    _dx516 = -r_t*_dx164
+    _dx517 = r_t*_dx90
+    _dx518 = r_t*_dx91
+    _dx519 = r_t*_dx92
+    _dx520 = r_t*_dx93
+    _dx521 = r_t*_dx94
+    _dx522 = r_t*_dx95
+    _dx523 = r_t*_dx96
+    _dx524 = r_t*_dx97
+    _dx525 = r_t*_dx98
+    _dx526 = -r_t*_dx165
+    _dx527 = -r_t*_dx166
+    _dx528 = -r_t*_dx167
+    _dx529 = -r_t*_dx168
+    _dx530 = -r_t*_dx169
+    _dx531 = -r_t*_dx170
+    _dx532 = -r_t*_dx171
+    _dx533 = -r_t*_dx172
+    _dx534 = -r_t*_dx173
+    _dx535 = _c509
+    _dx536 = r_t*_dx99
+    _dx537 = r_t*_dx100
+    _dx538 = r_t*_dx101
+    _c512 = r_t*_dx113
+    _dx539 = -_c512
+    _dx540 = -r_t*_dx174
+    _dx541 = -r_t*_dx175
+    _dx542 = -r_t*_dx176
+    _dx543 = r_t*_dx102
+    _dx544 = r_t*_dx103
+    _dx545 = r_t*_dx104
+    _dx546 = r_t*_dx105
+    _dx547 = r_t*_dx106
+    _dx548 = r_t*_dx107
+    _dx549 = r_t*_dx108
+    _dx550 = r_t*_dx109
+    _dx551 = r_t*_dx110
+    _dx552 = -r_t*_dx177
+    _dx553 = -r_t*_dx178
+    _dx554 = -r_t*_dx179
+    _dx555 = -r_t*_dx180
+    _dx556 = -r_t*_dx181
+    _dx557 = -r_t*_dx182
+    _dx558 = -r_t*_dx183
+    _dx559 = -r_t*_dx184
+    _dx560 = -r_t*_dx185
+    _dx561 = _c510
+    _dx562 = r_t*_dx186
+    _dx563 = r_t*_dx187
+    _dx564 = r_t*_dx188
+    _c513 = r_t*_dx222
+    _dx565 = -_c513
+    _dx566 = -r_t*_dx261
+    _dx567 = -r_t*_dx262
+    _dx568 = -r_t*_dx263
+    _dx569 = r_t*_dx189
+    _dx570 = r_t*_dx190
+    _dx571 = r_t*_dx191
+    _dx572 = r_t*_dx192
+    _dx573 = r_t*_dx193
+    _dx574 = r_t*_dx194
+    _dx575 = r_t*_dx195
+    _dx576 = r_t*_dx196
+    _dx577 = r_t*_dx197
+    _dx578 = -r_t*_dx264
+    _dx579 = -r_t*_dx265
+    _dx580 = -r_t*_dx266
+    _dx581 = -r_t*_dx267
+    _dx582 = -r_t*_dx268
+    _dx583 = -r_t*_dx269
+    _dx584 = -r_t*_dx270
+    _dx585 = -r_t*_dx271
+    _dx586 = -r_t*_dx272
+    _dx587 = _c511
+    _dx588 = r_t*_dx198
+    _dx589 = r_t*_dx199
+    _dx590 = r_t*_dx200
+    _c514 = r_t*_dx223
+    _dx591 = -_c514
+    _dx592 = -r_t*_dx273
+    _dx593 = -r_t*_dx274
+    _dx594 = -r_t*_dx275
+    _dx595 = r_t*_dx201
+    _dx596 = r_t*_dx202
+    _dx597 = r_t*_dx203
+    _dx598 = r_t*_dx204
+    _dx599 = r_t*_dx205
+    _dx600 = r_t*_dx206
+    _dx601 = r_t*_dx207
+    _dx602 = r_t*_dx208
+    _dx603 = r_t*_dx209
+    _dx604 = -r_t*_dx276
+    _dx605 = -r_t*_dx277
+    _dx606 = -r_t*_dx278
+    _dx607 = -r_t*_dx279
+    _dx608 = -r_t*_dx280
+    _dx609 = -r_t*_dx281
+    _dx610 = -r_t*_dx282
+    _dx611 = -r_t*_dx283
+    _dx612 = -r_t*_dx284
+    _dx613 = _c512
+    _dx614 = r_t*_dx210
+    _dx615 = r_t*_dx211
+    _dx616 = r_t*_dx212
+    _c515 = r_t*_dx224
+    _dx617 = -_c515
+    _dx618 = -r_t*_dx285
+    _dx619 = -r_t*_dx286
+    _dx620 = -r_t*_dx287
+    _dx621 = r_t*_dx213
+    _dx622 = r_t*_dx214
+    _dx623 = r_t*_dx215
+    _dx624 = r_t*_dx216
+    _dx625 = r_t*_dx217
+    _dx626 = r_t*_dx218
+    _dx627 = r_t*_dx219
+    _dx628 = r_t*_dx220
+    _dx629 = r_t*_dx221
+    _dx630 = -r_t*_dx288
+    _dx631 = -r_t*_dx289
+    _dx632 = -r_t*_dx290
+    _dx633 = -r_t*_dx291
+    _dx634 = -r_t*_dx292
+    _dx635 = -r_t*_dx293
+    _dx636 = -r_t*_dx294
+    _dx637 = -r_t*_dx295
+    _dx638 = -r_t*_dx296
+    _dx639 = _c513
+    _dx640 = r_t*_dx297
+    _dx641 = r_t*_dx298
+    _dx642 = r_t*_dx299
+    _dx643 = -r_t*_dx333
+    _dx644 = -r_t*_dx372
+    _dx645 = -r_t*_dx373
+    _dx646 = -r_t*_dx374
+    _dx647 = r_t*_dx300
+    _dx648 = r_t*_dx301
+    _dx649 = r_t*_dx302
+    _dx650 = r_t*_dx303
+    _dx651 = r_t*_dx304
+    _dx652 = r_t*_dx305
+    _dx653 = r_t*_dx306
+    _dx654 = r_t*_dx307
+    _dx655 = r_t*_dx308
+    _dx656 = -r_t*_dx375
+    _dx657 = -r_t*_dx376
+    _dx658 = -r_t*_dx377
+    _dx659 = -r_t*_dx378
+    _dx660 = -r_t*_dx379
+    _dx661 = -r_t*_dx380
+    _dx662 = -r_t*_dx381
+    _dx663 = -r_t*_dx382
+    _dx664 = -r_t*_dx383
+    _dx665 = _c514
+    _dx666 = r_t*_dx309
+    _dx667 = r_t*_dx310
+    _dx668 = r_t*_dx311
+    _dx669 = -r_t*_dx334
+    _dx670 = -r_t*_dx384
+    _dx671 = -r_t*_dx385
+    _dx672 = -r_t*_dx386
+    _dx673 = r_t*_dx312
+    _dx674 = r_t*_dx313
+    _dx675 = r_t*_dx314
+    _dx676 = r_t*_dx315
+    _dx677 = r_t*_dx316
+    _dx678 = r_t*_dx317
+    _dx679 = r_t*_dx318
+    _dx680 = r_t*_dx319
+    _dx681 = r_t*_dx320
+    _dx682 = -r_t*_dx387
+    _dx683 = -r_t*_dx388
+    _dx684 = -r_t*_dx389
+    _dx685 = -r_t*_dx390
+    _dx686 = -r_t*_dx391
+    _dx687 = -r_t*_dx392
+    _dx688 = -r_t*_dx393
+    _dx689 = -r_t*_dx394
+    _dx690 = -r_t*_dx395
+    _dx691 = _c515
+    _dx692 = r_t*_dx321
+    _dx693 = r_t*_dx322
+    _dx694 = r_t*_dx323
+    _dx695 = -r_t*_dx335
+    _dx696 = -r_t*_dx396
+    _dx697 = -r_t*_dx397
+    _dx698 = -r_t*_dx398
+    _dx699 = r_t*_dx324
+    _dx700 = r_t*_dx325
+    _dx701 = r_t*_dx326
+    _dx702 = r_t*_dx327
+    _dx703 = r_t*_dx328
+    _dx704 = r_t*_dx329
+    _dx705 = r_t*_dx330
+    _dx706 = r_t*_dx331
+    _dx707 = r_t*_dx332
+    _dx708 = -r_t*_dx399
+    _dx709 = -r_t*_dx400
+    _dx710 = -r_t*_dx401
+    _dx711 = -r_t*_dx402
+    _dx712 = -r_t*_dx403
+    _dx713 = -r_t*_dx404
+    _dx714 = -r_t*_dx405
+    _dx715 = -r_t*_dx406
+    _dx716 = -r_t*_dx407
+    _dx717 = r_t5*_dx333
+    _dx718 = r_t5*_dx408
+    _dx719 = r_t5*_dx409
+    _dx720 = r_t5*_dx410
+    _dx721 = r_t5*_dx411
+    _dx722 = r_t5*_dx412
+    _dx723 = r_t5*_dx413
+    _dx724 = r_t5*_dx414
+    _dx725 = r_t5*_dx415
+    _dx726 = r_t5*_dx416
+    _dx727 = r_t5*_dx417
+    _dx728 = r_t5*_dx418
+    _dx729 = r_t5*_dx419
+    _dx730 = r_t5*_dx334
+    _dx731 = r_t5*_dx420
+    _dx732 = r_t5*_dx421
+    _dx733 = r_t5*_dx422
+    _dx734 = r_t5*_dx423
+    _dx735 = r_t5*_dx424
+    _dx736 = r_t5*_dx425
+    _dx737 = r_t5*_dx426
+    _dx738 = r_t5*_dx427
+    _dx739 = r_t5*_dx428
+    _dx740 = r_t5*_dx429
+    _dx741 = r_t5*_dx430
+    _dx742 = r_t5*_dx431
+    _dx743 = r_t5*_dx335
+    _dx744 = r_t5*_dx432
+    _dx745 = r_t5*_dx433
+    _dx746 = r_t5*_dx434
+    _dx747 = r_t5*_dx435
+    _dx748 = r_t5*_dx436
+    _dx749 = r_t5*_dx437
+    _dx750 = r_t5*_dx438
+    _dx751 = r_t5*_dx439
+    _dx752 = r_t5*_dx440
+    _dx753 = r_t5*_dx441
+    _dx754 = r_t5*_dx442
+    _dx755 = r_t5*_dx443
+    _dx756 = _dx27*s_link1__R_2_0 + _dx15*s_link1__R_1_0 + _dx3*s_link1__R_0_0
+    _dx757 = _dx28*s_link1__R_2_0 + _dx16*s_link1__R_1_0 + _dx4*s_link1__R_0_0
+    _dx758 = _dx29*s_link1__R_2_0 + _dx17*s_link1__R_1_0 + _dx5*s_link1__R_0_0
+    _dx759 = f_link1__b3_0 + _dx30*s_link1__R_2_0 + _dx18*s_link1__R_1_0 + _dx6*s_link1__R_0_0
+    _dx760 = _dx31*s_link1__R_2_0 + _dx19*s_link1__R_1_0 + _dx7*s_link1__R_0_0
+    _dx761 = _dx32*s_link1__R_2_0 + _dx20*s_link1__R_1_0 + _dx8*s_link1__R_0_0
+    _dx762 = f_link1__b3_1 + _dx33*s_link1__R_2_0 + _dx21*s_link1__R_1_0 + _dx9*s_link1__R_0_0
+    _dx763 = _dx34*s_link1__R_2_0 + _dx22*s_link1__R_1_0 + _dx10*s_link1__R_0_0
+    _dx764 = _dx35*s_link1__R_2_0 + _dx23*s_link1__R_1_0 + _dx11*s_link1__R_0_0
+    _dx765 = _dx36*s_link1__R_2_0 + _dx24*s_link1__R_1_0 + f_link1__b3_2 + _dx12*s_link1__R_0_0
+    _dx766 = _dx37*s_link1__R_2_0 + _dx25*s_link1__R_1_0 + _dx13*s_link1__R_0_0
+    _dx767 = _dx38*s_link1__R_2_0 + _dx26*s_link1__R_1_0 + _dx14*s_link1__R_0_0
+    _dx768 = _dx27*s_link1__R_2_1 + _dx15*s_link1__R_1_1 + _dx3*s_link1__R_0_1
+    _dx769 = _dx28*s_link1__R_2_1 + _dx16*s_link1__R_1_1 + _dx4*s_link1__R_0_1
+    _dx770 = _dx29*s_link1__R_2_1 + _dx17*s_link1__R_1_1 + _dx5*s_link1__R_0_1
+    _dx771 = _dx30*s_link1__R_2_1 + _dx18*s_link1__R_1_1 + _dx6*s_link1__R_0_1
+    _dx772 = _dx31*s_link1__R_2_1 + _dx19*s_link1__R_1_1 + f_link1__b3_0 + _dx7*s_link1__R_0_1
+    _dx773 = _dx32*s_link1__R_2_1 + _dx20*s_link1__R_1_1 + _dx8*s_link1__R_0_1
+    _dx774 = _dx33*s_link1__R_2_1 + _dx21*s_link1__R_1_1 + _dx9*s_link1__R_0_1
+    _dx775 = f_link1__b3_1 + _dx34*s_link1__R_2_1 + _dx22*s_link1__R_1_1 + _dx10*s_link1__R_0_1
+    _dx776 = _dx23*s_link1__R_1_1 + _dx35*s_link1__R_2_1 + _dx11*s_link1__R_0_1
+    _dx777 = _dx36*s_link1__R_2_1 + _dx24*s_link1__R_1_1 + _dx12*s_link1__R_0_1
+    _dx778 = f_link1__b3_2 + _dx37*s_link1__R_2_1 + _dx25*s_link1__R_1_1 + _dx13*s_link1__R_0_1
+    _dx779 = _dx38*s_link1__R_2_1 + _dx26*s_link1__R_1_1 + _dx14*s_link1__R_0_1
+    _dx780 = r_r*_dx756
+    _dx781 = r_r*_dx757
+    _dx782 = r_r*_dx758
+    _dx783 = r_r*_dx759
+    _dx784 = r_r*_dx760
+    _dx785 = r_r*_dx761
+    _dx786 = r_r*_dx762
+    _dx787 = r_r*_dx763
+    _dx788 = r_r*_dx764
+    _dx789 = r_r*_dx765
+    _dx790 = r_r*_dx766
+    _dx791 = r_r*_dx767
+    _dx792 = r_r*_dx768
+    _dx793 = r_r*_dx769
+    _dx794 = r_r*_dx770
+    _dx795 = r_r*_dx771
+    _dx796 = r_r*_dx772
+    _dx797 = r_r*_dx773
+    _dx798 = r_r*_dx774
+    _dx799 = r_r*_dx775
+    _dx800 = r_r*_dx776
+    _dx801 = r_r*_dx777
+    _dx802 = r_r*_dx778
+    _dx803 = r_r*_dx779
+    _dx804 = -_dx27*s_link2__R_2_0 - _dx15*s_link2__R_1_0 - _dx3*s_link2__R_0_0
+    _dx805 = -_dx28*s_link2__R_2_0 - _dx16*s_link2__R_1_0 - _dx4*s_link2__R_0_0
+    _dx806 = -_dx29*s_link2__R_2_0 - _dx17*s_link2__R_1_0 - _dx5*s_link2__R_0_0
+    _dx807 = s_link2__R_2_0*_dx138 + s_link2__R_1_0*_dx126 + s_link2__R_0_0*_dx114
+    _dx808 = s_link2__R_2_0*_dx139 + s_link2__R_1_0*_dx127 + s_link2__R_0_0*_dx115
+    _dx809 = s_link2__R_2_0*_dx140 + s_link2__R_1_0*_dx128 + s_link2__R_0_0*_dx116
+    _dx810 = -_dx30*s_link2__R_2_0 - _dx18*s_link2__R_1_0 - _dx6*s_link2__R_0_0
+    _dx811 = -_dx31*s_link2__R_2_0 - _dx19*s_link2__R_1_0 - _dx7*s_link2__R_0_0
+    _dx812 = -_dx32*s_link2__R_2_0 - _dx20*s_link2__R_1_0 - _dx8*s_link2__R_0_0
+    _dx813 = -_dx33*s_link2__R_2_0 - _dx21*s_link2__R_1_0 - _dx9*s_link2__R_0_0
+    _dx814 = -_dx34*s_link2__R_2_0 - _dx22*s_link2__R_1_0 - _dx10*s_link2__R_0_0
+    _dx815 = -_dx35*s_link2__R_2_0 - _dx23*s_link2__R_1_0 - _dx11*s_link2__R_0_0
+    _dx816 = -_dx36*s_link2__R_2_0 - _dx24*s_link2__R_1_0 - _dx12*s_link2__R_0_0
+    _dx817 = -_dx37*s_link2__R_2_0 - _dx25*s_link2__R_1_0 - _dx13*s_link2__R_0_0
+    _dx818 = -_dx38*s_link2__R_2_0 - _dx26*s_link2__R_1_0 - _dx14*s_link2__R_0_0
+    _dx819 = f_r2__b1_0 + s_link2__R_2_0*_dx141 + s_link2__R_1_0*_dx129 + s_link2__R_0_0*_dx117
+    _dx820 = s_link2__R_2_0*_dx142 + s_link2__R_1_0*_dx130 + s_link2__R_0_0*_dx118
+    _dx821 = s_link2__R_2_0*_dx143 + s_link2__R_1_0*_dx131 + s_link2__R_0_0*_dx119
+    _dx822 = s_link2__R_2_0*_dx144 + s_link2__R_1_0*_dx132 + f_r2__b1_1 + s_link2__R_0_0*_dx120
+    _dx823 = s_link2__R_2_0*_dx145 + s_link2__R_1_0*_dx133 + s_link2__R_0_0*_dx121
+    _dx824 = s_link2__R_2_0*_dx146 + s_link2__R_1_0*_dx134 + s_link2__R_0_0*_dx122
+    _dx825 = f_r2__b1_2 + s_link2__R_2_0*_dx147 + s_link2__R_1_0*_dx135 + s_link2__R_0_0*_dx123
+    _dx826 = s_link2__R_2_0*_dx148 + s_link2__R_1_0*_dx136 + s_link2__R_0_0*_dx124
+    _dx827 = s_link2__R_2_0*_dx149 + s_link2__R_1_0*_dx137 + s_link2__R_0_0*_dx125
+    _dx828 = -_dx15*s_link2__R_1_1 - _dx27*s_link2__R_2_1 - _dx3*s_link2__R_0_1
+    _dx829 = -_dx28*s_link2__R_2_1 - _dx16*s_link2__R_1_1 - _dx4*s_link2__R_0_1
+    _dx830 = -_dx29*s_link2__R_2_1 - _dx17*s_link2__R_1_1 - _dx5*s_link2__R_0_1
+    _dx831 = s_link2__R_2_1*_dx138 + s_link2__R_1_1*_dx126 + s_link2__R_0_1*_dx114
+    _dx832 = s_link2__R_2_1*_dx139 + s_link2__R_1_1*_dx127 + s_link2__R_0_1*_dx115
+    _dx833 = s_link2__R_1_1*_dx128 + s_link2__R_2_1*_dx140 + s_link2__R_0_1*_dx116
+    _dx834 = -_dx30*s_link2__R_2_1 - _dx18*s_link2__R_1_1 - _dx6*s_link2__R_0_1
+    _dx835 = -_dx31*s_link2__R_2_1 - _dx19*s_link2__R_1_1 - _dx7*s_link2__R_0_1
+    _dx836 = -_dx32*s_link2__R_2_1 - _dx20*s_link2__R_1_1 - _dx8*s_link2__R_0_1
+    _dx837 = -_dx33*s_link2__R_2_1 - _dx21*s_link2__R_1_1 - _dx9*s_link2__R_0_1
+    _dx838 = -_dx34*s_link2__R_2_1 - _dx22*s_link2__R_1_1 - _dx10*s_link2__R_0_1
+    _dx839 = -_dx35*s_link2__R_2_1 - _dx23*s_link2__R_1_1 - _dx11*s_link2__R_0_1
+    _dx840 = -_dx24*s_link2__R_1_1 - _dx36*s_link2__R_2_1 - _dx12*s_link2__R_0_1
+    _dx841 = -_dx37*s_link2__R_2_1 - _dx25*s_link2__R_1_1 - _dx13*s_link2__R_0_1
+    _dx842 = -_dx38*s_link2__R_2_1 - _dx26*s_link2__R_1_1 - _dx14*s_link2__R_0_1
+    _dx843 = s_link2__R_2_1*_dx141 + s_link2__R_1_1*_dx129 + s_link2__R_0_1*_dx117
+    _dx844 = s_link2__R_2_1*_dx142 + s_link2__R_1_1*_dx130 + f_r2__b1_0 + s_link2__R_0_1*_dx118
+    _dx845 = s_link2__R_1_1*_dx131 + s_link2__R_2_1*_dx143 + s_link2__R_0_1*_dx119
+    _dx846 = s_link2__R_2_1*_dx144 + s_link2__R_1_1*_dx132 + s_link2__R_0_1*_dx120
+    _dx847 = f_r2__b1_1 + s_link2__R_1_1*_dx133 + s_link2__R_2_1*_dx145 + s_link2__R_0_1*_dx121
+    _dx848 = s_link2__R_2_1*_dx146 + s_link2__R_1_1*_dx134 + s_link2__R_0_1*_dx122
+    _dx849 = s_link2__R_2_1*_dx147 + s_link2__R_1_1*_dx135 + s_link2__R_0_1*_dx123
+    _dx850 = f_r2__b1_2 + s_link2__R_2_1*_dx148 + s_link2__R_1_1*_dx136 + s_link2__R_0_1*_dx124
+    _dx851 = s_link2__R_2_1*_dx149 + s_link2__R_1_1*_dx137 + s_link2__R_0_1*_dx125
+    _dx852 = r_r*_dx804
+    _dx853 = r_r*_dx805
+    _dx854 = r_r*_dx806
+    _dx855 = r_r*_dx807
+    _dx856 = r_r*_dx808
+    _dx857 = r_r*_dx809
+    _dx858 = r_r*_dx810
+    _dx859 = r_r*_dx811
+    _dx860 = r_r*_dx812
+    _dx861 = r_r*_dx813
+    _dx862 = r_r*_dx814
+    _dx863 = r_r*_dx815
+    _dx864 = r_r*_dx816
+    _dx865 = r_r*_dx817
+    _dx866 = r_r*_dx818
+    _dx867 = r_r*_dx819
+    _dx868 = r_r*_dx820
+    _dx869 = r_r*_dx821
+    _dx870 = r_r*_dx822
+    _dx871 = r_r*_dx823
+    _dx872 = r_r*_dx824
+    _dx873 = r_r*_dx825
+    _dx874 = r_r*_dx826
+    _dx875 = r_r*_dx827
+    _dx876 = r_r*_dx828
+    _dx877 = r_r*_dx829
+    _dx878 = r_r*_dx830
+    _dx879 = r_r*_dx831
+    _dx880 = r_r*_dx832
+    _dx881 = r_r*_dx833
+    _dx882 = r_r*_dx834
+    _dx883 = r_r*_dx835
+    _dx884 = r_r*_dx836
+    _dx885 = r_r*_dx837
+    _dx886 = r_r*_dx838
+    _dx887 = r_r*_dx839
+    _dx888 = r_r*_dx840
+    _dx889 = r_r*_dx841
+    _dx890 = r_r*_dx842
+    _dx891 = r_r*_dx843
+    _dx892 = r_r*_dx844
+    _dx893 = r_r*_dx845
+    _dx894 = r_r*_dx846
+    _dx895 = r_r*_dx847
+    _dx896 = r_r*_dx848
+    _dx897 = r_r*_dx849
+    _dx898 = r_r*_dx850
+    _dx899 = r_r*_dx851
+    _dx900 = -s_link3__R_2_0*_dx138 - s_link3__R_1_0*_dx126 - s_link3__R_0_0*_dx114
+    _dx901 = -s_link3__R_2_0*_dx139 - s_link3__R_1_0*_dx127 - s_link3__R_0_0*_dx115
+    _dx902 = -s_link3__R_2_0*_dx140 - s_link3__R_1_0*_dx128 - s_link3__R_0_0*_dx116
+    _dx903 = s_link3__R_1_0*_dx237 + s_link3__R_2_0*_dx249 + s_link3__R_0_0*_dx225
+    _dx904 = s_link3__R_2_0*_dx250 + s_link3__R_1_0*_dx238 + s_link3__R_0_0*_dx226
+    _dx905 = s_link3__R_2_0*_dx251 + s_link3__R_1_0*_dx239 + s_link3__R_0_0*_dx227
+    _dx906 = -s_link3__R_2_0*_dx141 - s_link3__R_1_0*_dx129 - s_link3__R_0_0*_dx117
+    _dx907 = -s_link3__R_2_0*_dx142 - s_link3__R_1_0*_dx130 - s_link3__R_0_0*_dx118
+    _dx908 = -s_link3__R_1_0*_dx131 - s_link3__R_2_0*_dx143 - s_link3__R_0_0*_dx119
+    _dx909 = -s_link3__R_2_0*_dx144 - s_link3__R_1_0*_dx132 - s_link3__R_0_0*_dx120
+    _dx910 = -s_link3__R_2_0*_dx145 - s_link3__R_1_0*_dx133 - s_link3__R_0_0*_dx121
+    _dx911 = -s_link3__R_2_0*_dx146 - s_link3__R_1_0*_dx134 - s_link3__R_0_0*_dx122
+    _dx912 = -s_link3__R_2_0*_dx147 - s_link3__R_1_0*_dx135 - s_link3__R_0_0*_dx123
+    _dx913 = -s_link3__R_2_0*_dx148 - s_link3__R_1_0*_dx136 - s_link3__R_0_0*_dx124
+    _dx914 = -s_link3__R_2_0*_dx149 - s_link3__R_1_0*_dx137 - s_link3__R_0_0*_dx125
+    _dx915 = f_r3__b1_0 + s_link3__R_2_0*_dx252 + s_link3__R_1_0*_dx240 + s_link3__R_0_0*_dx228
+    _dx916 = s_link3__R_2_0*_dx253 + s_link3__R_1_0*_dx241 + s_link3__R_0_0*_dx229
+    _dx917 = s_link3__R_2_0*_dx254 + s_link3__R_1_0*_dx242 + s_link3__R_0_0*_dx230
+    _dx918 = f_r3__b1_1 + s_link3__R_2_0*_dx255 + s_link3__R_1_0*_dx243 + s_link3__R_0_0*_dx231
+    _dx919 = s_link3__R_2_0*_dx256 + s_link3__R_1_0*_dx244 + s_link3__R_0_0*_dx232
+    _dx920 = s_link3__R_2_0*_dx257 + s_link3__R_1_0*_dx245 + s_link3__R_0_0*_dx233
+    _dx921 = f_r3__b1_2 + s_link3__R_2_0*_dx258 + s_link3__R_1_0*_dx246 + s_link3__R_0_0*_dx234
+    _dx922 = s_link3__R_2_0*_dx259 + s_link3__R_1_0*_dx247 + s_link3__R_0_0*_dx235
+    _dx923 = s_link3__R_2_0*_dx260 + s_link3__R_1_0*_dx248 + s_link3__R_0_0*_dx236
+    _dx924 = -s_link3__R_2_1*_dx138 - s_link3__R_1_1*_dx126 - s_link3__R_0_1*_dx114
+    _dx925 = -s_link3__R_2_1*_dx139 - s_link3__R_1_1*_dx127 - s_link3__R_0_1*_dx115
+    _dx926 = -s_link3__R_2_1*_dx140 - s_link3__R_1_1*_dx128 - s_link3__R_0_1*_dx116
+    _dx927 = s_link3__R_2_1*_dx249 + s_link3__R_1_1*_dx237 + s_link3__R_0_1*_dx225
+    _dx928 = s_link3__R_2_1*_dx250 + s_link3__R_1_1*_dx238 + s_link3__R_0_1*_dx226
+    _dx929 = s_link3__R_2_1*_dx251 + s_link3__R_1_1*_dx239 + s_link3__R_0_1*_dx227
+    _dx930 = -s_link3__R_2_1*_dx141 - s_link3__R_1_1*_dx129 - s_link3__R_0_1*_dx117
+    _dx931 = -s_link3__R_2_1*_dx142 - s_link3__R_1_1*_dx130 - s_link3__R_0_1*_dx118
+    _dx932 = -s_link3__R_2_1*_dx143 - s_link3__R_1_1*_dx131 - s_link3__R_0_1*_dx119
+    _dx933 = -s_link3__R_2_1*_dx144 - s_link3__R_1_1*_dx132 - s_link3__R_0_1*_dx120
+    _dx934 = -s_link3__R_2_1*_dx145 - s_link3__R_1_1*_dx133 - s_link3__R_0_1*_dx121
+    _dx935 = -s_link3__R_2_1*_dx146 - s_link3__R_1_1*_dx134 - s_link3__R_0_1*_dx122
+    _dx936 = -s_link3__R_2_1*_dx147 - s_link3__R_1_1*_dx135 - s_link3__R_0_1*_dx123
+    _dx937 = -s_link3__R_2_1*_dx148 - s_link3__R_1_1*_dx136 - s_link3__R_0_1*_dx124
+    _dx938 = -s_link3__R_1_1*_dx137 - s_link3__R_2_1*_dx149 - s_link3__R_0_1*_dx125
+    _dx939 = s_link3__R_2_1*_dx252 + s_link3__R_1_1*_dx240 + s_link3__R_0_1*_dx228
+    _dx940 = f_r3__b1_0 + s_link3__R_2_1*_dx253 + s_link3__R_1_1*_dx241 + s_link3__R_0_1*_dx229
+    _dx941 = s_link3__R_2_1*_dx254 + s_link3__R_1_1*_dx242 + s_link3__R_0_1*_dx230
+    _dx942 = s_link3__R_2_1*_dx255 + s_link3__R_1_1*_dx243 + s_link3__R_0_1*_dx231
+    _dx943 = f_r3__b1_1 + s_link3__R_1_1*_dx244 + s_link3__R_2_1*_dx256 + s_link3__R_0_1*_dx232
+    _dx944 = s_link3__R_2_1*_dx257 + s_link3__R_1_1*_dx245 + s_link3__R_0_1*_dx233
+    _dx945 = s_link3__R_2_1*_dx258 + s_link3__R_1_1*_dx246 + s_link3__R_0_1*_dx234
+    _dx946 = f_r3__b1_2 + s_link3__R_2_1*_dx259 + s_link3__R_1_1*_dx247 + s_link3__R_0_1*_dx235
+    _dx947 = s_link3__R_2_1*_dx260 + s_link3__R_1_1*_dx248 + s_link3__R_0_1*_dx236
+    _dx948 = r_r*_dx900
+    _dx949 = r_r*_dx901
+    _dx950 = r_r*_dx902
+    _dx951 = r_r*_dx903
+    _dx952 = r_r*_dx904
+    _dx953 = r_r*_dx905
+    _dx954 = r_r*_dx906
+    _dx955 = r_r*_dx907
+    _dx956 = r_r*_dx908
+    _dx957 = r_r*_dx909
+    _dx958 = r_r*_dx910
+    _dx959 = r_r*_dx911
+    _dx960 = r_r*_dx912
+    _dx961 = r_r*_dx913
+    _dx962 = r_r*_dx914
+    _dx963 = r_r*_dx915
+    _dx964 = r_r*_dx916
+    _dx965 = r_r*_dx917
+    _dx966 = r_r*_dx918
+    _dx967 = r_r*_dx919
+    _dx968 = r_r*_dx920
+    _dx969 = r_r*_dx921
+    _dx970 = r_r*_dx922
+    _dx971 = r_r*_dx923
+    _dx972 = r_r*_dx924
+    _dx973 = r_r*_dx925
+    _dx974 = r_r*_dx926
+    _dx975 = r_r*_dx927
+    _dx976 = r_r*_dx928
+    _dx977 = r_r*_dx929
+    _dx978 = r_r*_dx930
+    _dx979 = r_r*_dx931
+    _dx980 = r_r*_dx932
+    _dx981 = r_r*_dx933
+    _dx982 = r_r*_dx934
+    _dx983 = r_r*_dx935
+    _dx984 = r_r*_dx936
+    _dx985 = r_r*_dx937
+    _dx986 = r_r*_dx938
+    _dx987 = r_r*_dx939
+    _dx988 = r_r*_dx940
+    _dx989 = r_r*_dx941
+    _dx990 = r_r*_dx942
+    _dx991 = r_r*_dx943
+    _dx992 = r_r*_dx944
+    _dx993 = r_r*_dx945
+    _dx994 = r_r*_dx946
+    _dx995 = r_r*_dx947
+    _dx996 = -r_d*_dx222
+    _dx997 = -r_d*_dx297
+    _dx998 = -r_d*_dx298
+    _dx999 = -r_d*_dx299
+    _dx1000 = -r_d*_dx300
+    _dx1001 = -r_d*_dx301
+    _dx1002 = -r_d*_dx302
+    _dx1003 = -r_d*_dx303
+    _dx1004 = -r_d*_dx304
+    _dx1005 = -r_d*_dx305
+    _dx1006 = -r_d*_dx306
+    _dx1007 = -r_d*_dx307
+    _dx1008 = -r_d*_dx308
+    _dx1009 = -r_d*_dx223
+    _dx1010 = -r_d*_dx309
+    _dx1011 = -r_d*_dx310
+    _dx1012 = -r_d*_dx311
+    _dx1013 = -r_d*_dx312
+    _dx1014 = -r_d*_dx313
+    _dx1015 = -r_d*_dx314
+    _dx1016 = -r_d*_dx315
+    _dx1017 = -r_d*_dx316
+    _dx1018 = -r_d*_dx317
+    _dx1019 = -r_d*_dx318
+    _dx1020 = -r_d*_dx319
+    _dx1021 = -r_d*_dx320
+    _dx1022 = -r_d*_dx224
+    _dx1023 = -r_d*_dx321
+    _dx1024 = -r_d*_dx322
+    _dx1025 = -r_d*_dx323
+    _dx1026 = -r_d*_dx324
+    _dx1027 = -r_d*_dx325
+    _dx1028 = -r_d*_dx326
+    _dx1029 = -r_d*_dx327
+    _dx1030 = -r_d*_dx328
+    _dx1031 = -r_d*_dx329
+    _dx1032 = -r_d*_dx330
+    _dx1033 = -r_d*_dx331
+    _dx1034 = -r_d*_dx332
+    _c516 = 1/(_c11 + _c14)
+    _c517 = s_link1__R_2_0*s_link2__R_0_0 - s_link1__R_0_0*s_link2__R_2_0
+    _c518 = _c517*s_link2__R_1_2
+    _c519 = s_link1__R_0_0*s_link2__R_1_0 - s_link1__R_1_0*s_link2__R_0_0
+    _c520 = _c519*s_link2__R_2_2
+    _c521 = s_link1__R_1_0*s_link2__R_2_0 - s_link1__R_2_0*s_link2__R_1_0
+    _c522 = _c521*s_link2__R_0_2
+    _c523 = s_link1__R_0_0*s_link2__R_0_0 + s_link1__R_1_0*s_link2__R_1_0 + s_link1__R_2_0*s_link2__R_2_0
+    _c524 = 1/(_c523*_c523 + (_c522 + _c520 + _c518)*(_c522 + _c520 + _c518))
+    _c525 = _c524*_c523
+    _c526 = _c524*(-_c522 - _c520 - _c518)
+    _c527 = s_link3__R_2_0*s_link3__R_1_2
+    _c528 = s_link3__R_2_2*s_link3__R_1_0
+    _c529 = s_link3__R_0_0*s_link2__R_0_0 + s_link3__R_1_0*s_link2__R_1_0 + s_link3__R_2_0*s_link2__R_2_0
+    _c530 = s_link3__R_1_0*s_link2__R_0_0 - s_link3__R_0_0*s_link2__R_1_0
+    _c531 = _c530*s_link3__R_2_2
+    _c532 = s_link3__R_0_0*s_link2__R_2_0 - s_link3__R_2_0*s_link2__R_0_0
+    _c533 = _c532*s_link3__R_1_2
+    _c534 = s_link3__R_2_0*s_link2__R_1_0 - s_link3__R_1_0*s_link2__R_2_0
+    _c535 = _c534*s_link3__R_0_2
+    _c536 = 1/(_c529*_c529 + (_c535 + _c533 + _c531)*(_c535 + _c533 + _c531))
+    _c537 = _c529*_c536
+    _c538 = _c536*(-_c535 - _c533 - _c531)
+    _c539 = s_link3__R_2_2*s_link3__R_0_0
+    _c540 = s_link3__R_2_0*s_link3__R_0_2
+    _c541 = s_link3__R_1_0*s_link3__R_0_2
+    _c542 = s_link3__R_1_2*s_link3__R_0_0
+    _c543 = s_link3__R_0_0*s_link4__R_1_0 - s_link3__R_1_0*s_link4__R_0_0
+    _c544 = _c543*s_link3__R_2_2
+    _c545 = s_link3__R_2_0*s_link4__R_0_0 - s_link3__R_0_0*s_link4__R_2_0
+    _c546 = _c545*s_link3__R_1_2
+    _c547 = s_link3__R_1_0*s_link4__R_2_0 - s_link3__R_2_0*s_link4__R_1_0
+    _c548 = _c547*s_link3__R_0_2
+    _c549 = s_link3__R_0_0*s_link4__R_0_0 + s_link3__R_1_0*s_link4__R_1_0 + s_link3__R_2_0*s_link4__R_2_0
+    _c550 = 1/(_c549*_c549 + (_c548 + _c546 + _c544)*(_c548 + _c546 + _c544))
+    _c551 = _c549*_c550
+    _c552 = _c550*(-_c548 - _c546 - _c544)
+    _c553 = -P4_0 + s_pd_0
+    _c554 = _c553*_c553
+    _c555 = -P4_1 + s_pd_1
+    _c556 = _c555*_c555
+    _c557 = -P4_2 + s_pd_2
+    _c558 = _c557*_c557
+    _c559 = _c558 + _c556 + _c554
+    _c560 = l4/np.sqrt(_c559)
+    _c561 = l4/_c559**(3/2)
+    _c562 = _c553*_c561
+    _c563 = -_c555*_c562
+    _c564 = -_c557*_c562
+    _c565 = -_c557*_c555*_c561
+    _c566 = (1/2)*p_link1__Ir_0
+    _c567 = (1/2)*p_link1__Ir_1
+    _c568 = (1/2)*p_link1__Ir_2
+    _c569 = (1/2)*p_link2__Ir_0
+    _c570 = (1/2)*p_link2__Ir_1
+    _c571 = (1/2)*p_link2__Ir_2
+    _c572 = (1/2)*p_link3__Ir_0
+    _c573 = (1/2)*p_link3__Ir_1
+    _c574 = (1/2)*p_link3__Ir_2
+    _c575 = (1/2)*p_link4__Ir_0
+    _c576 = (1/2)*p_link4__Ir_1
+    _c577 = (1/2)*p_link4__Ir_2
+    _c578 = 1/np.sqrt(q_j1__C_1*q_j1__C_1 + q_j1__C_2*q_j1__C_2 + q_j1__C_0*q_j1__C_0)
+    _c579 = 1/np.sqrt(q_j2__C_2*q_j2__C_2 + q_j2__C_1*q_j2__C_1 + q_j2__C_0*q_j2__C_0)
+    _c580 = 1/np.sqrt(q_j3__C_1*q_j3__C_1 + q_j3__C_2*q_j3__C_2 + q_j3__C_0*q_j3__C_0)
+    _c581 = 1/np.sqrt(q_j4__C_2*q_j4__C_2 + q_j4__C_1*q_j4__C_1 + q_j4__C_0*q_j4__C_0)
+    _c582 = 1/np.sqrt(q_j5__C_2*q_j5__C_2 + q_j5__C_1*q_j5__C_1 + q_j5__C_0*q_j5__C_0)
+
+    _bs = np.broadcast_shapes(x.shape[1:], _bshape)
+    C = np.zeros((32, 101) + _bs)
+    D = np.zeros((32, 3) + _bs)
+    C[0, 48] = -_c516*s_link1__R_1_0
+    C[0, 51] = _c516*s_link1__R_0_0
+    C[1, 48] = _c526*s_link2__R_0_0 + (s_link2__R_2_2*s_link2__R_1_0 - s_link2__R_2_0*s_link2__R_1_2)*_c525
+    C[1, 51] = _c526*s_link2__R_1_0 + (s_link2__R_2_0*s_link2__R_0_2 - s_link2__R_2_2*s_link2__R_0_0)*_c525
+    C[1, 54] = _c526*s_link2__R_2_0 + (s_link2__R_1_2*s_link2__R_0_0 - s_link2__R_1_0*s_link2__R_0_2)*_c525
+    C[1, 60] = _c526*s_link1__R_0_0 + (s_link1__R_2_0*s_link2__R_1_2 - s_link1__R_1_0*s_link2__R_2_2)*_c525
+    C[1, 62] = _c525*_c521
+    C[1, 63] = _c526*s_link1__R_1_0 + (s_link1__R_0_0*s_link2__R_2_2 - s_link1__R_2_0*s_link2__R_0_2)*_c525
+    C[1, 65] = _c517*_c525
+    C[1, 66] = _c526*s_link1__R_2_0 + (s_link1__R_1_0*s_link2__R_0_2 - s_link1__R_0_0*s_link2__R_1_2)*_c525
+    C[1, 68] = _c519*_c525
+    C[2, 60] = _c538*s_link3__R_0_0 + (_c528 - _c527)*_c537
+    C[2, 63] = _c538*s_link3__R_1_0 + (_c540 - _c539)*_c537
+    C[2, 66] = _c538*s_link3__R_2_0 + (_c542 - _c541)*_c537
+    C[2, 72] = _c538*s_link2__R_0_0 + (s_link3__R_1_2*s_link2__R_2_0 - s_link3__R_2_2*s_link2__R_1_0)*_c537
+    C[2, 74] = _c534*_c537
+    C[2, 75] = _c538*s_link2__R_1_0 + (s_link3__R_2_2*s_link2__R_0_0 - s_link3__R_0_2*s_link2__R_2_0)*_c537
+    C[2, 77] = _c532*_c537
+    C[2, 78] = _c538*s_link2__R_2_0 + (s_link3__R_0_2*s_link2__R_1_0 - s_link3__R_1_2*s_link2__R_0_0)*_c537
+    C[2, 80] = _c530*_c537
+    C[3, 72] = _c552*s_link4__R_0_0 + (s_link3__R_2_2*s_link4__R_1_0 - s_link3__R_1_2*s_link4__R_2_0)*_c551
+    C[3, 74] = _c547*_c551
+    C[3, 75] = _c552*s_link4__R_1_0 + (s_link3__R_0_2*s_link4__R_2_0 - s_link3__R_2_2*s_link4__R_0_0)*_c551
+    C[3, 77] = _c545*_c551
+    C[3, 78] = _c552*s_link4__R_2_0 + (s_link3__R_1_2*s_link4__R_0_0 - s_link3__R_0_2*s_link4__R_1_0)*_c551
+    C[3, 80] = _c543*_c551
+    C[3, 84] = _c552*s_link3__R_0_0 + (_c527 - _c528)*_c551
+    C[3, 87] = _c552*s_link3__R_1_0 + (_c539 - _c540)*_c551
+    C[3, 90] = _c552*s_link3__R_2_0 + (_c541 - _c542)*_c551
+    C[4, 72] = _c336
+    C[4, 81] = 1
+    C[5, 75] = _c336
+    C[5, 82] = 1
+    C[6, 78] = _c336
+    C[6, 83] = 1
+    C[7, 96] = 1
+    C[8, 97] = 1
+    C[9, 98] = 1
+    C[10, 96] = -_c554*_c561 + _c560
+    C[10, 97] = _c563
+    C[10, 98] = _c564
+    C[11, 96] = _c563
+    C[11, 97] = -_c556*_c561 + _c560
+    C[11, 98] = _c565
+    C[12, 96] = _c564
+    C[12, 97] = _c565
+    C[12, 98] = -_c558*_c561 + _c560
+    C[13, 84] = 1
+    C[14, 85] = 1
+    C[15, 86] = 1
+    C[16, 87] = 1
+    C[17, 88] = 1
+    C[18, 89] = 1
+    C[19, 90] = 1
+    C[20, 91] = 1
+    C[21, 92] = 1
+    C[22, 0] = (1/2)*f_link1__b2_0 + (1/2)*_dx0*p_link1__It_0
+    C[22, 1] = (1/2)*f_link1__b2_1 + (1/2)*_dx1*p_link1__It_1
+    C[22, 2] = (1/2)*f_link1__b2_2 + (1/2)*_dx2*p_link1__It_2
+    C[22, 3] = _c24 + _c568*_dx27 + _c567*_dx15 + _c566*_dx3
+    C[22, 4] = _c17 + _c568*_dx28 + _c567*_dx16 + _c566*_dx4
+    C[22, 5] = _c20 + _c568*_dx29 + _c567*_dx17 + _c566*_dx5
+    C[22, 6] = (1/2)*f_link2__b2_0 + (1/2)*_dx111*p_link2__It_0
+    C[22, 7] = (1/2)*f_link2__b2_1 + (1/2)*_dx112*p_link2__It_1
+    C[22, 8] = (1/2)*f_link2__b2_2 + (1/2)*_dx113*p_link2__It_2
+    C[22, 9] = _c51 + _c571*_dx138 + _c570*_dx126 + _c569*_dx114
+    C[22, 10] = _c44 + _c571*_dx139 + _c570*_dx127 + _c569*_dx115
+    C[22, 11] = _c47 + _c571*_dx140 + _c570*_dx128 + _c569*_dx116
+    C[22, 12] = (1/2)*f_link3__b2_0 + (1/2)*_dx222*p_link3__It_0
+    C[22, 13] = (1/2)*f_link3__b2_1 + (1/2)*_dx223*p_link3__It_1
+    C[22, 14] = (1/2)*f_link3__b2_2 + (1/2)*_dx224*p_link3__It_2
+    C[22, 15] = _c78 + _c574*_dx249 + _c573*_dx237 + _c572*_dx225
+    C[22, 16] = _c71 + _c574*_dx250 + _c573*_dx238 + _c572*_dx226
+    C[22, 17] = _c74 + _c574*_dx251 + _c573*_dx239 + _c572*_dx227
+    C[22, 18] = (1/2)*f_link4__b2_0 + (1/2)*_dx333*p_link4__It_0
+    C[22, 19] = (1/2)*f_link4__b2_1 + (1/2)*_dx334*p_link4__It_1
+    C[22, 20] = (1/2)*f_link4__b2_2 + (1/2)*_dx335*p_link4__It_2
+    C[22, 21] = _c576*_dx348 + _c105 + _c577*_dx360 + _c575*_dx336
+    C[22, 22] = _c98 + _c577*_dx361 + _c576*_dx349 + _c575*_dx337
+    C[22, 23] = _c101 + _c577*_dx362 + _c576*_dx350 + _c575*_dx338
+    C[22, 24] = (1/2)*e_j1__b2_0 + (1/2)*_c110
+    C[22, 25] = (1/2)*e_j1__b2_1 + (1/2)*_c111
+    C[22, 26] = (1/2)*e_j1__b2_2 + (1/2)*_c112
+    C[22, 27] = (1/2)*e_j2__b2_0 + (1/2)*_c113
+    C[22, 28] = (1/2)*e_j2__b2_1 + (1/2)*_c114
+    C[22, 29] = (1/2)*e_j2__b2_2 + (1/2)*_c115
+    C[22, 30] = (1/2)*e_j3__b2_0 + (1/2)*_c116
+    C[22, 31] = (1/2)*e_j3__b2_1 + (1/2)*_c117
+    C[22, 32] = (1/2)*e_j3__b2_2 + (1/2)*_c118
+    C[22, 33] = (1/2)*e_j4__b2_0 + (1/2)*_c119
+    C[22, 34] = (1/2)*e_j4__b2_1 + (1/2)*_c120
+    C[22, 35] = (1/2)*e_j4__b2_2 + (1/2)*_c121
+    C[22, 36] = (1/2)*e_j5__b2_0 + (1/2)*_c122
+    C[22, 37] = (1/2)*e_j5__b2_1 + (1/2)*_c123
+    C[22, 38] = (1/2)*e_j5__b2_2 + (1/2)*_c124
+    C[22, 39] = (1/2)*e_r1__b3_0 + (1/2)*_c125
+    C[22, 40] = (1/2)*e_r1__b3_1 + (1/2)*_c126
+    C[22, 41] = (1/2)*e_r2__b3_0 + (1/2)*_c127
+    C[22, 42] = (1/2)*e_r2__b3_1 + (1/2)*_c128
+    C[22, 43] = (1/2)*e_r3__b3_0 + (1/2)*_c129
+    C[22, 44] = (1/2)*e_r3__b3_1 + (1/2)*_c130
+    C[22, 45] = (1/2)*e_jd__b2_0 + (1/2)*_c131
+    C[22, 46] = (1/2)*e_jd__b2_1 + (1/2)*_c132
+    C[22, 47] = (1/2)*e_jd__b2_2 + (1/2)*_c133
+    C[22, 48] = _c568*_dx30 + _c567*_dx18 + _c566*_dx6
+    C[22, 49] = _c568*_dx31 + _c567*_dx19 + _c566*_dx7
+    C[22, 50] = _c568*_dx32 + _c567*_dx20 + _c566*_dx8
+    C[22, 51] = _c567*_dx21 + _c568*_dx33 + _c566*_dx9
+    C[22, 52] = _c568*_dx34 + _c567*_dx22 + _c566*_dx10
+    C[22, 53] = _c567*_dx23 + _c568*_dx35 + _c566*_dx11
+    C[22, 54] = _c568*_dx36 + _c567*_dx24 + _c566*_dx12
+    C[22, 55] = _c568*_dx37 + _c567*_dx25 + _c566*_dx13
+    C[22, 56] = _c568*_dx38 + _c567*_dx26 + _c566*_dx14
+    C[22, 59] = g*m1
+    C[22, 60] = _c571*_dx141 + _c570*_dx129 + _c569*_dx117
+    C[22, 61] = _c571*_dx142 + _c570*_dx130 + _c569*_dx118
+    C[22, 62] = _c570*_dx131 + _c571*_dx143 + _c569*_dx119
+    C[22, 63] = _c571*_dx144 + _c570*_dx132 + _c569*_dx120
+    C[22, 64] = _c571*_dx145 + _c570*_dx133 + _c569*_dx121
+    C[22, 65] = _c571*_dx146 + _c570*_dx134 + _c569*_dx122
+    C[22, 66] = _c571*_dx147 + _c570*_dx135 + _c569*_dx123
+    C[22, 67] = _c571*_dx148 + _c570*_dx136 + _c569*_dx124
+    C[22, 68] = _c571*_dx149 + _c570*_dx137 + _c569*_dx125
+    C[22, 71] = g*m2
+    C[22, 72] = _c573*_dx240 + _c574*_dx252 + _c572*_dx228
+    C[22, 73] = _c574*_dx253 + _c573*_dx241 + _c572*_dx229
+    C[22, 74] = _c574*_dx254 + _c573*_dx242 + _c572*_dx230
+    C[22, 75] = _c573*_dx243 + _c574*_dx255 + _c572*_dx231
+    C[22, 76] = _c574*_dx256 + _c573*_dx244 + _c572*_dx232
+    C[22, 77] = _c574*_dx257 + _c573*_dx245 + _c572*_dx233
+    C[22, 78] = _c574*_dx258 + _c573*_dx246 + _c572*_dx234
+    C[22, 79] = _c574*_dx259 + _c573*_dx247 + _c572*_dx235
+    C[22, 80] = _c574*_dx260 + _c573*_dx248 + _c572*_dx236
+    C[22, 83] = g*m3
+    C[22, 84] = _c576*_dx351 + _c577*_dx363 + _c575*_dx339
+    C[22, 85] = _c577*_dx364 + _c576*_dx352 + _c575*_dx340
+    C[22, 86] = _c577*_dx365 + _c576*_dx353 + _c575*_dx341
+    C[22, 87] = _c577*_dx366 + _c576*_dx354 + _c575*_dx342
+    C[22, 88] = _c577*_dx367 + _c576*_dx355 + _c575*_dx343
+    C[22, 89] = _c577*_dx368 + _c576*_dx356 + _c575*_dx344
+    C[22, 90] = _c576*_dx357 + _c577*_dx369 + _c575*_dx345
+    C[22, 91] = _c577*_dx370 + _c576*_dx358 + _c575*_dx346
+    C[22, 92] = _c577*_dx371 + _c576*_dx359 + _c575*_dx347
+    C[22, 95] = g*m4
+    C[23, 12] = u_vd_0*_dx996
+    C[23, 13] = u_vd_1*_dx1009
+    C[23, 14] = u_vd_2*_dx1022
+    C[23, 15] = u_vd_1*_dx1010 + u_vd_2*_dx1023 + u_vd_0*_dx997
+    C[23, 16] = u_vd_2*_dx1024 + u_vd_1*_dx1011 + u_vd_0*_dx998
+    C[23, 17] = u_vd_2*_dx1025 + u_vd_1*_dx1012 + u_vd_0*_dx999
+    C[23, 45] = k_d*u_vd_0
+    C[23, 46] = k_d*u_vd_1
+    C[23, 47] = k_d*u_vd_2
+    C[23, 72] = u_vd_1*_dx1013 + u_vd_2*_dx1026 + u_vd_0*_dx1000
+    C[23, 73] = u_vd_2*_dx1027 + u_vd_1*_dx1014 + u_vd_0*_dx1001
+    C[23, 74] = u_vd_2*_dx1028 + u_vd_1*_dx1015 + u_vd_0*_dx1002
+    C[23, 75] = u_vd_1*_dx1016 + u_vd_2*_dx1029 + u_vd_0*_dx1003
+    C[23, 76] = u_vd_2*_dx1030 + u_vd_1*_dx1017 + u_vd_0*_dx1004
+    C[23, 77] = u_vd_2*_dx1031 + u_vd_1*_dx1018 + u_vd_0*_dx1005
+    C[23, 78] = u_vd_2*_dx1032 + u_vd_1*_dx1019 + u_vd_0*_dx1006
+    C[23, 79] = u_vd_2*_dx1033 + u_vd_1*_dx1020 + u_vd_0*_dx1007
+    C[23, 80] = u_vd_2*_dx1034 + u_vd_1*_dx1021 + u_vd_0*_dx1008
+    C[24, 0] = -_dx0*e_j1__b3_0 + _dx0*e_j2__b3_0 + _dx483*f_j2__b1_0 - _dx444*f_link1__b7_0
+    C[24, 1] = -_dx1*e_j1__b3_1 + _dx1*e_j2__b3_1 + _dx509*f_j2__b1_1 - _dx457*f_link1__b7_1
+    C[24, 2] = _dx2*e_j2__b3_2 + _dx535*f_j2__b1_2 - _dx2*e_j1__b3_2 - _dx470*f_link1__b7_2
+    C[24, 3] = _dx510*f_j2__b1_1 + _dx484*f_j2__b1_0 + _dx804*e_r2__b4_0 + _dx536*f_j2__b1_2 + _dx99*e_j2__b3_2 + _dx852*f_r2__b2_0 - _dx471*f_link1__b7_2 + _dx87*e_j2__b3_1 - _dx39*e_j1__b3_0 - _dx51*e_j1__b3_1 + _dx756*e_r1__b4_0 + _dx876*f_r2__b2_1 + _dx768*e_r1__b4_1 + _dx792*f_r1__b2_1 + _dx828*e_r2__b4_1 - _dx63*e_j1__b3_2 + _dx75*e_j2__b3_0 + _dx780*f_r1__b2_0 - _dx445*f_link1__b7_0 - _dx458*f_link1__b7_1
+    C[24, 4] = _dx877*f_r2__b2_1 + _dx485*f_j2__b1_0 + _dx853*f_r2__b2_0 - _dx472*f_link1__b7_2 + _dx511*f_j2__b1_1 - _dx446*f_link1__b7_0 - _dx40*e_j1__b3_0 + _dx793*f_r1__b2_1 - _dx459*f_link1__b7_1 + _dx88*e_j2__b3_1 + _dx76*e_j2__b3_0 + _dx781*f_r1__b2_0 - _dx64*e_j1__b3_2 - _dx52*e_j1__b3_1 + _dx829*e_r2__b4_1 + _dx805*e_r2__b4_0 + _dx537*f_j2__b1_2 + _dx100*e_j2__b3_2 + _dx757*e_r1__b4_0 + _dx769*e_r1__b4_1
+    C[24, 5] = _dx486*f_j2__b1_0 + _dx782*f_r1__b2_0 + _dx538*f_j2__b1_2 + _dx512*f_j2__b1_1 - _dx65*e_j1__b3_2 + _dx101*e_j2__b3_2 + _dx77*e_j2__b3_0 + _dx794*f_r1__b2_1 + _dx806*e_r2__b4_0 + _dx89*e_j2__b3_1 + _dx878*f_r2__b2_1 - _dx447*f_link1__b7_0 - _dx41*e_j1__b3_0 + _dx854*f_r2__b2_0 + _dx758*e_r1__b4_0 + _dx830*e_r2__b4_1 - _dx473*f_link1__b7_2 - _dx53*e_j1__b3_1 + _dx770*e_r1__b4_1 - _dx460*f_link1__b7_1
+    C[24, 6] = _dx111*e_j3__b3_0 - _dx111*e_j2__b3_0 + _dx561*f_j3__b1_0 + _dx487*f_j2__b1_0
+    C[24, 7] = _dx112*e_j3__b3_1 - _dx112*e_j2__b3_1 + _dx587*f_j3__b1_1 + _dx513*f_j2__b1_1
+    C[24, 8] = _dx113*e_j3__b3_2 - _dx113*e_j2__b3_2 + _dx613*f_j3__b1_2 + _dx539*f_j2__b1_2
+    C[24, 9] = _dx614*f_j3__b1_2 + _dx879*f_r2__b2_1 + _dx562*f_j3__b1_0 + _dx540*f_j2__b1_2 + _dx210*e_j3__b3_2 + _dx588*f_j3__b1_1 - _dx174*e_j2__b3_2 - _dx162*e_j2__b3_1 - _dx150*e_j2__b3_0 + _dx186*e_j3__b3_0 + _dx924*e_r3__b4_1 + _dx972*f_r3__b2_1 + _dx514*f_j2__b1_1 + _dx807*e_r2__b4_0 + _dx948*f_r3__b2_0 + _dx831*e_r2__b4_1 + _dx855*f_r2__b2_0 + _dx900*e_r3__b4_0 + _dx198*e_j3__b3_1 + _dx488*f_j2__b1_0
+    C[24, 10] = _dx949*f_r3__b2_0 + _dx808*e_r2__b4_0 + _dx901*e_r3__b4_0 + _dx563*f_j3__b1_0 + _dx211*e_j3__b3_2 - _dx163*e_j2__b3_1 + _dx541*f_j2__b1_2 - _dx175*e_j2__b3_2 + _dx187*e_j3__b3_0 + _dx973*f_r3__b2_1 + _dx199*e_j3__b3_1 + _dx856*f_r2__b2_0 + _dx880*f_r2__b2_1 + _dx615*f_j3__b1_2 + _dx589*f_j3__b1_1 + _dx925*e_r3__b4_1 + _dx832*e_r2__b4_1 + _dx489*f_j2__b1_0 - _dx151*e_j2__b3_0 + _dx515*f_j2__b1_1
+    C[24, 11] = _dx542*f_j2__b1_2 + _dx590*f_j3__b1_1 + _dx564*f_j3__b1_0 - _dx152*e_j2__b3_0 + _dx212*e_j3__b3_2 + _dx188*e_j3__b3_0 + _dx809*e_r2__b4_0 + _dx974*f_r3__b2_1 + _dx950*f_r3__b2_0 + _dx881*f_r2__b2_1 + _dx616*f_j3__b1_2 + _dx200*e_j3__b3_1 + _dx857*f_r2__b2_0 + _dx926*e_r3__b4_1 + _dx490*f_j2__b1_0 - _dx164*e_j2__b3_1 + _dx902*e_r3__b4_0 + _dx516*f_j2__b1_1 - _dx176*e_j2__b3_2 + _dx833*e_r2__b4_1
+    C[24, 12] = -_dx222*e_jd__b3_0 + _dx222*e_j4__b3_0 - _dx222*e_j3__b3_0 + _dx996*f_jd__b1_0 + _dx639*f_j4__b1_0 + _dx565*f_j3__b1_0
+    C[24, 13] = -_dx223*e_jd__b3_1 + _dx223*e_j4__b3_1 - _dx223*e_j3__b3_1 + _dx1009*f_jd__b1_1 + _dx665*f_j4__b1_1 + _dx591*f_j3__b1_1
+    C[24, 14] = -_dx224*e_jd__b3_2 - _dx224*e_j3__b3_2 + _dx1022*f_jd__b1_2 + _dx691*f_j4__b1_2 + _dx224*e_j4__b3_2 + _dx617*f_j3__b1_2
+    C[24, 15] = _dx666*f_j4__b1_1 + _dx309*e_j4__b3_1 + _dx1023*f_jd__b1_2 + _dx618*f_j3__b1_2 + _dx640*f_j4__b1_0 + _dx592*f_j3__b1_1 + _dx566*f_j3__b1_0 - _dx285*e_j3__b3_2 + _dx321*e_j4__b3_2 - _dx261*e_j3__b3_0 + _dx951*f_r3__b2_0 + _dx692*f_j4__b1_2 - _dx309*e_jd__b3_1 + _dx1010*f_jd__b1_1 + _dx297*e_j4__b3_0 + _dx997*f_jd__b1_0 - _dx321*e_jd__b3_2 + _dx903*e_r3__b4_0 - _dx273*e_j3__b3_1 + _dx975*f_r3__b2_1 - _dx297*e_jd__b3_0 + _dx927*e_r3__b4_1
+    C[24, 16] = _dx641*f_j4__b1_0 + _dx619*f_j3__b1_2 + _dx567*f_j3__b1_0 - _dx274*e_j3__b3_1 + _dx593*f_j3__b1_1 - _dx286*e_j3__b3_2 - _dx298*e_jd__b3_0 + _dx310*e_j4__b3_1 + _dx298*e_j4__b3_0 - _dx262*e_j3__b3_0 + _dx952*f_r3__b2_0 + _dx1024*f_jd__b1_2 - _dx310*e_jd__b3_1 + _dx1011*f_jd__b1_1 + _dx693*f_j4__b1_2 + _dx322*e_j4__b3_2 + _dx667*f_j4__b1_1 + _dx928*e_r3__b4_1 + _dx976*f_r3__b2_1 + _dx998*f_jd__b1_0 + _dx904*e_r3__b4_0 - _dx322*e_jd__b3_2
+    C[24, 17] = _dx668*f_j4__b1_1 + _dx620*f_j3__b1_2 + _dx323*e_j4__b3_2 - _dx275*e_j3__b3_1 + _dx299*e_j4__b3_0 + _dx953*f_r3__b2_0 + _dx568*f_j3__b1_0 - _dx311*e_jd__b3_1 + _dx694*f_j4__b1_2 - _dx263*e_j3__b3_0 + _dx929*e_r3__b4_1 - _dx299*e_jd__b3_0 + _dx977*f_r3__b2_1 + _dx1025*f_jd__b1_2 + _dx311*e_j4__b3_1 + _dx999*f_jd__b1_0 - _dx287*e_j3__b3_2 + _dx1012*f_jd__b1_1 - _dx323*e_jd__b3_2 + _dx642*f_j4__b1_0 + _dx905*e_r3__b4_0 + _dx594*f_j3__b1_1
+    C[24, 18] = _dx333*e_j5__b3_0 + _dx717*f_link4__b11_0 - _dx333*e_j4__b3_0 + _dx643*f_j4__b1_0
+    C[24, 19] = _dx334*e_j5__b3_1 - _dx334*e_j4__b3_1 + _dx730*f_link4__b11_1 + _dx669*f_j4__b1_1
+    C[24, 20] = _dx335*e_j5__b3_2 - _dx335*e_j4__b3_2 + _dx743*f_link4__b11_2 + _dx695*f_j4__b1_2
+    C[24, 21] = _dx408*e_j5__b3_0 + _dx432*e_j5__b3_2 - _dx396*e_j4__b3_2 - _dx372*e_j4__b3_0 + _dx420*e_j5__b3_1 + _dx731*f_link4__b11_1 - _dx384*e_j4__b3_1 + _dx744*f_link4__b11_2 + _dx696*f_j4__b1_2 + _dx670*f_j4__b1_1 + _dx718*f_link4__b11_0 + _dx644*f_j4__b1_0
+    C[24, 22] = _dx421*e_j5__b3_1 - _dx397*e_j4__b3_2 - _dx373*e_j4__b3_0 + _dx745*f_link4__b11_2 + _dx433*e_j5__b3_2 - _dx385*e_j4__b3_1 + _dx732*f_link4__b11_1 + _dx719*f_link4__b11_0 + _dx697*f_j4__b1_2 + _dx409*e_j5__b3_0 + _dx671*f_j4__b1_1 + _dx645*f_j4__b1_0
+    C[24, 23] = _dx434*e_j5__b3_2 + _dx422*e_j5__b3_1 - _dx386*e_j4__b3_1 - _dx374*e_j4__b3_0 + _dx410*e_j5__b3_0 - _dx398*e_j4__b3_2 + _dx746*f_link4__b11_2 + _dx720*f_link4__b11_0 + _dx733*f_link4__b11_1 + _dx698*f_j4__b1_2 + _dx672*f_j4__b1_1 + _dx646*f_j4__b1_0
+    C[24, 48] = _dx783*f_r1__b2_0 + _dx517*f_j2__b1_1 - _dx448*f_link1__b7_0 - _dx42*e_j1__b3_0 + _dx102*e_j2__b3_2 - _dx54*e_j1__b3_1 + _dx491*f_j2__b1_0 + _dx90*e_j2__b3_1 - _dx461*f_link1__b7_1 + _dx834*e_r2__b4_1 - _dx66*e_j1__b3_2 + _dx543*f_j2__b1_2 + _dx78*e_j2__b3_0 + _dx858*f_r2__b2_0 + _dx882*f_r2__b2_1 + _dx795*f_r1__b2_1 + _dx810*e_r2__b4_0 - _dx474*f_link1__b7_2 + _dx771*e_r1__b4_1 + _dx759*e_r1__b4_0
+    C[24, 49] = _dx518*f_j2__b1_1 + _dx492*f_j2__b1_0 - _dx475*f_link1__b7_2 - _dx43*e_j1__b3_0 + _dx91*e_j2__b3_1 + _dx544*f_j2__b1_2 + _dx103*e_j2__b3_2 + _dx772*e_r1__b4_1 - _dx67*e_j1__b3_2 - _dx462*f_link1__b7_1 + _dx883*f_r2__b2_1 - _dx55*e_j1__b3_1 + _dx760*e_r1__b4_0 + _dx796*f_r1__b2_1 + _dx859*f_r2__b2_0 + _dx784*f_r1__b2_0 + _dx835*e_r2__b4_1 - _dx449*f_link1__b7_0 + _dx811*e_r2__b4_0 + _dx79*e_j2__b3_0
+    C[24, 50] = _dx519*f_j2__b1_1 - _dx450*f_link1__b7_0 + _dx884*f_r2__b2_1 + _dx761*e_r1__b4_0 + _dx493*f_j2__b1_0 + _dx812*e_r2__b4_0 + _dx92*e_j2__b3_1 + _dx80*e_j2__b3_0 + _dx836*e_r2__b4_1 + _dx797*f_r1__b2_1 - _dx44*e_j1__b3_0 + _dx545*f_j2__b1_2 - _dx476*f_link1__b7_2 + _dx860*f_r2__b2_0 + _dx104*e_j2__b3_2 - _dx68*e_j1__b3_2 + _dx773*e_r1__b4_1 - _dx56*e_j1__b3_1 - _dx463*f_link1__b7_1 + _dx785*f_r1__b2_0
+    C[24, 51] = _dx786*f_r1__b2_0 - _dx69*e_j1__b3_2 + _dx837*e_r2__b4_1 + _dx546*f_j2__b1_2 + _dx81*e_j2__b3_0 + _dx520*f_j2__b1_1 + _dx105*e_j2__b3_2 + _dx494*f_j2__b1_0 + _dx774*e_r1__b4_1 + _dx93*e_j2__b3_1 + _dx861*f_r2__b2_0 + _dx813*e_r2__b4_0 + _dx885*f_r2__b2_1 + _dx798*f_r1__b2_1 - _dx477*f_link1__b7_2 + _dx762*e_r1__b4_0 - _dx45*e_j1__b3_0 - _dx57*e_j1__b3_1 - _dx451*f_link1__b7_0 - _dx464*f_link1__b7_1
+    C[24, 52] = _dx94*e_j2__b3_1 + _dx886*f_r2__b2_1 + _dx862*f_r2__b2_0 + _dx799*f_r1__b2_1 + _dx775*e_r1__b4_1 - _dx58*e_j1__b3_1 - _dx478*f_link1__b7_2 + _dx106*e_j2__b3_2 + _dx814*e_r2__b4_0 + _dx82*e_j2__b3_0 + _dx838*e_r2__b4_1 + _dx787*f_r1__b2_0 + _dx547*f_j2__b1_2 + _dx521*f_j2__b1_1 + _dx495*f_j2__b1_0 + _dx763*e_r1__b4_0 - _dx70*e_j1__b3_2 - _dx46*e_j1__b3_0 - _dx452*f_link1__b7_0 - _dx465*f_link1__b7_1
+    C[24, 53] = -_dx466*f_link1__b7_1 + _dx496*f_j2__b1_0 - _dx453*f_link1__b7_0 + _dx95*e_j2__b3_1 - _dx71*e_j1__b3_2 - _dx479*f_link1__b7_2 - _dx47*e_j1__b3_0 + _dx83*e_j2__b3_0 + _dx522*f_j2__b1_1 + _dx548*f_j2__b1_2 + _dx887*f_r2__b2_1 + _dx764*e_r1__b4_0 + _dx800*f_r1__b2_1 + _dx839*e_r2__b4_1 + _dx788*f_r1__b2_0 + _dx107*e_j2__b3_2 + _dx863*f_r2__b2_0 + _dx776*e_r1__b4_1 + _dx815*e_r2__b4_0 - _dx59*e_j1__b3_1
+    C[24, 54] = -_dx72*e_j1__b3_2 - _dx454*f_link1__b7_0 + _dx801*f_r1__b2_1 + _dx549*f_j2__b1_2 + _dx765*e_r1__b4_0 + _dx84*e_j2__b3_0 + _dx523*f_j2__b1_1 + _dx108*e_j2__b3_2 - _dx60*e_j1__b3_1 + _dx816*e_r2__b4_0 + _dx864*f_r2__b2_0 + _dx789*f_r1__b2_0 + _dx888*f_r2__b2_1 + _dx777*e_r1__b4_1 + _dx840*e_r2__b4_1 - _dx467*f_link1__b7_1 + _dx96*e_j2__b3_1 - _dx48*e_j1__b3_0 - _dx480*f_link1__b7_2 + _dx497*f_j2__b1_0
+    C[24, 55] = -_dx73*e_j1__b3_2 - _dx468*f_link1__b7_1 + _dx550*f_j2__b1_2 + _dx802*f_r1__b2_1 + _dx524*f_j2__b1_1 + _dx790*f_r1__b2_0 + _dx109*e_j2__b3_2 + _dx85*e_j2__b3_0 + _dx97*e_j2__b3_1 + _dx889*f_r2__b2_1 + _dx865*f_r2__b2_0 - _dx481*f_link1__b7_2 + _dx766*e_r1__b4_0 + _dx841*e_r2__b4_1 - _dx49*e_j1__b3_0 + _dx817*e_r2__b4_0 + _dx778*e_r1__b4_1 - _dx455*f_link1__b7_0 - _dx61*e_j1__b3_1 + _dx498*f_j2__b1_0
+    C[24, 56] = _dx110*e_j2__b3_2 + _dx551*f_j2__b1_2 + _dx525*f_j2__b1_1 - _dx482*f_link1__b7_2 - _dx456*f_link1__b7_0 - _dx50*e_j1__b3_0 + _dx499*f_j2__b1_0 + _dx842*e_r2__b4_1 + _dx890*f_r2__b2_1 - _dx74*e_j1__b3_2 + _dx779*e_r1__b4_1 + _dx866*f_r2__b2_0 + _dx803*f_r1__b2_1 - _dx469*f_link1__b7_1 + _dx767*e_r1__b4_0 - _dx62*e_j1__b3_1 + _dx86*e_j2__b3_0 + _dx98*e_j2__b3_1 + _dx818*e_r2__b4_0 + _dx791*f_r1__b2_0
+    C[24, 60] = _dx595*f_j3__b1_1 + _dx954*f_r3__b2_0 + _dx930*e_r3__b4_1 + _dx569*f_j3__b1_0 + _dx189*e_j3__b3_0 - _dx153*e_j2__b3_0 + _dx978*f_r3__b2_1 + _dx201*e_j3__b3_1 - _dx177*e_j2__b3_2 + _dx867*f_r2__b2_0 + _dx500*f_j2__b1_0 - _dx165*e_j2__b3_1 + _dx843*e_r2__b4_1 + _dx891*f_r2__b2_1 + _dx621*f_j3__b1_2 + _dx819*e_r2__b4_0 + _dx213*e_j3__b3_2 + _dx526*f_j2__b1_1 + _dx906*e_r3__b4_0 + _dx552*f_j2__b1_2
+    C[24, 61] = _dx596*f_j3__b1_1 - _dx178*e_j2__b3_2 + _dx868*f_r2__b2_0 + _dx527*f_j2__b1_1 + _dx501*f_j2__b1_0 + _dx202*e_j3__b3_1 - _dx166*e_j2__b3_1 + _dx955*f_r3__b2_0 + _dx553*f_j2__b1_2 + _dx931*e_r3__b4_1 - _dx154*e_j2__b3_0 + _dx979*f_r3__b2_1 + _dx892*f_r2__b2_1 + _dx907*e_r3__b4_0 + _dx190*e_j3__b3_0 + _dx622*f_j3__b1_2 + _dx570*f_j3__b1_0 + _dx820*e_r2__b4_0 + _dx844*e_r2__b4_1 + _dx214*e_j3__b3_2
+    C[24, 62] = _dx203*e_j3__b3_1 + _dx845*e_r2__b4_1 + _dx554*f_j2__b1_2 + _dx571*f_j3__b1_0 + _dx215*e_j3__b3_2 - _dx167*e_j2__b3_1 - _dx155*e_j2__b3_0 + _dx893*f_r2__b2_1 + _dx869*f_r2__b2_0 + _dx980*f_r3__b2_1 + _dx623*f_j3__b1_2 + _dx502*f_j2__b1_0 + _dx908*e_r3__b4_0 + _dx821*e_r2__b4_0 + _dx932*e_r3__b4_1 + _dx528*f_j2__b1_1 + _dx191*e_j3__b3_0 + _dx597*f_j3__b1_1 - _dx179*e_j2__b3_2 + _dx956*f_r3__b2_0
+    C[24, 63] = _dx933*e_r3__b4_1 + _dx981*f_r3__b2_1 + _dx624*f_j3__b1_2 + _dx598*f_j3__b1_1 + _dx503*f_j2__b1_0 + _dx192*e_j3__b3_0 - _dx156*e_j2__b3_0 - _dx168*e_j2__b3_1 - _dx180*e_j2__b3_2 + _dx957*f_r3__b2_0 + _dx822*e_r2__b4_0 + _dx894*f_r2__b2_1 + _dx870*f_r2__b2_0 + _dx529*f_j2__b1_1 + _dx909*e_r3__b4_0 + _dx572*f_j3__b1_0 + _dx846*e_r2__b4_1 + _dx555*f_j2__b1_2 + _dx216*e_j3__b3_2 + _dx204*e_j3__b3_1
+    C[24, 64] = _dx895*f_r2__b2_1 + _dx625*f_j3__b1_2 + _dx530*f_j2__b1_1 + _dx982*f_r3__b2_1 + _dx504*f_j2__b1_0 + _dx205*e_j3__b3_1 + _dx217*e_j3__b3_2 + _dx934*e_r3__b4_1 + _dx599*f_j3__b1_1 - _dx169*e_j2__b3_1 + _dx573*f_j3__b1_0 + _dx193*e_j3__b3_0 + _dx847*e_r2__b4_1 + _dx556*f_j2__b1_2 - _dx157*e_j2__b3_0 + _dx910*e_r3__b4_0 + _dx823*e_r2__b4_0 + _dx958*f_r3__b2_0 - _dx181*e_j2__b3_2 + _dx871*f_r2__b2_0
+    C[24, 65] = _dx824*e_r2__b4_0 + _dx574*f_j3__b1_0 + _dx531*f_j2__b1_1 + _dx194*e_j3__b3_0 + _dx505*f_j2__b1_0 + _dx206*e_j3__b3_1 + _dx872*f_r2__b2_0 - _dx182*e_j2__b3_2 + _dx911*e_r3__b4_0 - _dx170*e_j2__b3_1 + _dx983*f_r3__b2_1 - _dx158*e_j2__b3_0 + _dx959*f_r3__b2_0 + _dx626*f_j3__b1_2 + _dx600*f_j3__b1_1 + _dx935*e_r3__b4_1 + _dx848*e_r2__b4_1 + _dx557*f_j2__b1_2 + _dx896*f_r2__b2_1 + _dx218*e_j3__b3_2
+    C[24, 66] = _dx936*e_r3__b4_1 + _dx897*f_r2__b2_1 + _dx849*e_r2__b4_1 + _dx558*f_j2__b1_2 + _dx912*e_r3__b4_0 + _dx575*f_j3__b1_0 + _dx506*f_j2__b1_0 - _dx171*e_j2__b3_1 - _dx159*e_j2__b3_0 + _dx984*f_r3__b2_1 + _dx873*f_r2__b2_0 + _dx825*e_r2__b4_0 + _dx207*e_j3__b3_1 + _dx627*f_j3__b1_2 + _dx219*e_j3__b3_2 - _dx183*e_j2__b3_2 + _dx601*f_j3__b1_1 + _dx960*f_r3__b2_0 + _dx195*e_j3__b3_0 + _dx532*f_j2__b1_1
+    C[24, 67] = -_dx172*e_j2__b3_1 + _dx913*e_r3__b4_0 + _dx628*f_j3__b1_2 + _dx602*f_j3__b1_1 + _dx220*e_j3__b3_2 + _dx533*f_j2__b1_1 + _dx898*f_r2__b2_1 + _dx961*f_r3__b2_0 - _dx160*e_j2__b3_0 + _dx826*e_r2__b4_0 + _dx196*e_j3__b3_0 + _dx874*f_r2__b2_0 - _dx184*e_j2__b3_2 + _dx559*f_j2__b1_2 + _dx507*f_j2__b1_0 + _dx576*f_j3__b1_0 + _dx985*f_r3__b2_1 + _dx208*e_j3__b3_1 + _dx850*e_r2__b4_1 + _dx937*e_r3__b4_1
+    C[24, 68] = -_dx185*e_j2__b3_2 + _dx508*f_j2__b1_0 + _dx899*f_r2__b2_1 + _dx629*f_j3__b1_2 + _dx534*f_j2__b1_1 + _dx827*e_r2__b4_0 + _dx603*f_j3__b1_1 + _dx197*e_j3__b3_0 - _dx161*e_j2__b3_0 + _dx914*e_r3__b4_0 + _dx986*f_r3__b2_1 + _dx938*e_r3__b4_1 + _dx962*f_r3__b2_0 + _dx875*f_r2__b2_0 + _dx577*f_j3__b1_0 + _dx209*e_j3__b3_1 - _dx173*e_j2__b3_1 + _dx851*e_r2__b4_1 + _dx221*e_j3__b3_2 + _dx560*f_j2__b1_2
+    C[24, 72] = _dx647*f_j4__b1_0 + _dx630*f_j3__b1_2 + _dx987*f_r3__b2_1 + _dx300*e_j4__b3_0 + _dx578*f_j3__b1_0 - _dx288*e_j3__b3_2 + _dx312*e_j4__b3_1 - _dx300*e_jd__b3_0 + _dx604*f_j3__b1_1 - _dx276*e_j3__b3_1 - _dx264*e_j3__b3_0 + _dx963*f_r3__b2_0 + _dx1000*f_jd__b1_0 + _dx939*e_r3__b4_1 + _dx1026*f_jd__b1_2 + _dx1013*f_jd__b1_1 + _dx699*f_j4__b1_2 + _dx915*e_r3__b4_0 + _dx324*e_j4__b3_2 + _dx673*f_j4__b1_1 - _dx324*e_jd__b3_2 - _dx312*e_jd__b3_1
+    C[24, 73] = _dx916*e_r3__b4_0 + _dx700*f_j4__b1_2 - _dx265*e_j3__b3_0 + _dx631*f_j3__b1_2 + _dx579*f_j3__b1_0 + _dx301*e_j4__b3_0 + _dx325*e_j4__b3_2 - _dx289*e_j3__b3_2 - _dx301*e_jd__b3_0 + _dx988*f_r3__b2_1 + _dx1027*f_jd__b1_2 - _dx277*e_j3__b3_1 + _dx964*f_r3__b2_0 + _dx313*e_j4__b3_1 + _dx1001*f_jd__b1_0 + _dx674*f_j4__b1_1 + _dx1014*f_jd__b1_1 + _dx648*f_j4__b1_0 - _dx313*e_jd__b3_1 + _dx940*e_r3__b4_1 + _dx605*f_j3__b1_1 - _dx325*e_jd__b3_2
+    C[24, 74] = _dx989*f_r3__b2_1 + _dx1002*f_jd__b1_0 + _dx632*f_j3__b1_2 - _dx290*e_j3__b3_2 + _dx314*e_j4__b3_1 - _dx302*e_jd__b3_0 + _dx606*f_j3__b1_1 + _dx302*e_j4__b3_0 + _dx326*e_j4__b3_2 - _dx278*e_j3__b3_1 - _dx266*e_j3__b3_0 + _dx965*f_r3__b2_0 + _dx1028*f_jd__b1_2 + _dx580*f_j3__b1_0 + _dx1015*f_jd__b1_1 - _dx326*e_jd__b3_2 + _dx675*f_j4__b1_1 + _dx941*e_r3__b4_1 + _dx701*f_j4__b1_2 + _dx649*f_j4__b1_0 + _dx917*e_r3__b4_0 - _dx314*e_jd__b3_1
+    C[24, 75] = _dx607*f_j3__b1_1 + _dx966*f_r3__b2_0 + _dx581*f_j3__b1_0 + _dx315*e_j4__b3_1 - _dx291*e_j3__b3_2 + _dx702*f_j4__b1_2 + _dx327*e_j4__b3_2 + _dx633*f_j3__b1_2 - _dx303*e_jd__b3_0 - _dx267*e_j3__b3_0 + _dx918*e_r3__b4_0 - _dx279*e_j3__b3_1 + _dx1029*f_jd__b1_2 + _dx1016*f_jd__b1_1 + _dx1003*f_jd__b1_0 + _dx676*f_j4__b1_1 + _dx990*f_r3__b2_1 + _dx650*f_j4__b1_0 + _dx303*e_j4__b3_0 - _dx327*e_jd__b3_2 + _dx942*e_r3__b4_1 - _dx315*e_jd__b3_1
+    C[24, 76] = _dx328*e_j4__b3_2 + _dx677*f_j4__b1_1 + _dx316*e_j4__b3_1 + _dx634*f_j3__b1_2 - _dx328*e_jd__b3_2 + _dx1017*f_jd__b1_1 - _dx304*e_jd__b3_0 - _dx280*e_j3__b3_1 - _dx268*e_j3__b3_0 + _dx919*e_r3__b4_0 + _dx582*f_j3__b1_0 + _dx991*f_r3__b2_1 - _dx292*e_j3__b3_2 - _dx316*e_jd__b3_1 + _dx943*e_r3__b4_1 + _dx608*f_j3__b1_1 + _dx967*f_r3__b2_0 + _dx651*f_j4__b1_0 + _dx304*e_j4__b3_0 + _dx1030*f_jd__b1_2 + _dx1004*f_jd__b1_0 + _dx703*f_j4__b1_2
+    C[24, 77] = _dx635*f_j3__b1_2 + _dx317*e_j4__b3_1 + _dx944*e_r3__b4_1 + _dx678*f_j4__b1_1 + _dx305*e_j4__b3_0 - _dx305*e_jd__b3_0 - _dx269*e_j3__b3_0 + _dx992*f_r3__b2_1 - _dx293*e_j3__b3_2 + _dx968*f_r3__b2_0 - _dx281*e_j3__b3_1 + _dx1018*f_jd__b1_1 + _dx1031*f_jd__b1_2 + _dx1005*f_jd__b1_0 + _dx704*f_j4__b1_2 - _dx329*e_jd__b3_2 + _dx920*e_r3__b4_0 + _dx329*e_j4__b3_2 + _dx652*f_j4__b1_0 + _dx609*f_j3__b1_1 + _dx583*f_j3__b1_0 - _dx317*e_jd__b3_1
+    C[24, 78] = -_dx294*e_j3__b3_2 - _dx306*e_jd__b3_0 + _dx1032*f_jd__b1_2 + _dx1006*f_jd__b1_0 + _dx653*f_j4__b1_0 + _dx636*f_j3__b1_2 + _dx584*f_j3__b1_0 - _dx318*e_jd__b3_1 - _dx282*e_j3__b3_1 + _dx921*e_r3__b4_0 - _dx330*e_jd__b3_2 + _dx969*f_r3__b2_0 + _dx679*f_j4__b1_1 + _dx610*f_j3__b1_1 - _dx270*e_j3__b3_0 + _dx1019*f_jd__b1_1 + _dx306*e_j4__b3_0 + _dx318*e_j4__b3_1 + _dx705*f_j4__b1_2 + _dx993*f_r3__b2_1 + _dx945*e_r3__b4_1 + _dx330*e_j4__b3_2
+    C[24, 79] = _dx1007*f_jd__b1_0 + _dx706*f_j4__b1_2 + _dx637*f_j3__b1_2 + _dx922*e_r3__b4_0 + _dx611*f_j3__b1_1 + _dx585*f_j3__b1_0 - _dx331*e_jd__b3_2 - _dx295*e_j3__b3_2 + _dx307*e_j4__b3_0 - _dx283*e_j3__b3_1 + _dx970*f_r3__b2_0 + _dx1020*f_jd__b1_1 - _dx271*e_j3__b3_0 + _dx331*e_j4__b3_2 + _dx1033*f_jd__b1_2 + _dx680*f_j4__b1_1 - _dx319*e_jd__b3_1 + _dx994*f_r3__b2_1 + _dx946*e_r3__b4_1 - _dx307*e_jd__b3_0 + _dx319*e_j4__b3_1 + _dx654*f_j4__b1_0
+    C[24, 80] = _dx655*f_j4__b1_0 - _dx332*e_jd__b3_2 + _dx332*e_j4__b3_2 + _dx1034*f_jd__b1_2 + _dx612*f_j3__b1_1 + _dx586*f_j3__b1_0 - _dx296*e_j3__b3_2 + _dx707*f_j4__b1_2 + _dx320*e_j4__b3_1 - _dx284*e_j3__b3_1 + _dx995*f_r3__b2_1 - _dx272*e_j3__b3_0 + _dx681*f_j4__b1_1 + _dx971*f_r3__b2_0 - _dx308*e_jd__b3_0 + _dx638*f_j3__b1_2 + _dx1008*f_jd__b1_0 - _dx320*e_jd__b3_1 + _dx1021*f_jd__b1_1 + _dx308*e_j4__b3_0 + _dx923*e_r3__b4_0 + _dx947*e_r3__b4_1
+    C[24, 84] = -_dx399*e_j4__b3_2 + _dx747*f_link4__b11_2 + _dx435*e_j5__b3_2 + _dx423*e_j5__b3_1 - _dx387*e_j4__b3_1 + _dx721*f_link4__b11_0 + _dx411*e_j5__b3_0 + _dx734*f_link4__b11_1 + _dx708*f_j4__b1_2 - _dx375*e_j4__b3_0 + _dx682*f_j4__b1_1 + _dx656*f_j4__b1_0
+    C[24, 85] = _dx436*e_j5__b3_2 + _dx424*e_j5__b3_1 - _dx376*e_j4__b3_0 + _dx412*e_j5__b3_0 - _dx388*e_j4__b3_1 + _dx722*f_link4__b11_0 - _dx400*e_j4__b3_2 + _dx748*f_link4__b11_2 + _dx735*f_link4__b11_1 + _dx709*f_j4__b1_2 + _dx683*f_j4__b1_1 + _dx657*f_j4__b1_0
+    C[24, 86] = _dx437*e_j5__b3_2 + _dx425*e_j5__b3_1 + _dx413*e_j5__b3_0 - _dx401*e_j4__b3_2 - _dx389*e_j4__b3_1 + _dx736*f_link4__b11_1 + _dx749*f_link4__b11_2 + _dx723*f_link4__b11_0 + _dx710*f_j4__b1_2 + _dx684*f_j4__b1_1 - _dx377*e_j4__b3_0 + _dx658*f_j4__b1_0
+    C[24, 87] = _dx426*e_j5__b3_1 + _dx438*e_j5__b3_2 + _dx414*e_j5__b3_0 - _dx402*e_j4__b3_2 - _dx378*e_j4__b3_0 + _dx750*f_link4__b11_2 + _dx737*f_link4__b11_1 + _dx724*f_link4__b11_0 - _dx390*e_j4__b3_1 + _dx711*f_j4__b1_2 + _dx685*f_j4__b1_1 + _dx659*f_j4__b1_0
+    C[24, 88] = _dx439*e_j5__b3_2 + _dx427*e_j5__b3_1 - _dx379*e_j4__b3_0 + _dx415*e_j5__b3_0 - _dx391*e_j4__b3_1 + _dx751*f_link4__b11_2 + _dx738*f_link4__b11_1 + _dx725*f_link4__b11_0 - _dx403*e_j4__b3_2 + _dx712*f_j4__b1_2 + _dx686*f_j4__b1_1 + _dx660*f_j4__b1_0
+    C[24, 89] = _dx428*e_j5__b3_1 + _dx416*e_j5__b3_0 - _dx404*e_j4__b3_2 - _dx392*e_j4__b3_1 + _dx752*f_link4__b11_2 + _dx739*f_link4__b11_1 + _dx440*e_j5__b3_2 + _dx726*f_link4__b11_0 + _dx713*f_j4__b1_2 + _dx687*f_j4__b1_1 - _dx380*e_j4__b3_0 + _dx661*f_j4__b1_0
+    C[24, 90] = _dx441*e_j5__b3_2 + _dx417*e_j5__b3_0 - _dx405*e_j4__b3_2 - _dx393*e_j4__b3_1 - _dx381*e_j4__b3_0 + _dx753*f_link4__b11_2 + _dx740*f_link4__b11_1 + _dx429*e_j5__b3_1 + _dx727*f_link4__b11_0 + _dx714*f_j4__b1_2 + _dx688*f_j4__b1_1 + _dx662*f_j4__b1_0
+    C[24, 91] = _dx442*e_j5__b3_2 + _dx430*e_j5__b3_1 + _dx418*e_j5__b3_0 - _dx394*e_j4__b3_1 + _dx754*f_link4__b11_2 - _dx406*e_j4__b3_2 + _dx741*f_link4__b11_1 + _dx715*f_j4__b1_2 - _dx382*e_j4__b3_0 + _dx689*f_j4__b1_1 + _dx728*f_link4__b11_0 + _dx663*f_j4__b1_0
+    C[24, 92] = _dx443*e_j5__b3_2 + _dx431*e_j5__b3_1 + _dx419*e_j5__b3_0 - _dx395*e_j4__b3_1 - _dx383*e_j4__b3_0 + _dx755*f_link4__b11_2 + _dx742*f_link4__b11_1 + _dx729*f_link4__b11_0 + _dx716*f_j4__b1_2 + _dx690*f_j4__b1_1 - _dx407*e_j4__b3_2 + _dx664*f_j4__b1_0
+    C[25, 99] = 1
+    C[26, 100] = 1
+    C[27, 24] = _c578*q_j1__C_0
+    C[27, 25] = _c578*q_j1__C_1
+    C[27, 26] = _c578*q_j1__C_2
+    C[28, 27] = _c579*q_j2__C_0
+    C[28, 28] = _c579*q_j2__C_1
+    C[28, 29] = _c579*q_j2__C_2
+    C[29, 30] = _c580*q_j3__C_0
+    C[29, 31] = _c580*q_j3__C_1
+    C[29, 32] = _c580*q_j3__C_2
+    C[30, 33] = _c581*q_j4__C_0
+    C[30, 34] = _c581*q_j4__C_1
+    C[30, 35] = _c581*q_j4__C_2
+    C[31, 36] = _c582*q_j5__C_0
+    C[31, 37] = _c582*q_j5__C_1
+    C[31, 38] = _c582*q_j5__C_2
+    D[23, 0] = e_jd__b1_0 + r_d*u_vd_0
+    D[23, 1] = e_jd__b1_1 + r_d*u_vd_1
+    D[23, 2] = e_jd__b1_2 + r_d*u_vd_2
+    D[24, 0] = e_jd__b3_0 + _c134
+    D[24, 1] = e_jd__b3_1 + _c135
+    D[24, 2] = e_jd__b3_2 + _c136
+    return C, D
+
+
 class SimulationError(RuntimeError):
     """The integrator failed or was stopped (the message says why): .t where, .stats the counts."""
 
@@ -8385,6 +10713,14 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
         atol = _flat_atol(atol, batch)
         t0, t1 = float(t_span[0]), float(t_span[1])
         path = _Trajectory(t0, t1, y, _output_times(t0, t1, t_eval, dt))
+        # a table input that is not smooth at its knots (linear, previous) adds them (unless u
+        # replaces that input)
+        breakpoints = tuple(breakpoints) + tuple(
+            k for name, knots in TABLE_BREAKPOINTS.items() if u is None or name not in u
+            for k in knots)
+        # a smooth (pchip) table needs no breakpoints, but no step may skip its knots
+        max_step = min([max_step] + [h for name, h in TABLE_MAX_STEP.items()
+                                     if u is None or name not in u])
         segments = _segments(t0, t1, breakpoints)
         watch = None
         if stiff_check and method in _STABILITY and segments:
@@ -8435,3 +10771,186 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
             name: np.asarray(v)[..., None] if np.ndim(v) > _PARAM_NDIM[name] else v
             for name, v in p_raw.items()}
         return SimResult(t, X, outputs(t, X, pt, u), stats)
+
+
+# --------------------------------------------------------------------------------------------
+# Table inputs: data compiled into the module as numbers, evaluated by these functions.
+
+
+_PCHIP_SLOPES = {}  # table index -> slopes, computed on first use
+
+
+def _pchip_slopes(t, v):
+    """Fritsch-Carlson slopes of the monotone piecewise cubic Hermite interpolant: weighted
+    harmonic means of the neighbouring secants, zero at a local extremum; the end slopes by
+    the one-sided three-point formula, limited to keep the shape."""
+    h = np.diff(t)
+    s = np.diff(v) / h
+    d = np.zeros_like(v)
+    if len(t) == 2:
+        d[:] = s[0]
+        return d
+    w1 = 2 * h[1:] + h[:-1]
+    w2 = h[1:] + 2 * h[:-1]
+    same = (s[:-1] * s[1:]) > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        hm = (w1 + w2) / (w1 / s[:-1] + w2 / s[1:])
+    d[1:-1] = np.where(same, hm, 0.0)
+    for end, (h0, h1, s0, s1) in ((0, (h[0], h[1], s[0], s[1])),
+                                  (-1, (h[-1], h[-2], s[-1], s[-2]))):
+        de = ((2 * h0 + h1) * s0 - h0 * s1) / (h0 + h1)
+        if np.sign(de) != np.sign(s0):
+            de = 0.0
+        elif np.sign(s0) != np.sign(s1) and abs(de) > abs(3 * s0):
+            de = 3 * s0
+        d[end] = de
+    return d
+
+
+def _table_eval(t, k, interp, extrapolate, name):
+    """The value of a table input at t (scalar or array): linear, pchip or previous
+    (zero-order hold: the value at the last knot at or before t); outside the knots the end
+    value is held, or ValueError with extrapolate='error'."""
+    tk, vk = _TABLES[k]
+    t = np.asarray(t, dtype=float)
+    if extrapolate == "error" and (np.any(t < tk[0]) or np.any(t > tk[-1])):
+        raise ValueError(f"input {name!r}: t = {np.min(t) if np.any(t < tk[0]) else np.max(t):g}"
+                         f" is outside its table [{tk[0]:g}, {tk[-1]:g}] (extrapolate: error)")
+    tc = np.clip(t, tk[0], tk[-1])
+    if interp == "linear":
+        return np.interp(tc, tk, vk)
+    if interp == "previous":
+        i = np.clip(np.searchsorted(tk, tc, side="right") - 1, 0, len(tk) - 1)
+        return vk[i]
+    if k not in _PCHIP_SLOPES:
+        _PCHIP_SLOPES[k] = _pchip_slopes(tk, vk)
+    dk = _PCHIP_SLOPES[k]
+    i = np.clip(np.searchsorted(tk, tc, side="right") - 1, 0, len(tk) - 2)
+    h = tk[i + 1] - tk[i]
+    s = (tc - tk[i]) / h
+    h00, h10 = (1 + 2 * s) * (1 - s) ** 2, s * (1 - s) ** 2
+    h01, h11 = s * s * (3 - 2 * s), s * s * (s - 1)
+    return h00 * vk[i] + h10 * h * dk[i] + h01 * vk[i + 1] + h11 * h * dk[i + 1]
+
+
+# --------------------------------------------------------------------------------------------
+# Linearisation and equilibrium, from the analytic derivatives of the model part.
+
+
+def _signals(u):
+    """Input overrides as callables: a number or an array is held constant."""
+    if u is None:
+        return None
+    return {k: (v if callable(v) else (lambda t, _v=np.asarray(v, dtype=float): _v))
+            for k, v in u.items()}
+
+
+def linearize(t, x, u=None, p=None):
+    """The linearisation at (t, x): (A, B, C, D) with dx = A x + B u, y = C x + D u,
+    analytic. A: (n, n), B: (n, m), C: (ny, n), D: (ny, m), each with x's batch axes after
+    them. The columns of B and D follow INPUT_LABELS (m = 0 for a model without inputs), the
+    rows of C and D OUTPUT_LABELS (each output of OUTPUT_NAMES flattened row-major). u:
+    {name: callable(t) or value} overrides of the inputs; p: parameter overrides."""
+    u = _signals(u)
+    p = _params(p)
+    x = np.asarray(x, dtype=float)
+    A = jacobian(t, x, p, u)
+    B = input_jacobian(t, x, p, u)
+    C, D = output_jacobian(t, x, p, u)
+    return A, B, C, D
+
+
+class EquilibriumInfo:
+    """What equilibrium() found: converged (bool per batch instance), residual (max |rhs|),
+    iterations, rank of the Jacobian, and free: per instance, the free directions (the null
+    space of the Jacobian, where the equilibrium is not unique: a position with no stiffness),
+    each a dict {state name: component} of its largest components. For an unbatched call,
+    converged, residual and rank are scalars and free is one list."""
+
+    def __init__(self, converged, residual, iterations, rank, free, null_space):
+        self.converged, self.residual, self.iterations = converged, residual, iterations
+        self.rank, self.free, self.null_space = rank, free, null_space
+
+    def __repr__(self):
+        return (f"EquilibriumInfo(converged={self.converged!r}, residual={self.residual!r}, "
+                f"iterations={self.iterations}, rank={self.rank!r}, free={self.free!r})")
+
+
+def _free_directions(V, names, top=4):
+    out = []
+    for v in V.T:
+        order = np.argsort(-np.abs(v))[:top]
+        out.append({names[i]: float(v[i]) for i in order if abs(v[i]) > 1e-3})
+    return out
+
+
+def equilibrium(u=None, p=None, x0=None, t=0.0, tol=1e-10, max_iter=100, rcond=1e-9):
+    """A state where rhs = 0, inputs held at their values at t: Newton's method with the
+    analytic Jacobian and a backtracking line search on |rhs|^2. Where the Jacobian is
+    singular (a free position: no stiffness holds it), each step is the least-squares,
+    minimum-norm one (pseudo-inverse by SVD, singular values below rcond times the largest
+    treated as zero), so the free directions keep their values from x0; they are reported in
+    info.free by state name. Batched like rhs: x0 (n, *batch) and array parameters.
+    Returns (x, info); converged where max |rhs| <= tol * (1 + max |rhs(x0)|)."""
+    u = _signals(u)
+    p = _params(p)
+    x0 = initial_state(p) if x0 is None else np.asarray(x0, dtype=float)
+    x0, batch = _batched(x0, p)
+    n = N_STATES
+    nb = int(np.prod(batch)) if batch else 1
+
+    def f(xf):  # (nb, n) -> (nb, n)
+        return np.moveaxis(rhs(t, np.moveaxis(xf.reshape(batch + (n,)), -1, 0), p, u)
+                           .reshape((n,) + batch), 0, -1).reshape(nb, n)
+
+    def jac(xf):  # (nb, n) -> (nb, n, n)
+        J = jacobian(t, np.moveaxis(xf.reshape(batch + (n,)), -1, 0), p, u)
+        J = np.broadcast_to(J, (n, n) + batch).reshape(n, n, nb)
+        return np.moveaxis(J, -1, 0)
+
+    x = np.moveaxis(np.array(x0, dtype=float).reshape(n, nb), 0, -1).copy()
+    r = f(x)
+    scale = 1.0 + np.max(np.abs(r), axis=1)
+    res = np.max(np.abs(r), axis=1)
+    done = res <= tol * scale
+    it = 0
+    for it in range(1, max_iter + 1):
+        if np.all(done):
+            it -= 1
+            break
+        J = jac(x)
+        U, S, Vt = np.linalg.svd(J)
+        keep = S > rcond * np.maximum(S[:, :1], 1e-300)
+        Sinv = np.where(keep, 1.0 / np.where(keep, S, 1.0), 0.0)
+        step = -np.einsum("bji,bj,bkj,bk->bi", Vt, Sinv, U, r)
+        step[done] = 0.0
+        phi = np.sum(r * r, axis=1)
+        lam = np.ones(nb)
+        for _ in range(30):  # backtracking (Armijo) per instance
+            xt = x + lam[:, None] * step
+            rt = f(xt)
+            pt = np.sum(rt * rt, axis=1)
+            ok = (pt <= (1 - 1e-4 * lam) * phi) | done | ~np.isfinite(phi)
+            if np.all(ok):
+                break
+            lam = np.where(ok, lam, lam * 0.5)
+        # where no decrease is possible (a least-squares minimum), stay
+        better = pt < phi
+        x = np.where(better[:, None], xt, x)
+        r = np.where(better[:, None], rt, r)
+        res = np.max(np.abs(r), axis=1)
+        small = np.max(np.abs(step), axis=1) <= 1e-14 * (1 + np.max(np.abs(x), axis=1))
+        done = done | (res <= tol * scale) | ~better | small
+    J = jac(x)
+    _, S, Vt = np.linalg.svd(J)
+    keep = S > rcond * np.maximum(S[:, :1], 1e-300)
+    rank = keep.sum(axis=1)
+    null = [Vt[b][~keep[b]].T for b in range(nb)]
+    free = [_free_directions(V, STATE_NAMES) for V in null]
+    conv = res <= tol * scale
+    xs = np.moveaxis(x.reshape(batch + (n,)), -1, 0)
+    if not batch:
+        return xs, EquilibriumInfo(bool(conv[0]), float(res[0]), it, int(rank[0]), free[0],
+                                   null[0])
+    return xs, EquilibriumInfo(conv.reshape(batch), res.reshape(batch), it,
+                               rank.reshape(batch), free, null)

@@ -60,6 +60,14 @@ OUTPUT_SHAPES = {
     'i_L': (),
     'i_R': (),
 }
+INPUT_UNITS = {}
+OUTPUT_UNITS = {'v': '', 'dv_dt': '', 'i_L': '', 'i_R': '', }
+INPUT_LABELS = ()  # columns of B and D
+OUTPUT_LABELS = ('v', 'dv_dt', 'i_L', 'i_R', )  # rows of C and D
+TABLE_BREAKPOINTS = {  # input -> the knots of its table where it is not smooth
+}
+TABLE_MAX_STEP = {  # input -> the smallest knot spacing of its smooth (pchip) table
+}
 JAC_SPARSITY = np.zeros((2, 2), dtype=bool)
 JAC_SPARSITY[
     [0, 0, 1, ],
@@ -197,6 +205,47 @@ def outputs(t, x, p=None, u=None):
         'i_L': np.array(_b(f_b2)),
         'i_R': np.array(_b(f_b3)),
     }
+
+
+def input_jacobian(t, x, p=None, u=None):
+    """d(rhs)/du, analytic (forward mode along the causal order): (n, m, *batch), the columns
+    in INPUT_LABELS order (INPUT_NAMES, a vector input's components in order)."""
+    _pv, _bshape = _params(p)
+
+    x = np.asarray(x, dtype=float)
+
+    B = np.zeros((2, 0) + np.broadcast_shapes(x.shape[1:], _bshape))
+    return B
+
+
+def output_jacobian(t, x, p=None, u=None):
+    """(C, D) = (d(outputs)/dx, d(outputs)/du), analytic: (ny, n, *batch) and (ny, m, *batch),
+    the rows in OUTPUT_LABELS order (OUTPUT_NAMES, each output's components row-major), the
+    columns in STATE_NAMES and INPUT_LABELS order."""
+    _pv, _bshape = _params(p)
+    L = _pv[1]
+    g = _pv[2]
+    V0 = _pv[3]
+    C = _pv[5]
+
+    x = np.asarray(x, dtype=float)
+    q_cap, _, = x
+    _c0 = 1/C
+    # cap (C, integral): effort from displacement
+    e_b1 = _c0*q_cap
+    _dx0 = _c0
+    _dx1 = 1/L
+    _dx2 = g*_dx0*(-1 + e_b1*e_b1/(V0*V0))
+
+    _bs = np.broadcast_shapes(x.shape[1:], _bshape)
+    C = np.zeros((4, 2) + _bs)
+    D = np.zeros((4, 0) + _bs)
+    C[0, 0] = _dx0
+    C[1, 0] = -_c0*_dx2
+    C[1, 1] = -_c0*_dx1
+    C[2, 1] = _dx1
+    C[3, 0] = _dx2
+    return C, D
 
 
 class SimulationError(RuntimeError):
@@ -761,6 +810,14 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
         atol = _flat_atol(atol, batch)
         t0, t1 = float(t_span[0]), float(t_span[1])
         path = _Trajectory(t0, t1, y, _output_times(t0, t1, t_eval, dt))
+        # a table input that is not smooth at its knots (linear, previous) adds them (unless u
+        # replaces that input)
+        breakpoints = tuple(breakpoints) + tuple(
+            k for name, knots in TABLE_BREAKPOINTS.items() if u is None or name not in u
+            for k in knots)
+        # a smooth (pchip) table needs no breakpoints, but no step may skip its knots
+        max_step = min([max_step] + [h for name, h in TABLE_MAX_STEP.items()
+                                     if u is None or name not in u])
         segments = _segments(t0, t1, breakpoints)
         watch = None
         if stiff_check and method in _STABILITY and segments:
@@ -811,3 +868,186 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
             name: np.asarray(v)[..., None] if np.ndim(v) > _PARAM_NDIM[name] else v
             for name, v in p_raw.items()}
         return SimResult(t, X, outputs(t, X, pt, u), stats)
+
+
+# --------------------------------------------------------------------------------------------
+# Table inputs: data compiled into the module as numbers, evaluated by these functions.
+
+
+_PCHIP_SLOPES = {}  # table index -> slopes, computed on first use
+
+
+def _pchip_slopes(t, v):
+    """Fritsch-Carlson slopes of the monotone piecewise cubic Hermite interpolant: weighted
+    harmonic means of the neighbouring secants, zero at a local extremum; the end slopes by
+    the one-sided three-point formula, limited to keep the shape."""
+    h = np.diff(t)
+    s = np.diff(v) / h
+    d = np.zeros_like(v)
+    if len(t) == 2:
+        d[:] = s[0]
+        return d
+    w1 = 2 * h[1:] + h[:-1]
+    w2 = h[1:] + 2 * h[:-1]
+    same = (s[:-1] * s[1:]) > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        hm = (w1 + w2) / (w1 / s[:-1] + w2 / s[1:])
+    d[1:-1] = np.where(same, hm, 0.0)
+    for end, (h0, h1, s0, s1) in ((0, (h[0], h[1], s[0], s[1])),
+                                  (-1, (h[-1], h[-2], s[-1], s[-2]))):
+        de = ((2 * h0 + h1) * s0 - h0 * s1) / (h0 + h1)
+        if np.sign(de) != np.sign(s0):
+            de = 0.0
+        elif np.sign(s0) != np.sign(s1) and abs(de) > abs(3 * s0):
+            de = 3 * s0
+        d[end] = de
+    return d
+
+
+def _table_eval(t, k, interp, extrapolate, name):
+    """The value of a table input at t (scalar or array): linear, pchip or previous
+    (zero-order hold: the value at the last knot at or before t); outside the knots the end
+    value is held, or ValueError with extrapolate='error'."""
+    tk, vk = _TABLES[k]
+    t = np.asarray(t, dtype=float)
+    if extrapolate == "error" and (np.any(t < tk[0]) or np.any(t > tk[-1])):
+        raise ValueError(f"input {name!r}: t = {np.min(t) if np.any(t < tk[0]) else np.max(t):g}"
+                         f" is outside its table [{tk[0]:g}, {tk[-1]:g}] (extrapolate: error)")
+    tc = np.clip(t, tk[0], tk[-1])
+    if interp == "linear":
+        return np.interp(tc, tk, vk)
+    if interp == "previous":
+        i = np.clip(np.searchsorted(tk, tc, side="right") - 1, 0, len(tk) - 1)
+        return vk[i]
+    if k not in _PCHIP_SLOPES:
+        _PCHIP_SLOPES[k] = _pchip_slopes(tk, vk)
+    dk = _PCHIP_SLOPES[k]
+    i = np.clip(np.searchsorted(tk, tc, side="right") - 1, 0, len(tk) - 2)
+    h = tk[i + 1] - tk[i]
+    s = (tc - tk[i]) / h
+    h00, h10 = (1 + 2 * s) * (1 - s) ** 2, s * (1 - s) ** 2
+    h01, h11 = s * s * (3 - 2 * s), s * s * (s - 1)
+    return h00 * vk[i] + h10 * h * dk[i] + h01 * vk[i + 1] + h11 * h * dk[i + 1]
+
+
+# --------------------------------------------------------------------------------------------
+# Linearisation and equilibrium, from the analytic derivatives of the model part.
+
+
+def _signals(u):
+    """Input overrides as callables: a number or an array is held constant."""
+    if u is None:
+        return None
+    return {k: (v if callable(v) else (lambda t, _v=np.asarray(v, dtype=float): _v))
+            for k, v in u.items()}
+
+
+def linearize(t, x, u=None, p=None):
+    """The linearisation at (t, x): (A, B, C, D) with dx = A x + B u, y = C x + D u,
+    analytic. A: (n, n), B: (n, m), C: (ny, n), D: (ny, m), each with x's batch axes after
+    them. The columns of B and D follow INPUT_LABELS (m = 0 for a model without inputs), the
+    rows of C and D OUTPUT_LABELS (each output of OUTPUT_NAMES flattened row-major). u:
+    {name: callable(t) or value} overrides of the inputs; p: parameter overrides."""
+    u = _signals(u)
+    p = _params(p)
+    x = np.asarray(x, dtype=float)
+    A = jacobian(t, x, p, u)
+    B = input_jacobian(t, x, p, u)
+    C, D = output_jacobian(t, x, p, u)
+    return A, B, C, D
+
+
+class EquilibriumInfo:
+    """What equilibrium() found: converged (bool per batch instance), residual (max |rhs|),
+    iterations, rank of the Jacobian, and free: per instance, the free directions (the null
+    space of the Jacobian, where the equilibrium is not unique: a position with no stiffness),
+    each a dict {state name: component} of its largest components. For an unbatched call,
+    converged, residual and rank are scalars and free is one list."""
+
+    def __init__(self, converged, residual, iterations, rank, free, null_space):
+        self.converged, self.residual, self.iterations = converged, residual, iterations
+        self.rank, self.free, self.null_space = rank, free, null_space
+
+    def __repr__(self):
+        return (f"EquilibriumInfo(converged={self.converged!r}, residual={self.residual!r}, "
+                f"iterations={self.iterations}, rank={self.rank!r}, free={self.free!r})")
+
+
+def _free_directions(V, names, top=4):
+    out = []
+    for v in V.T:
+        order = np.argsort(-np.abs(v))[:top]
+        out.append({names[i]: float(v[i]) for i in order if abs(v[i]) > 1e-3})
+    return out
+
+
+def equilibrium(u=None, p=None, x0=None, t=0.0, tol=1e-10, max_iter=100, rcond=1e-9):
+    """A state where rhs = 0, inputs held at their values at t: Newton's method with the
+    analytic Jacobian and a backtracking line search on |rhs|^2. Where the Jacobian is
+    singular (a free position: no stiffness holds it), each step is the least-squares,
+    minimum-norm one (pseudo-inverse by SVD, singular values below rcond times the largest
+    treated as zero), so the free directions keep their values from x0; they are reported in
+    info.free by state name. Batched like rhs: x0 (n, *batch) and array parameters.
+    Returns (x, info); converged where max |rhs| <= tol * (1 + max |rhs(x0)|)."""
+    u = _signals(u)
+    p = _params(p)
+    x0 = initial_state(p) if x0 is None else np.asarray(x0, dtype=float)
+    x0, batch = _batched(x0, p)
+    n = N_STATES
+    nb = int(np.prod(batch)) if batch else 1
+
+    def f(xf):  # (nb, n) -> (nb, n)
+        return np.moveaxis(rhs(t, np.moveaxis(xf.reshape(batch + (n,)), -1, 0), p, u)
+                           .reshape((n,) + batch), 0, -1).reshape(nb, n)
+
+    def jac(xf):  # (nb, n) -> (nb, n, n)
+        J = jacobian(t, np.moveaxis(xf.reshape(batch + (n,)), -1, 0), p, u)
+        J = np.broadcast_to(J, (n, n) + batch).reshape(n, n, nb)
+        return np.moveaxis(J, -1, 0)
+
+    x = np.moveaxis(np.array(x0, dtype=float).reshape(n, nb), 0, -1).copy()
+    r = f(x)
+    scale = 1.0 + np.max(np.abs(r), axis=1)
+    res = np.max(np.abs(r), axis=1)
+    done = res <= tol * scale
+    it = 0
+    for it in range(1, max_iter + 1):
+        if np.all(done):
+            it -= 1
+            break
+        J = jac(x)
+        U, S, Vt = np.linalg.svd(J)
+        keep = S > rcond * np.maximum(S[:, :1], 1e-300)
+        Sinv = np.where(keep, 1.0 / np.where(keep, S, 1.0), 0.0)
+        step = -np.einsum("bji,bj,bkj,bk->bi", Vt, Sinv, U, r)
+        step[done] = 0.0
+        phi = np.sum(r * r, axis=1)
+        lam = np.ones(nb)
+        for _ in range(30):  # backtracking (Armijo) per instance
+            xt = x + lam[:, None] * step
+            rt = f(xt)
+            pt = np.sum(rt * rt, axis=1)
+            ok = (pt <= (1 - 1e-4 * lam) * phi) | done | ~np.isfinite(phi)
+            if np.all(ok):
+                break
+            lam = np.where(ok, lam, lam * 0.5)
+        # where no decrease is possible (a least-squares minimum), stay
+        better = pt < phi
+        x = np.where(better[:, None], xt, x)
+        r = np.where(better[:, None], rt, r)
+        res = np.max(np.abs(r), axis=1)
+        small = np.max(np.abs(step), axis=1) <= 1e-14 * (1 + np.max(np.abs(x), axis=1))
+        done = done | (res <= tol * scale) | ~better | small
+    J = jac(x)
+    _, S, Vt = np.linalg.svd(J)
+    keep = S > rcond * np.maximum(S[:, :1], 1e-300)
+    rank = keep.sum(axis=1)
+    null = [Vt[b][~keep[b]].T for b in range(nb)]
+    free = [_free_directions(V, STATE_NAMES) for V in null]
+    conv = res <= tol * scale
+    xs = np.moveaxis(x.reshape(batch + (n,)), -1, 0)
+    if not batch:
+        return xs, EquilibriumInfo(bool(conv[0]), float(res[0]), it, int(rank[0]), free[0],
+                                   null[0])
+    return xs, EquilibriumInfo(conv.reshape(batch), res.reshape(batch), it,
+                               rank.reshape(batch), free, null)

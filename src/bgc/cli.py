@@ -297,7 +297,8 @@ def simulate_cmd(scene, out, plot_dir, method, rtol, max_wall, quiet):
     if plot_dir is not None:  # every figure drawn before anything is written
         from .plots import render_plots, write_plots
 
-        figures = render_plots(res.scene, res.t, res.y)
+        figures = render_plots(res.scene, res.t, res.y,
+                               getattr(res.module, "OUTPUT_UNITS", None))
     if out:
         buf = io.BytesIO()
         np.savez_compressed(buf, t=res.t, **res.y)
@@ -357,6 +358,181 @@ def explain_cmd(scene, rounds, quiet):
     click.echo(out.getvalue(), nl=False)
 
 
+def _load_target(path, prog):
+    """A scene file (its specialised module, parameters and span) or a model file."""
+    from .compiler import compile_model
+    from .parse import parse_file
+    from .scene import load_module, parse_scene
+
+    try:
+        head = Path(path).read_text(encoding="utf-8")[:4096]
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ModelError(None, f"cannot read {path}: {exc}") from None
+    if "bgc_scene" in head:
+        from .runner import compile_scene, runtime_params
+
+        sc = parse_scene(path)
+        _, mod = compile_scene(sc, prog)
+        return mod, runtime_params(sc, mod), sc.t_span[0], sc
+    c = compile_model(parse_file(path), prog)
+    return load_module(c.source, c.model.name), None, 0.0, None
+
+
+@main.command("linearize", epilog="Example: bgc linearize models/quarter_car.yaml --at "
+              "equilibrium --out lin/ --bode zr:body_height   (docs/api.md)")
+@click.argument("target", metavar="SCENE_OR_MODEL", type=click.Path(dir_okay=False))
+@click.option("--at", "at", default="equilibrium", show_default=True,
+              help="'equilibrium' (inputs held at their t0 values), or a TIME: the state a "
+                   "run from the initial state reaches then")
+@click.option("--out", type=click.Path(file_okay=False),
+              help="write NAME_linear.npz (A, B, C, D, names, eigenvalues) and Bode PNGs here")
+@click.option("--bode", multiple=True, metavar="IN:OUT",
+              help="a Bode plot of input IN to output OUT (names as in INPUT_LABELS, "
+                   "OUTPUT_LABELS); repeatable; needs --out")
+@click.option("-q", "--quiet", is_flag=True)
+def linearize_cmd(target, at, out, bode, quiet):
+    """Linearise SCENE_OR_MODEL: eigenvalues with natural frequencies and damping ratios and
+    the states that dominate each mode; matrices and Bode plots with --out."""
+    from .linear import bode_plot, modes
+
+    prog = _Progress(quiet)
+    mod, p, t0, sc = _load_target(target, prog)
+    pairs = []
+    for spec in bode:
+        i_name, sep, o_name = spec.partition(":")
+        if not sep or i_name not in mod.INPUT_LABELS or o_name not in mod.OUTPUT_LABELS:
+            raise ModelError(None, f"--bode {spec!r}: give IN:OUT with IN one of "
+                                   f"{', '.join(mod.INPUT_LABELS) or '(no inputs)'} and OUT "
+                                   f"one of {', '.join(mod.OUTPUT_LABELS)}")
+        pairs.append((i_name, o_name))
+    if at == "equilibrium":
+        t = t0
+        prog("finding the equilibrium")
+        x, info = mod.equilibrium(p=p, t=t)
+        if not info.converged:
+            raise ModelError(None, f"no equilibrium found (max |dx/dt| = {info.residual:.3g} "
+                                   "after Newton): linearise at a time instead (--at TIME)")
+        where = "the equilibrium"
+    else:
+        try:
+            t = float(at)
+        except ValueError:
+            raise ModelError(None, f"--at {at!r}: 'equilibrium' or a time in seconds") from None
+        if t != t0:
+            prog(f"simulating to t = {t:g} s")
+            try:
+                res = mod.simulate((t0, t), t_eval=[t], p=p, rtol=1e-8, atol=1e-10)
+            except mod.SimulationError as exc:
+                raise ModelError(None, f"simulation to t = {t:g} failed: {exc}") from None
+            x = res.x[..., -1]
+        else:
+            x = mod.initial_state(p)
+        where = f"t = {t:g} s"
+    lin = mod.linearize(t, x, None, p)
+    ms = modes(lin[0], mod.STATE_NAMES)
+    buf = io.StringIO()
+    buf.write(f"linearised at {where}: {mod.N_STATES} states, {len(mod.INPUT_LABELS)} inputs, "
+              f"{len(mod.OUTPUT_LABELS)} outputs\n")
+    buf.write(f"{'eigenvalue [1/s]':>30}  {'wn [rad/s]':>11}  {'f [Hz]':>10}  {'damping':>8}"
+              "  dominant states\n")
+    for md in ms:
+        lam = md.eigenvalue
+        ev = f"{lam.real:.4g}" + (f" +/- {lam.imag:.4g}j" if lam.imag > 0 else "")
+        dom = ", ".join(f"{nm} ({w:.2f})" for nm, w in md.states)
+        zeta = "-" if md.wn == 0 else f"{md.zeta:.3f}"  # a zero eigenvalue has none
+        buf.write(f"{ev:>30}  {md.wn:11.4g}  {md.hz:10.4g}  {zeta:>8}  {dom}\n")
+    click.echo(buf.getvalue(), nl=False)
+    if pairs and not out:
+        raise ModelError(None, "--bode needs --out DIR for its plots")
+    if out:
+        d = Path(out)
+        d.mkdir(parents=True, exist_ok=True)
+        name = getattr(mod, "__name__", "model").removeprefix("bgc_generated_")
+        npz = d / f"{name}_linear.npz"
+        data = io.BytesIO()
+        np.savez(data, A=lin[0], B=lin[1], C=lin[2], D=lin[3], t=t, x=x,
+                 states=np.array(mod.STATE_NAMES), inputs=np.array(mod.INPUT_LABELS, dtype=str),
+                 outputs=np.array(mod.OUTPUT_LABELS),
+                 eigenvalues=np.linalg.eigvals(lin[0]))
+        tmp = npz.with_name(f".{npz.name}.tmp")
+        tmp.write_bytes(data.getvalue())
+        tmp.replace(npz)
+        prog(f"wrote {npz}")
+        iu, ou = dict(getattr(mod, "INPUT_UNITS", {})), dict(getattr(mod, "OUTPUT_UNITS", {}))
+        for i_name, o_name in pairs:
+            png = d / f"bode_{i_name}_{o_name}.png".replace("[", "_").replace("]", "")
+            tmp = png.with_name(f".{png.stem}.tmp.png")
+            bode_plot(tmp, lin, mod.INPUT_LABELS.index(i_name), mod.OUTPUT_LABELS.index(o_name),
+                      i_name, o_name, iu.get(i_name.split("[")[0], ""),
+                      ou.get(o_name.split("[")[0], ""))
+            tmp.replace(png)
+            prog(f"wrote {png}")
+
+
+@main.command("equations")
+@click.argument("model", type=click.Path(dir_okay=False))
+@click.option("--latex", is_flag=True, help="LaTeX (an aligned block) instead of plain text")
+@click.option("--explicit", is_flag=True,
+              help="substitute the causal assignments: dx/dt in states, parameters, inputs only")
+def equations_cmd(model, latex, explicit):
+    """The state equations of MODEL: the causal assignments, then dx/dt (sympy)."""
+    from .api import equations
+
+    eq = equations(model)
+    if latex:
+        click.echo(eq.latex(explicit=explicit))
+        return
+    if explicit:
+        for s, e in zip(eq.states, eq.explicit()):
+            click.echo(f"d{s}/dt = {e}")
+        return
+    for a in eq.assignments:
+        click.echo(f"{a.lhs} = {a.rhs}")
+    for s, d in zip(eq.states, eq.derivatives):
+        click.echo(f"d{s}/dt = {d.rhs}")
+
+
+@main.command("examples")
+@click.argument("directory", type=click.Path(file_okay=False))
+def examples_cmd(directory):
+    """Copy the example models and scenes (and the format reference) into DIRECTORY; nothing
+    that already exists there is overwritten (then nothing is copied)."""
+    import shutil
+
+    files = _example_files()
+    dest = Path(directory)
+    clash = [rel for rel in files if (dest / rel).exists()]
+    if clash:
+        raise ModelError(None, f"{dest}: {len(clash)} file(s) exist already (e.g. {clash[0]}); "
+                               "nothing copied: choose an empty or new directory")
+    for rel, src in files.items():
+        (dest / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(src, dest / rel)
+    click.echo(f"copied {len(files)} files to {dest} (try: bgc simulate "
+               f"{dest / 'models' / 'scenes' / 'msd_step.yaml'} --plot figs/)")
+
+
+def _example_files() -> dict:
+    """relative path -> source file: the repository's models/ and docs/model-format.md in a
+    source checkout, else the installed copies (bgc.examples, bgc.docs)."""
+    root = Path(__file__).resolve().parent.parent.parent
+    if (root / "models" / "msd.yaml").is_file():
+        models, docs = root / "models", root / "docs"
+    else:  # installed wheel: bgc/examples and bgc/docs beside this file
+        here = Path(__file__).resolve().parent
+        models, docs = here / "examples", here / "docs"
+    out = {}
+    for f in sorted(models.glob("*.yaml")):
+        out[f"models/{f.name}"] = f
+    for f in sorted((models / "scenes").glob("*")):
+        if f.suffix in (".yaml", ".csv"):
+            out[f"models/scenes/{f.name}"] = f
+    for name in ("model-format.md", "api.md"):
+        if (docs / name).is_file():
+            out[f"docs/{name}"] = docs / name
+    return out
+
+
 def _register_accuracy():
     from .accuracy import register
 
@@ -364,6 +540,23 @@ def _register_accuracy():
 
 
 _register_accuracy()
+
+_DOCS = "Docs: docs/model-format.md (the format), docs/api.md (Python), README.md."
+_EXAMPLES = {
+    "compile": "bgc compile models/msd.yaml -o msd.py",
+    "check": "bgc check models/3r2s.yaml",
+    "graph": "bgc graph models/msd.yaml -o msd.svg",
+    "simulate": "bgc simulate models/scenes/msd_step.yaml --out r.npz --plot figs/",
+    "explain": "bgc explain models/scenes/motor_load_motion_cold.yaml",
+    "accuracy": "bgc accuracy models/scenes/msd_step.yaml --out acc/",
+    "linearize": "bgc linearize models/quarter_car.yaml --out lin/ --bode zr:body_height",
+    "equations": "bgc equations models/msd.yaml --latex",
+    "examples": "bgc examples my_models/",
+}
+main.epilog = "\b\nExample:\n  bgc simulate models/scenes/msd_step.yaml --plot figs/\n\n" + _DOCS
+for _name, _cmd in main.commands.items():
+    if _name in _EXAMPLES:
+        _cmd.epilog = f"\b\nExample:\n  {_EXAMPLES[_name]}\n\n{_DOCS}"
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -78,7 +78,9 @@ def compile_model(model: Model, progress=None, plan: Plan | None = None) -> Comp
     if notes:
         notes.insert(0, f"specialised for scene {plan.scene!r}")
     text = render(eqs, source=Path(model.file).name, source_hash=model.source_hash,
-                  description=model.description, header_notes=tuple(notes), progress=progress)
+                  description=model.description, header_notes=tuple(notes), progress=progress,
+                  output_units={o.name: o.unit for o in model.body.outputs},
+                  input_units={i.name: i.unit for i in model.inputs})
     return Compiled(model, graph, caus, eqs, text, tuple(notes))
 
 

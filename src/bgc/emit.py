@@ -22,7 +22,7 @@ import sympy as sp
 from sympy.printing.numpy import NumPyPrinter
 
 from . import __version__, fastsym
-from .equations import Assignment, Equations, T, schedule
+from .equations import Assignment, Equations, T, linear_parts, schedule
 
 _IDENT_OK = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_")
 _TEMPLATES = "numpy"  # this backend's folder in templates/
@@ -300,7 +300,8 @@ def _pyrepr(v) -> str:
 
 
 def render(eq: Equations, *, source: str, source_hash: str, description: str = "",
-           header_notes: tuple[str, ...] = (), progress=None) -> str:
+           header_notes: tuple[str, ...] = (), progress=None,
+           output_units: dict | None = None, input_units: dict | None = None) -> str:
     printer = BgcPrinter()
     n = len(eq.states)
     say = progress or (lambda msg: None)
@@ -317,13 +318,31 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
             oexprs.append(v)
             okeys.append((name, k))
     outs = _function(eq, printer, oexprs, list(eq.assignments), okeys)
+    say("emitting the linearisation's B, C, D")
+    lp = linear_parts(eq)
+    bkeys = sorted(lp.B)
+    ujac = _function(eq, printer, [lp.B[k] for k in bkeys],
+                     list(eq.assignments) + list(lp.B_assignments), bkeys)
+    ykeys = [("C",) + k for k in sorted(lp.C)] + [("D",) + k for k in sorted(lp.D)]
+    yjac = _function(eq, printer, [lp.C[k] for k in sorted(lp.C)] + [lp.D[k] for k in sorted(lp.D)],
+                     list(eq.assignments) + list(lp.CD_assignments), ykeys)
     init = _function(eq, printer, [sv.initial for sv in eq.states], [], list(range(n)),
                      cse=False)
     derived = [Line(str(a.symbol), printer.doprint(a.expr), a.why) for a in eq.derived]
-    inputs = []
+    inputs, tables = [], []
     for iv in eq.inputs:
+        tb = getattr(iv, "table", None)
+        if tb is not None:  # data: numbers only, through lit; evaluated by the runtime
+            tables.append({"input": iv.name, "t": [float(v) for v in tb.t],
+                           "v": [float(v) for v in tb.v], "interp": tb.interp})
+            inputs.append({"name": iv.name, "symbols": [str(s) for s in iv.symbols],
+                           "shape": iv.shape, "unit": (input_units or {}).get(iv.name, ""),
+                           "default": [f"_table_eval(t, {len(tables) - 1}, "
+                                       f"{lit(tb.interp)}, {lit(tb.extrapolate)}, "
+                                       f"{lit(iv.name)})"]})
+            continue
         inputs.append({"name": iv.name, "symbols": [str(s) for s in iv.symbols],
-                       "shape": iv.shape,
+                       "shape": iv.shape, "unit": (input_units or {}).get(iv.name, ""),
                        "default": [printer.doprint(d) for d in iv.default]})
     input_params = sorted({str(s) for iv in eq.inputs for d in iv.default for s in d.free_symbols
                            if s != T})
@@ -338,13 +357,16 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
                              undefined=jinja2.StrictUndefined, autoescape=False)
     env.filters.update(lit=lit, oneline=oneline, comment=comment, docstring=docstring)
     tpl = env.get_template(f"{_TEMPLATES}/module.py.j2")
-    outputs = [{"name": name, "shape": shp, "size": len(vals)} for name, shp, vals in eq.outputs]
+    ounits = output_units or {}
+    outputs = [{"name": name, "shape": shp, "size": len(vals), "unit": ounits.get(name, "")}
+               for name, shp, vals in eq.outputs]
     text = tpl.render(
         name=eq.name, version=__version__, source=source, source_hash=source_hash,
         description=description, notes=list(header_notes) + list(eq.loops),
         states=eq.states, params=params, derived=derived, inputs=inputs,
         input_params=input_params, outputs=outputs, rhs=rhs, jac=jac, outs=outs, init=init,
-        jac_keys=jkeys, n=n, imports=imports,
+        jac_keys=jkeys, n=n, imports=imports, ujac=ujac, yjac=yjac,
+        tables=tables, input_labels=lp.input_labels, output_labels=lp.output_labels,
         all_param_symbols=[s for p in params for s in p["symbols"]] + [d.target for d in derived],
         runtime=runtime_source(),
     )
@@ -396,9 +418,10 @@ _MODEL_TOP = {
     "Assign": {"BGC_VERSION", "MODEL_HASH", "N_STATES", "STATE_NAMES", "STATE_OWNERS",
                "PARAM_DEFAULTS",
                "PARAM_UNITS", "_PARAM_NDIM", "INPUT_NAMES", "OUTPUT_NAMES", "OUTPUT_SHAPES",
-               "JAC_SPARSITY", "_P0", "X0"},
+               "JAC_SPARSITY", "_P0", "X0", "INPUT_LABELS", "OUTPUT_LABELS", "_TABLES",
+               "TABLE_BREAKPOINTS", "TABLE_MAX_STEP", "OUTPUT_UNITS", "INPUT_UNITS"},
     "FunctionDef": {"_unpack", "_params", "_inputs", "initial_state", "rhs", "jacobian",
-                    "outputs"},
+                    "outputs", "input_jacobian", "output_jacobian"},
     "ClassDef": {"_Unpacked"},
 }
 

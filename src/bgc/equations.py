@@ -11,6 +11,7 @@ right-hand side. No ``simplify`` anywhere.
 from __future__ import annotations
 
 import heapq
+import sys
 import itertools
 from dataclasses import dataclass, field
 
@@ -79,6 +80,7 @@ class InputVar:
     symbols: tuple
     shape: tuple[int, ...]
     default: tuple  # flat sympy expressions of t and parameters
+    table: object = None  # a bgc.tables.Table: the input is data (emit evaluates it)
 
 
 @dataclass(frozen=True)
@@ -299,7 +301,8 @@ def _inputs_value(self: _Ctx, name: str, coord: Coord):
             raise ModelError(inp.default.coord, f"input {name!r}: default has shape "
                                                 f"{_shape_name(shape_of(default))}, declared "
                                                 f"{_shape_name(shape_of(syms))}")
-        self.inputs[name] = InputVar(name, tuple(flat(syms)), inp.shape, tuple(flat(default)))
+        self.inputs[name] = InputVar(name, tuple(flat(syms)), inp.shape, tuple(flat(default)),
+                                     getattr(inp, "table", None))
         self.cache[("input", name)] = syms
     elif self.inputs[name] is None:
         raise ModelError(coord, f"input {name!r} refers to itself")
@@ -817,3 +820,132 @@ def _check_names(bg: BondGraph, ctx: _Ctx, state_vars) -> None:
             raise ModelError(bg.model.coord, f"name clash in generated code: {who} and "
                                              f"{seen[ident]} both become {ident!r}; rename one")
         seen[ident] = who
+
+
+# ---------------------------------------------------------------------------------------------
+# Linearisation: the derivatives of rhs with respect to the inputs (B) and of the outputs with
+# respect to the states and the inputs (C, D), in forward mode along the same assignments as
+# the state Jacobian. Computed on demand (emit asks for them), so derive() is unchanged.
+
+
+@dataclass(frozen=True)
+class LinearParts:
+    """Nonzero entries of B = d(rhs)/du, C = d(y)/dx, D = d(y)/du, keyed (row, column), with
+    the forward-mode intermediates each needs. Inputs are flattened in INPUT_NAMES order (a
+    vector input contributes its components in order), outputs in OUTPUT_NAMES order (each
+    output's components in row-major order)."""
+
+    B: dict
+    B_assignments: tuple[Assignment, ...]
+    C: dict
+    D: dict
+    CD_assignments: tuple[Assignment, ...]
+    input_labels: tuple[str, ...]
+    output_labels: tuple[str, ...]
+
+
+def forward_mode(kept, seeds: dict, finals: list, prefix: str):
+    """Forward-mode derivatives of ``finals`` with respect to the seed symbols (symbol ->
+    column) along the assignments ``kept``. Returns ({(row, column): expression}, new
+    intermediate assignments named ``<prefix><k>``). The chain rule as in :func:`_jacobian`
+    (symengine's derivatives when it is installed, else sympy's)."""
+    D: dict = {s: {j: sp.Integer(1)} for s, j in seeds.items()}
+    assign: list[Assignment] = []
+    counter = itertools.count()
+    bridge = fastsym.Bridge() if fastsym.available() else None
+
+    def grad(expr) -> dict:
+        syms = sorted((s for s in expr.free_symbols if D.get(s)), key=str)  # deterministic
+        if not syms:
+            return {}
+        parts = fastsym.partials(bridge, expr, syms) if bridge is not None else None
+        if parts is not None:
+            acc_se: dict = {}
+            for s, partial in parts.items():
+                for j, dj in D[s].items():
+                    term = partial * bridge.to_se(dj)
+                    acc_se[j] = acc_se[j] + term if j in acc_se else term
+            return {j: bridge.from_se(v) for j, v in acc_se.items() if v != 0}
+        acc: dict = {}
+        for s in syms:
+            partial = _clean(sp.diff(expr, s))
+            if partial == 0:
+                continue
+            for j, dj in D[s].items():
+                term = partial * dj
+                acc[j] = acc[j] + term if j in acc else term
+        return {j: v for j, v in acc.items() if v != 0}
+
+    need: set = set()  # only the assignments the finals depend on (linear in model size)
+    for e in finals:
+        need |= e.free_symbols
+    used = []
+    for a in reversed(kept):
+        if a.symbol in need:
+            used.append(a)
+            need |= a.expr.free_symbols
+    for a in reversed(used):
+        g = grad(a.expr)
+        if not g:
+            continue
+        dv = {}
+        for j, v in sorted(g.items()):
+            if _trivial(v):
+                dv[j] = v
+            else:
+                s = _sym(f"{prefix}{next(counter)}")
+                assign.append(Assignment(s, v, ""))
+                dv[j] = s
+        D[a.symbol] = dv
+    out = {}
+    for i, expr in enumerate(finals):
+        for j, v in grad(expr).items():
+            out[(i, j)] = v
+    return out, assign
+
+
+def _label(name: str, shape, k: int) -> str:
+    if not shape:
+        return name
+    if len(shape) == 1:
+        return f"{name}[{k}]"
+    return f"{name}[{k // shape[1]},{k % shape[1]}]"
+
+
+def linear_parts(eq: Equations) -> LinearParts:
+    """B, C and D of the linearisation (A is ``eq.jacobian``)."""
+    useeds = {}
+    ilabels = []
+    for iv in eq.inputs:
+        for k, s in enumerate(iv.symbols):
+            useeds[s] = len(ilabels)
+            ilabels.append(_label(iv.name, iv.shape, k))
+    xseeds = {sv.symbol: j for j, sv in enumerate(eq.states)}
+    youts, olabels = [], []
+    for name, shp, vals in eq.outputs:
+        for k, v in enumerate(vals):
+            youts.append(v)
+            olabels.append(_label(name, shp, k))
+    kept = list(eq.assignments)
+    B, b_assign = forward_mode(kept, useeds, list(eq.derivatives), "_du")
+    C, c_assign = forward_mode(kept, xseeds, youts, "_dx")
+    D, d_assign = forward_mode(kept, useeds, youts, "_du")
+    # B's and D's intermediates share a prefix: they live in different generated functions
+    # except D's, which sits beside C's (prefix _dx): no clash inside one function.
+    return LinearParts(B, tuple(b_assign), C, D, tuple(c_assign) + tuple(d_assign),
+                       tuple(ilabels), tuple(olabels))
+
+
+# ---------------------------------------------------------------------------------------------
+# ``bgc.equations(model)`` is the public API's function (bgc.api.equations), but ``bgc.equations``
+# is also this module's name: once imported, the package attribute is this module. Calling the
+# module calls the API function, so both spellings work whatever was imported first.
+
+class _CallableModule(type(sys.modules[__name__])):
+    def __call__(self, *args, **kwargs):
+        from .api import equations
+
+        return equations(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableModule

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import yaml
 
+from . import tables as _tables
 from .errors import Coord, ModelError
 from .expr import BOND_FUNCTIONS, FUNCTIONS, Expr, check
 from .limits import LIMITS
@@ -89,6 +90,7 @@ class Input:
     shape: tuple[int, ...]
     coord: Coord
     unit: str = ""
+    table: object = None  # a bgc.tables.Table: the input is data (default is then "0")
 
 
 @dataclass(frozen=True)
@@ -131,6 +133,7 @@ class Output:
     name: str
     expr: Expr
     coord: Coord
+    unit: str = ""  # for plot axes ({expr: ..., unit: ...} in the model)
 
 
 @dataclass(frozen=True)
@@ -518,6 +521,12 @@ def parse_text(text: str, path: str = "<model>", _imports: _Imports | None = Non
     if "inputs" in top:
         for iname, (kn, vn) in r.mapping(top["inputs"][1], "inputs").items():
             check_name(iname, r.coord(kn), "input")
+            if _tables.is_table(r, vn):  # data: {table: FILE.csv, columns, interp, ...}
+                tb = _tables.read_table(r, vn, f"input {iname!r}", ("unit", "description"))
+                im = r.mapping(vn, f"input {iname!r}")
+                unit = r.string(im["unit"][1], "unit") if "unit" in im else ""
+                inputs.append(Input(iname, Expr("0", tb.coord), (), r.coord(kn), unit, tb))
+                continue
             if isinstance(vn, yaml.MappingNode):
                 im = r.mapping(vn, f"input {iname!r}")
                 _require(r, im, vn, ("default", "shape", "unit", "description"),
@@ -641,6 +650,13 @@ def _body(r: _Reader, top: dict, node, what: str, is_component: bool) -> Body:
             raise ModelError(r.coord(top["outputs"][0]), f"{what}: outputs belong to the model")
         for oname, (kn, vn) in r.mapping(top["outputs"][1], "outputs").items():
             check_name(oname, r.coord(kn), "output", allow_reserved=True)
+            if isinstance(vn, yaml.MappingNode):  # {expr: "...", unit: "m"}
+                om = r.mapping(vn, f"output {oname!r}")
+                _require(r, om, vn, ("expr", "unit"), f"output {oname!r}", required=("expr",))
+                unit = r.string(om["unit"][1], "unit") if "unit" in om else ""
+                outputs.append(Output(oname, r.expr(om["expr"][1], f"output {oname!r}"),
+                                      r.coord(kn), unit))
+                continue
             outputs.append(Output(oname, r.expr(vn, f"output {oname!r}"), r.coord(kn)))
     return Body(tuple(params), tuple(elements), tuple(bonds), tuple(states), tuple(outputs))
 

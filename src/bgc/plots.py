@@ -49,7 +49,11 @@ def _label(labels, k, default):
     return labels[k] if k < len(labels) else default
 
 
-def plot_time(t, y, names, path, title="", labels=()):
+def _with_unit(label, unit):
+    return f"{label} [{unit}]" if unit else label
+
+
+def plot_time(t, y, names, path, title="", labels=(), units=None):
     plt = _mpl()
     fig, axes = plt.subplots(len(names), 1, sharex=True, squeeze=False,
                              figsize=(7.5, 1.2 + 1.75 * len(names)))
@@ -57,7 +61,7 @@ def plot_time(t, y, names, path, title="", labels=()):
         comps = _components(name, y[name])
         for lab, series in comps:
             ax.plot(t, series, lw=1.4, label=lab)
-        ax.set_ylabel(_label(labels, k, name))
+        ax.set_ylabel(_with_unit(_label(labels, k, name), (units or {}).get(name, "")))
         if len(comps) > 1:
             ax.legend(loc="best", fontsize=7, ncol=min(len(comps), 3))
     axes[-1, 0].set_xlabel("t [s]")
@@ -84,7 +88,7 @@ def _equal_3d(ax, pts):
 _STYLES = ["--", ":", "-", "-."]
 
 
-def plot_path3d(t, y, names, path, title="", labels=()):
+def plot_path3d(t, y, names, path, title="", labels=(), units=None):
     plt = _mpl()
     fig = plt.figure(figsize=(11, 5))
     ax = fig.add_subplot(1, 2, 1, projection="3d")
@@ -97,14 +101,16 @@ def plot_path3d(t, y, names, path, title="", labels=()):
         top.plot(a[0, :1], a[1, :1], "o", ms=4, color=line.get_color())
     allpts = np.concatenate([np.asarray(y[n]).reshape(3, -1) for n in names], axis=1)
     _equal_3d(ax, allpts)
-    ax.set_xlabel("X0")
-    ax.set_ylabel("Y0")
-    ax.set_zlabel("Z0")
+    u = {(units or {}).get(n, "") for n in names}
+    u = u.pop() if len(u) == 1 else ""  # one unit for all paths: on the axes
+    ax.set_xlabel(_with_unit("X0", u))
+    ax.set_ylabel(_with_unit("Y0", u))
+    ax.set_zlabel(_with_unit("Z0", u))
     ax.set_title("3-D view")
     ax.legend(loc="upper left", fontsize=8)
     top.set_aspect("equal", adjustable="datalim")
-    top.set_xlabel("X0")
-    top.set_ylabel("Y0")
+    top.set_xlabel(_with_unit("X0", u))
+    top.set_ylabel(_with_unit("Y0", u))
     top.set_title("seen from above (dots: start)")
     fig.suptitle(title or "path")
     fig.tight_layout()
@@ -112,7 +118,7 @@ def plot_path3d(t, y, names, path, title="", labels=()):
     plt.close(fig)
 
 
-def plot_loci(t, y, names, path, title="", labels=()):
+def plot_loci(t, y, names, path, title="", labels=(), units=None):
     """Loci of the columns of a rotation matrix output (unit vectors)."""
     plt = _mpl()
     (name,) = names[:1]
@@ -171,30 +177,32 @@ def _name(outdir: Path, fname: str) -> Path:
     return outdir / fname
 
 
-def _png(fn, *args) -> bytes:
+def _png(fn, *args, **kw) -> bytes:
     buf = io.BytesIO()
-    fn(*args[:3], buf, *args[3:])
+    fn(*args[:3], buf, *args[3:], **kw)
     return buf.getvalue()
 
 
-def render_plots(scene, t, y) -> list[tuple[str, bytes]]:
+def render_plots(scene, t, y, units=None) -> list[tuple[str, bytes]]:
     """(file name, PNG bytes) of each plot of the scene (or one per output when it names
-    none), drawn in memory: nothing is written until every figure has been drawn."""
+    none), drawn in memory: nothing is written until every figure has been drawn.
+    ``units``: output name -> unit for the axes (the module's OUTPUT_UNITS)."""
     if not scene.plots:
-        return [(f"{scene.name}_{name}.png", _png(plot_time, t, y, [name])) for name in y]
+        return [(f"{scene.name}_{name}.png", _png(plot_time, t, y, [name], units=units))
+                for name in y]
     check_plots(scene, {k: np.shape(v)[:-1] for k, v in y.items()})
     fns = {"time": plot_time, "path3d": plot_path3d, "loci": plot_loci}
     return [(f"{scene.name}_{k + 1}_{pl.kind}.png",
-             _png(fns[pl.kind], t, y, list(pl.outputs), pl.title, pl.labels))
+             _png(fns[pl.kind], t, y, list(pl.outputs), pl.title, pl.labels, units=units))
             for k, pl in enumerate(scene.plots)]
 
 
-def write_plots(scene, t, y, outdir, inputs=None, rendered=None) -> list[Path]:
+def write_plots(scene, t, y, outdir, inputs=None, rendered=None, units=None) -> list[Path]:
     """The scene's plots as PNGs in ``outdir`` (created if missing), each through the checked
     writer (bgc.outfiles). ``rendered``: the figures of :func:`render_plots`, if drawn."""
     from .outfiles import prepare_folder, write_output
 
-    figures = render_plots(scene, t, y) if rendered is None else rendered
+    figures = render_plots(scene, t, y, units) if rendered is None else rendered
     outdir = prepare_folder(outdir, "--plot")
     return [write_output(_name(outdir, fname), data, inputs, "plot")
             for fname, data in figures]

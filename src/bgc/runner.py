@@ -8,8 +8,8 @@ import numpy as np
 
 from .compiler import compile_model
 from .errors import ModelError, SimulationFailed
-from .scene import (Scene, check_against, free_values, load_module, param_values, parse_scene,
-                    plan_for, scene_model)
+from .scene import (Scene, check_against, free_values, initial_state, load_module, param_values,
+                    parse_scene, plan_for, scene_model)
 
 
 @dataclass(frozen=True)
@@ -70,10 +70,11 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None) -> Sce
     say(f"simulating {scene.name} with {method}, rtol {rtol:g}")
     dt = scene.dt or (scene.t_span[1] - scene.t_span[0]) / 1000
     p = runtime_params(scene, mod)
+    x0 = initial_state(scene, mod, p)  # the scene's initial: values, or equilibrium
     try:
         res = mod.simulate(scene.t_span, dt=dt, method=method, rtol=rtol, atol=scene.atol,
-                           p=p, breakpoints=scene.breakpoints, max_step=scene.max_step,
-                           max_wall=max_wall)
+                           p=p, breakpoints=scene.breakpoints, x0=x0,
+                           max_step=scene.max_step, max_wall=max_wall)
     except mod.SimulationError as exc:
         raise simulation_failed(c, mod, scene, exc, p) from None
     t2 = time.perf_counter()

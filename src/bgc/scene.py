@@ -16,6 +16,7 @@ from pathlib import Path
 
 import yaml
 
+from . import tables as _tables
 from .errors import Coord, ModelError
 from .expr import Expr
 from .limits import LIMITS
@@ -58,6 +59,9 @@ class Scene:
     free: tuple[str, ...] = ()  # scene parameters that stay parameters (not folded)
     output_coords: dict = dataclasses.field(default_factory=dict)  # output -> Coord
     model_coord: Coord | None = None  # where the scene names its model
+    # initial states: None (the model's), "equilibrium", or {state or element: (value, Coord)}
+    initial: object = None
+    initial_coord: Coord | None = None
 
 
 def parse_scene(path: str | Path) -> Scene:
@@ -69,7 +73,8 @@ def parse_scene(path: str | Path) -> Scene:
         raise ModelError(Coord(path, 1, 1), "the scene file is empty")
     top = r.mapping(root, "the scene")
     allowed = ("bgc_scene", "name", "description", "model", "duration", "t_span", "parameters",
-               "inputs", "outputs", "solver", "breakpoints", "plots", "effects", "free")
+               "inputs", "outputs", "solver", "breakpoints", "plots", "effects", "free",
+               "initial")
     _require(r, top, root, allowed, "the scene", required=("bgc_scene", "model"))
     version = r.scalar(top["bgc_scene"][1], "bgc_scene")
     if isinstance(version, bool) or version != 1:
@@ -122,6 +127,9 @@ def parse_scene(path: str | Path) -> Scene:
     if "inputs" in top:
         for iname, (kn, vn) in r.mapping(top["inputs"][1], "inputs").items():
             check_name(iname, r.coord(kn), "input")
+            if _tables.is_table(r, vn):  # data from a CSV file beside the scene
+                inputs[iname] = (_tables.read_table(r, vn, f"input {iname!r}"), r.coord(kn))
+                continue
             inputs[iname] = (r.expr(vn, f"input {iname!r}"), r.coord(kn))
     outputs, output_coords = (), {}
     if "outputs" in top:
@@ -213,10 +221,80 @@ def parse_scene(path: str | Path) -> Scene:
                                               "parameters (free keeps a scene value tunable)")
             if f in free[:k]:
                 raise ModelError(r.coord(fn), f"free parameter {f!r} is listed twice")
+    initial, initial_coord = None, None
+    if "initial" in top:
+        initial, initial_coord = _initial(r, top["initial"][1]), r.coord(top["initial"][0])
     return Scene(path, name, model_path, (t0, t1), params, inputs, outputs, method, rtol, atol,
                  dt, max_step, bps, tuple(plots), effects, desc, r.coord(root),
                  hashlib.sha256(text.encode()).hexdigest()[:16], free, output_coords,
-                 r.coord(top["model"][1]))
+                 r.coord(top["model"][1]), initial, initial_coord)
+
+
+def _initial(r: _Reader, node):
+    """``initial: equilibrium`` or ``initial: {state-or-element: value}`` (a number, or a
+    list / nested list for a vector or matrix state); names are checked against the
+    compiled module's states by :func:`initial_state`."""
+    import yaml
+
+    if isinstance(node, yaml.ScalarNode):
+        v = r.scalar(node, "initial")
+        if v != "equilibrium":
+            raise ModelError(r.coord(node), "initial: write 'equilibrium' or a mapping "
+                                            "{state or element: value}")
+        return "equilibrium"
+    out = {}
+    for sname, (kn, vn) in r.mapping(node, "initial").items():
+        for part in sname.replace("[", ".").replace("]", "").replace(",", ".").split("."):
+            if not part.isdigit():
+                check_name(part, r.coord(kn), "state", allow_reserved=True)
+        if isinstance(vn, yaml.ScalarNode):
+            vals = (r.number(vn, f"initial {sname!r}"),)
+        else:
+            vals = []
+            for item in r.seq(vn, f"initial {sname!r}"):
+                if isinstance(item, yaml.SequenceNode):
+                    vals += [r.number(c, f"initial {sname!r}") for c in item.value]
+                else:
+                    vals.append(r.number(item, f"initial {sname!r}"))
+            vals = tuple(vals)
+        out[sname] = (vals, r.coord(kn))
+    return out
+
+
+def initial_state(scene: Scene, module, p=None):
+    """The scene's initial state for ``module``: the module's own x0 with the scene's values
+    set (names: a state of STATE_NAMES, or an element or state whose components follow in
+    order), or its equilibrium with the inputs held at their values at t0."""
+    import numpy as np
+
+    if scene.initial is None:
+        return None
+    t0 = scene.t_span[0]
+    if scene.initial == "equilibrium":
+        x, info = module.equilibrium(p=p, t=t0)
+        if not np.all(info.converged):
+            raise ModelError(scene.initial_coord, f"initial: no equilibrium found (max "
+                                                  f"|dx/dt| = {np.max(info.residual):.3g})")
+        return x
+    names = list(module.STATE_NAMES)
+    x = np.array(module.initial_state(p), dtype=float)
+    for sname, (vals, coord) in scene.initial.items():
+        if sname in names:
+            idx = [names.index(sname)]
+        else:
+            idx = [i for i, n in enumerate(names)
+                   if n.split("[")[0] in (sname, sname + ".p", sname + ".q")]
+        if not idx:
+            raise ModelError(coord, f"initial: the model has no state {sname!r}"
+                             + (" (removed by the scene?)" if names else "")
+                             + f" (states: {', '.join(names[:12])}"
+                             + (", ..." if len(names) > 12 else "") + ")")
+        if len(vals) != len(idx):
+            raise ModelError(coord, f"initial {sname!r}: {len(vals)} value(s) for "
+                                    f"{len(idx)} state(s) ({', '.join(names[i] for i in idx)})")
+        for i, v in zip(idx, vals):
+            x[i] = v
+    return x
 
 
 def check_rtol(v: float, where: Coord | None, what: str) -> float:
@@ -234,8 +312,20 @@ def apply_scene(model: Model, scene: Scene) -> Model:
         if iname not in names:
             raise ModelError(coord, f"the model has no input {iname!r} "
                                     f"(inputs: {', '.join(sorted(names)) or 'none'})")
-    new_inputs = tuple(dataclasses.replace(i, default=scene.inputs[i.name][0])
-                       if i.name in scene.inputs else i for i in model.inputs)
+    new_inputs = []
+    for i in model.inputs:
+        if i.name not in scene.inputs:
+            new_inputs.append(i)
+            continue
+        v, coord = scene.inputs[i.name]
+        if isinstance(v, _tables.Table):
+            if i.shape:
+                raise ModelError(coord, f"input {i.name!r} has shape {list(i.shape)}: a table "
+                                        "gives a scalar input")
+            new_inputs.append(dataclasses.replace(i, default=Expr("0", v.coord), table=v))
+        else:
+            new_inputs.append(dataclasses.replace(i, default=v, table=None))
+    new_inputs = tuple(new_inputs)
     return dataclasses.replace(model, inputs=new_inputs)
 
 

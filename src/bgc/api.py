@@ -1,0 +1,342 @@
+"""bgc from Python: compile a model to a loaded module, check it, read its equations,
+linearise it. Documented, with examples, in docs/api.md.
+
+Every function takes a model as a path (``str`` or ``pathlib.Path``) or as YAML text: a
+string is text when it contains a line break or starts with ``bgc:``. Nothing is written to
+disk: the generated module is loaded from memory. Every mistake in a model or scene raises
+:class:`bgc.BgcError` (``bgc.errors.ModelError``) with ``.coord`` (file, line, column) and
+``.message``.
+"""
+from __future__ import annotations
+
+import html
+from dataclasses import dataclass
+from pathlib import Path
+
+from .errors import Coord, ModelError
+
+BgcError = ModelError
+TARGETS = ("numpy",)
+
+
+def _is_text(src) -> bool:
+    return isinstance(src, str) and ("\n" in src or src.lstrip().startswith("bgc:"))
+
+
+def _model(src):
+    """Parse a model given as a path or as YAML text."""
+    from .parse import parse_file, parse_text
+
+    if _is_text(src):
+        return parse_text(src, "<string>")
+    if not isinstance(src, (str, Path)):
+        raise TypeError(f"a model is a path or YAML text, not {type(src).__name__}")
+    if not Path(src).is_file():
+        raise ModelError(Coord(str(src), 1, 1), "model file does not exist")
+    return parse_file(src)
+
+
+def _through_cache(path, scene, target, name, build):
+    """(compiled or None, module) through the compile cache (bgc.cache and bgc.backends,
+    when this bgc has them: ``backends.load`` reads a hit without compiling), else
+    (compiled, module) compiled now and loaded from memory."""
+    from .scene import load_module
+
+    try:
+        from . import backends, cache
+    except ImportError:
+        backends = cache = None
+    if backends is not None and hasattr(backends, "load") and hasattr(cache, "key"):
+        key = None if path is None else cache.key(target, path, scene)
+        return backends.load(name, target, key, build, cache.Cache() if key else None)
+    if target != "numpy":
+        raise ModelError(None, f"unknown target {target!r} (this bgc has: numpy)")
+    compiled = build()
+    return compiled, load_module(compiled.source, name)
+
+
+def compile(path_or_text, scene=None, target: str = "numpy") -> "CompiledModel":  # noqa: A001
+    """Compile a model (path or YAML text), optionally specialised to a scene file, and return
+    the loaded module wrapped in a :class:`CompiledModel` (attributes go to the module)."""
+    from .compiler import compile_model
+
+    try:
+        from .backends import BACKENDS as targets
+    except ImportError:
+        targets = TARGETS
+    if target not in targets:
+        raise ModelError(None, f"unknown target {target!r} (one of {', '.join(targets)})")
+    path = None if _is_text(path_or_text) else path_or_text
+    if path is not None and not Path(path).is_file():
+        raise ModelError(Coord(str(path), 1, 1), "model file does not exist")
+    if scene is not None:
+        from .graph import build_graph
+        from .scene import apply_scene, check_outputs, parse_scene, plan_for
+
+        sc = parse_scene(scene)
+        if _is_text(path_or_text) or Path(sc.model_path).resolve() != Path(
+                path_or_text).resolve():
+            raise ModelError(sc.model_coord, f"the scene is for {sc.model_path}, not "
+                                             f"{'the text given' if _is_text(path_or_text) else path_or_text}")
+
+        def build():
+            m = apply_scene(_model(path_or_text), sc)
+            c = compile_model(m, None, plan_for(sc, build_graph(m).params))
+            check_outputs(sc, [o[0] for o in c.equations.outputs])
+            return c
+        name = f"{Path(path).stem}_{sc.name}"
+    else:
+        def build():
+            return compile_model(_model(path_or_text))
+        name = Path(path).stem if path is not None else "string"
+    c, mod = _through_cache(path, scene, target, name, build)
+    return CompiledModel(mod, c, path_or_text)
+
+
+class CompiledModel:
+    """A compiled, loaded model: every attribute of the generated module (``rhs``,
+    ``simulate``, ``linearize``, ``STATE_NAMES``, ...) is reachable on it; ``.module`` is the
+    module itself, ``.source`` its text, ``.compiled`` bgc's record of the compilation. In
+    Jupyter it shows a summary and the bond graph (SVG, when Graphviz is installed)."""
+
+    def __init__(self, module, compiled=None, origin=None):
+        self.module = module
+        self.compiled = compiled  # None when the module came from the compile cache
+        self.origin = origin  # the path or text it was compiled from
+
+    @property
+    def source(self) -> str:
+        """The generated module's text."""
+        return self.compiled.source if self.compiled is not None else \
+            self.module.__loader__.get_source(self.module.__name__)
+
+    @property
+    def name(self) -> str:
+        return self.compiled.model.name if self.compiled is not None else \
+            self.module.__name__.removeprefix("bgc_generated_")
+
+    def _graph(self):
+        """(bond graph, causality) for the drawing (rebuilt after a cache hit: cheap)."""
+        if self.compiled is not None:
+            return self.compiled.graph, self.compiled.causality
+        from .causality import assign_causality
+        from .graph import build_graph
+
+        bg = build_graph(_model(self.origin))
+        return bg, assign_causality(bg, allow_derivative=True)
+
+    def __getattr__(self, name):
+        if name.startswith("__"):
+            raise AttributeError(name)
+        return getattr(self.__dict__["module"], name)
+
+    def __dir__(self):
+        return sorted(set(dir(self.module)) | {"module", "compiled", "source"})
+
+    def __repr__(self):
+        m = self.module
+        return (f"<bgc model {self.name!r}: {m.N_STATES} states, "
+                f"{len(m.PARAM_DEFAULTS)} parameters, inputs {list(m.INPUT_NAMES)}, outputs "
+                f"{list(m.OUTPUT_NAMES)}>")
+
+    def _repr_svg_(self):
+        return _svg(*self._graph())
+
+    def _repr_html_(self):
+        m = self.module
+        rows = [("states", ", ".join(m.STATE_NAMES)),
+                ("parameters", ", ".join(f"{k} = {v}" + (f" [{m.PARAM_UNITS[k]}]"
+                                                         if m.PARAM_UNITS.get(k) else "")
+                                         for k, v in m.PARAM_DEFAULTS.items())),
+                ("inputs", ", ".join(m.INPUT_NAMES) or "none"),
+                ("outputs", ", ".join(m.OUTPUT_NAMES))]
+        return _html(f"bgc model {self.name}", rows, _svg(*self._graph()))
+
+
+def _svg(graph, caus):
+    """The bond graph as SVG text, or None without Graphviz."""
+    from .draw import render_image, to_dot
+
+    try:
+        return render_image(to_dot(graph, caus), "svg").decode("utf-8")
+    except ModelError:
+        return None
+
+
+def _html(title, rows, svg):
+    body = "".join(f"<tr><th style='text-align:left'>{html.escape(k)}</th>"
+                   f"<td style='text-align:left'>{html.escape(str(v))}</td></tr>" for k, v in rows)
+    return (f"<div><b>{html.escape(title)}</b><table>{body}</table>"
+            + (svg or "") + "</div>")
+
+
+@dataclass(frozen=True)
+class BondCausality:
+    bond: str
+    src: str
+    dst: str
+    n: int
+    effort_by: str  # the element that computes the bond's effort
+    stroke_at: str  # the end that receives the effort (where the causal stroke is drawn)
+
+
+@dataclass(frozen=True)
+class CheckResult:
+    """What ``bgc check`` reports, as data."""
+
+    model: str
+    bonds: tuple[BondCausality, ...]
+    forms: dict  # element id -> causal form in words ("integral", "resistance", ...)
+    states: tuple[str, ...]
+    all_integral: bool
+    derivative: tuple[str, ...]  # storage elements in derivative causality
+    loops: tuple[str, ...]  # algebraic loops solved
+    warnings: tuple[str, ...]
+    diagnostics: tuple[str, ...]  # errors that stop compilation (e.g. derivative causality)
+    dot: str  # the bond graph with causal strokes (Graphviz DOT)
+
+    def _repr_html_(self):
+        rows = [("states", ", ".join(self.states)),
+                ("causality", "all integral" if self.all_integral else
+                 "derivative: " + ", ".join(self.derivative))]
+        rows += [("warning", w) for w in self.warnings] + [("error", d) for d in self.diagnostics]
+        from .draw import render_image
+
+        try:
+            svg = render_image(self.dot, "svg").decode("utf-8")
+        except ModelError:
+            svg = None
+        return _html(f"bgc check {self.model}", rows, svg)
+
+
+def check(path_or_text) -> CheckResult:
+    """Causality per bond, causal forms, states, loops and warnings of a model, as data.
+    Derivative causality is reported in ``diagnostics`` (not raised); other errors raise."""
+    from .causality import assign_causality, derivative_message
+    from .draw import to_dot
+    from .equations import derive
+    from .graph import build_graph
+
+    m = _model(path_or_text)
+    bg = build_graph(m)
+    caus = assign_causality(bg, allow_derivative=True)
+    bonds = []
+    for b in bg.bonds:
+        setter = caus.effort_by[b.id]
+        bonds.append(BondCausality(b.id, b.src, b.dst, b.n, setter,
+                                   b.dst if setter == b.src else b.src))
+    forms = {el.id: caus.form(bg, el) for el in bg.elements
+             if el.type in ("I", "C", "R", "TF", "MTF", "GY", "MGY")}
+    diagnostics, loops, states = (), (), ()
+    if caus.derivative:
+        diagnostics = (derivative_message(bg, caus),)
+    else:
+        eqs = derive(bg, caus)
+        loops = tuple(eqs.loops)
+        states = tuple(sv.name for sv in eqs.states)
+    return CheckResult(m.name, tuple(bonds), forms, states, not caus.derivative,
+                       tuple(caus.derivative), loops, tuple(caus.warnings), diagnostics,
+                       to_dot(bg, caus))
+
+
+@dataclass(frozen=True)
+class StateEquations:
+    """The state equations as sympy objects: ``assignments`` (efforts and flows in causal
+    order, each ``Eq(symbol, expression)``) and ``derivatives`` (``Eq(Derivative(x, t),
+    expression)`` in terms of the states, parameters, inputs and the assigned symbols)."""
+
+    states: tuple
+    assignments: tuple
+    derivatives: tuple
+    outputs: tuple  # Eq(Symbol(name), expression) per output component
+
+    def explicit(self):
+        """dx/dt with every assignment substituted: a sympy Matrix of the states, parameters,
+        inputs and t (no simplification; fine for small models, large for big ones)."""
+        import sympy as sp
+
+        subs = {}
+        for a in self.assignments:
+            subs[a.lhs] = a.rhs.xreplace(subs)
+        return sp.Matrix([d.rhs.xreplace(subs) for d in self.derivatives])
+
+    def latex(self, explicit: bool = False) -> str:
+        """LaTeX (an ``aligned`` block): the causal assignments, then dx/dt."""
+        import sympy as sp
+
+        lines = []
+        if explicit:
+            rhs = self.explicit()
+            for s, e in zip(self.states, rhs):
+                lines.append(rf"\dot{{{sp.latex(s)}}} &= {sp.latex(e)}")
+        else:
+            for a in self.assignments:
+                lines.append(rf"{sp.latex(a.lhs)} &= {sp.latex(a.rhs)}")
+            for s, d in zip(self.states, self.derivatives):
+                lines.append(rf"\dot{{{sp.latex(s)}}} &= {sp.latex(d.rhs)}")
+        return "\\begin{aligned}\n" + " \\\\\n".join(lines) + "\n\\end{aligned}"
+
+
+def equations(path_or_text) -> StateEquations:
+    """The state equations of a model as sympy objects (and LaTeX: ``.latex()``)."""
+    import sympy as sp
+
+    from .causality import assign_causality
+    from .equations import T, derive
+    from .graph import build_graph
+
+    bg = build_graph(_model(path_or_text))
+    eqs = derive(bg, assign_causality(bg))
+    states = tuple(sv.symbol for sv in eqs.states)
+    assigns = tuple(sp.Eq(a.symbol, a.expr, evaluate=False) for a in eqs.assignments)
+    derivs = tuple(sp.Eq(sp.Derivative(s, T), d, evaluate=False)
+                   for s, d in zip(states, eqs.derivatives))
+    outs = []
+    for name, shp, vals in eqs.outputs:
+        for k, v in enumerate(vals):
+            outs.append(sp.Eq(sp.Symbol(name if len(vals) == 1 else f"{name}_{k}"), v,
+                              evaluate=False))
+    return StateEquations(states, assigns, derivs, tuple(outs))
+
+
+@dataclass(frozen=True)
+class Linearization:
+    """A, B, C, D at (t, x) with the names of their rows and columns; ``modes`` (eigenvalues,
+    natural frequencies, damping ratios, dominant states); ``statespace``: a python-control
+    StateSpace when that package is installed, else None."""
+
+    A: object
+    B: object
+    C: object
+    D: object
+    t: float
+    x: object
+    states: tuple
+    inputs: tuple
+    outputs: tuple
+    modes: tuple
+    statespace: object = None
+
+
+def linearize(model, at="equilibrium", p=None, u=None) -> Linearization:
+    """Linearise a model (path, text or a :class:`CompiledModel`) at its equilibrium (inputs
+    held at their values at t = 0) or at a time ``at`` reached by a run from x0."""
+    from .linear import modes, to_statespace
+
+    mod = model if isinstance(model, CompiledModel) else compile(model)
+    if at == "equilibrium":
+        t = 0.0
+        x, info = mod.equilibrium(u=u, p=p)
+        if not info.converged:
+            raise ModelError(None, f"no equilibrium found (max |dx/dt| = {info.residual:.3g})")
+    else:
+        t = float(at)
+        x = mod.initial_state(p) if t == 0 else mod.simulate(
+            (0.0, t), t_eval=[t], p=p, rtol=1e-8, atol=1e-10).x[..., -1]
+    A, B, C, D = mod.linearize(t, x, u, p)
+    try:
+        ss = to_statespace(mod, A, B, C, D)
+    except ImportError:
+        ss = None
+    return Linearization(A, B, C, D, t, x, tuple(mod.STATE_NAMES), tuple(mod.INPUT_LABELS),
+                         tuple(mod.OUTPUT_LABELS), tuple(modes(A, mod.STATE_NAMES)), ss)

@@ -1,0 +1,102 @@
+"""Linear analysis of a generated module: modes, frequency responses, Bode plots, and a
+python-control ``StateSpace`` when that package is installed (``bgc linearize``)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Mode:
+    eigenvalue: complex
+    wn: float  # natural frequency [rad/s] = |lambda|
+    zeta: float  # damping ratio = -Re(lambda) / |lambda| (1 for a real pole, nan at 0)
+    states: tuple  # ((state name, |component| relative to the largest), ...)
+
+    @property
+    def hz(self) -> float:
+        return self.wn / (2 * np.pi)
+
+
+def modes(A, state_names, top: int = 3) -> list[Mode]:
+    """The eigenvalues of A (one per complex pair), slowest first, with natural frequency,
+    damping ratio and the states that dominate it: the largest participation factors
+    |v_ik w_ki| (right and left eigenvectors), relative to the largest."""
+    lam, V = np.linalg.eig(np.asarray(A, dtype=float))
+    # participation factors |v_ik w_ki| (right and left eigenvectors): unlike the raw
+    # eigenvector they do not depend on the states' units
+    try:
+        part = np.abs(V * np.linalg.inv(V).T)
+    except np.linalg.LinAlgError:  # defective A: fall back to the eigenvectors
+        part = np.abs(V)
+    out = []
+    for k in np.argsort(np.abs(lam), kind="stable"):
+        if lam[k].imag < 0:
+            continue
+        wn = float(abs(lam[k]))
+        zeta = float(-lam[k].real / wn) if wn > 0 else float("nan")
+        v = part[:, k]
+        big = np.argsort(-v, kind="stable")[:top]
+        vmax = v[big[0]] if v[big[0]] > 0 else 1.0
+        out.append(Mode(complex(lam[k]), wn, zeta,
+                        tuple((state_names[i], float(v[i] / vmax)) for i in big
+                              if v[i] >= 0.05 * vmax)))
+    return out
+
+
+def frequency_response(A, B, C, D, i_in: int, i_out: int, w):
+    """H(jw) = C (jw I - A)^-1 B + D for one input column and one output row, at the angular
+    frequencies w [rad/s]."""
+    A = np.asarray(A, dtype=float)
+    n = A.shape[0]
+    b = np.asarray(B, dtype=float)[:, i_in]
+    c = np.asarray(C, dtype=float)[i_out, :]
+    d = float(np.asarray(D, dtype=float)[i_out, i_in])
+    out = np.empty(len(w), dtype=complex)
+    for k, wk in enumerate(np.asarray(w, dtype=float)):
+        out[k] = c @ np.linalg.solve(1j * wk * np.eye(n) - A, b) + d
+    return out
+
+
+def to_statespace(module, A, B, C, D):
+    """A python-control StateSpace with the module's state, input and output names (needs
+    the optional package ``control``)."""
+    import control
+
+    return control.ss(A, B, C, D, states=list(module.STATE_NAMES),
+                      inputs=list(module.INPUT_LABELS) or None,
+                      outputs=list(module.OUTPUT_LABELS))
+
+
+def bode_plot(path, lin, i_in, i_out, in_label, out_label, in_unit="", out_unit="",
+              f_range=None) -> None:
+    """Magnitude (dB) and phase (degrees) against frequency (Hz, logarithmic) as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    A = np.asarray(lin[0])
+    if f_range is None:
+        wn = np.abs(np.linalg.eigvals(A)) if A.size else np.array([1.0])
+        wn = wn[wn > 0] if np.any(wn > 0) else np.array([1.0])
+        f_range = (wn.min() / (2 * np.pi) / 100, wn.max() / (2 * np.pi) * 100)
+    f = np.logspace(np.log10(f_range[0]), np.log10(f_range[1]), 400)
+    H = frequency_response(*lin, i_in, i_out, 2 * np.pi * f)
+    with np.errstate(divide="ignore"):
+        mag = 20 * np.log10(np.abs(H))
+    phase = np.degrees(np.unwrap(np.angle(H)))
+    fig, (a1, a2) = plt.subplots(2, 1, sharex=True, figsize=(7, 6))
+    ref = f" re 1 {out_unit}/{in_unit}" if out_unit and in_unit else ""
+    a1.semilogx(f, mag)
+    a1.set_ylabel(f"|{out_label}/{in_label}| [dB{ref}]")
+    a1.grid(True, which="both", alpha=0.3)
+    a2.semilogx(f, phase)
+    a2.set_ylabel("phase [deg]")
+    a2.set_xlabel("frequency [Hz]")
+    a2.grid(True, which="both", alpha=0.3)
+    a1.set_title(f"Bode: {in_label} -> {out_label}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

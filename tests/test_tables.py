@@ -1,0 +1,179 @@
+"""Table inputs: CSV data compiled into the module as numbers; interpolation checked against
+independent formulas and scipy, a bump from a table against the same bump as an expression,
+and the validation of file, size and shape with located errors."""
+from __future__ import annotations
+
+import ast
+import os
+
+import numpy as np
+import pytest
+
+from bgc.errors import ModelError
+from bgc.runner import compile_scene, run_scene
+from bgc.scene import parse_scene
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+QC = os.path.join(ROOT, "models", "quarter_car.yaml")
+K_T = 160000.0
+
+
+def _scene(tmp_path, inputs: str, extra: str = "", name="s.yaml"):
+    path = tmp_path / name
+    path.write_text(f"bgc_scene: 1\nmodel: {QC}\nduration: 2.0\ninputs:\n  zr: {inputs}\n"
+                    f"solver: {{method: Radau, rtol: 1.0e-8, atol: 1.0e-10, dt: 0.01}}\n{extra}")
+    return path
+
+
+def _csv(tmp_path, rows, header="time,height", name="road.csv"):
+    text = (header + "\n" if header else "") + "".join(f"{a},{b}\n" for a, b in rows)
+    (tmp_path / name).write_text(text)
+    return name
+
+
+def _road(mod, t):
+    """The road height the module sees: tyre force at x = 0 is -k_t z_r."""
+    y = mod.outputs(np.asarray(t, dtype=float), np.zeros(4))
+    return -np.asarray(y["tyre_force"]) / K_T
+
+
+KNOTS = [(0.0, 0.0), (0.2, 0.01), (0.45, 0.04), (0.5, 0.03), (0.9, -0.02), (1.3, 0.0)]
+
+
+def test_linear_pchip_previous_against_independent_formulas(tmp_path):
+    from scipy.interpolate import PchipInterpolator
+
+    csv = _csv(tmp_path, KNOTS)
+    tk, vk = np.array(KNOTS).T
+    tq = np.linspace(-0.3, 1.6, 97)
+    for interp in ("linear", "pchip", "previous"):
+        sc = parse_scene(_scene(tmp_path, f"{{table: {csv}, columns: [time, height], "
+                                          f"interp: {interp}}}", name=f"{interp}.yaml"))
+        _, mod = compile_scene(sc)
+        got = _road(mod, tq)
+        tc = np.clip(tq, tk[0], tk[-1])  # extrapolate: hold
+        if interp == "linear":
+            i = np.clip(np.searchsorted(tk, tc) - 1, 0, len(tk) - 2)
+            want = vk[i] + (vk[i + 1] - vk[i]) * (tc - tk[i]) / (tk[i + 1] - tk[i])
+            assert list(mod.TABLE_BREAKPOINTS["zr"]) == list(tk)
+        elif interp == "pchip":
+            want = PchipInterpolator(tk, vk)(tc)
+            assert "zr" not in mod.TABLE_BREAKPOINTS  # C1: no breakpoints needed
+        else:
+            want = np.array([vk[np.nonzero(tk <= s)[0][-1]] for s in tc])
+        np.testing.assert_allclose(got, want, atol=1e-15, err_msg=interp)
+
+
+def test_table_bump_matches_the_expression_bump(tmp_path):
+    """A triangular bump (0.5..0.7 s, 5 cm) as a linear table and as an expression, both from
+    the static equilibrium: the runs agree to the solver's tolerance."""
+    csv = _csv(tmp_path, [(0.0, 0.0), (0.5, 0.0), (0.6, 0.05), (0.7, 0.0), (2.0, 0.0)])
+    a = run_scene(_scene(tmp_path, f"{{table: {csv}, columns: [time, height]}}",
+                         "initial: equilibrium\n", "a.yaml"))
+    b = run_scene(_scene(tmp_path, '"0.05*max(0, 1 - abs(t - 0.6)/0.1)"',
+                         "initial: equilibrium\nbreakpoints: [0.5, 0.6, 0.7]\n", "b.yaml"))
+    assert np.array_equal(a.t, b.t)
+    zs = a.y["body_height"]
+    assert np.ptp(zs) > 0.01  # the bump moved the body by centimetres
+    np.testing.assert_allclose(zs, b.y["body_height"], atol=1e-7)
+    np.testing.assert_allclose(a.y["tyre_force"], b.y["tyre_force"], rtol=1e-6, atol=1e-3)
+    # before the bump the car sits still at its static deflection
+    before = a.t < 0.5
+    assert np.ptp(zs[before]) < 1e-9
+
+
+def test_table_data_reaches_the_module_as_numbers_only(tmp_path):
+    csv = _csv(tmp_path, [(0.0, 1.5), (1.0, -2.25)], header='time,"h""); import os #"')
+    sc = parse_scene(_scene(tmp_path, f"{{table: {csv}, columns: [0, 1]}}"))
+    c, mod = compile_scene(sc)
+    line = next(ln for ln in c.source.splitlines() if ln.strip().startswith("(np.array("))
+    for arg in ast.parse(line.strip().rstrip(",")).body[0].value.elts:
+        assert ast.literal_eval(arg.args[0]) in ([0.0, 1.0], [1.5, -2.25])
+    assert "import os" not in c.source
+    np.testing.assert_allclose(_road(mod, [0.0, 0.5, 2.0]), [1.5, -0.375, -2.25])
+
+
+def test_extrapolate_error_raises_outside_the_table(tmp_path):
+    csv = _csv(tmp_path, [(0.0, 0.0), (1.0, 1.0)])
+    _, mod = compile_scene(parse_scene(_scene(
+        tmp_path, f"{{table: {csv}, columns: [time, height], extrapolate: error}}")))
+    assert _road(mod, 0.5) == pytest.approx(0.5)
+    with pytest.raises(ValueError, match="outside its table"):
+        _road(mod, 1.5)
+
+
+def test_model_level_table_input(tmp_path):
+    from bgc.compiler import compile_file
+    from bgc.scene import load_module
+
+    text = open(QC).read().replace('zr: {default: "0", shape: [], unit: m}',
+                                   "zr: {table: road.csv, columns: [time, height], unit: m}")
+    (tmp_path / "qc.yaml").write_text(text)
+    _csv(tmp_path, KNOTS)
+    mod = load_module(compile_file(tmp_path / "qc.yaml").source, "qc_table")
+    np.testing.assert_allclose(_road(mod, [0.2, 0.475]), [0.01, 0.035])
+
+
+def _err(tmp_path, spec, csv_rows=None, header="time,height"):
+    if csv_rows is not None:
+        _csv(tmp_path, csv_rows, header)
+    with pytest.raises(ModelError) as ei:
+        parse_scene(_scene(tmp_path, spec))
+    return ei.value
+
+
+def test_errors_are_located(tmp_path):
+    spec = "{table: road.csv, columns: [time, height]}"
+    # at the CSV's own line: time not increasing, not a number, not finite, short row
+    e = _err(tmp_path, spec, [(0, 0), (1, 0), (0.5, 0)])
+    assert e.coord.file.endswith("road.csv") and e.coord.line == 4 and "increase" in e.message
+    e = _err(tmp_path, spec, [(0, 0), ("x", 0)])
+    assert e.coord.line == 3 and "not a number" in e.message
+    e = _err(tmp_path, spec, [(0, 0), (1, "nan")])
+    assert e.coord.line == 3 and "finite" in e.message
+    (tmp_path / "road.csv").write_text("time,height\n0,0\n1\n")
+    e = _err(tmp_path, spec)
+    assert e.coord.line == 3 and "column" in e.message
+    # at the table: key (line 5 of the scene, column of 'table' inside the flow mapping)
+    for rows, what in (([(0, 0)], "at least two rows"),):
+        e = _err(tmp_path, spec, rows)
+        assert e.coord.file.endswith("s.yaml") and e.coord.line == 5 and what in e.message
+    e = _err(tmp_path, "{table: nowhere.csv}")
+    assert e.coord.line == 5 and "cannot read" in e.message
+    (tmp_path / "adir").mkdir()
+    e = _err(tmp_path, "{table: adir}")
+    assert "folder" in e.message and e.coord.line == 5
+    e = _err(tmp_path, "{table: /etc/hostname}")
+    assert "absolute" in e.message
+    e = _err(tmp_path, "{table: road.csv, columns: [time, speed]}", KNOTS)
+    assert "no column 'speed'" in e.message
+    e = _err(tmp_path, "{table: road.csv, interp: cubic}", KNOTS)
+    assert "interp" in e.message and e.coord.line == 5
+    e = _err(tmp_path, "{table: road.csv, extrapolate: wrap}", KNOTS)
+    assert "extrapolate" in e.message
+
+
+def test_size_is_capped_before_reading(tmp_path, monkeypatch):
+    import bgc.tables
+
+    _csv(tmp_path, KNOTS)
+    monkeypatch.setattr(bgc.tables, "MAX_BYTES", 20)
+    e = _err(tmp_path, "{table: road.csv}")
+    assert "limit of 20 bytes" in e.message and e.coord.line == 5
+    monkeypatch.setattr(bgc.tables, "MAX_BYTES", 10_000)
+    monkeypatch.setattr(bgc.tables, "MAX_ROWS", 4)
+    e = _err(tmp_path, "{table: road.csv}")
+    assert "more than 4 rows" in e.message and e.coord.line == 6  # header, then row 5
+
+
+def test_cli_error_for_a_bad_table(tmp_path, bgc_cli):
+    _csv(tmp_path, [(0, 0), (0, 1)])
+    r = bgc_cli("simulate", str(_scene(tmp_path, "{table: road.csv}")), "-q")
+    assert r.returncode == 2 and "road.csv:3:1:" in r.stderr and "Traceback" not in r.stderr
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs here")
+def test_a_fifo_is_refused_without_blocking(tmp_path):
+    os.mkfifo(tmp_path / "road.csv")
+    e = _err(tmp_path, "{table: road.csv}")
+    assert "not a regular file" in e.message and e.coord.line == 5
