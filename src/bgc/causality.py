@@ -115,6 +115,11 @@ class _Scap:
                     raise ModelError(el.coord, f"causal conflict at {self.kind(eid)}: "
                                                f"{' and '.join(self.kind(o) for o in origins)} "
                                                f"each impose its {'effort' if t == '0' else 'flow'}")
+                if n_imp == 0 and bonds and all(st is False for st in states):
+                    what = "effort" if t == "0" else "flow"
+                    raise ModelError(el.coord, f"causal conflict at {self.kind(eid)}: every "
+                                               f"bond has its {'flow' if t == '0' else 'effort'}"
+                                               f" imposed and none sets its {what}")
                 if n_imp == 1:
                     for b, s in zip(bonds, states):
                         if s is None:  # not imposing: on a 0 the junction sets the effort
@@ -162,24 +167,25 @@ def assign_causality(bg: BondGraph, allow_derivative: bool = False) -> Causality
             s.decide(el, False)
         elif el.type == "R" and el.law and el.law[0] in FIXED_R:
             s.decide(el, el.law[0] == "effort")
-    # 2. storage in integral causality
-    for el in bg.elements:
-        if el.type in ("I", "C") and bg.bonds_of(el.id)[0].id not in s.effort_by:
-            s.decide(el, el.type == "C")
-    # 3. remaining R elements: resistance form
-    arbitrary = []
-    for el in bg.elements:
-        if el.type == "R" and bg.bonds_of(el.id)[0].id not in s.effort_by:
-            arbitrary.append(el.id)
-            s.decide(el, True)
-    # 4. open bonds (zero-order loops): the bond's source end sets the effort
-    open_bonds = []
-    for b in bg.bonds:
-        if b.id not in s.effort_by:
-            open_bonds.append(b.id)
-            q: deque = deque()
-            s.set(b, b.src, b.src, b.src, q)
-            s.propagate(q, b.src)
+    # 2. storage in integral causality. In file order when that leaves none in derivative
+    # causality (then the order does not matter); otherwise the independent set is chosen.
+    trial = _copy(s)
+    plain_err = None
+    try:
+        arbitrary, open_bonds = _finish(trial, [e for e in bg.elements if e.type in ("I", "C")])
+        plain_ok = not _derivative(bg, trial)
+    except ModelError as err:
+        plain_ok, plain_err = False, err
+    if plain_ok:
+        s = trial
+    else:
+        try:
+            _choose_independent(bg, s)
+            arbitrary, open_bonds = _finish(s, [])
+        except ModelError:
+            if plain_err is not None:
+                raise plain_err from None
+            raise
     # Derivative causality
     derivative, forced = [], {}
     for el in bg.elements:
@@ -201,6 +207,117 @@ def assign_causality(bg: BondGraph, allow_derivative: bool = False) -> Causality
     if derivative and not allow_derivative:
         raise ModelError(bg.element(derivative[0]).coord, derivative_message(bg, caus))
     return caus
+
+
+def _copy(s: _Scap) -> _Scap:
+    c = _Scap(s.bg)
+    c.effort_by = dict(s.effort_by)
+    c.origin = dict(s.origin)
+    return c
+
+
+def _finish(s: _Scap, storage) -> tuple[list, list]:
+    """SCAP from step 2 on: the given storage elements in order, then R, then open bonds."""
+    bg = s.bg
+    for el in storage:
+        if bg.bonds_of(el.id)[0].id not in s.effort_by:
+            s.decide(el, el.type == "C")
+    # 3. remaining R elements: resistance form
+    arbitrary = []
+    for el in bg.elements:
+        if el.type == "R" and bg.bonds_of(el.id)[0].id not in s.effort_by:
+            arbitrary.append(el.id)
+            s.decide(el, True)
+    # 4. open bonds (zero-order loops): the bond's source end sets the effort
+    open_bonds = []
+    for b in bg.bonds:
+        if b.id not in s.effort_by:
+            open_bonds.append(b.id)
+            q: deque = deque()
+            s.set(b, b.src, b.src, b.src, q)
+            s.propagate(q, b.src)
+    return arbitrary, open_bonds
+
+
+def _derivative(bg: BondGraph, s: _Scap) -> list:
+    out = []
+    for el in bg.elements:
+        if el.type in ("I", "C"):
+            (b,) = bg.bonds_of(el.id)
+            if (s.effort_by.get(b.id) == el.id) == (el.type == "I"):
+                out.append(el.id)
+    return out
+
+
+#: Cost of a two-port in its non-preferred causality, by the modulus it must invert.
+INVERT_COST = {"MTF": 10, "MGY": 10, "TF": 1, "GY": 1}
+NONSQUARE_COST = 1000
+
+
+def _inversions(bg: BondGraph, s: _Scap) -> int:
+    """How much inverting a complete causal assignment asks: a modulated (state- or
+    time-dependent) modulus can vanish during the motion, a constant one cannot, and a
+    non-square one has no inverse at all."""
+    cost = 0
+    for el in bg.elements:
+        if el.type not in INVERT_COST:
+            continue
+        b1, b2 = sorted(bg.bonds_of(el.id), key=lambda b: b.dst != el.id)
+        if el.type in ("TF", "MTF"):
+            inverted = s.effort_by[b1.id] != el.id
+        else:
+            inverted = not (s.effort_by[b1.id] == el.id and s.effort_by[b2.id] == el.id)
+        if inverted:
+            cost += NONSQUARE_COST if b1.n != b2.n else INVERT_COST[el.type]
+    return cost
+
+
+def _choose_independent(bg: BondGraph, s: _Scap) -> None:
+    """Give integral causality to storage elements one at a time, each time the first (by
+    instance path, so the file's order does not matter) whose choice, completed by SCAP,
+    inverts the cheapest moduli (``_inversions``): the dependent elements are then those
+    reached through modulated or non-square moduli, and the map from the independent states
+    to them stays regular. Ties (e.g. equal inertias on one shaft) go to the first path."""
+    storage = sorted((e for e in bg.elements if e.type in ("I", "C")), key=lambda e: e.id)
+    while True:
+        cands = [e for e in storage if bg.bonds_of(e.id)[0].id not in s.effort_by]
+        if not cands:
+            return
+        best, best_score = None, None
+        for el in cands:
+            t = _copy(s)
+            try:
+                t.decide(el, el.type == "C")
+                _finish(t, [e for e in cands if e is not el])
+                score = (0, _inversions(bg, t), len(_derivative(bg, t)))
+            except ModelError:
+                score = (1, 0, 0)
+            if best_score is None or score < best_score:
+                best, best_score = el, score
+            if score[:2] == (0, 0):
+                break  # nothing inverted: cannot do better
+        s.decide(best, best.type == "C")
+
+
+def dependent_report(bg: BondGraph, caus: Causality, eqs=None) -> str:
+    """What `bgc check` says about the storage elements in derivative causality."""
+    lines = ["dependent storage elements (derivative causality, eliminated):"]
+    deps = dict(eqs.dependent) if eqs is not None and getattr(eqs, "dependent", None) else {}
+    for eid in caus.derivative:
+        el = bg.element(eid)
+        origin, via = caus.forced_by[eid]
+        o = bg.element(origin)
+        v = bg.element(via)
+        through = (f"{v.type}-junction {via!r}" if v.type in ("0", "1") else f"{v.type} {via!r}")
+        if el.type == "I":
+            how = "p = M f, its flow f imposed by the causal path; its effort is dp/dt"
+        else:
+            how = "q = K^-1 e, its effort e imposed by the causal path; its flow is dq/dt"
+        on = deps.get(eid)
+        on_txt = f"; follows from {', '.join(on)}" if on else ""
+        lines.append(f"  {el.type} {eid} (line {el.coord.line}): forced by {o.type} {origin} "
+                     f"through {through}{on_txt}; {how}")
+    return "\n".join(lines) + "\n"
 
 
 def derivative_message(bg: BondGraph, caus: Causality) -> str:

@@ -35,13 +35,17 @@ def analyse(model: Model, progress=None, allow_derivative: bool = False
     return graph, assign_causality(graph, allow_derivative=allow_derivative)
 
 
-def compile_model(model: Model, progress=None, plan: Plan | None = None) -> Compiled:
+def compile_model(model: Model, progress=None, plan: Plan | None = None,
+                  strict_causality: bool = False, symbolic_max: int | None = None) -> Compiled:
     """Compile a model, specialised to a scene's plan (effects, folded parameters, outputs).
 
-    A plan that changes nothing gives exactly the module of the model alone."""
+    A plan that changes nothing gives exactly the module of the model alone. Storage elements
+    in derivative causality are eliminated (their states follow from the others) unless
+    ``strict_causality`` or the model's ``causality: strict`` asks for today's error."""
     say = progress or (lambda msg: None)
     special = plan is not None and not plan.trivial
-    graph, caus = analyse(model, progress, allow_derivative=special)
+    strict = strict_causality or model.strict_causality
+    graph, caus = analyse(model, progress, allow_derivative=not strict)
     if plan is not None:  # every effect the scene names (on or off) must exist
         effects = known_effects(graph)
         for eff in list(plan.effect_coords) + sorted(plan.effects_off):
@@ -70,7 +74,8 @@ def compile_model(model: Model, progress=None, plan: Plan | None = None) -> Comp
             notes.append("parameters folded in as constants: " + ", ".join(
                 f"{k} = {_short(v)}" for k, v in sorted(plan.fold.items())))
     say("deriving equations")
-    eqs = derive(graph, caus, progress, fold=fold, zero=zero)
+    kw = {} if symbolic_max is None else {"symbolic_max": symbolic_max}
+    eqs = derive(graph, caus, progress, fold=fold, zero=zero, **kw)
     if special and plan.outputs:
         say("slicing to the requested outputs")
         eqs, snotes, _ = slice_outputs(eqs)
@@ -90,10 +95,12 @@ def _short(v) -> str:
     return repr(v)
 
 
-def compile_file(path: str | Path, progress=None) -> Compiled:
+def compile_file(path: str | Path, progress=None, strict_causality: bool = False,
+                 symbolic_max: int | None = None) -> Compiled:
     if progress:
         progress("parsing")
-    return compile_model(parse_file(path), progress)
+    return compile_model(parse_file(path), progress, strict_causality=strict_causality,
+                         symbolic_max=symbolic_max)
 
 
 def write_atomic(path: str | Path, text: str) -> None:

@@ -24,6 +24,9 @@ from .graph import BondGraph, FlatElement, code_name, join
 from .parse import TWO_PORTS
 
 T = sp.Symbol("t", real=True)
+# Linear systems from derivative causality up to this size are solved symbolically (Cramer-like
+# LU on symbols for the matrix entries); larger ones by a numeric solve in the generated code.
+SYMBOLIC_MAX = 4
 
 
 def _sym(name: str) -> sp.Symbol:
@@ -101,6 +104,8 @@ class Equations:
     jac_assignments: tuple[Assignment, ...]  # forward-mode derivative intermediates
     loops: tuple[str, ...]  # descriptions of the algebraic loops solved
     notes: tuple[str, ...] = field(default=())
+    # storage elements in derivative causality: (element id, the state names it follows from)
+    dependent: tuple = field(default=())
 
 
 class _Ctx:
@@ -142,6 +147,7 @@ class _Ctx:
         self.state_vars: list[StateVar] = []
         self.inputs: dict[str, InputVar] = {}
         self.cache: dict = {}
+        self.dependent: list = []  # (element id, state symbols, their dt_ symbols)
 
     # -- parameters -------------------------------------------------------------------------
     def param(self, pid: str, coord: Coord):
@@ -318,7 +324,7 @@ def _fold_value(v):
 
 
 def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = None,
-           zero: dict | None = None) -> Equations:
+           zero: dict | None = None, symbolic_max: int = SYMBOLIC_MAX) -> Equations:
     """State equations of a causal bond graph.
 
     ``fold``: parameter id -> value, turned into numbers; ``zero``: removed element id ->
@@ -377,9 +383,28 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
             shp = (shp[0],)
         outputs.append((out.name, shp, tuple(flat(val))))
 
+    tear_sets = ()
+    dependent = []
+    if ctx.dependent:
+        names = {sv.symbol: sv.name for sv in state_vars}
+        for eid, syms, _ in ctx.dependent:
+            seen, stack, on = set(), list(syms), set()
+            while stack:
+                v = stack.pop()
+                if v in seen:
+                    continue
+                seen.add(v)
+                if v in names:
+                    on.add(v)
+                elif v in defs:
+                    stack.extend(defs[v].expr.free_symbols)
+            dependent.append((eid, tuple(sv.name for sv in state_vars if sv.symbol in on)))
+        if progress:
+            progress("differentiating along the causal paths of dependent storage elements")
+        tear_sets = _time_derivatives(ctx, defs, owner, derivs, state_vars)
     if progress:
         progress("ordering assignments")
-    order, loops = _causal_order(bg, defs, owner)
+    order, loops = _causal_order(bg, defs, owner, tear_sets, symbolic_max)
     # Inline plain copies (junction equalities, sign flips, constants): they are not work.
     subs: dict = {}
     kept: list[Assignment] = []
@@ -418,7 +443,8 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
     _check_names(bg, ctx, state_vars)
     return Equations(bg.model.name, tuple(state_vars), tuple(ctx.params.values()),
                      tuple(ctx_derived), tuple(ctx.inputs[i.name] for i in bg.model.inputs),
-                     tuple(kept), derivatives, outputs, jac, tuple(jac_assign), tuple(loops))
+                     tuple(kept), derivatives, outputs, jac, tuple(jac_assign), tuple(loops),
+                     dependent=tuple(dependent))
 
 
 def _state_label(oid: str, shape, k: int) -> str:
@@ -464,7 +490,8 @@ def _element_equations(ctx: _Ctx, el: FlatElement, define, derivs, state_vars):
         letter = "p" if t == "I" else "q"
         state = ctx.states.get(el.id)
         if state is None:
-            raise ModelError(el.coord, f"{what} is in derivative causality")
+            _dependent_storage(ctx, el, b, sgn, define)
+            return
         if t == "I":
             if key == "inertia":
                 m = _card(ctx.build(law, el.scope, what), n, el, key, square=True)
@@ -512,6 +539,48 @@ def _element_equations(ctx: _Ctx, el: FlatElement, define, derivs, state_vars):
             define(f, val, el, f"{el.id} (R): flow law")
         return
     raise ModelError(el.coord, f"unsupported element type {t}")  # pragma: no cover
+
+
+def _dependent_storage(ctx: _Ctx, el: FlatElement, b, sgn: int, define):
+    """A storage element in derivative causality: its state is a function of the others'.
+
+    An I receives its flow f: its momentum p = M f is an assignment and its effort is dp/dt;
+    a C receives its effort e: q = K^-1 e (or c e) and its flow is dq/dt. The time derivative
+    is a placeholder symbol ``dt_<p or q>`` that ``_time_derivatives`` defines by the chain
+    rule along the causal assignments (with the state derivatives as unknowns where needed).
+    """
+    t, n = el.type, b.n
+    key, law = el.law
+    what = f"{t} {el.id!r}"
+    e, f = ctx.e[b.id], ctx.f[b.id]
+    letter = "p" if t == "I" else "q"
+    if t == "I":
+        if key != "inertia":
+            raise ModelError(el.coord, f"{what} is in derivative causality (its flow follows from "
+                                       "the other states), which needs its momentum as a function "
+                                       "of its flow: give it an `inertia:` law, not `flow:`")
+        m = _card(ctx.build(law, el.scope, what), n, el, key, square=True)
+        val = m * f
+    else:
+        if key == "stiffness":
+            k = _card(ctx.build(law, el.scope, what), n, el, key, square=True)
+            val = _solve(k, e * sgn, el, key)
+        elif key == "compliance":
+            val = _card(ctx.build(law, el.scope, what), n, el, key, square=True) * (e * sgn)
+        else:
+            raise ModelError(el.coord, f"{what} is in derivative causality (its effort follows "
+                                       "from the other states), which needs its displacement as "
+                                       "a function of its effort: give it a `stiffness:` or "
+                                       "`compliance:` law, not `effort:`")
+    state = _vec(f"{letter}_{code_name(el.id)}", n)
+    dot = _vec(f"_dt_{letter}_{code_name(el.id)}", n)
+    define(state, val, el, f"{el.id} ({t}, derivative): {'momentum from flow' if t == 'I' else 'displacement from effort'}")
+    if t == "I":
+        define(e, dot * sgn, el, f"{el.id} (I, derivative): effort = dp/dt")
+    else:
+        define(f, dot, el, f"{el.id} (C, derivative): flow = dq/dt")
+    ctx.states[el.id] = state  # p() / q() read the dependent state
+    ctx.dependent.append((el.id, tuple(flat(state)), tuple(flat(dot))))
 
 
 def _card(val, n, el, key, square=False):
@@ -619,7 +688,212 @@ def _two_port(ctx: _Ctx, el: FlatElement, bonds, define):
             define(f2, _solve(mt, e1, el, key), el, f"{el.id} ({el.type}): f2 = M^-T e1")
 
 
-def _causal_order(bg: BondGraph, defs: dict, owner: dict):
+def _time_derivatives(ctx: _Ctx, defs: dict, owner: dict, derivs: dict, state_vars) -> tuple:
+    """Define the ``dt_`` symbols of the dependent storage elements by the chain rule.
+
+    Forward mode in time along the causal assignments: for every assignment v = g(...) that a
+    dependent state depends on, ``_dt_v = sum(dg/ds * _dt_s) + dg/dt``; a state's time
+    derivative is the symbol ``_dx_<state>``, itself assigned the state's derivative. The
+    loop this closes (state derivatives -> dependent efforts -> junctions -> state
+    derivatives) is linear in its unknowns and solved by ``_tear_solve``.
+    Returns the tear candidates: (the _dx_ symbols, the dependent dt_ symbols)."""
+    bg = ctx.bg
+    state_syms = {sv.symbol: sv for sv in state_vars}
+    input_syms = {s: iv.name for iv in ctx.inputs.values() for s in iv.symbols}
+    dt_syms = {d: eid for eid, _, dots in ctx.dependent for d in dots}
+    dep_of: dict = {}  # state symbol of a dependent element -> its dt_ symbol
+    for eid, states, dots in ctx.dependent:
+        dep_of.update(zip(states, dots))
+    # closure of the assignments the dependent states depend on
+    need, stack = set(), [s for s in dep_of]
+    while stack:
+        s = stack.pop()
+        if s in need or s not in defs:
+            continue
+        need.add(s)
+        stack.extend(d for d in defs[s].expr.free_symbols if d in defs)
+    dot: dict = {}
+    dx: dict = {}
+    for s in sorted(need, key=str):
+        dot[s] = dep_of.get(s) or _sym(f"_dt_{s}")
+    for s in sorted({d for v in need for d in defs[v].expr.free_symbols if d in state_syms},
+                    key=str):
+        dot[s] = _sym(f"_dx_{s}")
+        dx[dot[s]] = s
+    for s in sorted(need, key=str):
+        a = defs[s]
+        expr = a.expr
+        free = expr.free_symbols
+        for d in free:
+            if d in input_syms:
+                who = owner[s]
+                deps = sorted({e for e, st, _ in ctx.dependent})
+                raise ModelError(bg.element(who).coord,
+                                 f"derivative causality of {', '.join(map(repr, deps))}: its "
+                                 f"state follows from input {input_syms[d]!r} through "
+                                 f"{_kind(bg.element(who))}, whose time derivative bgc would "
+                                 "need; drive it through a compliant coupling, or make the "
+                                 "signal an expression of t")
+            if d in dt_syms:
+                raise ModelError(bg.element(dt_syms[d]).coord,
+                                 f"derivative causality of {dt_syms[d]!r} feeds another "
+                                 f"dependent element through {_kind(bg.element(owner[s]))}: "
+                                 "a second derivative would be needed (index > 2); add a "
+                                 "compliant coupling")
+        terms = [_clean(sp.diff(expr, d)) * dot[d] for d in sorted(free, key=str) if d in dot]
+        terms.append(_clean(sp.diff(expr, T)))
+        val = sp.Add(*terms)
+        defs[dot[s]] = Assignment(dot[s], val, f"d/dt of {s} ({a.why})" if s not in dep_of
+                                  else f"{owner[s]}: d/dt of its state (chain rule)")
+        owner[dot[s]] = owner[s]
+    for d, s in dx.items():
+        defs[d] = Assignment(d, derivs[s], f"derivative of state {state_syms[s].name}")
+        owner[d] = state_syms[s].owner
+    return (frozenset(dx), frozenset(dt_syms))
+
+
+def _tear_solve(bg, g, defs, owner, comp, index, tear_sets, symbolic_max):
+    """Solve an algebraic loop that is linear in its unknowns by tearing.
+
+    With the tear variables known, the rest of the loop is acyclic; every value in it is
+    affine in the tear variables, with coefficients found by forward-mode differentiation
+    along the loop (new assignments, free of loop variables: otherwise the loop is
+    nonlinear). The loop evaluated at tear = 0 gives the constant part. That leaves
+    (I - A) tear = b, solved symbolically on symbols standing for the entries while small,
+    else numerically in the generated code. Returns (description or None)."""
+    cset = set(comp)
+    best = None
+    cands = [sorted(cset & ts, key=index.get) for ts in tear_sets]
+    cands = [c for c in cands if c]
+    if len(cands) > 1:
+        cands.append(sorted(set(cands[0]) | set(cands[1]), key=index.get))
+    for cand in sorted(cands, key=len):
+        rest = [s for s in comp if s not in set(cand)]
+        if nx.is_directed_acyclic_graph(g.subgraph(rest)):
+            best = cand
+            break
+    if best is None:
+        return None
+    tear = best
+    tset = set(tear)
+    rest_g = g.subgraph([s for s in comp if s not in tset]).copy()
+    rest = schedule(rest_g, index)
+    els = sorted({owner[s] for s in comp if owner.get(s)})
+    where = _coord(bg, els[0])
+    counter = itertools.count(len(index))
+    new: list = []
+
+    def add(sym, expr, why, own):
+        defs[sym] = Assignment(sym, expr, why)
+        owner[sym] = own
+        index[sym] = next(counter)
+        new.append(sym)
+
+    C: dict = {t: {k: sp.Integer(1)} for k, t in enumerate(tear)}
+    tag = str(tear[0]).lstrip("_")
+    nco = itertools.count()
+
+    def coeffs(s):
+        expr = defs[s].expr
+        acc: dict = {}
+        for d in expr.free_symbols & cset:
+            part = _clean(sp.diff(expr, d))
+            if part == 0:
+                continue
+            bad = part.free_symbols & cset
+            if bad:
+                raise ModelError(where, "algebraic loop through " + ", ".join(
+                    _who(bg, e) for e in els) + f" is nonlinear in its unknowns "
+                    f"({', '.join(sorted(map(str, bad))[:6])}): bgc solves linear loops only")
+            for k, c in C.get(d, {}).items():
+                acc[k] = acc[k] + part * c if k in acc else part * c
+        out = {}
+        for k, v in sorted(acc.items()):
+            if v == 0:
+                continue
+            if _trivial(v):
+                out[k] = v
+            else:
+                sym = _sym(f"_l{next(nco)}_{tag}")
+                add(sym, v, "", owner[s])
+                out[k] = sym
+        return out
+
+    for s in rest:
+        C[s] = coeffs(s)
+    a_rows = [coeffs(t) for t in tear]
+    zero = {t: sp.Integer(0) for t in tear}
+    for s in rest:
+        z = _sym(f"_z_{s}".replace("__z_", "_z_"))
+        add(z, defs[s].expr.xreplace(zero), defs[s].why + " (loop at zero)", owner[s])
+        zero[s] = z
+    n = len(tear)
+    bsyms, A = [], sp.zeros(n, n)
+    for i, t in enumerate(tear):
+        bexpr = defs[t].expr.xreplace(zero)
+        if _trivial(bexpr):
+            bsyms.append(bexpr)
+        else:
+            b = _sym(f"_b{i}_{tag}")
+            add(b, bexpr, f"linear system for {', '.join(map(str, tear))}: right-hand side",
+                owner[t])
+            bsyms.append(b)
+        for k in range(n):
+            v = (1 if i == k else 0) - a_rows[i].get(k, 0)
+            if v == 0 or v.is_Number:
+                A[i, k] = v
+            else:
+                a = _sym(f"_A{i}_{k}_{tag}")
+                add(a, v, "linear system: matrix" if (i, k) == (0, 0) else "", owner[t])
+                A[i, k] = a
+    if n <= symbolic_max:
+        sol = list(A.LUsolve(sp.Matrix(bsyms)))
+        how = "symbolically"
+    else:
+        X = _sym(f"_X_{tag}")
+        add(X, LinSolve(n, *list(A), *bsyms), f"numeric linear solve ({n} unknowns)", owner[tear[0]])
+        sol = [LinSolveEntry(X, i) for i in range(n)]
+        how = "numerically (np.linalg.solve)"
+    for t, v in zip(tear, sol):
+        defs[t] = Assignment(t, v, defs[t].why + " (linear system solved)")
+    # rebuild the dependency edges of everything touched
+    for s in list(comp) + new:
+        g.add_node(s)
+        for dep in list(g.predecessors(s)):
+            g.remove_edge(dep, s)
+        for dep in _deps(defs[s].expr):
+            if dep in defs:
+                g.add_edge(dep, s)
+    desc = ", ".join(_who(bg, e) for e in els)
+    return (f"derivative causality: linear system in {n} unknown(s) "
+            f"({', '.join(str(t).lstrip('_') for t in tear)}) solved {how}, through {desc}")
+
+
+class LinSolve(sp.Function):
+    """x = A^-1 b for LinSolve(n, A entries row-major, b entries): printed as a batched solve."""
+
+    @classmethod
+    def eval(cls, *args):
+        return None
+
+    def _eval_derivative(self, s):  # the Jacobian goes through _linsolve_grad instead
+        raise ModelError(None, "internal: LinSolve differentiated symbolically")
+
+
+class LinSolveEntry(sp.Function):
+    """Component i of a LinSolve result (a symbol)."""
+
+    @classmethod
+    def eval(cls, *args):
+        return None
+
+
+def _deps(expr):
+    return expr.free_symbols
+
+
+def _causal_order(bg: BondGraph, defs: dict, owner: dict, tear_sets=(),
+                  symbolic_max: int = SYMBOLIC_MAX):
     """Assignments in causal order; algebraic loops solved where linear."""
     g = nx.DiGraph()
     index = {s: i for i, s in enumerate(defs)}
@@ -635,6 +909,15 @@ def _causal_order(bg: BondGraph, defs: dict, owner: dict):
             if not g.has_edge(s, s):
                 continue
         comp = sorted(comp, key=index.get)
+        if any(cset_t & set(comp) for cset_t in tear_sets):
+            done = _tear_solve(bg, g, defs, owner, comp, index, tear_sets, symbolic_max)
+            if done is None:
+                els = sorted({owner[s] for s in comp})
+                raise ModelError(_coord(bg, els[0]), "derivative causality: the loop "
+                                 "through " + ", ".join(_who(bg, e) for e in els)
+                                 + " cannot be torn at the state derivatives")
+            loops.append(done)
+            continue
         els = sorted({owner[s] for s in comp})
         desc = ", ".join(_kind(bg.element(e)) for e in els)
         eqs = [s - defs[s].expr for s in comp]
@@ -662,6 +945,19 @@ def _causal_order(bg: BondGraph, defs: dict, owner: dict):
                     g.add_edge(dep, s)
     order = schedule(g, index)
     return order, loops
+
+
+def _who(bg: BondGraph, oid: str) -> str:
+    """An element (by kind) or an auxiliary state, for messages."""
+    if oid in bg._el:
+        return _kind(bg.element(oid))
+    return f"state {oid!r}"
+
+
+def _coord(bg: BondGraph, oid: str):
+    if oid in bg._el:
+        return bg.element(oid).coord
+    return next((st.coord for st in bg.states if st.id == oid), None)
 
 
 def _kind(el: FlatElement) -> str:
