@@ -348,6 +348,8 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
     state_vars: list[StateVar] = []
 
     def define(var, value, el: FlatElement, why: str):
+        if shape_of(var) == () and shape_of(value) == (1, 1):  # M^T e for an n x 1 modulus
+            value = value[0, 0]
         if shape_of(var) != shape_of(value):
             raise ModelError(el.coord, f"{el.type} {el.id!r}: cardinality mismatch: its law "
                                        f"gives {_shape_name(shape_of(value))}, its bond "
