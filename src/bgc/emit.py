@@ -106,6 +106,17 @@ class BgcPrinter(NumPyPrinter):
             out = f"{f}({out}, {a})"
         return out
 
+    def _print_LinSolve(self, expr):
+        # x = A^-1 b, batched (derivative causality's linear system, too large for symbols)
+        n = int(expr.args[0])
+        a = ", ".join(self._print(v) for v in expr.args[1:1 + n * n])
+        b = ", ".join(self._print(v) for v in expr.args[1 + n * n:])
+        self.uses_linsolve = True
+        return f"_bgc_linsolve({n}, ({a},), ({b},))"
+
+    def _print_LinSolveEntry(self, expr):
+        return f"{self._print(expr.args[0])}[{int(expr.args[1])}]"
+
     def _print_Float(self, expr):
         return repr(float(expr))
 
@@ -268,6 +279,7 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
         states=eq.states, params=params, derived=derived, inputs=inputs,
         input_params=input_params, outputs=outputs, rhs=rhs, jac=jac, outs=outs, init=init,
         jac_keys=jkeys, n=n, imports=imports,
+        linsolve=getattr(printer, "uses_linsolve", False),
         all_param_symbols=[s for p in params for s in p["symbols"]] + [d.target for d in derived],
     )
     for ident in _identifiers(eq):

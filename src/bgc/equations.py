@@ -1025,7 +1025,29 @@ def _jacobian(kept: list[Assignment], state_vars, derivatives):
                 acc[j] = acc[j] + term if j in acc else term
         return {j: v for j, v in acc.items() if v != 0}
 
+    solves: dict = {}  # LinSolve result symbol -> {state index: symbol of its derivative}
     for a in kept:
+        if isinstance(a.expr, LinSolve):
+            # d(A^-1 b) = A^-1 (db - dA x): one more solve with the same matrix per column
+            n = int(a.expr.args[0])
+            A, b = a.expr.args[1:1 + n * n], a.expr.args[1 + n * n:]
+            x = [LinSolveEntry(a.symbol, i) for i in range(n)]
+            gA, gb = [grad(v) for v in A], [grad(v) for v in b]
+            cols = sorted(set().union(*gA, *gb))
+            solves[a.symbol] = {}
+            for j in cols:
+                r = [gb[i].get(j, 0) - sum((gA[i * n + k].get(j, 0) * x[k] for k in range(n)),
+                                           sp.Integer(0)) for i in range(n)]
+                s = _sym(f"_d{next(counter)}")
+                jac_assign.append(Assignment(s, LinSolve(n, *A, *r), ""))
+                solves[a.symbol][j] = s
+            continue
+        if isinstance(a.expr, LinSolveEntry):
+            X, i = a.expr.args
+            dv = {j: LinSolveEntry(s, i) for j, s in solves.get(X, {}).items()}
+            if dv:
+                D[a.symbol] = dv
+            continue
         g = grad(a.expr)
         if not g:
             continue
