@@ -89,8 +89,8 @@ def chain_yaml(n: int, compliant: bool = False, k: float = 1.0e6, r: float = 10.
                 f"  w{i + 1}_0: {{value: {W0[i]}, unit: rad/s}}",
                 f"  c{i + 1}: {{value: 0.05, unit: N*m*s/rad, description: joint {i + 1} friction}}"]
     if compliant:
-        out += [f"  k_j: {{value: {k!r}, unit: N/m, description: joint stiffness}}",
-                f"  r_j: {{value: {r!r}, unit: N*s/m, description: joint damping}}"]
+        out += [f"  k_j: {{value: {float(k)!r}, unit: N/m, description: joint stiffness}}",
+                f"  r_j: {{value: {float(r)!r}, unit: N*s/m, description: joint damping}}"]
     out += ["  tau0: {value: 0.3, unit: N*m}", "",
             "inputs:", '  tau: {default: "tau0 * sin(2 * t)", unit: N*m, description: torque at the pivot}',
             ""]

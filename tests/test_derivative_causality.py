@@ -364,6 +364,7 @@ def test_compliant_chain_tends_to_rigid_as_one_over_stiffness(chains):
         errs.append(np.abs(thc - thr).max())
     ratios = [errs[i] / errs[i + 1] for i in range(2)]
     assert all(5 < r < 20 for r in ratios), (errs, ratios)
+    assert errs[-1] < 1e-4
 
 
 def test_chain_numeric_solve_matches_symbolic(chains):
