@@ -376,3 +376,82 @@ def test_chain_numeric_solve_matches_symbolic(chains):
     x = np.random.default_rng(6).normal(size=(6, 5))
     np.testing.assert_allclose(mn.rhs(0.4, x), m.rhs(0.4, x), rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(mn.jacobian(0.4, x), m.jacobian(0.4, x), rtol=1e-9, atol=1e-10)
+
+
+# ---------------------------------------------------------------------------------------------
+# Closed kinematic loops and partly determined multibonds: located diagnostics, and the fix.
+
+
+def fourbar(compliant_closure: bool) -> str:
+    """The three-rod chain with its tip pinned to a second ground point: a planar four-bar."""
+    t = chain_yaml(3).replace("name: three_rod_rigid", "name: fourbar")
+    if not compliant_closure:
+        return t.replace('  tip: {type: Se, effort: "[0, 0]"}  # the free end of the last rod',
+                         '  tip: {type: Sf, flow: "[0, 0]"}  # a second pivot closes the loop')
+    from planar_chain import COUPLING
+
+    t = t.replace('  tip: {type: Se, effort: "[0, 0]"}  # the free end of the last rod',
+                  '  tip: {type: Sf, flow: "[0, 0]"}\n  jc: {type: joint, k: 1.0e+6, r: 200.0}')
+    t = t.replace("\nelements:\n  pivot", "\n" + COUPLING + "elements:\n  pivot")
+    return t.replace("  - {from: tip, to: rod3.B, n: 2}",
+                     "  - {from: tip, to: jc.a, n: 2}\n  - {from: jc.b, to: rod3.B, n: 2}")
+
+
+def test_closed_kinematic_loop_is_named_with_the_choice():
+    text = fourbar(False)
+    with pytest.raises(ModelError) as e:
+        compile_model(parse_text(text, "fourbar.yaml"))
+    msg = e.value.message
+    assert msg.startswith("closed kinematic loop (closed through the ground")
+    for el in ("tip", "pivot", "rod1.A", "rod3.B"):  # the loop's elements, by instance path
+        assert el in msg.split(":")[0], msg
+    assert "compliant coupling, e.g. at bond" in msg and "(tip -> rod3.B, n=2)" in msg
+    assert "stiffness" in msg
+    assert e.value.coord.file == "fourbar.yaml" and e.value.coord.line > 0
+
+
+def test_closed_loop_with_one_compliant_coupling_compiles_and_holds():
+    """The suggested fix: rigid joints elsewhere, one C || R where the loop closes. The
+    closing joint's deflection stays small (of order force / k) and the rods move."""
+    c, m = module(fourbar(True), "fourbar_c")
+    assert len(m.STATE_NAMES) == 3 + 3 + 2  # three angles and rates, one 2-D deflection
+    # the closing spring at rest (q = 0) in the initial pose: the second ground point is the
+    # chain's initial tip; all rods at rest, so the start is on the loop
+    names = m.STATE_NAMES
+    x0 = m.initial_state()
+    for i in range(3):
+        x0[names.index(f"rod{i + 1}.Ir.p")] = 0.0
+    t_eval = np.linspace(0, 2, 21)
+    _, x, _ = m.simulate((0, 2), t_eval=t_eval, x0=x0, method="Radau", rtol=1e-8, atol=1e-10)
+    q = x[[k for k, s in enumerate(names) if s.startswith("jc.C.q")]]
+    th, _ = _angles(m, x, 3)
+    assert np.abs(q).max() < 1e-3  # about (gravity + torque load) / k
+    assert np.ptp(th, axis=1).max() > 1e-2  # the four-bar moves (driven by the torque)
+
+
+def test_partly_determined_multibond_is_named():
+    text = """\
+bgc: 1
+name: lever
+elements:
+  pivot: {type: Sf, flow: "[0, 0]"}
+  A: {type: "1"}
+  s: {type: "0"}
+  vC: {type: "1"}
+  mass: {type: I, inertia: "2.0"}
+  mt: {type: MTF, modulus: "[0.5, -0.2]"}
+  w: {type: "1"}
+  fr: {type: R, resistance: "0.1"}
+bonds:
+  - {from: pivot, to: A, n: 2}
+  - {from: s, to: A, n: 2}
+  - {from: vC, to: s, n: 2}
+  - {from: vC, to: mass, n: 2}
+  - {from: w, to: mt}
+  - {from: mt, to: s, n: 2}
+  - [w, fr]
+"""
+    with pytest.raises(ModelError) as e:
+        compile_model(parse_text(text, "lever.yaml"))
+    assert e.value.coord.line == 9
+    assert "multibond 'b6' (mt -> s, n=2) is only partly determined" in e.value.message

@@ -58,6 +58,14 @@ class Causality:
         return "fixed"
 
 
+class CausalConflict(ModelError):
+    """A causal conflict, with the element where it arose (``at``)."""
+
+    def __init__(self, coord, message: str, at: str):
+        super().__init__(coord, message)
+        self.at = at
+
+
 class _Scap:
     def __init__(self, bg: BondGraph):
         self.bg = bg
@@ -77,9 +85,10 @@ class _Scap:
                 what = "effort" if setter == via else "flow"
                 src = lambda x, y: (self.kind(x) if x == y  # noqa: E731
                                     else f"{self.kind(x)} (through {self.kind(y)})")
-                raise ModelError(self.bg.element(via).coord,
+                raise CausalConflict(self.bg.element(via).coord,
                                  f"causal conflict on bond {b.id!r} ({b.src} -> {b.dst}): "
-                                 f"{src(origin, via)} and {src(o, o_via)} both impose its {what}")
+                                 f"{src(origin, via)} and {src(o, o_via)} both impose its {what}",
+                                 via)
             return
         self.effort_by[b.id] = setter
         self.origin[b.id] = (origin, via)
@@ -112,14 +121,16 @@ class _Scap:
                 if n_imp > 1:
                     imp = [b for b, s in zip(bonds, states) if s]
                     origins = sorted({self.origin[b.id][0] for b in imp})
-                    raise ModelError(el.coord, f"causal conflict at {self.kind(eid)}: "
-                                               f"{' and '.join(self.kind(o) for o in origins)} "
-                                               f"each impose its {'effort' if t == '0' else 'flow'}")
+                    raise CausalConflict(el.coord, f"causal conflict at {self.kind(eid)}: "
+                                                   f"{' and '.join(self.kind(o) for o in origins)} "
+                                                   f"each impose its "
+                                                   f"{'effort' if t == '0' else 'flow'}", eid)
                 if n_imp == 0 and bonds and all(st is False for st in states):
                     what = "effort" if t == "0" else "flow"
-                    raise ModelError(el.coord, f"causal conflict at {self.kind(eid)}: every "
-                                               f"bond has its {'flow' if t == '0' else 'effort'}"
-                                               f" imposed and none sets its {what}")
+                    raise CausalConflict(el.coord, f"causal conflict at {self.kind(eid)}: every "
+                                                   f"bond has its "
+                                                   f"{'flow' if t == '0' else 'effort'} imposed "
+                                                   f"and none sets its {what}", eid)
                 if n_imp == 1:
                     for b, s in zip(bonds, states):
                         if s is None:  # not imposing: on a 0 the junction sets the effort
@@ -137,8 +148,9 @@ class _Scap:
                 elif eb is not None and ea is None:
                     self.set(a, self.other(a, eid) if eb == eid else eid, origin, eid, queue)
                 elif ea is not None and eb is not None and (ea == eid) == (eb == eid):
-                    raise ModelError(el.coord, f"causal conflict at {self.kind(eid)}: it must set "
-                                               "the effort on exactly one of its bonds")
+                    raise CausalConflict(el.coord, f"causal conflict at {self.kind(eid)}: it must "
+                                                   "set the effort on exactly one of its bonds",
+                                                   eid)
             elif t in ("GY", "MGY"):
                 a, b = bonds
                 ea, eb = self.effort_by.get(a.id), self.effort_by.get(b.id)
@@ -147,8 +159,8 @@ class _Scap:
                 elif eb is not None and ea is None:
                     self.set(a, eid if eb == eid else self.other(a, eid), origin, eid, queue)
                 elif ea is not None and eb is not None and (ea == eid) != (eb == eid):
-                    raise ModelError(el.coord, f"causal conflict at {self.kind(eid)}: it sets "
-                                               "both efforts or both flows")
+                    raise CausalConflict(el.coord, f"causal conflict at {self.kind(eid)}: it sets "
+                                                   "both efforts or both flows", eid)
 
     def decide(self, el: FlatElement, sets_effort: bool) -> None:
         (b,) = self.bg.bonds_of(el.id)
@@ -182,10 +194,18 @@ def assign_causality(bg: BondGraph, allow_derivative: bool = False) -> Causality
         try:
             _choose_independent(bg, s)
             arbitrary, open_bonds = _finish(s, [])
+        except CausalConflict as err:
+            loop = closed_loop(bg, err.at)
+            if loop:
+                raise ModelError(err.coord, closed_loop_message(bg, loop, err.message)) from None
+            if plain_err is not None:
+                raise plain_err from None
+            raise
         except ModelError:
             if plain_err is not None:
                 raise plain_err from None
             raise
+    _check_partial(bg, s)
     # Derivative causality
     derivative, forced = [], {}
     for el in bg.elements:
@@ -297,6 +317,71 @@ def _choose_independent(bg: BondGraph, s: _Scap) -> None:
             if score[:2] == (0, 0):
                 break  # nothing inverted: cannot do better
         s.decide(best, best.type == "C")
+
+
+def _check_partial(bg: BondGraph, s: _Scap) -> None:
+    for el in bg.elements:  # a non-square modulus left inverted: partly determined
+        if el.type in ("MTF", "MGY"):
+            b1, b2 = sorted(bg.bonds_of(el.id), key=lambda b: b.dst != el.id)
+            inv = (s.effort_by[b1.id] != el.id if el.type == "MTF" else
+                   not (s.effort_by[b1.id] == el.id and s.effort_by[b2.id] == el.id))
+            if inv and b1.n != b2.n:
+                big = b1 if b1.n > b2.n else b2
+                why = (f"multibond {big.id!r} ({big.src} -> {big.dst}, n={big.n}) is only "
+                       f"partly determined: causality reaches {el.type} {el.id!r} from its "
+                       f"n={big.n} side, and its {b2.n}x{b1.n} modulus has no inverse "
+                       f"(some components of {big.id!r} are dependent, some not)")
+                loop = closed_loop(bg, el.id)
+                raise ModelError(el.coord, closed_loop_message(bg, loop, why) if loop
+                                 else why + "; split the multibond into scalar bonds or "
+                                 "make a connection on its causal path compliant")
+
+
+def closed_loop(bg: BondGraph, at: str) -> list[str]:
+    """A cycle through element ``at`` and the ground (every flow source joined to one ground
+    node: fixed points are one body), made of two node-disjoint paths from ``at`` to the
+    ground: a closed kinematic loop. Empty when there is none (or no inertia at all)."""
+    import networkx as nx
+
+    g = nx.Graph()
+    for b in bg.bonds:
+        g.add_edge(b.src, b.dst, bond=b.id)
+    ground = ("ground",)
+    for el in bg.elements:
+        if el.type == "Sf":
+            g.add_edge(el.id, ground, bond=None)
+    if at not in g or not any(el.type == "I" for el in bg.elements):
+        return []
+    if ground in g and nx.has_path(g, at, ground):
+        paths = sorted(nx.node_disjoint_paths(g, at, ground), key=len)
+        if len(paths) >= 2:
+            p1, p2 = paths[0], paths[1]
+            return [x if x != ground else "ground" for x in p1[:-1] + [ground] + p2[::-1][1:-1]]
+    return []
+
+
+def closed_loop_message(bg: BondGraph, loop: list[str], why: str) -> str:
+    """A closed kinematic loop: where, and the choice (one compliant coupling)."""
+    names = [x for x in loop if x != "ground"]
+    # the connections between bodies on the loop: bonds whose ends lie in different instances
+    joints = []
+    for a, b in zip(loop, loop[1:] + loop[:1]):
+        for bd in bg.bonds:
+            if {bd.src, bd.dst} == {a, b} and bd.src.rsplit(".", 1)[0] != bd.dst.rsplit(".", 1)[0]:
+                joints.append(bd)
+    # prefer the connection at the flow source that closes the loop (the last one written)
+    grounded = [bd for bd in joints if bg.element(bd.src).type == "Sf"
+                or bg.element(bd.dst).type == "Sf"]
+    pick = max(grounded or joints, key=lambda bd: bd.index) if joints else None
+    where = (f"bond {pick.id!r} ({pick.src} -> {pick.dst}, n={pick.n})" if pick
+             else "one of its bonds")
+    listed = ", ".join(names[:24]) + (f", ... ({len(names)} elements)" if len(names) > 24 else "")
+    through = " (closed through the ground, its flow sources)" if "ground" in loop else ""
+    return (f"closed kinematic loop{through} through {listed}: {why}. Differentiating the "
+            "constraint cannot hold it at position level; close the loop with one compliant "
+            f"coupling, e.g. at {where}: a 0-junction with a 1-junction carrying a C (stiffness "
+            "k, say 1e6..1e8 for metal joints) in parallel with an R, in place of the rigid "
+            "connection (the `joint` component of bench/planar_chain.py; the paper's remedy)")
 
 
 def dependent_report(bg: BondGraph, caus: Causality, eqs=None) -> str:
