@@ -455,3 +455,75 @@ bonds:
         compile_model(parse_text(text, "lever.yaml"))
     assert e.value.coord.line == 9
     assert "multibond 'b6' (mt -> s, n=2) is only partly determined" in e.value.message
+
+
+# ---------------------------------------------------------------------------------------------
+# Nonlinear algebraic loops: Newton's method in the generated code.
+
+NONLINEAR = """\
+bgc: 1
+name: nl_loop
+elements:
+  source:   {type: Se, effort: "10"}
+  j_in:     {type: "1"}
+  series_R: {type: R, effort: "1000 * f + f**3"}
+  node:     {type: "0"}
+  shunt_R:  {type: R, resistance: "2000"}
+  j_out:    {type: "1"}
+  load_R:   {type: R, resistance: "500"}
+  cap:      {type: C, compliance: "0.001"}
+bonds: [[source, j_in], [j_in, series_R], [j_in, node], [node, shunt_R], [node, j_out],
+        [j_out, load_R], [j_out, cap]]
+outputs: {vnode: "e(node)"}
+"""
+
+
+def test_nonlinear_loop_solved_by_newton():
+    """The node voltage of a source - cubic resistor - (shunt || load + C) circuit, against
+    scipy's brentq on the circuit's one-unknown equation."""
+    from scipy.optimize import brentq
+
+    c, m = module(NONLINEAR, "nl")
+    assert "Newton" in c.source and any("Newton" in lp for lp in c.equations.loops)
+    qs = np.array([0.0, 0.003, -0.01, 0.008])
+    dq = m.rhs(0.0, qs[None])[0]
+    y = m.outputs(0.0, qs[None])
+    for k, q in enumerate(qs):
+        vc = q / 0.001
+
+        def res(f):
+            en = 10 - (1000 * f + f ** 3)
+            return f - (en / 2000 + (en - vc) / 500)
+        f = brentq(res, -1, 1, xtol=1e-15)
+        en = 10 - (1000 * f + f ** 3)
+        assert abs(dq[k] - (en - vc) / 500) < 1e-12
+        assert abs(y["vnode"][k] - en) < 1e-9
+    # the Jacobian through the solution (implicit function theorem) against differences
+    x = np.array([0.002])
+    h = 1e-7
+    fd = (m.rhs(0.0, x + h) - m.rhs(0.0, x - h)) / (2 * h)
+    np.testing.assert_allclose(m.jacobian(0.0, x)[0, 0], fd[0], rtol=1e-6)
+    # a run against the same equation integrated by scipy with brentq inside
+    def ref(t, q):
+        vc = q[0] / 0.001
+        f = brentq(lambda f: f - ((10 - 1000 * f - f ** 3) / 2000
+                                   + (10 - 1000 * f - f ** 3 - vc) / 500), -1, 1, xtol=1e-15)
+        return [((10 - 1000 * f - f ** 3) - vc) / 500]
+    t_eval = np.linspace(0, 2, 11)
+    _, xs, _ = m.simulate((0, 2), t_eval=t_eval, method="Radau", rtol=1e-10, atol=1e-13)
+    r = solve_ivp(ref, (0, 2), [0.0], t_eval=t_eval, rtol=1e-10, atol=1e-13)
+    np.testing.assert_allclose(xs[0], r.y[0], rtol=1e-7, atol=1e-11)
+    # strict: today's error
+    with pytest.raises(ModelError, match="is nonlinear"):
+        compile_model(parse_text(NONLINEAR, "nl.yaml"), strict_causality=True)
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")
+def test_newton_failure_is_located():
+    text = NONLINEAR.replace('effort: "1000 * f + f**3"', 'effort: "1 / f"')
+    _, m = module(text, "nlbad")
+    with pytest.raises(m.SimulationError) as e:
+        m.rhs(0.0, np.array([0.0]))
+    msg = str(e.value)
+    assert msg.startswith("nlbad.yaml:5:3: algebraic loop through") and "series_R" in msg
+    assert "did not converge" in msg

@@ -107,8 +107,9 @@ def check_cmd(model, strict_causality):
 
     m = parse_file(model)
     bg = build_graph(m)
-    caus = assign_causality(bg, allow_derivative=not (strict_causality or m.strict_causality))
-    eqs = derive(bg, caus)  # every expression built and checked, as `bgc compile` would
+    strict = strict_causality or m.strict_causality
+    caus = assign_causality(bg, allow_derivative=not strict)
+    eqs = derive(bg, caus, newton=not strict)  # everything built and checked, as in compile
     out = io.StringIO()
     out.write(f"model {m.name}: {len(bg.elements)} elements, {len(bg.bonds)} bonds\n\n")
     out.write("causality (the stroke is at the end that receives the effort):\n")

@@ -75,6 +75,7 @@ def compile_model(model: Model, progress=None, plan: Plan | None = None,
                 f"{k} = {_short(v)}" for k, v in sorted(plan.fold.items())))
     say("deriving equations")
     kw = {} if symbolic_max is None else {"symbolic_max": symbolic_max}
+    kw["newton"] = not strict  # strict: a nonlinear algebraic loop stays an error too
     eqs = derive(graph, caus, progress, fold=fold, zero=zero, **kw)
     if special and plan.outputs:
         say("slicing to the requested outputs")

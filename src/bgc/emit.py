@@ -114,6 +114,10 @@ class BgcPrinter(NumPyPrinter):
         self.uses_linsolve = True
         return f"_bgc_linsolve({n}, ({a},), ({b},))"
 
+    def _print_NewtonSolve(self, expr):
+        k = int(expr.args[0])
+        return f"_newton_{k}({', '.join(self._print(a) for a in expr.args[1:])})"
+
     def _print_LinSolveEntry(self, expr):
         return f"{self._print(expr.args[0])}[{int(expr.args[1])}]"
 
@@ -253,6 +257,16 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
     outs = _function(eq, printer, oexprs, list(eq.assignments), okeys)
     init = _function(eq, printer, [sv.initial for sv in eq.states], [], list(range(n)),
                      cse=False)
+    newton = []
+    for nl in eq.newton:  # nonlinear algebraic loops: a Newton solver each
+        newton.append({
+            "name": nl.name, "n": len(nl.tear), "args": [str(a) for a in nl.args],
+            "tear": [str(t) for t in nl.tear], "message": nl.where,
+            "body": [Line(str(sym), printer.doprint(e)) for sym, e in nl.body],
+            "residual": [printer.doprint(e) for e in nl.residual],
+            "jac": [printer.doprint(e) for e in nl.jac]})
+    if newton:
+        printer.uses_linsolve = True
     derived = [Line(str(a.symbol), printer.doprint(a.expr), a.why) for a in eq.derived]
     inputs = []
     for iv in eq.inputs:
@@ -279,7 +293,7 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
         states=eq.states, params=params, derived=derived, inputs=inputs,
         input_params=input_params, outputs=outputs, rhs=rhs, jac=jac, outs=outs, init=init,
         jac_keys=jkeys, n=n, imports=imports,
-        linsolve=getattr(printer, "uses_linsolve", False),
+        linsolve=getattr(printer, "uses_linsolve", False), newton=newton,
         all_param_symbols=[s for p in params for s in p["symbols"]] + [d.target for d in derived],
     )
     for ident in _identifiers(eq):

@@ -13,6 +13,7 @@ from __future__ import annotations
 import heapq
 import itertools
 from dataclasses import dataclass, field
+from dataclasses import replace as dc_replace
 
 import networkx as nx
 import sympy as sp
@@ -106,6 +107,7 @@ class Equations:
     notes: tuple[str, ...] = field(default=())
     # storage elements in derivative causality: (element id, the state names it follows from)
     dependent: tuple = field(default=())
+    newton: tuple = field(default=())  # NewtonLoop: nonlinear algebraic loops
 
 
 class _Ctx:
@@ -324,7 +326,8 @@ def _fold_value(v):
 
 
 def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = None,
-           zero: dict | None = None, symbolic_max: int = SYMBOLIC_MAX) -> Equations:
+           zero: dict | None = None, symbolic_max: int = SYMBOLIC_MAX,
+           newton: bool = True) -> Equations:
     """State equations of a causal bond graph.
 
     ``fold``: parameter id -> value, turned into numbers; ``zero``: removed element id ->
@@ -406,7 +409,8 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
         tear_sets = _time_derivatives(ctx, defs, owner, derivs, state_vars)
     if progress:
         progress("ordering assignments")
-    order, loops = _causal_order(bg, defs, owner, tear_sets, symbolic_max)
+    nloops: list = [] if newton else None
+    order, loops = _causal_order(bg, defs, owner, tear_sets, symbolic_max, nloops)
     # Inline plain copies (junction equalities, sign flips, constants): they are not work.
     subs: dict = {}
     kept: list[Assignment] = []
@@ -441,12 +445,13 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
 
     if progress:
         progress("deriving the Jacobian")
-    jac, jac_assign = _jacobian(kept, state_vars, derivatives)
+    nloops = [dc_replace(nl, g=tuple(e.xreplace(subs) for e in nl.g)) for nl in nloops or ()]
+    jac, jac_assign = _jacobian(kept, state_vars, derivatives, nloops)
     _check_names(bg, ctx, state_vars)
     return Equations(bg.model.name, tuple(state_vars), tuple(ctx.params.values()),
                      tuple(ctx_derived), tuple(ctx.inputs[i.name] for i in bg.model.inputs),
                      tuple(kept), derivatives, outputs, jac, tuple(jac_assign), tuple(loops),
-                     dependent=tuple(dependent))
+                     dependent=tuple(dependent), newton=tuple(nloops))
 
 
 def _state_label(oid: str, shape, k: int) -> str:
@@ -890,13 +895,124 @@ class LinSolveEntry(sp.Function):
         return None
 
 
+@dataclass(frozen=True)
+class NewtonLoop:
+    """A nonlinear algebraic loop solved by Newton's method in the generated code."""
+
+    name: str  # the generated function
+    tear: tuple  # its unknowns (symbols)
+    args: tuple  # the symbols from outside the loop it reads
+    body: tuple  # (symbol, expr): the loop's other variables and the derivative coefficients
+    residual: tuple  # tear_i - g_i(...), zero at the solution
+    jac: tuple  # d residual / d tear, row-major
+    g: tuple  # g_i: the tear variables' own definitions (for the system Jacobian)
+    rest: tuple  # the loop's other variables, in order
+    where: str  # for the error message: "file:line:col: algebraic loop through ..."
+
+
+class NewtonSolve(sp.Function):
+    """The tear variables of Newton loop k: NewtonSolve(k, *outside symbols)."""
+
+    @classmethod
+    def eval(cls, *args):
+        return None
+
+
+def _cut_set(g: nx.DiGraph, comp: list, index: dict) -> list:
+    """Tear variables that leave the loop acyclic: greedily the node with the most
+    in x out edges inside what is still cyclic (ties: the first in causal priority)."""
+    tear: list = []
+    rest = set(comp)
+    while True:
+        sub = g.subgraph(rest)
+        cyc = [c for c in nx.strongly_connected_components(sub)
+               if len(c) > 1 or any(sub.has_edge(v, v) for v in c)]
+        if not cyc:
+            return tear
+        cand = max((v for c in cyc for v in c),
+                   key=lambda v: (sub.in_degree(v) * sub.out_degree(v), -index[v]))
+        tear.append(cand)
+        rest.discard(cand)
+
+
+def _newton_loop(bg, g, defs, owner, comp, index, newton: list) -> str:
+    k = len(newton)
+    tear = sorted(_cut_set(g, comp, index), key=index.get)
+    tset = set(tear)
+    rest = schedule(g.subgraph([s for s in comp if s not in tset]).copy(), index)
+    cset = set(comp)
+    els = sorted({owner[s] for s in comp})
+    desc = ", ".join(_who(bg, e) for e in els)
+    body: list = []
+    C: dict = {t: {i: sp.Integer(1)} for i, t in enumerate(tear)}
+    nco = itertools.count()
+
+    def coeffs(expr):
+        acc: dict = {}
+        for d in expr.free_symbols & cset:
+            part = _clean(sp.diff(expr, d))
+            if part == 0:
+                continue
+            for i, c in C.get(d, {}).items():
+                acc[i] = acc[i] + part * c if i in acc else part * c
+        out = {}
+        for i, v in sorted(acc.items()):
+            if v == 0:
+                continue
+            if _trivial(v):
+                out[i] = v
+            else:
+                sym = _sym(f"_nc{next(nco)}")
+                body.append((sym, v))
+                out[i] = sym
+        return out
+
+    for s in rest:
+        body.append((s, defs[s].expr))
+        C[s] = coeffs(defs[s].expr)
+    G = [defs[t].expr for t in tear]
+    n = len(tear)
+    a_rows = [coeffs(gi) for gi in G]
+    residual = tuple(t - gi for t, gi in zip(tear, G))
+    jac = tuple((1 if i == j else 0) - a_rows[i].get(j, 0) for i in range(n) for j in range(n))
+    inner = {sym for sym, _ in body} | tset
+    outside = set()
+    for e in [e for _, e in body] + list(residual) + list(jac):
+        outside |= sp.sympify(e).free_symbols - inner
+    args = tuple(sorted(outside, key=str))
+    c = _coord(bg, els[0])
+    where = f"{c}: " if c else ""
+    X = _sym(f"_nl{k}")
+    newton.append(NewtonLoop(f"_newton_{k}", tuple(tear), args, tuple(body), residual, jac,
+                             tuple(G), tuple(rest),
+                             f"{where}algebraic loop through {desc} (unknowns "
+                             f"{', '.join(map(str, tear))})"))
+    defs[X] = Assignment(X, NewtonSolve(k, *args), f"nonlinear algebraic loop through {desc}: "
+                                                   "Newton's method")
+    owner[X] = els[0]
+    index[X] = len(index)
+    for i, t in enumerate(tear):
+        defs[t] = Assignment(t, LinSolveEntry(X, i), defs[t].why + " (Newton)")
+    for v in list(comp) + [X]:
+        g.add_node(v)
+        for dep in list(g.predecessors(v)):
+            g.remove_edge(dep, v)
+        for dep in defs[v].expr.free_symbols:
+            if dep in defs:
+                g.add_edge(dep, v)
+    return (f"nonlinear algebraic loop solved by Newton's method in {n} unknown(s) "
+            f"({', '.join(map(str, tear))}), through {desc}")
+
+
 def _deps(expr):
     return expr.free_symbols
 
 
 def _causal_order(bg: BondGraph, defs: dict, owner: dict, tear_sets=(),
-                  symbolic_max: int = SYMBOLIC_MAX):
-    """Assignments in causal order; algebraic loops solved where linear."""
+                  symbolic_max: int = SYMBOLIC_MAX, newton: list | None = None):
+    """Assignments in causal order; algebraic loops solved where linear (symbolically), and
+    nonlinear ones by Newton's method in the generated code when ``newton`` (a list that
+    receives the loops) is given."""
     g = nx.DiGraph()
     index = {s: i for i, s in enumerate(defs)}
     for s, a in defs.items():
@@ -927,6 +1043,9 @@ def _causal_order(bg: BondGraph, defs: dict, owner: dict, tear_sets=(),
             A, rhs = sp.linear_eq_to_matrix(eqs, comp)
         except (sp.polys.polyerrors.PolynomialError, ValueError, TypeError):
             A = None
+        if (A is None or any(A.has(s) for s in comp)) and newton is not None:
+            loops.append(_newton_loop(bg, g, defs, owner, comp, index, newton))
+            continue
         if A is None or any(A.has(s) for s in comp):
             raise ModelError(bg.element(els[0]).coord,
                              f"algebraic loop through {desc} is nonlinear in its unknowns "
@@ -999,7 +1118,7 @@ def _clean(d):
     return d
 
 
-def _jacobian(kept: list[Assignment], state_vars, derivatives):
+def _jacobian(kept: list[Assignment], state_vars, derivatives, nloops=()):
     """Forward-mode Jacobian along the causal assignments.
 
     D[v] maps a state index j to dv/dx_j. Non-trivial entries become new intermediates
@@ -1026,7 +1145,65 @@ def _jacobian(kept: list[Assignment], state_vars, derivatives):
         return {j: v for j, v in acc.items() if v != 0}
 
     solves: dict = {}  # LinSolve result symbol -> {state index: symbol of its derivative}
+    kept_map = {a.symbol: a for a in kept}
+
+    def local(seed: dict, exprs_of, order, outer: bool):
+        """Forward mode over the loop's variables with the tear variables seeded."""
+        Dl = dict(seed)
+        for s in order:
+            a = kept_map.get(s)
+            if a is None:
+                continue
+            acc: dict = {}
+            for d in a.expr.free_symbols:
+                ds = Dl.get(d) if d in Dl else (D.get(d) if outer else None)
+                if not ds:
+                    continue
+                part = _clean(sp.diff(a.expr, d))
+                if part == 0:
+                    continue
+                for j, dj in ds.items():
+                    acc[j] = acc[j] + part * dj if j in acc else part * dj
+            dv = {}
+            for j, v in sorted(acc.items()):
+                if v == 0:
+                    continue
+                if _trivial(v):
+                    dv[j] = v
+                else:
+                    sym = _sym(f"_d{next(counter)}")
+                    jac_assign.append(Assignment(sym, v, ""))
+                    dv[j] = sym
+            Dl[s] = dv
+        out = []
+        for e in exprs_of:
+            acc = {}
+            for d in e.free_symbols:
+                ds = Dl.get(d) if d in Dl else (D.get(d) if outer else None)
+                if not ds:
+                    continue
+                part = _clean(sp.diff(e, d))
+                for j, dj in ds.items():
+                    acc[j] = acc[j] + part * dj if j in acc else part * dj
+            out.append({j: v for j, v in acc.items() if v != 0})
+        return out
+
     for a in kept:
+        if isinstance(a.expr, NewtonSolve):
+            # implicit function theorem at the solution: (I - dg/dz) dz = dg/dx (z held)
+            nl = nloops[int(a.expr.args[0])]
+            n = len(nl.tear)
+            gx = local({t: {} for t in nl.tear}, nl.g, nl.rest, True)
+            gz = local({t: {i: sp.Integer(1)} for i, t in enumerate(nl.tear)}, nl.g, nl.rest,
+                       False)
+            A = [(1 if i == k else 0) - gz[i].get(k, 0) for i in range(n) for k in range(n)]
+            solves[a.symbol] = {}
+            for j in sorted(set().union(*gx)):
+                s = _sym(f"_d{next(counter)}")
+                jac_assign.append(Assignment(s, LinSolve(n, *A, *[gx[i].get(j, 0)
+                                                                  for i in range(n)]), ""))
+                solves[a.symbol][j] = s
+            continue
         if isinstance(a.expr, LinSolve):
             # d(A^-1 b) = A^-1 (db - dA x): one more solve with the same matrix per column
             n = int(a.expr.args[0])
