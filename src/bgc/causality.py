@@ -331,10 +331,10 @@ def _check_partial(bg: BondGraph, s: _Scap) -> None:
                        f"partly determined: causality reaches {el.type} {el.id!r} from its "
                        f"n={big.n} side, and its {b2.n}x{b1.n} modulus has no inverse "
                        f"(some components of {big.id!r} are dependent, some not)")
-                loop = closed_loop(bg, el.id)
-                raise ModelError(el.coord, closed_loop_message(bg, loop, why) if loop
-                                 else why + "; split the multibond into scalar bonds or "
-                                 "make a connection on its causal path compliant")
+                raise ModelError(el.coord, why + ": split the multibond (give the free "
+                                 "components their own storage element), or make a "
+                                 "connection on its causal path compliant (a C || R coupling "
+                                 "with a stiffness)")
 
 
 def closed_loop(bg: BondGraph, at: str) -> list[str]:
@@ -400,8 +400,9 @@ def dependent_report(bg: BondGraph, caus: Causality, eqs=None) -> str:
             how = "q = K^-1 e, its effort e imposed by the causal path; its flow is dq/dt"
         on = deps.get(eid)
         on_txt = f"; follows from {', '.join(on)}" if on else ""
+        unused = "; its `initial:` is not used" if el.initial is not None else ""
         lines.append(f"  {el.type} {eid} (line {el.coord.line}): forced by {o.type} {origin} "
-                     f"through {through}{on_txt}; {how}")
+                     f"through {through}{on_txt}; {how}{unused}")
     return "\n".join(lines) + "\n"
 
 
