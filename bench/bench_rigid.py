@@ -12,9 +12,14 @@ of 3), side by side.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
+
+# one BLAS thread, as the tests do: the small dense LUs of the implicit methods only contend
+# with other processes on a shared machine
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 
