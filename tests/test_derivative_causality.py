@@ -527,3 +527,44 @@ def test_newton_failure_is_located():
     msg = str(e.value)
     assert msg.startswith("nlbad.yaml:5:3: algebraic loop through") and "series_R" in msg
     assert "did not converge" in msg
+
+
+def test_capacitors_in_parallel_dependent_c():
+    """Two capacitors on one node: C2's charge follows from C1's (q2 = c2 e), its current is
+    dq2/dt. Reduced: (c1 + c2) v' = (V - v) / R, against the closed form."""
+    text = """\
+bgc: 1
+name: two_caps
+parameters: {V: 5.0, R: 100.0, c1: 1.0e-3, c2: 3.0e-3}
+elements:
+  src: {type: Se, effort: "V"}
+  j: {type: "1"}
+  r: {type: R, resistance: "R"}
+  node: {type: "0"}
+  C1: {type: C, compliance: "c1"}
+  C2: {type: C, compliance: "c2"}
+bonds: [[src, j], [j, r], [j, node], [node, C1], [node, C2]]
+outputs: {i2: "f(C2)", q2: "q(C2)", v: "e(node)"}
+"""
+    c, m = module(text, "two_caps")
+    assert m.STATE_NAMES == ("C1.q",) and c.causality.derivative == ("C2",)
+    V, R, c1, c2 = 5.0, 100.0, 1e-3, 3e-3
+    t_eval = np.linspace(0, 1, 11)
+    _, x, y = m.simulate((0, 1), t_eval=t_eval, method="Radau", rtol=1e-10, atol=1e-14)
+    tau = R * (c1 + c2)
+    v = V * (1 - np.exp(-t_eval / tau))
+    np.testing.assert_allclose(y["v"], v, atol=1e-8)
+    np.testing.assert_allclose(x[0], c1 * v, atol=1e-11)
+    np.testing.assert_allclose(y["q2"], c2 * v, atol=1e-11)
+    np.testing.assert_allclose(y["i2"], c2 * V / tau * np.exp(-t_eval / tau), rtol=1e-7,
+                               atol=1e-11)
+
+
+def test_strict_error_names_the_instance_path(chains):
+    """The dependent element inside a shared component is named by its instance path, and
+    located at its line in the component."""
+    c, _ = chains[2]
+    with pytest.raises(ModelError) as e:
+        compile_model(parse_text(chain_yaml(2), "dp.yaml"), strict_causality=True)
+    assert "I 'rod1.It' is forced into derivative causality by I 'rod1.Ir'" in e.value.message
+    assert e.value.coord.line == c.graph.element("rod1.It").coord.line
