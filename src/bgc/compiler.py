@@ -58,9 +58,14 @@ def compile_model(model: Model, progress=None, plan: Plan | None = None,
     if special:
         say("specialising for the scene")
         full_states = state_owners(graph, caus)
-        if caus.derivative:  # the full model must be sound before anything is removed
+        if caus.derivative and plan.effects_off:
+            # turning effects off re-assigns causality, which assumes every storage element
+            # independent; folding parameters and slicing outputs work on the equations
             raise ModelError(graph.element(caus.derivative[0]).coord,
-                             derivative_message(graph, caus))
+                             derivative_message(graph, caus).replace(
+                                 "derivative causality:", "derivative causality (a scene "
+                                 "that turns effects off needs every storage element "
+                                 "independent):", 1))
         rem = remove_effects(graph, plan.effects_off, plan.coord)
         if plan.effects_off:
             notes.append("effects off: " + ", ".join(sorted(plan.effects_off)))
