@@ -75,30 +75,6 @@ JAC_SPARSITY[
 ] = True
 
 
-class SimulationError(RuntimeError):
-    """The integrator failed or was stopped (the message says why): .t where, .stats the counts."""
-
-    t = None
-    stats = None
-
-
-class StiffnessError(SimulationError):
-    """An explicit method met a stiff model (the message says where, why, and what to use)."""
-
-
-class SimResult(tuple):
-    """(t, x, y) with x of shape (n, *batch, len(t)) and y the outputs; .stats the solver's counts."""
-
-    def __new__(cls, t, x, y, stats):
-        self = super().__new__(cls, (t, x, y))
-        self.stats = stats
-        return self
-
-    t = property(lambda self: self[0])
-    x = property(lambda self: self[1])
-    y = property(lambda self: self[2])
-
-
 def _unpack(P):
     """Parameter dict -> flat tuple of values (matrix entries, then derived parameters)."""
     V0 = P['V0']
@@ -214,7 +190,7 @@ def jacobian(t, x, p=None, u=None):
     _d2 = K*_d0
     _d3 = 1/J_r
     _d4 = K*_d3
-    _d5 = _d3*b
+    _d5 = b*_d3
 
     J = np.zeros((2, 2) + np.broadcast_shapes(x.shape[1:], _bshape))
     J[0, 0] = -_d1
@@ -251,8 +227,32 @@ def outputs(t, x, p=None, u=None):
         'speed': np.array(_b(f_b6)),
         'back_emf': np.array(_b(e_b4)),
         'torque': np.array(_b(e_b5)),
-        'power_in': np.array(_b(f_b3*u_V)),
+        'power_in': np.array(_b(u_V*f_b3)),
     }
+
+
+class SimulationError(RuntimeError):
+    """The integrator failed or was stopped (the message says why): .t where, .stats the counts."""
+
+    t = None
+    stats = None
+
+
+class StiffnessError(SimulationError):
+    """An explicit method met a stiff model (the message says where, why, and what to use)."""
+
+
+class SimResult(tuple):
+    """(t, x, y) with x of shape (n, *batch, len(t)) and y the outputs; .stats the solver's counts."""
+
+    def __new__(cls, t, x, y, stats):
+        self = super().__new__(cls, (t, x, y))
+        self.stats = stats
+        return self
+
+    t = property(lambda self: self[0])
+    x = property(lambda self: self[1])
+    y = property(lambda self: self[2])
 
 
 # --------------------------------------------------------------------------------------------

@@ -5,7 +5,7 @@ Source: double_pendulum_rigid.yaml (sha256 864f95dbc1b46e41). Do not edit; regen
 planar chain of 2 rods with rigid revolute joints, gravity, joint friction and a torque at the pivot
 
 Notes:
-    - derivative causality: linear system in 2 unknown(s) (dx_p_rod1__Ir, dx_p_rod2__Ir) solved symbolically, through 1-junction 'rod1.B', I 'rod1.Ir', I 'rod1.It', MTF 'rod1.mA', MTF 'rod1.mB', 0-junction 'rod1.sA', 0-junction 'rod1.sB', 1-junction 'rod1.vC', 1-junction 'rod1.w', 1-junction 'rod2.A', I 'rod2.Ir', I 'rod2.It', MTF 'rod2.mA', 0-junction 'rod2.sA', 1-junction 'rod2.vC', 1-junction 'rod2.w'
+    - derivative causality: linear system in 2 unknown(s) (dx_p_rod1__Ir, dx_p_rod2__Ir) solved symbolically, through 1-junction 'rod1.B', I 'rod1.Ir', I 'rod1.It', MTF 'rod1.mA', MTF 'rod1.mB', 0-juncti...
 
 States, in the order of x (4):
       0  rod1.Ir.p
@@ -120,30 +120,6 @@ JAC_SPARSITY[
 ] = True
 
 
-class SimulationError(RuntimeError):
-    """The integrator failed or was stopped (the message says why): .t where, .stats the counts."""
-
-    t = None
-    stats = None
-
-
-class StiffnessError(SimulationError):
-    """An explicit method met a stiff model (the message says where, why, and what to use)."""
-
-
-class SimResult(tuple):
-    """(t, x, y) with x of shape (n, *batch, len(t)) and y the outputs; .stats the solver's counts."""
-
-    def __new__(cls, t, x, y, stats):
-        self = super().__new__(cls, (t, x, y))
-        self.stats = stats
-        return self
-
-    t = property(lambda self: self[0])
-    x = property(lambda self: self[1])
-    y = property(lambda self: self[2])
-
-
 def _unpack(P):
     """Parameter dict -> flat tuple of values (matrix entries, then derived parameters)."""
     g = P['g']
@@ -253,158 +229,153 @@ def rhs(t, x, p=None, u=None):
     # fr2 (R): effort = r f
     e_b8 = c2*f_b8
     _l0_dx_p_rod1__Ir = _c0
-    _c2 = np.sin(s_rod1__th)
-    _c3 = (1/2)*l1
+    _c2 = (1/2)*l1
+    _c3 = _c2*np.sin(s_rod1__th)
     _c4 = _c3*_l0_dx_p_rod1__Ir
-    _c5 = _c2*_c4
-    _l1_dx_p_rod1__Ir = _c5
-    _c6 = np.cos(s_rod1__th)
-    _c7 = _c4*_c6
-    _l2_dx_p_rod1__Ir = -_c7
-    _l3_dx_p_rod1__Ir = -_c5
+    _l1_dx_p_rod1__Ir = _c4
+    _c5 = _c2*np.cos(s_rod1__th)
+    _c6 = _c5*_l0_dx_p_rod1__Ir
+    _l2_dx_p_rod1__Ir = -_c6
+    _l3_dx_p_rod1__Ir = -_c4
     _l4_dx_p_rod1__Ir = _l3_dx_p_rod1__Ir - _l1_dx_p_rod1__Ir
-    _l5_dx_p_rod1__Ir = _c7
+    _l5_dx_p_rod1__Ir = _c6
     _l6_dx_p_rod1__Ir = _l5_dx_p_rod1__Ir - _l2_dx_p_rod1__Ir
     _l7_dx_p_rod1__Ir = _c1
-    _c8 = np.sin(s_rod2__th)
-    _c9 = (1/2)*l2
-    _c10 = _c9*_l7_dx_p_rod1__Ir
-    _l8_dx_p_rod1__Ir = _c10*_c8
-    _c11 = np.cos(s_rod2__th)
-    _l9_dx_p_rod1__Ir = -_c10*_c11
-    _l10_dx_p_rod1__Ir = -_l1_dx_p_rod1__Ir*m1
-    _l11_dx_p_rod1__Ir = -_l2_dx_p_rod1__Ir*m1
-    _l12_dx_p_rod1__Ir = _l4_dx_p_rod1__Ir*m2
-    _l13_dx_p_rod1__Ir = -_l8_dx_p_rod1__Ir*m2
+    _c7 = (1/2)*l2
+    _c8 = _c7*np.sin(s_rod2__th)
+    _l8_dx_p_rod1__Ir = _c8*_l7_dx_p_rod1__Ir
+    _c9 = _c7*np.cos(s_rod2__th)
+    _l9_dx_p_rod1__Ir = -_c9*_l7_dx_p_rod1__Ir
+    _l10_dx_p_rod1__Ir = -m1*_l1_dx_p_rod1__Ir
+    _l11_dx_p_rod1__Ir = -m1*_l2_dx_p_rod1__Ir
+    _l12_dx_p_rod1__Ir = m2*_l4_dx_p_rod1__Ir
+    _l13_dx_p_rod1__Ir = -m2*_l8_dx_p_rod1__Ir
     _l14_dx_p_rod1__Ir = -_l10_dx_p_rod1__Ir - _l12_dx_p_rod1__Ir
-    _l15_dx_p_rod1__Ir = _l6_dx_p_rod1__Ir*m2
-    _l16_dx_p_rod1__Ir = -_l9_dx_p_rod1__Ir*m2
-    _c12 = _c8*_c9
-    _l17_dx_p_rod1__Ir = -_c12*_l12_dx_p_rod1__Ir + (1/2)*_c11*_l15_dx_p_rod1__Ir*l2
-    _l18_dx_p_rod1__Ir = -_c12*_l13_dx_p_rod1__Ir + (1/2)*_c11*_l16_dx_p_rod1__Ir*l2
-    _c13 = _c2*_c3
-    _l19_dx_p_rod1__Ir = -_c13*_l12_dx_p_rod1__Ir + (1/2)*_c6*_l15_dx_p_rod1__Ir*l1
-    _c14 = -_c13*_l13_dx_p_rod1__Ir + (1/2)*_c6*_l16_dx_p_rod1__Ir*l1
-    _l20_dx_p_rod1__Ir = _c14
+    _l15_dx_p_rod1__Ir = m2*_l6_dx_p_rod1__Ir
+    _l16_dx_p_rod1__Ir = -m2*_l9_dx_p_rod1__Ir
+    _l17_dx_p_rod1__Ir = _c9*_l15_dx_p_rod1__Ir - _c8*_l12_dx_p_rod1__Ir
+    _l18_dx_p_rod1__Ir = _c9*_l16_dx_p_rod1__Ir - _c8*_l13_dx_p_rod1__Ir
+    _l19_dx_p_rod1__Ir = _c5*_l15_dx_p_rod1__Ir - _c3*_l12_dx_p_rod1__Ir
+    _c10 = _c5*_l16_dx_p_rod1__Ir - _c3*_l13_dx_p_rod1__Ir
+    _l20_dx_p_rod1__Ir = _c10
     _l21_dx_p_rod1__Ir = -_l11_dx_p_rod1__Ir - _l15_dx_p_rod1__Ir
-    _c15 = _c3*_c6
-    _l22_dx_p_rod1__Ir = _c13*_l14_dx_p_rod1__Ir - _c15*_l21_dx_p_rod1__Ir
-    _l23_dx_p_rod1__Ir = _c14
+    _l22_dx_p_rod1__Ir = _c3*_l14_dx_p_rod1__Ir - _c5*_l21_dx_p_rod1__Ir
+    _l23_dx_p_rod1__Ir = _c10
     _l24_dx_p_rod1__Ir = -_l19_dx_p_rod1__Ir - _l22_dx_p_rod1__Ir
     _l25_dx_p_rod1__Ir = -_l20_dx_p_rod1__Ir - _l23_dx_p_rod1__Ir
-    _c16 = f_rod1__b3*f_rod1__b3
-    _c17 = _c15*_c16
+    _c11 = f_rod1__b3*f_rod1__b3
+    _c12 = _c5*_c11
     # d/dt of f_rod1__b5_0 (rod1.mA (MTF): f2 = M f1) (loop at zero)
-    _z__dt_f_rod1__b5_0 = _c17
-    _c18 = _c13*_c16
+    _z__dt_f_rod1__b5_0 = _c12
+    _c13 = _c3*_c11
     # d/dt of f_rod1__b5_1 (rod1.mA (MTF): f2 = M f1) (loop at zero)
-    _z__dt_f_rod1__b5_1 = _c18
+    _z__dt_f_rod1__b5_1 = _c13
+    _c14 = -_c12
     # d/dt of f_rod1__b9_0 (rod1.mB (MTF): f2 = M f1) (loop at zero)
-    _z__dt_f_rod1__b9_0 = -_c17
+    _z__dt_f_rod1__b9_0 = _c14
     # d/dt of f_rod1__b11_0 (0-junction rod1.sB: flow balance) (loop at zero)
     _z__dt_f_rod1__b11_0 = _z__dt_f_rod1__b9_0 - _z__dt_f_rod1__b5_0
-    _c19 = -_c18
+    _c15 = -_c13
     # d/dt of f_rod1__b9_1 (rod1.mB (MTF): f2 = M f1) (loop at zero)
-    _z__dt_f_rod1__b9_1 = _c19
+    _z__dt_f_rod1__b9_1 = _c15
     # d/dt of f_rod1__b11_1 (0-junction rod1.sB: flow balance) (loop at zero)
     _z__dt_f_rod1__b11_1 = _z__dt_f_rod1__b9_1 - _z__dt_f_rod1__b5_1
-    _c20 = f_rod2__b3*f_rod2__b3
-    _c21 = _c11*_c9
-    _c22 = _c20*_c21
+    _c16 = f_rod2__b3*f_rod2__b3
+    _c17 = _c9*_c16
     # d/dt of f_rod2__b5_0 (rod2.mA (MTF): f2 = M f1) (loop at zero)
-    _z__dt_f_rod2__b5_0 = _c22
+    _z__dt_f_rod2__b5_0 = _c17
+    _c18 = _c8*_c16
     # d/dt of f_rod2__b5_1 (rod2.mA (MTF): f2 = M f1) (loop at zero)
-    _z__dt_f_rod2__b5_1 = _c12*_c20
+    _z__dt_f_rod2__b5_1 = _c18
     # d/dt of f_rod2__b6_0 (0-junction rod2.sA: flow balance) (loop at zero)
     _z__dt_f_rod2__b6_0 = _z__dt_f_rod1__b11_0 - _z__dt_f_rod2__b5_0
     # d/dt of f_rod2__b6_1 (0-junction rod2.sA: flow balance) (loop at zero)
     _z__dt_f_rod2__b6_1 = _z__dt_f_rod1__b11_1 - _z__dt_f_rod2__b5_1
     # rod1.It: d/dt of its state (chain rule) (loop at zero)
-    _z__dt_p_rod1__It_0 = -_z__dt_f_rod1__b5_0*m1
+    _z__dt_p_rod1__It_0 = -m1*_z__dt_f_rod1__b5_0
     # rod1.It: d/dt of its state (chain rule) (loop at zero)
-    _z__dt_p_rod1__It_1 = -_z__dt_f_rod1__b5_1*m1
+    _z__dt_p_rod1__It_1 = -m1*_z__dt_f_rod1__b5_1
     # rod2.It: d/dt of its state (chain rule) (loop at zero)
-    _z__dt_p_rod2__It_0 = _z__dt_f_rod2__b6_0*m2
+    _z__dt_p_rod2__It_0 = m2*_z__dt_f_rod2__b6_0
     # 1-junction rod1.vC: effort balance (loop at zero)
     _z_e_rod1__b6_0 = -_z__dt_p_rod1__It_0 - _z__dt_p_rod2__It_0
     # rod2.It: d/dt of its state (chain rule) (loop at zero)
-    _z__dt_p_rod2__It_1 = _z__dt_f_rod2__b6_1*m2
-    _c23 = -e_rod2__b1_1
+    _z__dt_p_rod2__It_1 = m2*_z__dt_f_rod2__b6_1
     # 1-junction rod2.vC: effort balance (loop at zero)
-    _z_e_rod2__b6_1 = -_c23 - _z__dt_p_rod2__It_1
+    _z_e_rod2__b6_1 = e_rod2__b1_1 - _z__dt_p_rod2__It_1
     # rod2.mA (MTF): e1 = M^T e2 (loop at zero)
-    _z_e_rod2__b4 = -_c12*_z__dt_p_rod2__It_0 - _c21*_z_e_rod2__b6_1
+    _z_e_rod2__b4 = -_c8*_z__dt_p_rod2__It_0 - _c9*_z_e_rod2__b6_1
     # 1-junction rod2.w: effort balance (loop at zero)
     _z_e_rod2__b3 = e_b8 - _z_e_rod2__b4
     # rod1.mB (MTF): e1 = M^T e2 (loop at zero)
-    _z_e_rod1__b8 = -_c13*_z__dt_p_rod2__It_0 - _c15*_z_e_rod2__b6_1
+    _z_e_rod1__b8 = -_c3*_z__dt_p_rod2__It_0 - _c5*_z_e_rod2__b6_1
     # 1-junction rod1.vC: effort balance (loop at zero)
     _z_e_rod1__b6_1 = _z_e_rod2__b6_1 + e_rod1__b1_1 - _z__dt_p_rod1__It_1
     # rod1.mA (MTF): e1 = M^T e2 (loop at zero)
-    _z_e_rod1__b4 = _c13*_z_e_rod1__b6_0 - _c15*_z_e_rod1__b6_1
-    _c24 = e_b5 + e_b8 - u_tau
+    _z_e_rod1__b4 = _c3*_z_e_rod1__b6_0 - _c5*_z_e_rod1__b6_1
+    _c19 = u_tau - e_b5 - e_b8
     # 1-junction rod1.w: effort balance (loop at zero)
-    _z_e_rod1__b3 = -_c24 - _z_e_rod1__b4 - _z_e_rod1__b8
+    _z_e_rod1__b3 = _c19 - _z_e_rod1__b4 - _z_e_rod1__b8
     # linear system: matrix
     _A0_0_dx_p_rod1__Ir = 1 - _l24_dx_p_rod1__Ir
     _A1_1_dx_p_rod1__Ir = 1 + _l18_dx_p_rod1__Ir
-    _c25 = 1/_A0_0_dx_p_rod1__Ir
-    _c26 = _c25*_l17_dx_p_rod1__Ir
-    _c27 = (_z_e_rod2__b3 - _c26*_z_e_rod1__b3)/(_A1_1_dx_p_rod1__Ir + _c26*_l25_dx_p_rod1__Ir)
+    _c20 = 1/_A0_0_dx_p_rod1__Ir
+    _c21 = _c20*_l17_dx_p_rod1__Ir
+    _c22 = (_z_e_rod2__b3 - _c21*_z_e_rod1__b3)/(_A1_1_dx_p_rod1__Ir + _c21*_l25_dx_p_rod1__Ir)
     # derivative of state rod1.Ir.p (linear system solved)
-    _dx_p_rod1__Ir = _c25*(_z_e_rod1__b3 + _c27*_l25_dx_p_rod1__Ir)
+    _dx_p_rod1__Ir = _c20*(_z_e_rod1__b3 + _c22*_l25_dx_p_rod1__Ir)
     # d/dt of f_rod1__b3 (rod1.Ir (I, integral): flow from momentum)
     _dt_f_rod1__b3 = _c0*_dx_p_rod1__Ir
-    _c28 = _c17 + _c13*_dt_f_rod1__b3
+    _c23 = _c3*_dt_f_rod1__b3
     # d/dt of f_rod1__b5_0 (rod1.mA (MTF): f2 = M f1)
-    _dt_f_rod1__b5_0 = _c28
-    _c29 = _c19 + _c15*_dt_f_rod1__b3
+    _dt_f_rod1__b5_0 = _c23 + _c12
+    _c24 = _c5*_dt_f_rod1__b3
     # d/dt of f_rod1__b5_1 (rod1.mA (MTF): f2 = M f1)
-    _dt_f_rod1__b5_1 = -_c29
+    _dt_f_rod1__b5_1 = _c13 - _c24
     # d/dt of f_rod1__b9_0 (rod1.mB (MTF): f2 = M f1)
-    _dt_f_rod1__b9_0 = -_c28
+    _dt_f_rod1__b9_0 = -_c23 + _c14
     # d/dt of f_rod1__b11_0 (0-junction rod1.sB: flow balance)
     _dt_f_rod1__b11_0 = _dt_f_rod1__b9_0 - _dt_f_rod1__b5_0
     # d/dt of f_rod1__b9_1 (rod1.mB (MTF): f2 = M f1)
-    _dt_f_rod1__b9_1 = _c29
+    _dt_f_rod1__b9_1 = _c24 + _c15
     # d/dt of f_rod1__b11_1 (0-junction rod1.sB: flow balance)
     _dt_f_rod1__b11_1 = _dt_f_rod1__b9_1 - _dt_f_rod1__b5_1
     # rod1.It: d/dt of its state (chain rule)
-    _dt_p_rod1__It_0 = -_dt_f_rod1__b5_0*m1
+    _dt_p_rod1__It_0 = -m1*_dt_f_rod1__b5_0
     # rod1.It: d/dt of its state (chain rule)
-    _dt_p_rod1__It_1 = -_dt_f_rod1__b5_1*m1
+    _dt_p_rod1__It_1 = -m1*_dt_f_rod1__b5_1
     # derivative of state rod2.Ir.p (linear system solved)
-    _dx_p_rod2__Ir = _c27
+    _dx_p_rod2__Ir = _c22
     # d/dt of f_rod2__b3 (rod2.Ir (I, integral): flow from momentum)
     _dt_f_rod2__b3 = _c1*_dx_p_rod2__Ir
     # d/dt of f_rod2__b5_0 (rod2.mA (MTF): f2 = M f1)
-    _dt_f_rod2__b5_0 = _c22 + _c12*_dt_f_rod2__b3
+    _dt_f_rod2__b5_0 = _c8*_dt_f_rod2__b3 + _c17
     # d/dt of f_rod2__b5_1 (rod2.mA (MTF): f2 = M f1)
-    _dt_f_rod2__b5_1 = -_c21*_dt_f_rod2__b3 + (1/2)*_c20*_c8*l2
+    _dt_f_rod2__b5_1 = _c18 - _c9*_dt_f_rod2__b3
     # d/dt of f_rod2__b6_0 (0-junction rod2.sA: flow balance)
     _dt_f_rod2__b6_0 = _dt_f_rod1__b11_0 - _dt_f_rod2__b5_0
     # d/dt of f_rod2__b6_1 (0-junction rod2.sA: flow balance)
     _dt_f_rod2__b6_1 = _dt_f_rod1__b11_1 - _dt_f_rod2__b5_1
     # rod2.It: d/dt of its state (chain rule)
-    _dt_p_rod2__It_0 = _dt_f_rod2__b6_0*m2
+    _dt_p_rod2__It_0 = m2*_dt_f_rod2__b6_0
     # 1-junction rod1.vC: effort balance
     e_rod1__b6_0 = -_dt_p_rod1__It_0 - _dt_p_rod2__It_0
     # rod2.It: d/dt of its state (chain rule)
-    _dt_p_rod2__It_1 = _dt_f_rod2__b6_1*m2
+    _dt_p_rod2__It_1 = m2*_dt_f_rod2__b6_1
     # 1-junction rod2.vC: effort balance
-    e_rod2__b6_1 = -_c23 - _dt_p_rod2__It_1
+    e_rod2__b6_1 = e_rod2__b1_1 - _dt_p_rod2__It_1
     # rod2.mA (MTF): e1 = M^T e2
-    e_rod2__b4 = -_c12*_dt_p_rod2__It_0 - _c21*e_rod2__b6_1
+    e_rod2__b4 = -_c8*_dt_p_rod2__It_0 - _c9*e_rod2__b6_1
     # 1-junction rod2.w: effort balance
     e_rod2__b3 = e_b8 - e_rod2__b4
     # rod1.mB (MTF): e1 = M^T e2
-    e_rod1__b8 = -_c13*_dt_p_rod2__It_0 - _c15*e_rod2__b6_1
+    e_rod1__b8 = -_c3*_dt_p_rod2__It_0 - _c5*e_rod2__b6_1
     # 1-junction rod1.vC: effort balance
     e_rod1__b6_1 = e_rod1__b1_1 + e_rod2__b6_1 - _dt_p_rod1__It_1
     # rod1.mA (MTF): e1 = M^T e2
-    e_rod1__b4 = _c13*e_rod1__b6_0 - _c15*e_rod1__b6_1
+    e_rod1__b4 = _c3*e_rod1__b6_0 - _c5*e_rod1__b6_1
     # 1-junction rod1.w: effort balance
-    e_rod1__b3 = -_c24 - e_rod1__b4 - e_rod1__b8
+    e_rod1__b3 = _c19 - e_rod1__b4 - e_rod1__b8
 
     dx = np.empty((4,) + np.broadcast_shapes(x.shape[1:], _bshape))
     dx[0] = e_rod1__b3
@@ -446,378 +417,384 @@ def jacobian(t, x, p=None, u=None):
     # fr2 (R): effort = r f
     e_b8 = c2*f_b8
     _l0_dx_p_rod1__Ir = _c0
-    _c2 = np.sin(s_rod1__th)
-    _c3 = (1/2)*l1
+    _c2 = l1*np.sin(s_rod1__th)
+    _c3 = (1/2)*_c2
     _c4 = _c3*_l0_dx_p_rod1__Ir
-    _c5 = _c2*_c4
-    _l1_dx_p_rod1__Ir = _c5
-    _c6 = np.cos(s_rod1__th)
-    _c7 = _c4*_c6
+    _l1_dx_p_rod1__Ir = _c4
+    _c5 = l1*np.cos(s_rod1__th)
+    _c6 = (1/2)*_c5
+    _c7 = _c6*_l0_dx_p_rod1__Ir
     _c8 = -_c7
     _l2_dx_p_rod1__Ir = _c8
-    _c9 = -_c5
+    _c9 = -_c4
     _l3_dx_p_rod1__Ir = _c9
     _l4_dx_p_rod1__Ir = _l3_dx_p_rod1__Ir - _l1_dx_p_rod1__Ir
     _l5_dx_p_rod1__Ir = _c7
     _l6_dx_p_rod1__Ir = _l5_dx_p_rod1__Ir - _l2_dx_p_rod1__Ir
     _l7_dx_p_rod1__Ir = _c1
-    _c10 = np.sin(s_rod2__th)
-    _c11 = (1/2)*l2
+    _c10 = l2*np.sin(s_rod2__th)
+    _c11 = (1/2)*_c10
     _c12 = _c11*_l7_dx_p_rod1__Ir
-    _c13 = _c10*_c12
-    _l8_dx_p_rod1__Ir = _c13
-    _c14 = np.cos(s_rod2__th)
-    _c15 = _c12*_c14
+    _l8_dx_p_rod1__Ir = _c12
+    _c13 = l2*np.cos(s_rod2__th)
+    _c14 = (1/2)*_c13
+    _c15 = _c14*_l7_dx_p_rod1__Ir
     _l9_dx_p_rod1__Ir = -_c15
-    _l10_dx_p_rod1__Ir = -_l1_dx_p_rod1__Ir*m1
-    _l11_dx_p_rod1__Ir = -_l2_dx_p_rod1__Ir*m1
-    _l12_dx_p_rod1__Ir = _l4_dx_p_rod1__Ir*m2
-    _l13_dx_p_rod1__Ir = -_l8_dx_p_rod1__Ir*m2
+    _l10_dx_p_rod1__Ir = -m1*_l1_dx_p_rod1__Ir
+    _l11_dx_p_rod1__Ir = -m1*_l2_dx_p_rod1__Ir
+    _l12_dx_p_rod1__Ir = m2*_l4_dx_p_rod1__Ir
+    _l13_dx_p_rod1__Ir = -m2*_l8_dx_p_rod1__Ir
     _l14_dx_p_rod1__Ir = -_l10_dx_p_rod1__Ir - _l12_dx_p_rod1__Ir
-    _l15_dx_p_rod1__Ir = _l6_dx_p_rod1__Ir*m2
-    _l16_dx_p_rod1__Ir = -_l9_dx_p_rod1__Ir*m2
-    _c16 = _c10*_c11
-    _l17_dx_p_rod1__Ir = -_c16*_l12_dx_p_rod1__Ir + (1/2)*_c14*_l15_dx_p_rod1__Ir*l2
-    _l18_dx_p_rod1__Ir = -_c16*_l13_dx_p_rod1__Ir + (1/2)*_c14*_l16_dx_p_rod1__Ir*l2
-    _c17 = _c2*_c3
-    _l19_dx_p_rod1__Ir = -_c17*_l12_dx_p_rod1__Ir + (1/2)*_c6*_l15_dx_p_rod1__Ir*l1
-    _c18 = -_c17*_l13_dx_p_rod1__Ir + (1/2)*_c6*_l16_dx_p_rod1__Ir*l1
+    _l15_dx_p_rod1__Ir = m2*_l6_dx_p_rod1__Ir
+    _l16_dx_p_rod1__Ir = -m2*_l9_dx_p_rod1__Ir
+    _l17_dx_p_rod1__Ir = _c14*_l15_dx_p_rod1__Ir - _c11*_l12_dx_p_rod1__Ir
+    _c16 = (1/2)*_l16_dx_p_rod1__Ir
+    _l18_dx_p_rod1__Ir = _c13*_c16 - _c11*_l13_dx_p_rod1__Ir
+    _c17 = (1/2)*_l12_dx_p_rod1__Ir
+    _l19_dx_p_rod1__Ir = _c6*_l15_dx_p_rod1__Ir - _c2*_c17
+    _c18 = _c5*_c16 - _c3*_l13_dx_p_rod1__Ir
     _l20_dx_p_rod1__Ir = _c18
     _l21_dx_p_rod1__Ir = -_l11_dx_p_rod1__Ir - _l15_dx_p_rod1__Ir
-    _c19 = _c3*_c6
-    _l22_dx_p_rod1__Ir = _c17*_l14_dx_p_rod1__Ir - _c19*_l21_dx_p_rod1__Ir
+    _l22_dx_p_rod1__Ir = _c3*_l14_dx_p_rod1__Ir - _c6*_l21_dx_p_rod1__Ir
     _l23_dx_p_rod1__Ir = _c18
     _l24_dx_p_rod1__Ir = -_l19_dx_p_rod1__Ir - _l22_dx_p_rod1__Ir
     _l25_dx_p_rod1__Ir = -_l20_dx_p_rod1__Ir - _l23_dx_p_rod1__Ir
-    _c20 = f_rod1__b3*f_rod1__b3
-    _c21 = _c19*_c20
+    _c19 = f_rod1__b3*f_rod1__b3
+    _c20 = _c6*_c19
     # d/dt of f_rod1__b5_0 (rod1.mA (MTF): f2 = M f1) (loop at zero)
-    _z__dt_f_rod1__b5_0 = _c21
-    _c22 = _c17*_c20
+    _z__dt_f_rod1__b5_0 = _c20
+    _c21 = _c3*_c19
     # d/dt of f_rod1__b5_1 (rod1.mA (MTF): f2 = M f1) (loop at zero)
-    _z__dt_f_rod1__b5_1 = _c22
-    _c23 = -_c21
+    _z__dt_f_rod1__b5_1 = _c21
+    _c22 = -_c20
     # d/dt of f_rod1__b9_0 (rod1.mB (MTF): f2 = M f1) (loop at zero)
-    _z__dt_f_rod1__b9_0 = _c23
+    _z__dt_f_rod1__b9_0 = _c22
     # d/dt of f_rod1__b11_0 (0-junction rod1.sB: flow balance) (loop at zero)
     _z__dt_f_rod1__b11_0 = _z__dt_f_rod1__b9_0 - _z__dt_f_rod1__b5_0
-    _c24 = -_c22
+    _c23 = -_c21
     # d/dt of f_rod1__b9_1 (rod1.mB (MTF): f2 = M f1) (loop at zero)
-    _z__dt_f_rod1__b9_1 = _c24
+    _z__dt_f_rod1__b9_1 = _c23
     # d/dt of f_rod1__b11_1 (0-junction rod1.sB: flow balance) (loop at zero)
     _z__dt_f_rod1__b11_1 = _z__dt_f_rod1__b9_1 - _z__dt_f_rod1__b5_1
-    _c25 = f_rod2__b3*f_rod2__b3
-    _c26 = _c11*_c14
-    _c27 = _c25*_c26
+    _c24 = f_rod2__b3*f_rod2__b3
+    _c25 = _c24*_c14
     # d/dt of f_rod2__b5_0 (rod2.mA (MTF): f2 = M f1) (loop at zero)
-    _z__dt_f_rod2__b5_0 = _c27
-    _c28 = _c16*_c25
+    _z__dt_f_rod2__b5_0 = _c25
+    _c26 = _c24*_c11
     # d/dt of f_rod2__b5_1 (rod2.mA (MTF): f2 = M f1) (loop at zero)
-    _z__dt_f_rod2__b5_1 = _c28
+    _z__dt_f_rod2__b5_1 = _c26
     # d/dt of f_rod2__b6_0 (0-junction rod2.sA: flow balance) (loop at zero)
     _z__dt_f_rod2__b6_0 = _z__dt_f_rod1__b11_0 - _z__dt_f_rod2__b5_0
     # d/dt of f_rod2__b6_1 (0-junction rod2.sA: flow balance) (loop at zero)
     _z__dt_f_rod2__b6_1 = _z__dt_f_rod1__b11_1 - _z__dt_f_rod2__b5_1
     # rod1.It: d/dt of its state (chain rule) (loop at zero)
-    _z__dt_p_rod1__It_0 = -_z__dt_f_rod1__b5_0*m1
+    _z__dt_p_rod1__It_0 = -m1*_z__dt_f_rod1__b5_0
     # rod1.It: d/dt of its state (chain rule) (loop at zero)
-    _z__dt_p_rod1__It_1 = -_z__dt_f_rod1__b5_1*m1
+    _z__dt_p_rod1__It_1 = -m1*_z__dt_f_rod1__b5_1
     # rod2.It: d/dt of its state (chain rule) (loop at zero)
-    _z__dt_p_rod2__It_0 = _z__dt_f_rod2__b6_0*m2
+    _z__dt_p_rod2__It_0 = m2*_z__dt_f_rod2__b6_0
     # 1-junction rod1.vC: effort balance (loop at zero)
     _z_e_rod1__b6_0 = -_z__dt_p_rod1__It_0 - _z__dt_p_rod2__It_0
     # rod2.It: d/dt of its state (chain rule) (loop at zero)
-    _z__dt_p_rod2__It_1 = _z__dt_f_rod2__b6_1*m2
-    _c29 = -e_rod2__b1_1
+    _z__dt_p_rod2__It_1 = m2*_z__dt_f_rod2__b6_1
     # 1-junction rod2.vC: effort balance (loop at zero)
-    _z_e_rod2__b6_1 = -_c29 - _z__dt_p_rod2__It_1
+    _z_e_rod2__b6_1 = e_rod2__b1_1 - _z__dt_p_rod2__It_1
     # rod2.mA (MTF): e1 = M^T e2 (loop at zero)
-    _z_e_rod2__b4 = -_c16*_z__dt_p_rod2__It_0 - _c26*_z_e_rod2__b6_1
+    _z_e_rod2__b4 = -_c11*_z__dt_p_rod2__It_0 - _c14*_z_e_rod2__b6_1
     # 1-junction rod2.w: effort balance (loop at zero)
     _z_e_rod2__b3 = e_b8 - _z_e_rod2__b4
     # rod1.mB (MTF): e1 = M^T e2 (loop at zero)
-    _z_e_rod1__b8 = -_c17*_z__dt_p_rod2__It_0 - _c19*_z_e_rod2__b6_1
+    _z_e_rod1__b8 = -_c3*_z__dt_p_rod2__It_0 - _c6*_z_e_rod2__b6_1
     # 1-junction rod1.vC: effort balance (loop at zero)
     _z_e_rod1__b6_1 = _z_e_rod2__b6_1 + e_rod1__b1_1 - _z__dt_p_rod1__It_1
     # rod1.mA (MTF): e1 = M^T e2 (loop at zero)
-    _z_e_rod1__b4 = _c17*_z_e_rod1__b6_0 - _c19*_z_e_rod1__b6_1
+    _z_e_rod1__b4 = _c3*_z_e_rod1__b6_0 - _c6*_z_e_rod1__b6_1
     # 1-junction rod1.w: effort balance (loop at zero)
     _z_e_rod1__b3 = u_tau - _z_e_rod1__b4 - _z_e_rod1__b8 - e_b5 - e_b8
     # linear system: matrix
     _A0_0_dx_p_rod1__Ir = 1 - _l24_dx_p_rod1__Ir
     _A1_1_dx_p_rod1__Ir = 1 + _l18_dx_p_rod1__Ir
-    _c30 = 1/_A0_0_dx_p_rod1__Ir
-    _c31 = _c30*_l17_dx_p_rod1__Ir
-    _c32 = _c31*_l25_dx_p_rod1__Ir
-    _c33 = _A1_1_dx_p_rod1__Ir + _c32
-    _c34 = 1/_c33
-    _c35 = _z_e_rod2__b3 - _c31*_z_e_rod1__b3
-    _c36 = _c34*_c35
-    _c37 = _z_e_rod1__b3 + _c36*_l25_dx_p_rod1__Ir
+    _c27 = 1/_A0_0_dx_p_rod1__Ir
+    _c28 = _c27*_l17_dx_p_rod1__Ir
+    _c29 = _z_e_rod2__b3 - _c28*_z_e_rod1__b3
+    _c30 = _c28*_l25_dx_p_rod1__Ir
+    _c31 = _A1_1_dx_p_rod1__Ir + _c30
+    _c32 = 1/_c31
+    _c33 = _c32*_c29
+    _c34 = _z_e_rod1__b3 + _c33*_l25_dx_p_rod1__Ir
     # derivative of state rod1.Ir.p (linear system solved)
-    _dx_p_rod1__Ir = _c30*_c37
+    _dx_p_rod1__Ir = _c34*_c27
     # d/dt of f_rod1__b3 (rod1.Ir (I, integral): flow from momentum)
     _dt_f_rod1__b3 = _c0*_dx_p_rod1__Ir
-    _c38 = _c21 + _c17*_dt_f_rod1__b3
+    _c35 = (1/2)*_dt_f_rod1__b3
+    _c36 = _c2*_c35
+    _c37 = _c36 + _c20
     # d/dt of f_rod1__b5_0 (rod1.mA (MTF): f2 = M f1)
-    _dt_f_rod1__b5_0 = _c38
-    _c39 = _c24 + _c19*_dt_f_rod1__b3
+    _dt_f_rod1__b5_0 = _c37
+    _c38 = _c5*_c35
+    _c39 = _c21 - _c38
     # d/dt of f_rod1__b5_1 (rod1.mA (MTF): f2 = M f1)
-    _dt_f_rod1__b5_1 = -_c39
+    _dt_f_rod1__b5_1 = _c39
+    _c40 = -_c36 + _c22
     # d/dt of f_rod1__b9_0 (rod1.mB (MTF): f2 = M f1)
-    _dt_f_rod1__b9_0 = -_c38
+    _dt_f_rod1__b9_0 = _c40
     # d/dt of f_rod1__b11_0 (0-junction rod1.sB: flow balance)
     _dt_f_rod1__b11_0 = _dt_f_rod1__b9_0 - _dt_f_rod1__b5_0
+    _c41 = _c38 + _c23
     # d/dt of f_rod1__b9_1 (rod1.mB (MTF): f2 = M f1)
-    _dt_f_rod1__b9_1 = _c39
+    _dt_f_rod1__b9_1 = _c41
     # d/dt of f_rod1__b11_1 (0-junction rod1.sB: flow balance)
     _dt_f_rod1__b11_1 = _dt_f_rod1__b9_1 - _dt_f_rod1__b5_1
     # rod1.It: d/dt of its state (chain rule)
-    _dt_p_rod1__It_0 = -_dt_f_rod1__b5_0*m1
+    _dt_p_rod1__It_0 = -m1*_dt_f_rod1__b5_0
     # rod1.It: d/dt of its state (chain rule)
-    _dt_p_rod1__It_1 = -_dt_f_rod1__b5_1*m1
+    _dt_p_rod1__It_1 = -m1*_dt_f_rod1__b5_1
     # derivative of state rod2.Ir.p (linear system solved)
-    _dx_p_rod2__Ir = _c36
+    _dx_p_rod2__Ir = _c33
     # d/dt of f_rod2__b3 (rod2.Ir (I, integral): flow from momentum)
     _dt_f_rod2__b3 = _c1*_dx_p_rod2__Ir
-    _c40 = _c27 + _c16*_dt_f_rod2__b3
+    _c42 = _c11*_dt_f_rod2__b3 + _c25
     # d/dt of f_rod2__b5_0 (rod2.mA (MTF): f2 = M f1)
-    _dt_f_rod2__b5_0 = _c40
-    _c41 = -_c28
-    _c42 = _c41 + _c26*_dt_f_rod2__b3
+    _dt_f_rod2__b5_0 = _c42
+    _c43 = _c14*_dt_f_rod2__b3
     # d/dt of f_rod2__b5_1 (rod2.mA (MTF): f2 = M f1)
-    _dt_f_rod2__b5_1 = -_c42
+    _dt_f_rod2__b5_1 = _c26 - _c43
     # d/dt of f_rod2__b6_0 (0-junction rod2.sA: flow balance)
     _dt_f_rod2__b6_0 = _dt_f_rod1__b11_0 - _dt_f_rod2__b5_0
     # d/dt of f_rod2__b6_1 (0-junction rod2.sA: flow balance)
     _dt_f_rod2__b6_1 = _dt_f_rod1__b11_1 - _dt_f_rod2__b5_1
     # rod2.It: d/dt of its state (chain rule)
-    _dt_p_rod2__It_0 = _dt_f_rod2__b6_0*m2
+    _dt_p_rod2__It_0 = m2*_dt_f_rod2__b6_0
     # 1-junction rod1.vC: effort balance
     e_rod1__b6_0 = -_dt_p_rod1__It_0 - _dt_p_rod2__It_0
     # rod2.It: d/dt of its state (chain rule)
-    _dt_p_rod2__It_1 = _dt_f_rod2__b6_1*m2
+    _dt_p_rod2__It_1 = m2*_dt_f_rod2__b6_1
     # 1-junction rod2.vC: effort balance
-    e_rod2__b6_1 = -_c29 - _dt_p_rod2__It_1
+    e_rod2__b6_1 = e_rod2__b1_1 - _dt_p_rod2__It_1
     # 1-junction rod1.vC: effort balance
     e_rod1__b6_1 = e_rod1__b1_1 + e_rod2__b6_1 - _dt_p_rod1__It_1
     _d0 = _c0
-    _d1 = _d0*c1
+    _d1 = c1*_d0
     _d18 = _c1
-    _d39 = _d0*c2
-    _d40 = -_d18*c2
+    _d39 = c2*_d0
+    _d40 = -c2*_d18
     _d41 = _c7
-    _d42 = _c5
+    _d42 = _c4
     _d43 = _c8
     _d44 = _d43 - _d41
     _d45 = _c9
     _d46 = _d45 - _d42
     _d47 = _c15
-    _d48 = _c13
-    _d49 = -_d41*m1
-    _d50 = -_d42*m1
-    _d51 = _d44*m2
-    _d52 = -_d47*m2
-    _d53 = -_d49 - _d51
-    _d54 = _d46*m2
-    _d55 = -_d48*m2
-    _d56 = -_c16*_d51 + (1/2)*_c14*_d54*l2
-    _d57 = -_c16*_l15_dx_p_rod1__Ir - _c26*_l12_dx_p_rod1__Ir
-    _d58 = -_c16*_d52 - _c16*_l16_dx_p_rod1__Ir - _c26*_l13_dx_p_rod1__Ir + (1/2)*_c14*_d55*l2
-    _d59 = -_c17*_d51 - _c17*_l15_dx_p_rod1__Ir - _c19*_l12_dx_p_rod1__Ir + (1/2)*_c6*_d54*l1
-    _c43 = -_c17*_l16_dx_p_rod1__Ir - _c19*_l13_dx_p_rod1__Ir
-    _d60 = _c43
-    _c44 = -_c17*_d52 + (1/2)*_c6*_d55*l1
-    _d61 = _c44
-    _d62 = -_d50 - _d54
-    _d63 = _c17*_d53 + _c17*_l21_dx_p_rod1__Ir + _c19*_l14_dx_p_rod1__Ir - _c19*_d62
-    _d64 = _c43
-    _d65 = _c44
-    _d66 = -_d59 - _d63
-    _d67 = -_d60 - _d64
-    _d68 = -_d61 - _d65
-    _c45 = _d0*f_rod1__b3*l1
-    _c46 = _c45*_c6
-    _d69 = _c46
-    _d70 = _c24
-    _c47 = _c2*_c45
-    _d71 = _c47
-    _d72 = _c21
-    _d73 = -_c46
-    _d74 = _c22
+    _d48 = _c12
+    _d49 = -m1*_d41
+    _d50 = -m1*_d42
+    _d51 = m2*_d44
+    _d52 = -m2*_d47
+    _d53 = -_d51 - _d49
+    _d54 = m2*_d46
+    _d55 = -m2*_d48
+    _d56 = _c14*_d54 - _c11*_d51
+    _d57 = -_c11*_l15_dx_p_rod1__Ir - _c14*_l12_dx_p_rod1__Ir
+    _d58 = -_c14*_l13_dx_p_rod1__Ir - _c10*_c16 + _c14*_d55 - _c11*_d52
+    _d59 = -_c5*_c17 - _c3*_l15_dx_p_rod1__Ir + _c6*_d54 - _c3*_d51
+    _c44 = -_c2*_c16 - _c6*_l13_dx_p_rod1__Ir
+    _d60 = _c44
+    _c45 = _c6*_d55 - _c3*_d52
+    _d61 = _c45
+    _d62 = -_d54 - _d50
+    _d63 = _c3*_l21_dx_p_rod1__Ir + _c6*_l14_dx_p_rod1__Ir - _c6*_d62 + _c3*_d53
+    _d64 = _c44
+    _d65 = _c45
+    _d66 = -_d63 - _d59
+    _d67 = -_d64 - _d60
+    _d68 = -_d65 - _d61
+    _c46 = _d0*f_rod1__b3
+    _c47 = _c5*_c46
+    _d69 = _c47
+    _d70 = _c23
+    _c48 = _c2*_c46
+    _d71 = _c48
+    _d72 = _c20
+    _c49 = -_c47
+    _d73 = _c49
+    _d74 = _c21
     _d75 = _d73 - _d69
     _d76 = _d74 - _d70
-    _d77 = -_c47
-    _d78 = _c23
+    _c50 = -_c48
+    _d77 = _c50
+    _d78 = _c22
     _d79 = _d77 - _d71
     _d80 = _d78 - _d72
-    _c48 = _d18*f_rod2__b3*l2
-    _c49 = _c14*_c48
-    _d81 = _c49
-    _d82 = _c41
-    _d83 = _c10*_c48
-    _d84 = _c27
-    _d85 = -_d69*m1
-    _d86 = -_d70*m1
-    _d87 = -_d71*m1
-    _d88 = -_d72*m1
-    _d89 = _d75*m2
-    _d90 = -_d81*m2
-    _d91 = _d76*m2
-    _d92 = -_d82*m2
-    _d93 = -_d85 - _d89
-    _d94 = -_d86 - _d91
-    _d95 = _d79*m2
-    _d96 = -_d83*m2
-    _d97 = _d80*m2
-    _d98 = -_d84*m2
-    _d99 = -_c16*_d89 + (1/2)*_c14*_d95*l2
-    _d100 = -_c16*_d90 + (1/2)*_c14*_d96*l2
-    _d101 = -_c16*_d91 + (1/2)*_c14*_d97*l2
-    _d102 = -_c16*_d92 - _c26*_z__dt_p_rod2__It_0 + (1/2)*_c10*_z_e_rod2__b6_1*l2 + (1/2)*_c14*_d98*l2
+    _c51 = _d18*f_rod2__b3
+    _c52 = _c51*_c13
+    _d81 = _c52
+    _c53 = -_c26
+    _d82 = _c53
+    _c54 = _c51*_c10
+    _d83 = _c54
+    _d84 = _c25
+    _d85 = -m1*_d69
+    _d86 = -m1*_d70
+    _d87 = -m1*_d71
+    _d88 = -m1*_d72
+    _d89 = m2*_d75
+    _d90 = -m2*_d81
+    _d91 = m2*_d76
+    _d92 = -m2*_d82
+    _d93 = -_d89 - _d85
+    _d94 = -_d91 - _d86
+    _d95 = m2*_d79
+    _d96 = -m2*_d83
+    _d97 = m2*_d80
+    _d98 = -m2*_d84
+    _d99 = _c14*_d95 - _c11*_d89
+    _d100 = _c14*_d96 - _c11*_d90
+    _d101 = _c14*_d97 - _c11*_d91
+    _d102 = _c11*_z_e_rod2__b6_1 - _c14*_z__dt_p_rod2__It_0 + _c14*_d98 - _c11*_d92
     _d103 = _d39 - _d99
-    _c50 = -_d40
-    _d104 = -_c50 - _d100
-    _d105 = -_c17*_d89 + (1/2)*_c6*_d95*l1
-    _c51 = -_c17*_d90 + (1/2)*_c6*_d96*l1
-    _d106 = _c51
-    _d107 = -_c17*_d91 - _c19*_z__dt_p_rod2__It_0 + (1/2)*_c2*_z_e_rod2__b6_1*l1 + (1/2)*_c6*_d97*l1
-    _c52 = -_c17*_d92 + (1/2)*_c6*_d98*l1
-    _d108 = _c52
-    _d109 = -_d87 - _d95
-    _d110 = -_d88 - _d97
-    _d111 = -_c19*_d109 + (1/2)*_c2*_d93*l1
-    _d112 = _c51
-    _d113 = _c17*_d94 + _c17*_z_e_rod1__b6_1 + _c19*_z_e_rod1__b6_0 - _c19*_d110
-    _d114 = _c52
-    _c53 = _d1 + _d39
-    _d115 = -_c53 - _d105 - _d111
-    _d116 = -_d106 - _d112 - _d40
+    _d104 = _d40 - _d100
+    _d105 = _c6*_d95 - _c3*_d89
+    _c55 = _c6*_d96 - _c3*_d90
+    _d106 = _c55
+    _d107 = _c3*_z_e_rod2__b6_1 - _c6*_z__dt_p_rod2__It_0 + _c6*_d97 - _c3*_d91
+    _c56 = _c6*_d98 - _c3*_d92
+    _d108 = _c56
+    _d109 = -_d95 - _d87
+    _d110 = -_d97 - _d88
+    _d111 = -_c6*_d109 + _c3*_d93
+    _d112 = _c55
+    _d113 = _c3*_z_e_rod1__b6_1 + _c6*_z_e_rod1__b6_0 - _c6*_d110 + _c3*_d94
+    _d114 = _c56
+    _c57 = -_d39 - _d1
+    _d115 = _c57 - _d105 - _d111
+    _c58 = -_d40
+    _d116 = -_d106 + _c58 - _d112
     _d117 = -_d107 - _d113
     _d118 = -_d108 - _d114
-    _c54 = _c30*(1 - _c32*_c34)
-    _c55 = _c34*_d103
-    _c56 = _c30*_l25_dx_p_rod1__Ir
-    _d119 = _c54*_d115 + _c55*_c56
-    _c57 = _c34*_d104
-    _d120 = _c54*_d116 + _c56*_c57
-    _c58 = _c34*_z_e_rod1__b3
-    _c59 = 1/(_A0_0_dx_p_rod1__Ir*_A0_0_dx_p_rod1__Ir)
-    _c60 = _c59*_l17_dx_p_rod1__Ir
-    _c61 = _c58*_c60
-    _c62 = _c35/(_c33*_c33)
-    _c63 = _c62*_l25_dx_p_rod1__Ir*_l25_dx_p_rod1__Ir
-    _c64 = _c30*_c58
-    _c65 = _c30*(-_c30*_c63 - _c64*_l25_dx_p_rod1__Ir)
-    _c66 = _c30*(_c36 - _c32*_c62)
-    _c67 = _c34*_d101
-    _d121 = _c54*_d117 + _c65*_d56 + _c66*_d67 - _c56*_c67 - _d66*(_c30*(_c60*_c63 + _c61*_l25_dx_p_rod1__Ir) - _c37*_c59)
-    _c68 = _c34*_d102
-    _c69 = _c62*_d58
-    _d122 = _c54*_d118 + _c65*_d57 + _c66*_d68 - _c56*_c68 - _c56*_c69
+    _c59 = _c27*(1 - _c30*_c32)
+    _c60 = _c32*_d103
+    _c61 = _c27*_l25_dx_p_rod1__Ir
+    _d119 = _c60*_c61 + _c59*_d115
+    _c62 = _c32*_d104
+    _d120 = _c61*_c62 + _c59*_d116
+    _c63 = _c29/(_c31*_c31)
+    _c64 = _c63*_l25_dx_p_rod1__Ir*_l25_dx_p_rod1__Ir
+    _c65 = 1/(_A0_0_dx_p_rod1__Ir*_A0_0_dx_p_rod1__Ir)
+    _c66 = _c65*_l17_dx_p_rod1__Ir
+    _c67 = _c32*_z_e_rod1__b3
+    _c68 = _c67*_c66
+    _c69 = _c67*_c27
+    _c70 = _c27*(-_c69*_l25_dx_p_rod1__Ir - _c64*_c27)
+    _c71 = _c27*(_c33 - _c63*_c30)
+    _c72 = _c32*_d101
+    _d121 = _c59*_d117 - _c72*_c61 + _c71*_d67 + _c70*_d56 - _d66*(-_c65*_c34 + _c27*(_c68*_l25_dx_p_rod1__Ir + _c64*_c66))
+    _c73 = _c63*_d58
+    _c74 = _c32*_d102
+    _d122 = _c71*_d68 - _c74*_c61 + _c59*_d118 + _c70*_d57 - _c73*_c61
     _d123 = _c0*_d119
     _d124 = _c0*_d120
     _d125 = _c0*_d121
     _d126 = _c0*_d122
-    _c70 = _c46 + _c17*_d123
-    _d127 = _c70
-    _c71 = _c17*_d124
-    _d128 = _c71
-    _c72 = _c39 + _c17*_d125
-    _d129 = _c72
-    _c73 = _c17*_d126
-    _d130 = _c73
-    _c74 = _c47 - _c19*_d123
-    _d131 = _c74
-    _c75 = _c19*_d124
-    _d132 = -_c75
-    _c76 = _c38 - _c19*_d125
-    _d133 = _c76
-    _c77 = _c19*_d126
-    _d134 = -_c77
-    _d135 = -_c70
-    _d136 = -_c71
-    _d137 = -_c72
-    _d138 = -_c73
+    _c75 = _c3*_d123
+    _d127 = _c47 + _c75
+    _c76 = _c3*_d124
+    _d128 = _c76
+    _c77 = _c3*_d125
+    _d129 = _c41 + _c77
+    _c78 = _c3*_d126
+    _d130 = _c78
+    _c79 = _c6*_d123
+    _d131 = _c48 - _c79
+    _c80 = _c6*_d124
+    _d132 = -_c80
+    _c81 = _c6*_d125
+    _d133 = _c37 - _c81
+    _c82 = _c6*_d126
+    _d134 = -_c82
+    _d135 = _c49 - _c75
+    _d136 = -_c76
+    _d137 = _c39 - _c77
+    _d138 = -_c78
     _d139 = _d135 - _d127
     _d140 = _d136 - _d128
     _d141 = _d137 - _d129
     _d142 = _d138 - _d130
-    _d143 = -_c74
-    _d144 = _c75
-    _d145 = -_c76
-    _d146 = _c77
+    _d143 = _c50 + _c79
+    _d144 = _c80
+    _d145 = _c40 + _c81
+    _d146 = _c82
     _d147 = _d143 - _d131
     _d148 = _d144 - _d132
     _d149 = _d145 - _d133
     _d150 = _d146 - _d134
-    _d151 = -_d127*m1
-    _d152 = -_d128*m1
-    _d153 = -_d129*m1
-    _d154 = -_d130*m1
-    _d155 = -_d131*m1
-    _d156 = -_d132*m1
-    _d157 = -_d133*m1
-    _d158 = -_d134*m1
-    _c78 = _c31*_c34
-    _d159 = _c55 - _c78*_d115
-    _d160 = _c57 - _c78*_d116
-    _c79 = -_c64 - _c56*_c62
-    _c80 = _c31*_c62
-    _d161 = -_c67 + _c79*_d56 - _c78*_d117 - _c80*_d67 - _d66*(_c61 + _c60*_c62*_l25_dx_p_rod1__Ir)
-    _d162 = -_c68 - _c69 + _c79*_d57 - _c78*_d118 - _c80*_d68
+    _d151 = -m1*_d127
+    _d152 = -m1*_d128
+    _d153 = -m1*_d129
+    _d154 = -m1*_d130
+    _d155 = -m1*_d131
+    _d156 = -m1*_d132
+    _d157 = -m1*_d133
+    _d158 = -m1*_d134
+    _c83 = _c32*_c28
+    _d159 = _c60 - _c83*_d115
+    _d160 = _c62 - _c83*_d116
+    _c84 = -_c63*_c61 - _c69
+    _c85 = _c63*_c28
+    _d161 = -_c72 - _c83*_d117 - _c85*_d67 + _c84*_d56 - _d66*(_c63*_c66*_l25_dx_p_rod1__Ir + _c68)
+    _d162 = -_c74 - _c85*_d68 - _c83*_d118 + _c84*_d57 - _c73
     _d163 = _c1*_d159
     _d164 = _c1*_d160
     _d165 = _c1*_d161
     _d166 = _c1*_d162
-    _d167 = _c16*_d163
-    _d168 = _c49 + _c16*_d164
-    _d169 = _c16*_d165
-    _d170 = _c42 + _c16*_d166
-    _d171 = -_c26*_d163
-    _d172 = -_c26*_d164 + _c10*_d18*f_rod2__b3*l2
-    _d173 = -_c26*_d165
-    _d174 = _c40 - _c26*_d166
-    _d175 = _d139 - _d167
-    _d176 = _d140 - _d168
-    _d177 = _d141 - _d169
-    _d178 = _d142 - _d170
-    _d179 = _d147 - _d171
-    _d180 = _d148 - _d172
-    _d181 = _d149 - _d173
-    _d182 = _d150 - _d174
-    _d183 = _d175*m2
-    _d184 = _d176*m2
-    _d185 = _d177*m2
-    _d186 = _d178*m2
-    _d187 = -_d151 - _d183
-    _d188 = -_d152 - _d184
-    _d189 = -_d153 - _d185
-    _d190 = -_d154 - _d186
-    _d191 = _d179*m2
-    _d192 = _d180*m2
-    _d193 = _d181*m2
-    _d194 = _d182*m2
-    _d195 = -_c16*_d183 + (1/2)*_c14*_d191*l2
-    _d196 = -_c16*_d184 + (1/2)*_c14*_d192*l2
-    _d197 = -_c16*_d185 + (1/2)*_c14*_d193*l2
-    _d198 = -_c16*_d186 - _c26*_dt_p_rod2__It_0 + (1/2)*_c10*e_rod2__b6_1*l2 + (1/2)*_c14*_d194*l2
-    _d199 = _d39 - _d195
-    _d200 = -_c50 - _d196
-    _d201 = -_c17*_d183 + (1/2)*_c6*_d191*l1
-    _d202 = -_c17*_d184 + (1/2)*_c6*_d192*l1
-    _d203 = -_c17*_d185 - _c19*_dt_p_rod2__It_0 + (1/2)*_c2*e_rod2__b6_1*l1 + (1/2)*_c6*_d193*l1
-    _d204 = -_c17*_d186 + (1/2)*_c6*_d194*l1
-    _d205 = -_d155 - _d191
-    _d206 = -_d156 - _d192
-    _d207 = -_d157 - _d193
-    _d208 = -_d158 - _d194
-    _d209 = _c17*_d187 - _c19*_d205
-    _d210 = _c17*_d188 - _c19*_d206
-    _d211 = _c17*_d189 + _c17*e_rod1__b6_1 + _c19*e_rod1__b6_0 - _c19*_d207
-    _d212 = _c17*_d190 - _c19*_d208
-    _d213 = -_c53 - _d201 - _d209
-    _d214 = -_d202 - _d210 - _d40
+    _d167 = _c11*_d163
+    _d168 = _c52 + _c11*_d164
+    _c86 = (1/2)*_d165
+    _d169 = _c86*_c10
+    _d170 = _c43 + _c11*_d166 + _c53
+    _d171 = -_c14*_d163
+    _d172 = _c54 - _c14*_d164
+    _d173 = -_c86*_c13
+    _d174 = _c42 - _c14*_d166
+    _d175 = -_d167 + _d139
+    _d176 = -_d168 + _d140
+    _d177 = -_d169 + _d141
+    _d178 = -_d170 + _d142
+    _d179 = -_d171 + _d147
+    _d180 = -_d172 + _d148
+    _d181 = -_d173 + _d149
+    _d182 = -_d174 + _d150
+    _d183 = m2*_d175
+    _d184 = m2*_d176
+    _d185 = m2*_d177
+    _d186 = m2*_d178
+    _d187 = -_d183 - _d151
+    _d188 = -_d184 - _d152
+    _d189 = -_d185 - _d153
+    _d190 = -_d186 - _d154
+    _d191 = m2*_d179
+    _d192 = m2*_d180
+    _d193 = m2*_d181
+    _d194 = m2*_d182
+    _d195 = _c14*_d191 - _c11*_d183
+    _d196 = _c14*_d192 - _c11*_d184
+    _d197 = _c14*_d193 - _c11*_d185
+    _d198 = -_c14*_dt_p_rod2__It_0 + _c11*e_rod2__b6_1 + _c14*_d194 - _c11*_d186
+    _d199 = -_d195 + _d39
+    _d200 = -_d196 + _d40
+    _d201 = _c6*_d191 - _c3*_d183
+    _d202 = _c6*_d192 - _c3*_d184
+    _d203 = _c3*e_rod2__b6_1 - _c6*_dt_p_rod2__It_0 + _c6*_d193 - _c3*_d185
+    _d204 = _c6*_d194 - _c3*_d186
+    _d205 = -_d191 - _d155
+    _d206 = -_d192 - _d156
+    _d207 = -_d193 - _d157
+    _d208 = -_d194 - _d158
+    _d209 = -_c6*_d205 + _c3*_d187
+    _d210 = -_c6*_d206 + _c3*_d188
+    _d211 = _c3*e_rod1__b6_1 - _c6*_d207 + _c6*e_rod1__b6_0 + _c3*_d189
+    _d212 = -_c6*_d208 + _c3*_d190
+    _d213 = _c57 - _d201 - _d209
+    _d214 = -_d202 - _d210 + _c58
     _d215 = -_d203 - _d211
     _d216 = -_d204 - _d212
 
@@ -859,39 +836,41 @@ def outputs(t, x, p=None, u=None):
     e_b5 = c1*f_rod1__b3
     _c1 = np.sin(s_rod1__th)
     _c2 = (1/2)*l1
-    _c3 = _c2*f_rod1__b3
-    _c4 = _c1*_c3
+    _c3 = _c2*_c1
+    _c4 = _c3*f_rod1__b3
     # rod1.mA (MTF): f2 = M f1
     f_rod1__b5_0 = _c4
     _c5 = np.cos(s_rod1__th)
-    _c6 = _c3*_c5
+    _c6 = _c2*_c5
+    _c7 = _c6*f_rod1__b3
     # rod1.mA (MTF): f2 = M f1
-    f_rod1__b5_1 = -_c6
+    f_rod1__b5_1 = -_c7
     # rod1.mB (MTF): f2 = M f1
     f_rod1__b9_0 = -_c4
     # rod1.mB (MTF): f2 = M f1
-    f_rod1__b9_1 = _c6
+    f_rod1__b9_1 = _c7
     # rod1.It (I, derivative): momentum from flow
-    p_rod1__It_0 = -f_rod1__b5_0*m1
+    p_rod1__It_0 = -m1*f_rod1__b5_0
+    _c8 = -f_rod1__b5_0
     # 0-junction rod1.sB: flow balance
-    f_rod1__b11_0 = f_rod1__b9_0 - f_rod1__b5_0
+    f_rod1__b11_0 = f_rod1__b9_0 + _c8
     # rod1.It (I, derivative): momentum from flow
-    p_rod1__It_1 = -f_rod1__b5_1*m1
+    p_rod1__It_1 = -m1*f_rod1__b5_1
+    _c9 = -f_rod1__b5_1
     # 0-junction rod1.sB: flow balance
-    f_rod1__b11_1 = f_rod1__b9_1 - f_rod1__b5_1
+    f_rod1__b11_1 = f_rod1__b9_1 + _c9
     # rod2.grav (Se): effort
     e_rod2__b1_1 = -g*m2
-    _c7 = 12/(l2*l2*m2)
+    _c10 = 12/(l2*l2*m2)
     # rod2.Ir (I, integral): flow from momentum
-    f_rod2__b3 = _c7*p_rod2__Ir
-    _c8 = np.sin(s_rod2__th)
-    _c9 = (1/2)*l2
-    _c10 = _c9*f_rod2__b3
+    f_rod2__b3 = _c10*p_rod2__Ir
+    _c11 = (1/2)*l2
+    _c12 = _c11*np.sin(s_rod2__th)
     # rod2.mA (MTF): f2 = M f1
-    f_rod2__b5_0 = _c10*_c8
-    _c11 = np.cos(s_rod2__th)
+    f_rod2__b5_0 = _c12*f_rod2__b3
+    _c13 = _c11*np.cos(s_rod2__th)
     # rod2.mA (MTF): f2 = M f1
-    f_rod2__b5_1 = -_c10*_c11
+    f_rod2__b5_1 = -_c13*f_rod2__b3
     # 0-junction rod2.sA: flow balance
     f_rod2__b6_0 = f_rod1__b11_0 - f_rod2__b5_0
     # 0-junction rod2.sA: flow balance
@@ -901,119 +880,137 @@ def outputs(t, x, p=None, u=None):
     # fr2 (R): effort = r f
     e_b8 = c2*f_b8
     _l0_dx_p_rod1__Ir = _c0
-    _c12 = _c2*_l0_dx_p_rod1__Ir
-    _c13 = _c1*_c12
-    _l1_dx_p_rod1__Ir = _c13
-    _c14 = _c12*_c5
-    _l2_dx_p_rod1__Ir = -_c14
-    _l3_dx_p_rod1__Ir = -_c13
+    _c14 = _c2*_l0_dx_p_rod1__Ir
+    _c15 = _c1*_c14
+    _l1_dx_p_rod1__Ir = _c15
+    _c16 = _c5*_c14
+    _l2_dx_p_rod1__Ir = -_c16
+    _l3_dx_p_rod1__Ir = -_c15
     _l4_dx_p_rod1__Ir = _l3_dx_p_rod1__Ir - _l1_dx_p_rod1__Ir
-    _l5_dx_p_rod1__Ir = _c14
+    _l5_dx_p_rod1__Ir = _c16
     _l6_dx_p_rod1__Ir = _l5_dx_p_rod1__Ir - _l2_dx_p_rod1__Ir
-    _l7_dx_p_rod1__Ir = _c7
-    _c15 = _c9*_l7_dx_p_rod1__Ir
-    _l8_dx_p_rod1__Ir = _c15*_c8
-    _l9_dx_p_rod1__Ir = -_c11*_c15
-    _l10_dx_p_rod1__Ir = -_l1_dx_p_rod1__Ir*m1
-    _l11_dx_p_rod1__Ir = -_l2_dx_p_rod1__Ir*m1
-    _l12_dx_p_rod1__Ir = _l4_dx_p_rod1__Ir*m2
-    _l13_dx_p_rod1__Ir = -_l8_dx_p_rod1__Ir*m2
+    _l7_dx_p_rod1__Ir = _c10
+    _l8_dx_p_rod1__Ir = _c12*_l7_dx_p_rod1__Ir
+    _l9_dx_p_rod1__Ir = -_c13*_l7_dx_p_rod1__Ir
+    _l10_dx_p_rod1__Ir = -m1*_l1_dx_p_rod1__Ir
+    _l11_dx_p_rod1__Ir = -m1*_l2_dx_p_rod1__Ir
+    _l12_dx_p_rod1__Ir = m2*_l4_dx_p_rod1__Ir
+    _l13_dx_p_rod1__Ir = -m2*_l8_dx_p_rod1__Ir
     _l14_dx_p_rod1__Ir = -_l10_dx_p_rod1__Ir - _l12_dx_p_rod1__Ir
-    _l15_dx_p_rod1__Ir = _l6_dx_p_rod1__Ir*m2
-    _l16_dx_p_rod1__Ir = -_l9_dx_p_rod1__Ir*m2
-    _c16 = _c8*_c9
-    _l17_dx_p_rod1__Ir = -_c16*_l12_dx_p_rod1__Ir + (1/2)*_c11*_l15_dx_p_rod1__Ir*l2
-    _l18_dx_p_rod1__Ir = -_c16*_l13_dx_p_rod1__Ir + (1/2)*_c11*_l16_dx_p_rod1__Ir*l2
-    _c17 = _c1*_c2
-    _l19_dx_p_rod1__Ir = -_c17*_l12_dx_p_rod1__Ir + (1/2)*_c5*_l15_dx_p_rod1__Ir*l1
-    _c18 = -_c17*_l13_dx_p_rod1__Ir + (1/2)*_c5*_l16_dx_p_rod1__Ir*l1
-    _l20_dx_p_rod1__Ir = _c18
+    _l15_dx_p_rod1__Ir = m2*_l6_dx_p_rod1__Ir
+    _l16_dx_p_rod1__Ir = -m2*_l9_dx_p_rod1__Ir
+    _l17_dx_p_rod1__Ir = _c13*_l15_dx_p_rod1__Ir - _c12*_l12_dx_p_rod1__Ir
+    _l18_dx_p_rod1__Ir = _c13*_l16_dx_p_rod1__Ir - _c12*_l13_dx_p_rod1__Ir
+    _l19_dx_p_rod1__Ir = _c6*_l15_dx_p_rod1__Ir - _c3*_l12_dx_p_rod1__Ir
+    _c17 = _c6*_l16_dx_p_rod1__Ir - _c3*_l13_dx_p_rod1__Ir
+    _l20_dx_p_rod1__Ir = _c17
     _l21_dx_p_rod1__Ir = -_l11_dx_p_rod1__Ir - _l15_dx_p_rod1__Ir
-    _c19 = _c2*_c5
-    _l22_dx_p_rod1__Ir = _c17*_l14_dx_p_rod1__Ir - _c19*_l21_dx_p_rod1__Ir
-    _l23_dx_p_rod1__Ir = _c18
+    _l22_dx_p_rod1__Ir = _c3*_l14_dx_p_rod1__Ir - _c6*_l21_dx_p_rod1__Ir
+    _l23_dx_p_rod1__Ir = _c17
     _l24_dx_p_rod1__Ir = -_l19_dx_p_rod1__Ir - _l22_dx_p_rod1__Ir
     _l25_dx_p_rod1__Ir = -_l20_dx_p_rod1__Ir - _l23_dx_p_rod1__Ir
-    _c20 = f_rod1__b3*f_rod1__b3
-    _c21 = _c19*_c20
+    _c18 = f_rod1__b3*f_rod1__b3
+    _c19 = _c6*_c18
     # d/dt of f_rod1__b5_0 (rod1.mA (MTF): f2 = M f1) (loop at zero)
-    _z__dt_f_rod1__b5_0 = _c21
-    _c22 = _c17*_c20
+    _z__dt_f_rod1__b5_0 = _c19
+    _c20 = _c3*_c18
     # d/dt of f_rod1__b5_1 (rod1.mA (MTF): f2 = M f1) (loop at zero)
-    _z__dt_f_rod1__b5_1 = _c22
+    _z__dt_f_rod1__b5_1 = _c20
     # d/dt of f_rod1__b9_0 (rod1.mB (MTF): f2 = M f1) (loop at zero)
-    _z__dt_f_rod1__b9_0 = -_c21
+    _z__dt_f_rod1__b9_0 = -_c19
     # d/dt of f_rod1__b11_0 (0-junction rod1.sB: flow balance) (loop at zero)
     _z__dt_f_rod1__b11_0 = _z__dt_f_rod1__b9_0 - _z__dt_f_rod1__b5_0
-    _c23 = -_c22
     # d/dt of f_rod1__b9_1 (rod1.mB (MTF): f2 = M f1) (loop at zero)
-    _z__dt_f_rod1__b9_1 = _c23
+    _z__dt_f_rod1__b9_1 = -_c20
     # d/dt of f_rod1__b11_1 (0-junction rod1.sB: flow balance) (loop at zero)
     _z__dt_f_rod1__b11_1 = _z__dt_f_rod1__b9_1 - _z__dt_f_rod1__b5_1
-    _c24 = f_rod2__b3*f_rod2__b3
-    _c25 = _c11*_c9
+    _c21 = f_rod2__b3*f_rod2__b3
     # d/dt of f_rod2__b5_0 (rod2.mA (MTF): f2 = M f1) (loop at zero)
-    _z__dt_f_rod2__b5_0 = _c24*_c25
+    _z__dt_f_rod2__b5_0 = _c21*_c13
     # d/dt of f_rod2__b5_1 (rod2.mA (MTF): f2 = M f1) (loop at zero)
-    _z__dt_f_rod2__b5_1 = _c16*_c24
+    _z__dt_f_rod2__b5_1 = _c21*_c12
     # d/dt of f_rod2__b6_0 (0-junction rod2.sA: flow balance) (loop at zero)
     _z__dt_f_rod2__b6_0 = _z__dt_f_rod1__b11_0 - _z__dt_f_rod2__b5_0
     # d/dt of f_rod2__b6_1 (0-junction rod2.sA: flow balance) (loop at zero)
     _z__dt_f_rod2__b6_1 = _z__dt_f_rod1__b11_1 - _z__dt_f_rod2__b5_1
     # rod1.It: d/dt of its state (chain rule) (loop at zero)
-    _z__dt_p_rod1__It_0 = -_z__dt_f_rod1__b5_0*m1
+    _z__dt_p_rod1__It_0 = -m1*_z__dt_f_rod1__b5_0
     # rod1.It: d/dt of its state (chain rule) (loop at zero)
-    _z__dt_p_rod1__It_1 = -_z__dt_f_rod1__b5_1*m1
+    _z__dt_p_rod1__It_1 = -m1*_z__dt_f_rod1__b5_1
     # rod2.It: d/dt of its state (chain rule) (loop at zero)
-    _z__dt_p_rod2__It_0 = _z__dt_f_rod2__b6_0*m2
+    _z__dt_p_rod2__It_0 = m2*_z__dt_f_rod2__b6_0
     # 1-junction rod1.vC: effort balance (loop at zero)
     _z_e_rod1__b6_0 = -_z__dt_p_rod1__It_0 - _z__dt_p_rod2__It_0
     # rod2.It: d/dt of its state (chain rule) (loop at zero)
-    _z__dt_p_rod2__It_1 = _z__dt_f_rod2__b6_1*m2
+    _z__dt_p_rod2__It_1 = m2*_z__dt_f_rod2__b6_1
     # 1-junction rod2.vC: effort balance (loop at zero)
     _z_e_rod2__b6_1 = e_rod2__b1_1 - _z__dt_p_rod2__It_1
     # rod2.mA (MTF): e1 = M^T e2 (loop at zero)
-    _z_e_rod2__b4 = -_c16*_z__dt_p_rod2__It_0 - _c25*_z_e_rod2__b6_1
+    _z_e_rod2__b4 = -_c12*_z__dt_p_rod2__It_0 - _c13*_z_e_rod2__b6_1
     # 1-junction rod2.w: effort balance (loop at zero)
     _z_e_rod2__b3 = e_b8 - _z_e_rod2__b4
     # rod1.mB (MTF): e1 = M^T e2 (loop at zero)
-    _z_e_rod1__b8 = -_c17*_z__dt_p_rod2__It_0 - _c19*_z_e_rod2__b6_1
+    _z_e_rod1__b8 = -_c3*_z__dt_p_rod2__It_0 - _c6*_z_e_rod2__b6_1
     # 1-junction rod1.vC: effort balance (loop at zero)
     _z_e_rod1__b6_1 = _z_e_rod2__b6_1 + e_rod1__b1_1 - _z__dt_p_rod1__It_1
     # rod1.mA (MTF): e1 = M^T e2 (loop at zero)
-    _z_e_rod1__b4 = _c17*_z_e_rod1__b6_0 - _c19*_z_e_rod1__b6_1
+    _z_e_rod1__b4 = _c3*_z_e_rod1__b6_0 - _c6*_z_e_rod1__b6_1
     # 1-junction rod1.w: effort balance (loop at zero)
     _z_e_rod1__b3 = u_tau - _z_e_rod1__b4 - _z_e_rod1__b8 - e_b5 - e_b8
     # linear system: matrix
     _A0_0_dx_p_rod1__Ir = 1 - _l24_dx_p_rod1__Ir
     _A1_1_dx_p_rod1__Ir = 1 + _l18_dx_p_rod1__Ir
-    _c26 = 1/_A0_0_dx_p_rod1__Ir
-    _c27 = _c26*_l17_dx_p_rod1__Ir
+    _c22 = 1/_A0_0_dx_p_rod1__Ir
+    _c23 = _c22*_l17_dx_p_rod1__Ir
     # derivative of state rod1.Ir.p (linear system solved)
-    _dx_p_rod1__Ir = _c26*(_z_e_rod1__b3 + _l25_dx_p_rod1__Ir*(_z_e_rod2__b3 - _c27*_z_e_rod1__b3)/(_A1_1_dx_p_rod1__Ir + _c27*_l25_dx_p_rod1__Ir))
+    _dx_p_rod1__Ir = _c22*(_z_e_rod1__b3 + (_z_e_rod2__b3 - _c23*_z_e_rod1__b3)*_l25_dx_p_rod1__Ir/(_A1_1_dx_p_rod1__Ir + _c23*_l25_dx_p_rod1__Ir))
     # d/dt of f_rod1__b3 (rod1.Ir (I, integral): flow from momentum)
     _dt_f_rod1__b3 = _c0*_dx_p_rod1__Ir
     # d/dt of f_rod1__b5_0 (rod1.mA (MTF): f2 = M f1)
-    _dt_f_rod1__b5_0 = _c21 + _c17*_dt_f_rod1__b3
+    _dt_f_rod1__b5_0 = _c3*_dt_f_rod1__b3 + _c19
     # d/dt of f_rod1__b5_1 (rod1.mA (MTF): f2 = M f1)
-    _dt_f_rod1__b5_1 = -_c23 - _c19*_dt_f_rod1__b3
+    _dt_f_rod1__b5_1 = _c20 - _c6*_dt_f_rod1__b3
     # rod1.It: d/dt of its state (chain rule)
-    _dt_p_rod1__It_0 = -_dt_f_rod1__b5_0*m1
+    _dt_p_rod1__It_0 = -m1*_dt_f_rod1__b5_0
     # rod1.It: d/dt of its state (chain rule)
-    _dt_p_rod1__It_1 = -_dt_f_rod1__b5_1*m1
+    _dt_p_rod1__It_1 = -m1*_dt_f_rod1__b5_1
 
     _shape = np.broadcast_shapes(x.shape[1:], np.shape(t), _bshape)
     _b = lambda v: np.broadcast_to(v, _shape)  # noqa: E731
     return {
         'th1': np.array(_b(s_rod1__th)),
         'w1': np.array(_b(f_rod1__b3)),
-        'v1': np.stack([_b(-f_rod1__b5_0), _b(-f_rod1__b5_1), ]).reshape((2,) + _shape),
+        'v1': np.stack([_b(_c8), _b(_c9), ]).reshape((2,) + _shape),
         'th2': np.array(_b(s_rod2__th)),
         'w2': np.array(_b(f_rod2__b3)),
         'v2': np.stack([_b(f_rod2__b6_0), _b(f_rod2__b6_1), ]).reshape((2,) + _shape),
         'p1': np.stack([_b(p_rod1__It_0), _b(p_rod1__It_1), ]).reshape((2,) + _shape),
         'F1': np.stack([_b(_dt_p_rod1__It_0), _b(_dt_p_rod1__It_1), ]).reshape((2,) + _shape),
     }
+
+
+class SimulationError(RuntimeError):
+    """The integrator failed or was stopped (the message says why): .t where, .stats the counts."""
+
+    t = None
+    stats = None
+
+
+class StiffnessError(SimulationError):
+    """An explicit method met a stiff model (the message says where, why, and what to use)."""
+
+
+class SimResult(tuple):
+    """(t, x, y) with x of shape (n, *batch, len(t)) and y the outputs; .stats the solver's counts."""
+
+    def __new__(cls, t, x, y, stats):
+        self = super().__new__(cls, (t, x, y))
+        self.stats = stats
+        return self
+
+    t = property(lambda self: self[0])
+    x = property(lambda self: self[1])
+    y = property(lambda self: self[2])
 
 
 # --------------------------------------------------------------------------------------------

@@ -57,30 +57,6 @@ JAC_SPARSITY[
 ] = True
 
 
-class SimulationError(RuntimeError):
-    """The integrator failed or was stopped (the message says why): .t where, .stats the counts."""
-
-    t = None
-    stats = None
-
-
-class StiffnessError(SimulationError):
-    """An explicit method met a stiff model (the message says where, why, and what to use)."""
-
-
-class SimResult(tuple):
-    """(t, x, y) with x of shape (n, *batch, len(t)) and y the outputs; .stats the solver's counts."""
-
-    def __new__(cls, t, x, y, stats):
-        self = super().__new__(cls, (t, x, y))
-        self.stats = stats
-        return self
-
-    t = property(lambda self: self[0])
-    x = property(lambda self: self[1])
-    y = property(lambda self: self[2])
-
-
 def _unpack(P):
     """Parameter dict -> flat tuple of values (matrix entries, then derived parameters)."""
     m = P['m']
@@ -184,6 +160,30 @@ def outputs(t, x, p=None, u=None):
         'omega': np.array(_b(f_b1)),
         'energy': np.array(_b((1/2)*f_b1*p_bob + g*l*m*(1 - np.cos(q_gravity)))),
     }
+
+
+class SimulationError(RuntimeError):
+    """The integrator failed or was stopped (the message says why): .t where, .stats the counts."""
+
+    t = None
+    stats = None
+
+
+class StiffnessError(SimulationError):
+    """An explicit method met a stiff model (the message says where, why, and what to use)."""
+
+
+class SimResult(tuple):
+    """(t, x, y) with x of shape (n, *batch, len(t)) and y the outputs; .stats the solver's counts."""
+
+    def __new__(cls, t, x, y, stats):
+        self = super().__new__(cls, (t, x, y))
+        self.stats = stats
+        return self
+
+    t = property(lambda self: self[0])
+    x = property(lambda self: self[1])
+    y = property(lambda self: self[2])
 
 
 # --------------------------------------------------------------------------------------------

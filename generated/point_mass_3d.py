@@ -65,30 +65,6 @@ JAC_SPARSITY[
 ] = True
 
 
-class SimulationError(RuntimeError):
-    """The integrator failed or was stopped (the message says why): .t where, .stats the counts."""
-
-    t = None
-    stats = None
-
-
-class StiffnessError(SimulationError):
-    """An explicit method met a stiff model (the message says where, why, and what to use)."""
-
-
-class SimResult(tuple):
-    """(t, x, y) with x of shape (n, *batch, len(t)) and y the outputs; .stats the solver's counts."""
-
-    def __new__(cls, t, x, y, stats):
-        self = super().__new__(cls, (t, x, y))
-        self.stats = stats
-        return self
-
-    t = property(lambda self: self[0])
-    x = property(lambda self: self[1])
-    y = property(lambda self: self[2])
-
-
 def _unpack(P):
     """Parameter dict -> flat tuple of values (matrix entries, then derived parameters)."""
     m = P['m']
@@ -248,15 +224,15 @@ def jacobian(t, x, p=None, u=None):
     _d0 = _c0
     _d1 = _c0
     _d2 = _c0
-    _d3 = D_0_0*_d0
-    _d4 = D_0_1*_d1
-    _d5 = D_0_2*_d2
-    _d6 = D_1_0*_d0
-    _d7 = D_1_1*_d1
-    _d8 = D_1_2*_d2
-    _d9 = D_2_0*_d0
-    _d10 = D_2_1*_d1
-    _d11 = D_2_2*_d2
+    _d3 = _d0*D_0_0
+    _d4 = _d1*D_0_1
+    _d5 = _d2*D_0_2
+    _d6 = _d0*D_1_0
+    _d7 = _d1*D_1_1
+    _d8 = _d2*D_1_2
+    _d9 = _d0*D_2_0
+    _d10 = _d1*D_2_1
+    _d11 = _d2*D_2_2
 
     J = np.zeros((6, 6) + np.broadcast_shapes(x.shape[1:], _bshape))
     J[0, 0] = -_d3
@@ -320,6 +296,30 @@ def outputs(t, x, p=None, u=None):
         'velocity': np.stack([_b(f_b2_0), _b(f_b2_1), _b(f_b2_2), ]).reshape((3,) + _shape),
         'spring_force': np.stack([_b(e_b3_0), _b(e_b3_1), _b(e_b3_2), ]).reshape((3,) + _shape),
     }
+
+
+class SimulationError(RuntimeError):
+    """The integrator failed or was stopped (the message says why): .t where, .stats the counts."""
+
+    t = None
+    stats = None
+
+
+class StiffnessError(SimulationError):
+    """An explicit method met a stiff model (the message says where, why, and what to use)."""
+
+
+class SimResult(tuple):
+    """(t, x, y) with x of shape (n, *batch, len(t)) and y the outputs; .stats the solver's counts."""
+
+    def __new__(cls, t, x, y, stats):
+        self = super().__new__(cls, (t, x, y))
+        self.stats = stats
+        return self
+
+    t = property(lambda self: self[0])
+    x = property(lambda self: self[1])
+    y = property(lambda self: self[2])
 
 
 # --------------------------------------------------------------------------------------------

@@ -78,30 +78,6 @@ JAC_SPARSITY[
 ] = True
 
 
-class SimulationError(RuntimeError):
-    """The integrator failed or was stopped (the message says why): .t where, .stats the counts."""
-
-    t = None
-    stats = None
-
-
-class StiffnessError(SimulationError):
-    """An explicit method met a stiff model (the message says where, why, and what to use)."""
-
-
-class SimResult(tuple):
-    """(t, x, y) with x of shape (n, *batch, len(t)) and y the outputs; .stats the solver's counts."""
-
-    def __new__(cls, t, x, y, stats):
-        self = super().__new__(cls, (t, x, y))
-        self.stats = stats
-        return self
-
-    t = property(lambda self: self[0])
-    x = property(lambda self: self[1])
-    y = property(lambda self: self[2])
-
-
 def _unpack(P):
     """Parameter dict -> flat tuple of values (matrix entries, then derived parameters)."""
     m1 = P['m1']
@@ -218,18 +194,17 @@ def jacobian(t, x, p=None, u=None):
     x = np.asarray(x, dtype=float)
     _d0 = 1/m1
     _d1 = 1/m2
-    _d2 = _d0*c1
-    _d3 = -_d0*c2
-    _d4 = _d1*c2
-    _c0 = -_d3
-    _d5 = -_c0 - _d2
+    _d2 = c1*_d0
+    _d3 = -c2*_d0
+    _d4 = c2*_d1
+    _d5 = _d3 - _d2
 
     J = np.zeros((4, 4) + np.broadcast_shapes(x.shape[1:], _bshape))
     J[0, 0] = _d5
     J[0, 1] = _d4
     J[0, 2] = -k1
     J[0, 3] = k2
-    J[1, 0] = _c0
+    J[1, 0] = -_d3
     J[1, 1] = -_d4
     J[1, 3] = -k2
     J[2, 0] = _d0
@@ -270,6 +245,30 @@ def outputs(t, x, p=None, u=None):
         'vel2': np.array(_b(f_b2)),
         'link_force': np.array(_b(e_b5)),
     }
+
+
+class SimulationError(RuntimeError):
+    """The integrator failed or was stopped (the message says why): .t where, .stats the counts."""
+
+    t = None
+    stats = None
+
+
+class StiffnessError(SimulationError):
+    """An explicit method met a stiff model (the message says where, why, and what to use)."""
+
+
+class SimResult(tuple):
+    """(t, x, y) with x of shape (n, *batch, len(t)) and y the outputs; .stats the solver's counts."""
+
+    def __new__(cls, t, x, y, stats):
+        self = super().__new__(cls, (t, x, y))
+        self.stats = stats
+        return self
+
+    t = property(lambda self: self[0])
+    x = property(lambda self: self[1])
+    y = property(lambda self: self[2])
 
 
 # --------------------------------------------------------------------------------------------

@@ -62,30 +62,6 @@ JAC_SPARSITY[
 ] = True
 
 
-class SimulationError(RuntimeError):
-    """The integrator failed or was stopped (the message says why): .t where, .stats the counts."""
-
-    t = None
-    stats = None
-
-
-class StiffnessError(SimulationError):
-    """An explicit method met a stiff model (the message says where, why, and what to use)."""
-
-
-class SimResult(tuple):
-    """(t, x, y) with x of shape (n, *batch, len(t)) and y the outputs; .stats the solver's counts."""
-
-    def __new__(cls, t, x, y, stats):
-        self = super().__new__(cls, (t, x, y))
-        self.stats = stats
-        return self
-
-    t = property(lambda self: self[0])
-    x = property(lambda self: self[1])
-    y = property(lambda self: self[2])
-
-
 def _unpack(P):
     """Parameter dict -> flat tuple of values (matrix entries, then derived parameters)."""
     mu = P['mu']
@@ -179,7 +155,7 @@ def jacobian(t, x, p=None, u=None):
     e_b1 = _c0*q_cap
     _d0 = _c0
     _d1 = 1/L
-    _d2 = _d0*g*(-1 + e_b1*e_b1/(V0*V0))
+    _d2 = g*_d0*(-1 + e_b1*e_b1/(V0*V0))
 
     J = np.zeros((2, 2) + np.broadcast_shapes(x.shape[1:], _bshape))
     J[0, 0] = -_d2
@@ -216,6 +192,30 @@ def outputs(t, x, p=None, u=None):
         'i_L': np.array(_b(f_b2)),
         'i_R': np.array(_b(f_b3)),
     }
+
+
+class SimulationError(RuntimeError):
+    """The integrator failed or was stopped (the message says why): .t where, .stats the counts."""
+
+    t = None
+    stats = None
+
+
+class StiffnessError(SimulationError):
+    """An explicit method met a stiff model (the message says where, why, and what to use)."""
+
+
+class SimResult(tuple):
+    """(t, x, y) with x of shape (n, *batch, len(t)) and y the outputs; .stats the solver's counts."""
+
+    def __new__(cls, t, x, y, stats):
+        self = super().__new__(cls, (t, x, y))
+        self.stats = stats
+        return self
+
+    t = property(lambda self: self[0])
+    x = property(lambda self: self[1])
+    y = property(lambda self: self[2])
 
 
 # --------------------------------------------------------------------------------------------

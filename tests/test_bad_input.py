@@ -108,6 +108,27 @@ CASES = [
                                        "I 'flywheel_a'"),
     Case("causal_conflict", 6, 3, "Se 's2' and Se 's1' (through 0-junction 'node') both impose"),
     Case("nonlinear_loop", 7, 3, "is nonlinear"),
+    # issue 10: numbers, bounds, names and the bugs list
+    Case("number_inf", 6, 6, "parameter 'k': '.inf' is not a finite number"),
+    Case("number_nan", 6, 6, "parameter 'k': '.NaN' is not a finite number"),
+    Case("number_sexagesimal", 6, 6, "'1:30' is a sexagesimal (base 60) number"),
+    Case("number_huge_int", 6, 6, "is out of range (larger than 10**300)"),
+    Case("number_overflow_text", 6, 6, "number '1e999' is not finite"),
+    Case("expr_sqrt_negative", 10, 37, "C 'spring': the constant is complex, not real"),
+    Case("expr_exp_tower", 10, 43, "C 'spring': the constant is not a finite number"),
+    Case("expr_matrix_huge", 10, 41, "eye() size must be 1..64 (the limit of matrix size)"),
+    Case("expr_caret", 10, 33, "operator ^ is not allowed: write ** for a power"),
+    Case("expr_signum", 10, 37, "unknown function 'signum' (did you mean sign?)"),
+    Case("reserved_param_x0", 6, 3, "invalid parameter name 'x0': reserved"),
+    Case("reserved_param_P", 6, 3, "invalid parameter name 'P': reserved"),
+    Case("zero_inertia", 6, 3, "I 'mass': its inertia is zero"),
+    Case("c_reads_own_effort", 6, 3, "C 'spring': its law reads its own effort"),
+    Case("matrix_1x1_on_n3", 8, 3, "I 'mass': cardinality mismatch: inertia is 1x1, the bond "
+                                   "(n=3) needs a scalar or a 3x3 matrix"),
+    Case("r_fixed_form", 7, 3, "R 'leak': its law (effort: ...) is in resistance form, but its "
+                               "causality must be conductance"),
+    Case("import_nul", 4, 18, "import path 'parts\\x00.yaml' contains a NUL byte"),
+    Case("import_missing", 4, 18, "cannot read imported file"),
 ]
 
 BY_NAME = {c.file: c for c in CASES}
@@ -155,7 +176,8 @@ if sys.platform == "win32":  # pragma: no cover
 
 #: The cases that also go through the command line: a sample from every stage.
 CLI_CASES = ["yaml_syntax", "unknown_key", "self_loop", "expr_import", "import_cycle_a",
-             "causal_conflict", "undefined_symbol", "nonlinear_loop"]
+             "causal_conflict", "undefined_symbol", "nonlinear_loop", "expr_exp_tower",
+             "zero_inertia"]
 
 
 def _run(args: list[str]) -> subprocess.CompletedProcess:

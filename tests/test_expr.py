@@ -223,3 +223,86 @@ def test_well_formed_expressions_build_or_refuse(text):
         assert err.message.startswith("test: ")
         return
     assert isinstance(v, (sp.Basic, sp.MatrixBase))
+
+
+# ---------------------------------------------------------------------------------------------
+# Bounded work: every refusal names its limit and comes fast (issue 10)
+
+
+@pytest.mark.parametrize("text,msg", [
+    # constants are evaluated in double precision: no sympy evaluation to unbounded precision
+    ("where(exp(exp(exp(100))) > 1, k, m)", "not a finite number"),
+    ("exp(exp(100))", "not a finite number"),
+    ("exp(1000) - exp(1000)", "not a finite number"),
+    ("sqrt(-1)", "complex"),
+    ("k * sqrt(-2)", "complex"),
+    ("log(-1)", "complex"),
+    ("asin(2)", "complex"),
+    ("(-8) ** 0.5", "complex"),
+    # matrices and exponents
+    ("eye(1000) @ eye(1000)", "size must be 1..64 (the limit of matrix size)"),
+    ("zeros(65)", "size must be 1..64"),
+    ("diag(" + ", ".join(["a"] * 70) + ")", "larger than the limit of matrix size"),
+    ("x ** 100000", "the limit of exponents"),
+])
+def test_build_bounds(text, msg):
+    with pytest.raises(ModelError) as info:
+        E.build(ex(text), Symbols())
+    assert msg in info.value.message, info.value.message
+
+
+def test_symbolic_matrix_products_are_bounded():
+    """A chain of symbolic products grows its entries geometrically: the work is counted."""
+    names = ", ".join(f"[{', '.join(f'a{i}{j}' for j in range(8))}]" for i in range(8))
+    m = f"[{names}]"
+    text = " @ ".join([m] * 12)
+    with pytest.raises(ModelError) as info:
+        E.build(ex(text), Symbols())
+    assert "the limit of symbolic work" in info.value.message
+
+
+def test_expression_node_limit():
+    text = "max(" + ", ".join(["a"] * 5500) + ")"  # 5500 names: shallow, under 20000 chars
+    with pytest.raises(ModelError) as info:
+        E.check(ex(text))
+    assert "the limit of expression size" in info.value.message
+
+
+def test_constant_conditions_are_decided_numerically():
+    k, m = sp.Symbol("k"), sp.Symbol("m")
+    assert E.build(ex("where(exp(100) > 1, k, m)"), Symbols()) == k
+    assert E.build(ex("where(sin(10**300) > 2, k, m)"), Symbols()) == m
+    assert E.build(ex("where(1 - 1e-300 < 1, k, m)"), Symbols()) == m  # as a double: equal
+    # symbolic conditions stay symbolic
+    assert isinstance(E.build(ex("where(x > 1, k, m)"), Symbols()), sp.Piecewise)
+
+
+def test_numeric_agrees_with_sympy_on_ordinary_constants():
+    """The double-precision evaluator against sympy's own evaluation (where that is cheap)."""
+    for text in ["sqrt(2) * pi", "exp(3) / (1 + tan(0.3))", "atan2(-1, 2) + asinh_free",
+                 "min(1, 2, -3) + max(4, 5) + abs(-7) + sign(-2)", "cosh(2) ** 1.5"]:
+        if "free" in text:
+            continue
+        v = E.build(ex(text), Symbols())
+        assert E.numeric(v) == pytest.approx(float(v.evalf(30)), rel=1e-13)
+
+
+@pytest.mark.parametrize("text,hint", [("a ^ 2", "write ** for a power"),
+                                       ("signum(x)", "did you mean sign?"),
+                                       ("ln(x)", "did you mean log?")])
+def test_hints(text, hint):
+    with pytest.raises(ModelError) as info:
+        E.check(ex(text))
+    assert hint in info.value.message
+
+
+def test_parsing_user_text_shows_no_warning():
+    """Python warns about some text it still parses (1if x else y): bgc shows none of it."""
+    import warnings
+
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        for text in ["1if a else b", "0x1for", "a is 1"]:
+            with pytest.raises(ModelError):
+                E.check(ex(text))
+    assert [str(w.message) for w in seen] == []

@@ -225,6 +225,9 @@ def assign_causality(bg: BondGraph, allow_derivative: bool = False) -> Causality
     caus = Causality(dict(s.effort_by), tuple(derivative), forced, tuple(arbitrary),
                      tuple(open_bonds), tuple(warnings))
     if derivative and not allow_derivative:
+        culprit = fixed_r_culprit(bg, caus)
+        if culprit is not None:
+            raise ModelError(culprit[0], culprit[1])
         raise ModelError(bg.element(derivative[0]).coord, derivative_message(bg, caus))
     return caus
 
@@ -404,6 +407,27 @@ def dependent_report(bg: BondGraph, caus: Causality, eqs=None) -> str:
         lines.append(f"  {el.type} {eid} (line {el.coord.line}): forced by {o.type} {origin} "
                      f"through {through}{on_txt}; {how}{unused}")
     return "\n".join(lines) + "\n"
+
+
+def fixed_r_culprit(bg: BondGraph, caus: Causality):
+    """(coord, message) when the storage elements in derivative causality were forced there by
+    an R whose law fixes its form (``effort:`` of f sets the effort, ``flow:`` of e the flow):
+    the R's law is in the form the graph cannot take, and the message says so, naming the R."""
+    for eid in caus.derivative:
+        origin, via = caus.forced_by[eid]
+        o = bg.element(origin)
+        if o.type != "R" or not o.law or o.law[0] not in FIXED_R:
+            continue
+        el = bg.element(eid)
+        has = "resistance" if o.law[0] == "effort" else "conductance"
+        needs = "conductance" if has == "resistance" else "resistance"
+        other = "flow: an expression of e" if needs == "conductance" else \
+            "effort: an expression of f"
+        return o.coord, (f"R {origin!r}: its law ({o.law[0]}: ...) is in {has} form, but its "
+                         f"causality must be {needs}: in {has} form it forces {el.type} {eid!r} "
+                         f"into derivative causality (through {bg.element(via).id!r}). Write "
+                         f"its law in {needs} form ({other}), or as resistance: r")
+    return None
 
 
 def derivative_message(bg: BondGraph, caus: Causality) -> str:

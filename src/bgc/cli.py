@@ -142,7 +142,7 @@ def check_cmd(model, strict_causality):
         out.write(dependent_report(bg, caus, eqs))
     for loop in eqs.loops:
         out.write(f"note: {loop}\n")
-    for wmsg in caus.warnings:
+    for wmsg in eqs.warnings:  # what the equations leave standing of causality's warnings
         out.write(f"warning: {wmsg}\n")
     click.echo(out.getvalue(), nl=False)
 
@@ -191,7 +191,10 @@ def graph_cmd(model, output):
 def simulate_cmd(scene, out, plot_dir, method, rtol, max_wall, strict_causality, quiet):
     """Compile the scene's model and simulate the scene."""
     from .runner import run_scene
+    from .scene import check_rtol
 
+    if rtol is not None:  # inf and nan pass click's range check
+        check_rtol(rtol, None, "--rtol")
     prog = _Progress(quiet)
     res = run_scene(scene, progress=prog, method=method, rtol=rtol, max_wall=max_wall,
                     strict_causality=strict_causality)

@@ -8,8 +8,11 @@ and the definitions are scheduled in causal order.
 """
 from __future__ import annotations
 
+import ast
+import functools
 import itertools
 import keyword
+import re
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -19,10 +22,67 @@ import networkx as nx
 import sympy as sp
 from sympy.printing.numpy import NumPyPrinter
 
-from . import __version__
+from . import __version__, fastsym
 from .equations import Assignment, Equations, T, schedule
 
 _IDENT_OK = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_")
+_TEMPLATES = "numpy"  # this backend's folder in templates/
+_RUNTIME_MARK = "# ==== bgc numpy runtime: copied below this line ====\n"
+# Modules the generated code may import (numpy always; the printer may ask for these).
+ALLOWED_IMPORTS = frozenset({"numpy", "scipy", "scipy.special", "math"})
+
+
+# ---------------------------------------------------------------------------------------------
+# The one door for text: every string from a model or scene reaches generated code through
+# exactly one of these three functions, and nowhere else.
+
+def lit(value) -> str:
+    """A Python literal for a value from the model: str (escaped by ``repr``: quotes,
+    backslashes, control characters, line separators and lone surrogates all come out as
+    escapes), int, float, bool, None, or tuples/lists of them. Anything else is a bug."""
+    if isinstance(value, (list, tuple)):
+        return ("[" if isinstance(value, list) else "(") + ", ".join(lit(v) for v in value) + (
+            "]" if isinstance(value, list) else ("," if len(value) == 1 else "") + ")")
+    if value is None or isinstance(value, (bool, int, str)):
+        out = repr(value)
+    elif isinstance(value, float):
+        out = repr(value)
+        if out in ("inf", "-inf", "nan"):
+            raise ValueError(f"non-finite constant {out} cannot be written as a literal")
+    else:
+        raise TypeError(f"no literal for {type(value).__name__}")
+    return out
+
+
+def oneline(text, limit: int = 200) -> str:
+    """Free text made safe for one line inside a docstring or a comment: control characters,
+    line breaks and unprintable characters become visible escapes; long text is cut."""
+    s = "".join(c if c.isprintable() else repr(c)[1:-1] for c in str(text))
+    return s if len(s) <= limit else s[:limit - 3] + "..."
+
+
+def comment(text) -> str:
+    """Text for a ``# comment``: one line (see :func:`oneline`)."""
+    return oneline(text, 300)
+
+
+def docstring(text: str) -> str:
+    """A triple-quoted literal holding ``text`` exactly: backslashes, a quote that could end
+    the literal and every unprintable character are escaped; line breaks stay line breaks."""
+    out = []
+    for i, c in enumerate(text):
+        if c == "\\":
+            out.append("\\\\")
+        elif c == '"' and (i + 1 == len(text) or text[i + 1] == '"'):
+            out.append('\\"')
+        elif c == "\n" or c.isprintable():
+            out.append(c)
+        else:
+            out.append(repr(c)[1:-1])
+    s = '"""' + "".join(out) + '"""'
+    if ast.literal_eval(s) != text:  # the literal must mean exactly the text
+        raise AssertionError("docstring escaping failed")
+    return s
 
 
 class BgcPrinter(NumPyPrinter):
@@ -33,6 +93,21 @@ class BgcPrinter(NumPyPrinter):
         # far cheaper than sorting every sum for display)
         super().__init__({"fully_qualified_modules": True, "strict": True, "order": "none",
                           "allow_unknown_functions": False})
+        self._memo: dict = {}
+
+    def doprint(self, expr, assign_to=None):
+        # The same expression (an effort or flow of the causal order) is printed once per
+        # module, not once per function that uses it; the imports it needs were registered
+        # the first time.
+        if assign_to is not None:
+            return super().doprint(expr, assign_to)
+        try:
+            return self._memo[expr]
+        except KeyError:
+            out = self._memo[expr] = super().doprint(expr)
+            return out
+        except TypeError:  # unhashable
+            return super().doprint(expr)
 
     def _module_format(self, fqn, register=True):
         if register:
@@ -161,9 +236,12 @@ def _function(eq: Equations, printer: BgcPrinter, results: list, assigns: list[A
     assigns = _prune(results, assigns)
     exprs = [a.expr for a in assigns] + list(results)
     if cse and exprs:
-        repl, reduced = sp.cse(exprs, symbols=(sp.Symbol(f"_c{i}", real=True)
-                                               for i in itertools.count()),
-                               order="none", list=True)
+        names = (sp.Symbol(f"_c{i}", real=True) for i in itertools.count())
+        fast = fastsym.cse(exprs, lambda: next(names))  # symengine, when it can read them all
+        if fast is not None:
+            repl, reduced = fast
+        else:
+            repl, reduced = sp.cse(exprs, symbols=names, order="none", list=True)
     else:
         repl, reduced = [], exprs
     defs = [(s, e, "") for s, e in repl]
@@ -284,8 +362,8 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
     env = jinja2.Environment(loader=_loader(), keep_trailing_newline=True,
                              trim_blocks=True, lstrip_blocks=True,
                              undefined=jinja2.StrictUndefined, autoescape=False)
-    env.filters["pyrepr"] = repr
-    tpl = env.get_template("module.py.j2")
+    env.filters.update(lit=lit, oneline=oneline, comment=comment, docstring=docstring)
+    tpl = env.get_template(f"{_TEMPLATES}/module.py.j2")
     outputs = [{"name": name, "shape": shp, "size": len(vals)} for name, shp, vals in eq.outputs]
     text = tpl.render(
         name=eq.name, version=__version__, source=source, source_hash=source_hash,
@@ -295,10 +373,11 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
         jac_keys=jkeys, n=n, imports=imports,
         linsolve=getattr(printer, "uses_linsolve", False), newton=newton,
         all_param_symbols=[s for p in params for s in p["symbols"]] + [d.target for d in derived],
+        runtime=runtime_source(),
     )
     for ident in _identifiers(eq):
         assert ident.isidentifier() and not keyword.iskeyword(ident) and set(ident) <= _IDENT_OK
-    compile(text, f"{eq.name}.py", "exec")  # the generated module must at least be valid Python
+    check_skeleton(text)  # the module's top level is exactly the template's, nothing else
     return text
 
 
@@ -311,9 +390,96 @@ def _identifiers(eq: Equations):
         yield str(a.symbol)
 
 
-def _loader():
+def templates_dir() -> Path:
+    """templates/ of the source tree, else the installed package's copy (bgc.templates)."""
     here = Path(__file__).resolve().parent
     repo_templates = here.parent.parent / "templates"
-    if (repo_templates / "module.py.j2").is_file():
-        return jinja2.FileSystemLoader(str(repo_templates))
-    return jinja2.FileSystemLoader(str(resources.files("bgc.templates")))
+    if (repo_templates / _TEMPLATES / "module.py.j2").is_file():
+        return repo_templates
+    return Path(str(resources.files("bgc.templates")))
+
+
+def _loader():
+    return jinja2.FileSystemLoader(str(templates_dir()))
+
+
+@functools.lru_cache(maxsize=None)
+def runtime_source(backend: str = _TEMPLATES) -> str:
+    """The part of templates/<backend>/runtime.py copied into every generated module."""
+    text = (templates_dir() / backend / "runtime.py").read_text(encoding="utf-8")
+    head, sep, body = text.partition(_RUNTIME_MARK)
+    if not sep:
+        raise AssertionError(f"runtime.py has no marker line {_RUNTIME_MARK!r}")
+    return body.strip("\n")
+
+
+# ---------------------------------------------------------------------------------------------
+# The skeleton check: after rendering, the module's top-level statements must be exactly the
+# template's. Model text can only ever appear inside literals; if escaping were ever wrong, a
+# stray statement would show here and nothing would be written.
+
+#: Names the model part of the template binds at top level, with the statement kind.
+_MODEL_TOP = {
+    "Assign": {"BGC_VERSION", "MODEL_HASH", "N_STATES", "STATE_NAMES", "PARAM_DEFAULTS",
+               "PARAM_UNITS", "_PARAM_NDIM", "INPUT_NAMES", "OUTPUT_NAMES", "OUTPUT_SHAPES",
+               "JAC_SPARSITY", "_P0", "X0", "_NEWTON_WARM"},
+    "FunctionDef": {"_unpack", "_params", "_inputs", "initial_state", "rhs", "jacobian",
+                    "outputs", "_bgc_linsolve"},
+    "ClassDef": {"_Unpacked"},
+}
+
+
+class SkeletonError(AssertionError):
+    """The rendered module's top level is not the template's (a bug, never written out)."""
+
+
+def _top_names(node) -> tuple[str, set]:
+    kind = type(node).__name__
+    if isinstance(node, (ast.FunctionDef, ast.ClassDef)):
+        return kind, {node.name}
+    if isinstance(node, ast.Assign):
+        names = set()
+        for tgt in node.targets:
+            base = tgt.value if isinstance(tgt, ast.Subscript) else tgt
+            if not isinstance(base, ast.Name):
+                return kind, {"<complex target>"}
+            names.add(base.id)
+        return kind, names
+    return kind, set()
+
+
+def check_skeleton(text: str, backend: str = _TEMPLATES) -> None:
+    """Parse the generated module and check its top-level statements: a docstring, the
+    imports the printer may ask for, the model part's own definitions (each name once at most,
+    except JAC_SPARSITY's pattern assignment) and then, statement for statement, the runtime."""
+    runtime = runtime_source(backend)
+    if not text.endswith("\n\n\n" + runtime + "\n"):  # the runtime, verbatim, at the end
+        raise SkeletonError(f"the runtime part differs from templates/{backend}/runtime.py")
+    try:  # the model part must parse on its own: nothing in it can reach into the runtime
+        head = ast.parse(text[:-len(runtime) - 1]).body
+    except SyntaxError as exc:
+        raise SkeletonError(f"generated module does not parse: {exc}") from None
+    if not head:
+        raise SkeletonError("the generated module has no model part")
+    doc = head[0]
+    if not (isinstance(doc, ast.Expr) and isinstance(doc.value, ast.Constant)
+            and isinstance(doc.value.value, str)):
+        raise SkeletonError("the module does not start with its docstring")
+    seen: dict[str, int] = {}
+    for node in head[1:]:
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                if a.name not in ALLOWED_IMPORTS or a.asname not in (None, "np"):
+                    raise SkeletonError(f"unexpected import {a.name!r}")
+            continue
+        kind, names = _top_names(node)
+        allowed = _MODEL_TOP.get(kind, set())
+        if kind == "FunctionDef":  # one Newton solver per nonlinear algebraic loop
+            allowed = allowed | {n for n in names if re.fullmatch(r"_newton_[0-9]+", n)}
+        if not names or not names <= allowed:
+            raise SkeletonError(f"unexpected top-level {kind} {sorted(names)} at line "
+                                f"{getattr(node, 'lineno', '?')}")
+        for nm in names:
+            seen[nm] = seen.get(nm, 0) + 1
+            if seen[nm] > (2 if nm == "JAC_SPARSITY" else 1):
+                raise SkeletonError(f"{nm} bound twice at top level")

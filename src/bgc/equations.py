@@ -19,9 +19,10 @@ import networkx as nx
 import sympy as sp
 
 from .causality import Causality
+from . import fastsym
 from .errors import Coord, ModelError
 from .expr import Expr, build, shape_of
-from .graph import BondGraph, FlatElement, code_name, join
+from .graph import BondGraph, FlatElement, a_kind, code_name, join
 from .parse import TWO_PORTS
 
 T = sp.Symbol("t", real=True)
@@ -108,6 +109,10 @@ class Equations:
     # storage elements in derivative causality: (element id, the state names it follows from)
     dependent: tuple = field(default=())
     newton: tuple = field(default=())  # NewtonLoop: nonlinear algebraic loops
+    #: causality's warnings that the equations leave standing: SCAP's arbitrary choice of an R's
+    #: form is no longer a "possible algebraic loop" once the equations are derived (any loop
+    #: was found and solved, and is listed in ``loops``; or there was none)
+    warnings: tuple[str, ...] = field(default=())
 
 
 class _Ctx:
@@ -134,10 +139,10 @@ class _Ctx:
                 self.param_value[fp.id] = _fold_value(fold[fp.id])
                 continue
             if isinstance(fp.value, tuple):
+                # A list stays a matrix even with one entry ([2.0] is 1x1, not a scalar): the
+                # law that uses it checks its shape.
                 rows, cols = len(fp.value), len(fp.value[0])
                 shape = (rows,) if cols == 1 else (rows, cols)
-                if cols == 1 and rows == 1:
-                    shape = ()
                 val = _mat_syms(code, shape)
             else:
                 shape, val = (), _sym(code)
@@ -204,7 +209,7 @@ class _Resolver:
                                         "value")
             return self._find(path[1:], coord, scope + (head,))
         if len(path) != 1:
-            raise ModelError(coord, f"{self.what}: {head!r} is a {kind}: it has no "
+            raise ModelError(coord, f"{self.what}: {head!r} is {a_kind(kind)}: it has no "
                                     f"{path[1]!r}")
         return kind, head, scope
 
@@ -229,7 +234,7 @@ class _Resolver:
             return self.ctx.param(pid, coord)
         if self.params_only:
             raise ModelError(coord, f"{self.what}: may only use parameters, and "
-                                    f"{'.'.join(path)!r} is a {kind}")
+                                    f"{'.'.join(path)!r} is {a_kind(kind)}")
         if kind == "state":
             sid = join(scope, name)
             if sid not in self.ctx.states:
@@ -241,7 +246,8 @@ class _Resolver:
         if kind == "element":
             raise ModelError(coord, f"{self.what}: {'.'.join(path)!r} is an element: use e(), "
                                     "f(), p() or q() to read its variables")
-        raise ModelError(coord, f"{self.what}: {'.'.join(path)!r} is a {kind}, not a value")
+        raise ModelError(coord, f"{self.what}: {'.'.join(path)!r} is {a_kind(kind)}, "
+                                "not a value")
 
     def bond(self, func, path, coord):
         if self.params_only or not self.allow_bonds:
@@ -262,8 +268,9 @@ class _Resolver:
             if func in ("p", "q"):
                 want = "I" if func == "p" else "C"
                 if el.type != want:
-                    raise ModelError(coord, f"{self.what}: {func}() takes an {want} element, "
-                                            f"{ident!r} is a {el.type}")
+                    an = lambda t: "an" if t in ("I", "R", "Se", "Sf", "MTF", "MGY") else "a"  # noqa: E731
+                    raise ModelError(coord, f"{self.what}: {func}() takes {an(want)} {want} "
+                                            f"element, {ident!r} is {an(el.type)} {el.type}")
                 return ctx.states[ident]
             bonds = bg.bonds_of(ident)
             if el.type == "0":
@@ -281,7 +288,7 @@ class _Resolver:
             e, f = ctx.e[bonds[0].id], ctx.f[bonds[0].id]
         else:
             raise ModelError(coord, f"{self.what}: {func}() takes a bond, element or junction; "
-                                    f"{'.'.join(path)!r} is a {kind}")
+                                    f"{'.'.join(path)!r} is {a_kind(kind)}")
         if func == "e":
             return e
         if func == "f":
@@ -319,8 +326,6 @@ def _zeros(n):
 
 def _fold_value(v):
     if isinstance(v, tuple):
-        if len(v) == 1 and len(v[0]) == 1:
-            return sp.Float(v[0][0])
         return sp.ImmutableMatrix([[sp.Float(c) for c in row] for row in v])
     return sp.Float(v)
 
@@ -351,13 +356,15 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
     state_vars: list[StateVar] = []
 
     def define(var, value, el: FlatElement, why: str):
-        if shape_of(var) == () and shape_of(value) == (1, 1):  # M^T e for an n x 1 modulus
+        if not shape_of(var) and shape_of(value) == (1, 1):  # e.g. M^T e2 of an n2 x 1 modulus
             value = value[0, 0]
         if shape_of(var) != shape_of(value):
             raise ModelError(el.coord, f"{el.type} {el.id!r}: cardinality mismatch: its law "
                                        f"gives {_shape_name(shape_of(value))}, its bond "
                                        f"carries {_shape_name(shape_of(var))}")
+        targets = set(flat(var))
         for s, v in zip(flat(var), flat(value)):
+            _check_value(v, el, targets)
             defs[s] = Assignment(s, v, why)
             owner[s] = el.id
 
@@ -448,10 +455,32 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
     nloops = [dc_replace(nl, g=tuple(e.xreplace(subs) for e in nl.g)) for nl in nloops or ()]
     jac, jac_assign = _jacobian(kept, state_vars, derivatives, nloops)
     _check_names(bg, ctx, state_vars)
+    standing = tuple(w for w in caus.warnings if not w.startswith("R elements with causality"))
     return Equations(bg.model.name, tuple(state_vars), tuple(ctx.params.values()),
                      tuple(ctx_derived), tuple(ctx.inputs[i.name] for i in bg.model.inputs),
                      tuple(kept), derivatives, outputs, jac, tuple(jac_assign), tuple(loops),
-                     dependent=tuple(dependent), newton=tuple(nloops))
+                     warnings=standing, dependent=tuple(dependent), newton=tuple(nloops))
+
+
+_BAD_VALUES = (sp.zoo, sp.oo, -sp.oo, sp.nan, sp.I)
+
+
+def _check_value(v, el: FlatElement, targets: set) -> None:
+    """An element's equation must be finite and real, and must not read what it defines."""
+    if v.has(*_BAD_VALUES):
+        bad = "complex" if v.has(sp.I) else "infinite or undefined"
+        hint = {"I": " (a zero inertia?)", "C": " (a zero compliance?)",
+                "R": " (a zero resistance in conductance form?)"}.get(el.type, "")
+        raise ModelError(el.coord, f"{el.type} {el.id!r}: its equation is {bad}: it divides by "
+                                   f"zero or takes the root or logarithm of a negative "
+                                   f"constant{hint}")
+    own = v.free_symbols & targets
+    if own:
+        name = sorted(map(str, own))[0]
+        var = "effort" if name.startswith("e_") else "flow" if name.startswith("f_") else name
+        raise ModelError(el.coord, f"{el.type} {el.id!r}: its law reads its own {var}, the "
+                                   "variable the law defines (write it in terms of the "
+                                   f"element's {'state' if el.type in ('I', 'C') else 'other variable'})")
 
 
 def _state_label(oid: str, shape, k: int) -> str:
@@ -611,6 +640,9 @@ def _card(val, n, el, key, square=False):
 def _solve(m, rhs, el, key):
     """m^-1 rhs for a scalar or a small matrix (adjugate over determinant)."""
     if not shape_of(m):
+        if m == 0:
+            raise ModelError(el.coord, f"{el.type} {el.id!r}: its {key} is zero and must be "
+                                       "inverted here (a division by zero)")
         return rhs / m
     if m.shape[0] > 4:
         raise ModelError(el.coord, f"{el.type} {el.id!r}: inverting a {m.shape[0]}x"
@@ -1054,7 +1086,13 @@ def _causal_order(bg: BondGraph, defs: dict, owner: dict, tear_sets=(),
         if len(comp) > 60:
             raise ModelError(bg.element(els[0]).coord, f"algebraic loop through {desc} has "
                                                        f"{len(comp)} unknowns (limit 60)")
-        sol = A.LUsolve(rhs)
+        try:
+            sol = A.LUsolve(rhs)
+        except (ValueError, ZeroDivisionError, sp.matrices.exceptions.NonInvertibleMatrixError):
+            raise ModelError(bg.element(els[0]).coord,
+                             f"algebraic loop through {desc} is singular: its equations do not "
+                             "determine its unknowns (a law that reads the variable it "
+                             "defines?)") from None
         loops.append(f"linear algebraic loop solved through {desc}")
         for s, v in zip(comp, sol):
             defs[s] = Assignment(s, v, defs[s].why + " (algebraic loop, solved)")
@@ -1130,16 +1168,26 @@ def _jacobian(kept: list[Assignment], state_vars, derivatives, nloops=()):
     jac_assign: list[Assignment] = []
     counter = itertools.count()
 
+    bridge = fastsym.Bridge() if fastsym.available() else None
+
     def grad(expr) -> dict[int, object]:
+        syms = sorted((s for s in expr.free_symbols if D.get(s)), key=str)  # deterministic
+        if not syms:
+            return {}
+        parts = fastsym.partials(bridge, expr, syms) if bridge is not None else None
+        if parts is not None:  # symengine: same algebra, a hundred times faster
+            acc_se: dict[int, object] = {}
+            for s, partial in parts.items():
+                for j, dj in D[s].items():
+                    term = partial * bridge.to_se(dj)
+                    acc_se[j] = acc_se[j] + term if j in acc_se else term
+            return {j: bridge.from_se(v) for j, v in acc_se.items() if v != 0}
         acc: dict[int, object] = {}
-        for s in expr.free_symbols:
-            ds = D.get(s)
-            if not ds:
-                continue
+        for s in syms:
             partial = _clean(sp.diff(expr, s))
             if partial == 0:
                 continue
-            for j, dj in ds.items():
+            for j, dj in D[s].items():
                 term = partial * dj
                 acc[j] = acc[j] + term if j in acc else term
         return {j: v for j, v in acc.items() if v != 0}
@@ -1221,7 +1269,11 @@ def _jacobian(kept: list[Assignment], state_vars, derivatives, nloops=()):
             continue
         if isinstance(a.expr, LinSolveEntry):
             X, i = a.expr.args
-            dv = {j: LinSolveEntry(s, i) for j, s in solves.get(X, {}).items()}
+            dv = {}
+            for j, s in solves.get(X, {}).items():
+                d = _sym(f"_d{next(counter)}")
+                jac_assign.append(Assignment(d, LinSolveEntry(s, i), ""))
+                dv[j] = d
             if dv:
                 D[a.symbol] = dv
             continue

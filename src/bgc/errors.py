@@ -30,6 +30,13 @@ class ModelError(Exception):
     """A mistake in user input (model or scene): reported with its place, exit status 2."""
 
     def __init__(self, coord: Coord | None, message: str):
+        from .limits import LIMITS
+
+        # One line, of bounded length, whatever user text the message quotes.
+        message = " ".join(str(message).splitlines())
+        cap = LIMITS.message_chars
+        if len(message) > cap:
+            message = message[:cap - 3] + "..."
         self.coord = coord
         self.message = message
         super().__init__(f"{coord}: {message}" if coord else message)

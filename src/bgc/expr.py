@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import ast
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Callable, Protocol
 
 import sympy as sp
 
 from .errors import Coord, ModelError
+from .limits import LIMITS
 
 #: Functions an expression may call, with their number of arguments (None: any, at least one).
 FUNCTIONS: dict[str, tuple[int, int | None]] = {
@@ -31,9 +33,15 @@ BOND_FUNCTIONS = ("e", "f", "p", "q", "power")
 CONSTANTS = {"pi": sp.pi}
 
 #: Deepest nesting of an expression tree (a guard against stack exhaustion in later stages).
-MAX_DEPTH = 200
-#: Largest magnitude of an exact number an expression may produce (10**MAX_EXPONENT).
-MAX_EXPONENT = 300
+MAX_DEPTH = LIMITS.expr_depth
+#: Largest magnitude of a number an expression may produce (10**MAX_EXPONENT).
+MAX_EXPONENT = LIMITS.number_exponent
+
+#: Names people write from other languages, with what bgc calls them.
+HINTS = {"signum": "sign", "sgn": "sign", "ln": "log", "pow": "** (a ** b)",
+         "arctan": "atan", "arctan2": "atan2", "arcsin": "asin", "arccos": "acos",
+         "fabs": "abs", "minimum": "min", "maximum": "max", "exp10": "10 ** x",
+         "ifelse": "where", "if_else": "where", "step": "heaviside", "identity": "eye"}
 
 _BINOPS = (ast.Add, ast.Sub, ast.Mult, ast.Div, ast.Pow, ast.MatMult)
 _CMPOPS = (ast.Lt, ast.LtE, ast.Gt, ast.GtE)
@@ -115,13 +123,16 @@ def _short(text: str) -> str:
 def check(expr: Expr) -> ast.expr:
     """Parse ``expr`` and verify every node against the whitelist; return the tree."""
     text = expr.text
-    if len(text) > 20000:
-        raise ModelError(expr.coord, "expression is too long (over 20000 characters)")
+    if len(text) > LIMITS.expr_chars:
+        raise ModelError(expr.coord, f"expression is too long (over {LIMITS.expr_chars} "
+                                     "characters, the limit of expression length)")
     body, lead = _source(text)
     if not body.strip():
         raise ModelError(expr.coord, "empty expression")
     try:
-        tree = ast.parse(body, mode="eval")
+        with warnings.catch_warnings():  # e.g. "invalid decimal literal" for 1if: never shown
+            warnings.simplefilter("ignore")
+            tree = ast.parse(body, mode="eval")
     except SyntaxError as exc:
         off = lead + max((exc.offset or 1) - 1, 0) if (exc.lineno or 1) == 1 else lead
         raise ModelError(_at(expr, min(off, len(text))),
@@ -137,8 +148,14 @@ def check(expr: Expr) -> ast.expr:
 
 def _check_depth(expr: Expr, root: ast.AST) -> None:
     stack = [(root, 1)]
+    count = 0
     while stack:
         node, depth = stack.pop()
+        count += 1
+        if count > LIMITS.expr_nodes:
+            raise ModelError(expr.coord, f"expression is too large (more than "
+                                         f"{LIMITS.expr_nodes} syntax nodes, the limit of "
+                                         "expression size)")
         if depth > MAX_DEPTH:
             raise ModelError(_where(expr, node), f"expression is nested too deeply "
                                                  f"(more than {MAX_DEPTH} levels)")
@@ -167,6 +184,8 @@ def _check_node(expr: Expr, node: ast.AST, in_where: bool = False) -> None:
                 raise bad(f"name {part!r} is not allowed (leading underscore)")
         return
     if isinstance(node, ast.BinOp):
+        if isinstance(node.op, ast.BitXor):
+            raise bad("operator ^ is not allowed: write ** for a power (a ** b)")
         if not isinstance(node.op, _BINOPS):
             raise bad(f"operator {type(node.op).__name__} is not allowed")
         _check_node(expr, node.left)
@@ -218,7 +237,8 @@ def _check_node(expr: Expr, node: ast.AST, in_where: bool = False) -> None:
                 raise bad(f"{name}() takes one name: a bond, element or junction")
             return
         if name not in FUNCTIONS:
-            raise bad(f"unknown function {name!r}")
+            hint = f" (did you mean {HINTS[name]}?)" if name in HINTS else ""
+            raise bad(f"unknown function {name!r}{hint}")
         lo, hi = FUNCTIONS[name]
         n = len(node.args)
         if n < lo or (hi is not None and n > hi):
@@ -284,20 +304,187 @@ def _too_big(v) -> bool:
     return False
 
 
+class _NumError(Exception):
+    pass
+
+
+_FLOAT_LIMIT = 10.0 ** MAX_EXPONENT
+
+
+def _checked(x: float) -> float:
+    if isinstance(x, complex):
+        raise _NumError("complex")
+    if x != x:
+        raise _NumError("undefined")
+    if not math.isfinite(x) or abs(x) > _FLOAT_LIMIT:
+        raise _NumError("overflow")
+    return x
+
+
+def _pow(a: float, b: float) -> float:
+    if a == 0 and b < 0:
+        raise _NumError("undefined")
+    if a < 0 and b != int(b):
+        raise _NumError("complex")
+    try:
+        return math.pow(a, b)
+    except OverflowError:
+        raise _NumError("overflow") from None
+
+
+_MATH1 = {
+    sp.exp: math.exp, sp.log: math.log, sp.sin: math.sin, sp.cos: math.cos, sp.tan: math.tan,
+    sp.asin: math.asin, sp.acos: math.acos, sp.atan: math.atan, sp.sinh: math.sinh,
+    sp.cosh: math.cosh, sp.tanh: math.tanh, sp.Abs: abs,
+    sp.sign: lambda a: (a > 0) - (a < 0),
+}
+_RELATIONS = {sp.StrictLessThan: lambda a, b: a < b, sp.LessThan: lambda a, b: a <= b,
+              sp.StrictGreaterThan: lambda a, b: a > b, sp.GreaterThan: lambda a, b: a >= b}
+
+
+def numeric(v, memo: dict | None = None):
+    """The value of a constant sympy expression in double precision, or None where it depends
+    on a symbol (or holds a function this evaluator does not know). Raises :class:`_NumError`
+    ("overflow", "complex", "undefined") where the constant is no finite real double: bounded
+    work, where sympy's own evaluation of ``exp(exp(exp(100)))`` would not end."""
+    memo = {} if memo is None else memo
+    return _num(v, memo)
+
+
+def _num(v, memo):
+    try:
+        return memo[v]
+    except (KeyError, TypeError):
+        pass
+    x = _num1(v, memo)
+    if x is not None:
+        x = _checked(x)
+    memo[v] = x
+    return x
+
+
+def _num1(v, memo):  # noqa: C901 - one case per sympy class
+    if isinstance(v, (int, float)):
+        return float(v)
+    if v.is_Symbol:
+        return None
+    if v in (sp.zoo, sp.nan, sp.oo, -sp.oo):
+        raise _NumError("undefined" if v in (sp.zoo, sp.nan) else "overflow")
+    if v is sp.I:
+        raise _NumError("complex")
+    if isinstance(v, sp.Rational):
+        try:
+            return v.p / v.q
+        except OverflowError:
+            raise _NumError("overflow") from None
+    if isinstance(v, (sp.Float, sp.NumberSymbol)):
+        return float(v)
+    if isinstance(v, (sp.Add, sp.Mul, sp.Pow, sp.Min, sp.Max, sp.atan2, sp.Heaviside)) or (
+            v.func in _MATH1):
+        args = [_num(a, memo) for a in v.args]
+        if any(a is None for a in args):
+            return None
+        try:
+            if isinstance(v, sp.Add):
+                return math.fsum(args)
+            if isinstance(v, sp.Mul):
+                out = 1.0
+                for a in args:
+                    out = _checked(out * a)
+                return out
+            if isinstance(v, sp.Pow):
+                return _pow(*args)
+            if isinstance(v, sp.Min):
+                return min(args)
+            if isinstance(v, sp.Max):
+                return max(args)
+            if isinstance(v, sp.atan2):
+                return math.atan2(*args)
+            if isinstance(v, sp.Heaviside):
+                return 1.0 if args[0] > 0 else 0.0 if args[0] < 0 else args[1]
+            if v.func in (sp.log,) and args[0] <= 0:
+                raise _NumError("complex" if args[0] < 0 else "undefined")
+            return _MATH1[v.func](*args)
+        except OverflowError:
+            raise _NumError("overflow") from None
+        except ValueError:  # math domain error: asin(2), acos(-3)
+            raise _NumError("complex") from None
+        except ZeroDivisionError:
+            raise _NumError("undefined") from None
+    if isinstance(v, sp.Piecewise):
+        for val, cond in v.args:
+            if cond is sp.true:
+                return _num(val, memo)
+            if type(cond) not in _RELATIONS:
+                return None
+            a, b = _num(cond.lhs, memo), _num(cond.rhs, memo)
+            if a is None or b is None:
+                return None
+            if _RELATIONS[type(cond)](a, b):
+                return _num(val, memo)
+        raise _NumError("undefined")
+    return None
+
+
+_NUM_MESSAGES = {
+    "overflow": f"the constant is not a finite number (it overflows 10**{MAX_EXPONENT})",
+    "complex": "the constant is complex, not real (a square root or logarithm of a negative "
+               "number, or asin/acos beyond [-1, 1]?)",
+    "undefined": "the expression is infinite or undefined (division by zero?)",
+}
+
+
+def _tree_size(v, limit: int) -> int:
+    """The number of nodes of a sympy expression tree, counting stops past ``limit``."""
+    n = 0
+    stack = [v]
+    while stack:
+        x = stack.pop()
+        n += 1
+        if n > limit:
+            return n
+        stack.extend(x.args)
+    return n
+
+
 class _Builder:
     def __init__(self, expr: Expr, resolver: Resolver):
         self.expr = expr
         self.r = resolver
+        self.memo: dict = {}  # constant sub-expression -> its double value (or None)
+        self.work = 0  # operations done so far (bounded by LIMITS.built_ops)
 
     def err(self, node, msg):
         what = getattr(self.r, "what", "")  # the resolver's name for the expression's owner
         return ModelError(_where(self.expr, node), f"{what}: {msg}" if what else msg)
+
+    def _spend(self, node, amount: int) -> None:
+        self.work += amount
+        if self.work > LIMITS.built_ops:
+            raise self.err(node, f"the expression expands into more than {LIMITS.built_ops} "
+                                 "operations (the limit of symbolic work per expression)")
+
+    def _shape_guard(self, node, v):
+        if isinstance(v, sp.MatrixBase):
+            r, c = v.shape
+            if r > LIMITS.matrix_dim or c > LIMITS.matrix_dim or r * c > LIMITS.matrix_entries:
+                raise self.err(node, f"a {r}x{c} matrix is larger than the limit of matrix size "
+                                     f"({LIMITS.matrix_dim} rows or columns, "
+                                     f"{LIMITS.matrix_entries} entries)")
+            self._spend(node, r * c)
+        return v
 
     def _number_guard(self, node, v):
         if not _finite(v):
             raise self.err(node, "the expression is infinite or undefined (division by zero?)")
         if _too_big(v):
             raise self.err(node, f"a number larger than 10**{MAX_EXPONENT}")
+        self._shape_guard(node, v)
+        try:
+            for x in (v if isinstance(v, sp.MatrixBase) else (v,)):
+                numeric(x, self.memo)
+        except _NumError as exc:
+            raise self.err(node, _NUM_MESSAGES[str(exc)]) from None
         return v
 
     def visit(self, node):
@@ -320,7 +507,7 @@ class _Builder:
         if isinstance(node, ast.BinOp):
             return self._number_guard(node, self.binop(node))
         if isinstance(node, ast.List):
-            return self.listlit(node)
+            return self._number_guard(node, self.listlit(node))
         if isinstance(node, ast.Subscript):
             return self.subscript(node)
         if isinstance(node, ast.Call):
@@ -340,6 +527,11 @@ class _Builder:
                 if sa and sb:
                     if sa[1] != sb[0]:
                         raise self.err(node, f"shape mismatch in matrix product: {_fmt(sa)} times {_fmt(sb)}")
+                    # Each entry of a is used by every column of b, each entry of b by every
+                    # row of a: the product's size, paid before sympy builds it.
+                    self._spend(node, sa[0] * sa[1] * sb[1])
+                    self._spend(node, sb[1] * _tree_size(a, LIMITS.built_ops)
+                                + sa[0] * _tree_size(b, LIMITS.built_ops))
                     return a * b
                 if isinstance(op, ast.MatMult):
                     raise self.err(node, "@ needs two matrices")
@@ -354,6 +546,10 @@ class _Builder:
                 if isinstance(a, sp.Number) and isinstance(b, sp.Number) and a != 0 and (
                         abs(float(b)) * abs(math.log10(abs(float(a)))) > MAX_EXPONENT):
                     raise self.err(node, f"a number larger than 10**{MAX_EXPONENT}")
+                if isinstance(b, sp.Number) and abs(b) > LIMITS.power_exponent:
+                    raise self.err(node, f"exponent {_short(str(b))} is larger than "
+                                         f"{LIMITS.power_exponent} in magnitude (the limit of "
+                                         "exponents)")
                 return a ** b
         except ModelError:
             raise
@@ -409,8 +605,9 @@ class _Builder:
             return self.r.bond(name, dotted_path(node.args[0]), _where(self.expr, node.args[0]))
         if name in ("eye", "zeros"):
             dims = [_int_const(self.expr, a) for a in node.args]
-            if any(d < 1 or d > 1000 for d in dims):
-                raise self.err(node, f"{name}() size must be 1..1000")
+            if any(d < 1 or d > LIMITS.matrix_dim for d in dims):
+                raise self.err(node, f"{name}() size must be 1..{LIMITS.matrix_dim} (the limit "
+                                     "of matrix size)")
             return sp.ImmutableMatrix(sp.eye(dims[0]) if name == "eye" else sp.zeros(*dims))
         if name == "where":
             cond = node.args[0]
@@ -419,11 +616,21 @@ class _Builder:
             lhs, rhs = self.visit(cond.left), self.visit(cond.comparators[0])
             if shape_of(lhs) or shape_of(rhs):
                 raise self.err(node, "where(): the condition must compare scalars")
-            rel = {ast.Lt: sp.Lt, ast.LtE: sp.Le, ast.Gt: sp.Gt, ast.GtE: sp.Ge}[type(cond.ops[0])]
-            c = rel(lhs, rhs)
+            op = type(cond.ops[0])
             a, b = self.visit(node.args[1]), self.visit(node.args[2])
             if shape_of(a) != shape_of(b):
                 raise self.err(node, "where(): both branches must have the same shape")
+            try:
+                lv, rv = numeric(lhs, self.memo), numeric(rhs, self.memo)
+            except _NumError as exc:
+                raise self.err(cond, _NUM_MESSAGES[str(exc)]) from None
+            if lv is not None and rv is not None:  # a constant condition: decided here, in
+                # double precision (sympy would evaluate it to whatever precision it takes)
+                holds = {ast.Lt: lv < rv, ast.LtE: lv <= rv, ast.Gt: lv > rv,
+                         ast.GtE: lv >= rv}[op]
+                return a if holds else b
+            rel = {ast.Lt: sp.Lt, ast.LtE: sp.Le, ast.Gt: sp.Gt, ast.GtE: sp.Ge}[op]
+            c = rel(lhs, rhs)
             if shape_of(a):
                 return sp.ImmutableMatrix(a.shape[0], a.shape[1],
                                           [sp.Piecewise((x, c), (y, True)) for x, y in zip(a, b)])
@@ -467,6 +674,10 @@ class _Builder:
         if name == "transpose":
             return sp.ImmutableMatrix(_as_matrix(args[0]).T)
         if name == "diag":
+            size = len(args[0]) if len(args) == 1 and shapes[0] else len(args)
+            if size > LIMITS.matrix_dim:
+                raise self.err(node, f"diag(): a {size}x{size} matrix is larger than the limit "
+                                     f"of matrix size ({LIMITS.matrix_dim})")
             if len(args) == 1 and shapes[0] and shapes[0][1] == 1:
                 return sp.ImmutableMatrix(sp.diag(*list(args[0])))
             if any(shapes):
@@ -478,6 +689,7 @@ class _Builder:
                 raise self.err(node, f"{name}() needs a square matrix")
             if shapes[0][0] > 4:
                 raise self.err(node, f"{name}() is symbolic and limited to 4x4 matrices")
+            self._spend(node, _tree_size(m, LIMITS.built_ops) * 24)
             if name == "det":
                 return m.det(method="berkowitz")
             d = m.det(method="berkowitz")

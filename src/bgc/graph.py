@@ -14,10 +14,11 @@ import networkx as nx
 
 from .errors import Coord, ModelError
 from .expr import Expr
+from .limits import LIMITS
 from .parse import ELEMENT_TYPES as _TYPES
 from .parse import JUNCTIONS, STORAGE, TWO_PORTS, Body, Component, Model
 
-MAX_DEPTH = 8
+MAX_DEPTH = LIMITS.component_depth
 
 
 @dataclass(frozen=True)
@@ -158,9 +159,12 @@ class _Flattener:
         for s in body.states:
             names[s.name] = "state"
         for bd in body.bonds:
+            if bd.auto and bd.name in names:  # an automatic name gives way to the user's
+                continue
             if bd.name in names and names[bd.name] != "bond":
-                raise ModelError(bd.coord, f"bond name {bd.name!r} is also the name of an "
-                                           f"{names[bd.name]}: rename one of them")
+                kind = {"param": "parameter"}.get(names[bd.name], names[bd.name])
+                raise ModelError(bd.coord, f"bond name {bd.name!r} is also the name of "
+                                           f"{_article(kind)} {kind}: rename one of them")
             names.setdefault(bd.name, "bond")
         self.scopes[prefix] = Scope(prefix, names, bindings, comp.name if comp else "")
         # Parameters: at top level all are module parameters; in a component, those the
@@ -173,7 +177,14 @@ class _Flattener:
                                          p.description, p.free))
             if prefix:
                 bindings[p.name] = ParamBinding("global", pid)
+        instances = [el for el in body.elements if el.type not in _TYPES]
+        if len(instances) > LIMITS.instances_per_level:
+            el = instances[LIMITS.instances_per_level]
+            raise ModelError(el.coord, f"element {el.name!r}: more than "
+                                       f"{LIMITS.instances_per_level} component instances in one "
+                                       "body (the limit of instances per level)")
         for el in body.elements:
+            self.count(el.coord, el.name)
             eff = tuple(dict.fromkeys(effects + el.effects))
             if el.type in _TYPES:
                 self.elements.append(FlatElement(join(prefix, el.name), el.type, prefix,
@@ -210,6 +221,15 @@ class _Flattener:
             self.bonds.append(FlatBond(join(prefix, bd.name), src, dst, bd.n, bd.coord,
                                        len(self.bonds)))
 
+    def count(self, coord: Coord, name: str) -> None:
+        """Refuse a model whose flattened form grows past the limit (instances of instances
+        multiply: 16 instances on each of 7 levels are 268 million leaves)."""
+        total = len(self.elements) + len(self.bonds) + len(self.params) + len(self.states)
+        if total >= LIMITS.flat_elements:
+            raise ModelError(coord, f"{name!r}: the flattened model has more than "
+                                    f"{LIMITS.flat_elements} elements, bonds, parameters and "
+                                    "states (the limit of instantiated elements)")
+
     def endpoint(self, scope: Scope, path: tuple[str, ...], coord: Coord, bname: str) -> str:
         head = path[0]
         kind = scope.names.get(head)
@@ -235,7 +255,18 @@ class _Flattener:
                                         "lead to an element, not a nested instance")
             return join(sub, target)
         kind = {"param": "parameter"}.get(kind, kind)
-        raise ModelError(coord, f"bond {bname!r}: {head!r} is a {kind}, not an element")
+        raise ModelError(coord, f"bond {bname!r}: {head!r} is {_article(kind)} {kind}, not an "
+                                "element")
+
+
+def _article(word: str) -> str:
+    return "an" if word[:1].lower() in "aeiou" else "a"
+
+
+def a_kind(kind: str) -> str:
+    """'param' -> 'a parameter', 'input' -> 'an input': a scope kind in words."""
+    word = {"param": "parameter"}.get(kind, kind)
+    return f"{_article(word)} {word}"
 
 
 

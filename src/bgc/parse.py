@@ -17,6 +17,8 @@ import yaml
 
 from .errors import Coord, ModelError
 from .expr import BOND_FUNCTIONS, FUNCTIONS, Expr, check
+from .limits import LIMITS
+from .safeio import read_text_bounded
 
 ELEMENT_TYPES = ("Se", "Sf", "C", "I", "R", "TF", "GY", "MTF", "MGY", "0", "1")
 
@@ -32,18 +34,25 @@ STORAGE = ("I", "C")
 TWO_PORTS = ("TF", "GY", "MTF", "MGY")
 JUNCTIONS = ("0", "1")
 
-_IDENT = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
-RESERVED = frozenset({"t", "x", "p", "u", "np", "e", "f", "q", "pi", "numpy", "scipy", "math",
-                      "dx", "J", "y", "rhs", "jacobian", "outputs", "simulate",
-                      "initial_state"}
-                     | set(FUNCTIONS) | set(BOND_FUNCTIONS))
-_NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
-MAX_CARDINALITY = 64
+_IDENT = re.compile(r"[A-Za-z][A-Za-z0-9_]*")  # always used with fullmatch
+#: Names a model may not give a parameter, input, state or effect: the expression language's
+#: functions, bgc's own words, and every name the generated module uses in the functions where
+#: model names become locals (``tests/test_names.py`` renders modules and checks that each such
+#: name is here, so a parameter can never shadow the module's own variables or imports).
+RESERVED = frozenset({
+    # the expression language and bgc's words
+    "t", "x", "p", "u", "e", "f", "q", "pi", "y", "numpy", "scipy", "math",
+    # the generated module: its imports, its public functions, and the locals of the functions
+    # that bind model names (_unpack, _inputs, initial_state, rhs, jacobian, outputs)
+    "np", "rhs", "jacobian", "outputs", "simulate", "initial_state", "dx", "J", "P", "x0"}
+    | set(FUNCTIONS) | set(BOND_FUNCTIONS))
+_NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?")  # always with fullmatch
+MAX_CARDINALITY = LIMITS.cardinality
 
 
 def check_name(name, coord: Coord, what: str, allow_reserved: bool = False) -> str:
     """Validate an identifier before it can reach generated code."""
-    if not isinstance(name, str) or not _IDENT.match(name):
+    if not isinstance(name, str) or not _IDENT.fullmatch(name):
         raise ModelError(coord, f"invalid {what} name {name!r}: use letters, digits and _ , "
                                 "starting with a letter")
     if "__" in name:
@@ -103,6 +112,7 @@ class Bond:
     dst: tuple[str, ...]
     n: int
     coord: Coord
+    auto: bool = False  # named b1, b2, ... by its position (the user gave no name)
 
 
 @dataclass(frozen=True)
@@ -165,7 +175,7 @@ class Model:
 # YAML nodes with places
 
 #: Deepest nesting of YAML collections in a model file.
-MAX_YAML_DEPTH = 32
+MAX_YAML_DEPTH = LIMITS.yaml_depth
 
 
 class _Refused(Exception):
@@ -173,7 +183,7 @@ class _Refused(Exception):
         self.mark, self.message = mark, message
 
 
-class _Loader(yaml.SafeLoader):
+class _Guard:
     """The safe composer, refusing aliases (shared nodes could expand exponentially, or form
     cycles) and absurd nesting."""
 
@@ -191,6 +201,34 @@ class _Loader(yaml.SafeLoader):
             return super().compose_node(parent, index)
         finally:
             self._depth -= 1
+
+
+class _Loader(_Guard, yaml.SafeLoader):
+    """PyYAML's pure-Python loader (its messages and places are the ones bgc reports)."""
+
+
+try:  # libyaml's event parser, when PyYAML was built with it: ~6x faster on large files
+    from yaml._yaml import CParser as _CParser
+except ImportError:  # pragma: no cover - PyYAML without libyaml
+    _CParser = None
+
+if _CParser is not None:
+    class _FastLoader(_Guard, yaml.composer.Composer, _CParser, yaml.constructor.SafeConstructor,
+                      yaml.resolver.Resolver):
+        """libyaml's events, composed into nodes by PyYAML's (guarded) composer."""
+
+        def __init__(self, stream):
+            _CParser.__init__(self, stream)
+            yaml.composer.Composer.__init__(self)
+            yaml.constructor.SafeConstructor.__init__(self)
+            yaml.resolver.Resolver.__init__(self)
+
+        def compose_scalar_node(self, anchor):
+            node = super().compose_scalar_node(anchor)
+            node.style = node.style or None  # libyaml says '' for plain, PyYAML None
+            return node
+else:  # pragma: no cover
+    _FastLoader = None
 
 
 class _Reader:
@@ -214,6 +252,16 @@ class _Reader:
         return Coord(self.path, m.line + 1, m.column + 1) if m else Coord(self.path, 1, 1)
 
     def compose(self):
+        if _FastLoader is not None:
+            loader = _FastLoader(self.text)
+            try:
+                return loader.get_single_node()
+            except _Refused as exc:
+                raise ModelError(self._mark(exc.mark), exc.message) from None
+            except Exception:  # noqa: BLE001 - a YAML error: the pure-Python loader below
+                pass  # reports it with PyYAML's message and place
+            finally:
+                loader.dispose()
         try:
             return yaml.compose(self.text, Loader=_Loader)
         except _Refused as exc:
@@ -264,13 +312,8 @@ class _Reader:
             raise ModelError(self.coord(node), f"{what} must be a single value")
         tag = node.tag
         v = node.value
-        if tag.endswith(":int"):
-            try:
-                return int(v.replace("_", ""), 0)
-            except ValueError:
-                return float(v)
-        if tag.endswith(":float"):
-            return float(v.replace("_", ""))
+        if tag.endswith(":int") or tag.endswith(":float"):
+            return self._yaml_number(node, what)
         if tag.endswith(":bool"):
             return v.lower() in ("true", "yes", "on")
         if tag.endswith(":null"):
@@ -278,6 +321,38 @@ class _Reader:
         if tag.endswith(":str"):
             return v
         raise ModelError(self.coord(node), f"{what}: YAML tag {tag!r} is not allowed")
+
+    def _yaml_number(self, node, what: str):
+        """A YAML int or float scalar: finite, within range, in a decimal spelling."""
+        v = node.value
+        text = v.replace("_", "").strip()
+        bad = lambda why: ModelError(self.coord(node), f"{what}: {why}")  # noqa: E731
+        if ":" in text:
+            raise bad(f"{_short(v)} is a sexagesimal (base 60) number: write it in decimal")
+        low = text.lower().lstrip("+-")
+        if low in (".inf", ".nan", "inf", "nan"):
+            raise bad(f"{_short(v)} is not a finite number")
+        if len(text) > 400:
+            raise bad(f"number {_short(v)} is out of range (more than 400 characters)")
+        if node.tag.endswith(":int"):
+            try:
+                n = int(text, 0)
+            except ValueError:
+                n = None
+            if n is None:  # YAML 1.1 octal such as 017, or a spelling int() does not read
+                if _NUMBER.fullmatch(text):
+                    n = int(float(text))
+                else:
+                    raise bad(f"number {_short(v)}: use a decimal spelling")
+            if abs(n) > 10 ** LIMITS.number_exponent:
+                raise bad(f"number {_short(v)} is out of range (larger than "
+                          f"10**{LIMITS.number_exponent})")
+            return n
+        try:
+            x = float(text)
+        except ValueError:
+            raise bad(f"number {_short(v)}: use a decimal spelling") from None
+        return _finite(x, lambda why: bad(f"number {_short(v)} {why}"))
 
     def string(self, node, what: str) -> str:
         v = self.scalar(node, what)
@@ -290,10 +365,11 @@ class _Reader:
         if isinstance(v, bool) or v is None:
             raise ModelError(self.coord(node), f"{what} must be a number")
         if isinstance(v, str):
-            if _NUMBER.match(v.strip()):
-                return float(v)
-            raise ModelError(self.coord(node), f"{what} must be a number, not {v!r}")
-        return float(v)
+            if _NUMBER.fullmatch(v.strip()):
+                return _finite(float(v), lambda why: ModelError(
+                    self.coord(node), f"{what}: number {_short(v)} {why}"))
+            raise ModelError(self.coord(node), f"{what} must be a number, not {_short(v)}")
+        return _finite(float(v), lambda why: ModelError(self.coord(node), f"{what}: {why}"))
 
     def integer(self, node, what: str) -> int:
         v = self.scalar(node, what)
@@ -351,6 +427,23 @@ class _Reader:
         return None
 
 
+def _short(v) -> str:
+    """A user's text in a message: its repr, cut to 60 characters."""
+    s = repr(v)
+    return s if len(s) <= 60 else s[:56] + "...'"
+
+
+def _finite(x: float, err) -> float:
+    """``x`` if it is a finite double within 10**number_exponent; else ``err(why)`` raised."""
+    import math
+
+    if not math.isfinite(x):
+        raise err("is not finite (it overflows a double)" if x == x else "is not a number")
+    if abs(x) > 10.0 ** LIMITS.number_exponent:
+        raise err(f"is out of range (larger than 10**{LIMITS.number_exponent})")
+    return x
+
+
 def _require(r: _Reader, m: dict, node, allowed, what: str, required=()):
     missing = r.keys(m, allowed, what, required)
     if missing:
@@ -360,22 +453,31 @@ def _require(r: _Reader, m: dict, node, allowed, what: str, required=()):
 # ---------------------------------------------------------------------------------------------
 
 
-def parse_file(path: str | Path, _seen: tuple[str, ...] = ()) -> Model:
+class _Imports:
+    """What one parse shares across its imports: each file parsed once (cached by its resolved
+    path), the chain of files being parsed (for cycles), and the number of files read."""
+
+    def __init__(self):
+        self.cache: dict[str, Model] = {}
+        self.stack: list[str] = []
+        self.files = 0  # distinct files begun
+
+
+def parse_file(path: str | Path, _imports: _Imports | None = None,
+               _coord: Coord | None = None) -> Model:
     """Read and validate one model file (and the files it imports)."""
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ModelError(Coord(str(path), 1, 1), f"cannot read model file: {exc}") from None
-    return parse_text(text, str(path), _seen)
+    what = "model file" if _coord is None else "imported file"
+    text = read_text_bounded(path, _coord, what, LIMITS.model_bytes)
+    return parse_text(text, str(path), _imports)
 
 
-def parse_text(text: str, path: str = "<model>", _seen: tuple[str, ...] = ()) -> Model:
+def parse_text(text: str, path: str = "<model>", _imports: _Imports | None = None) -> Model:
     import hashlib
 
     r = _Reader(path, text)
-    if len(text) > 5_000_000:
-        raise ModelError(Coord(path, 1, 1), "model file is larger than 5 MB")
+    if len(text) > LIMITS.model_bytes:
+        raise ModelError(Coord(path, 1, 1), f"model file is larger than the limit of "
+                                            f"{LIMITS.model_bytes} bytes")
     root = r.compose()
     if root is None:
         raise ModelError(Coord(path, 1, 1), "the model file is empty")
@@ -399,16 +501,26 @@ def parse_text(text: str, path: str = "<model>", _seen: tuple[str, ...] = ()) ->
 
     components: list[Component] = []
     if "imports" in top:
-        components.extend(_imports(r, top["imports"][1], _seen + (str(Path(path).resolve()),)))
+        imports = _imports if _imports is not None else _Imports()
+        me = _resolve(path, Coord(path, 1, 1), path)
+        imports.stack.append(me)
+        try:
+            components.extend(_read_imports(r, top["imports"][1], imports))
+        finally:
+            imports.stack.pop()
     if "components" in top:
         cm = r.mapping(top["components"][1], "components")
+        known = {c.name: c for c in components}
         for cname, (kn, vn) in cm.items():
             check_name(cname, r.coord(kn), "component", allow_reserved=True)
             if cname in ELEMENT_TYPES:
                 raise ModelError(r.coord(kn), f"component name {cname!r} is an element type")
-            if any(c.name == cname for c in components):
-                raise ModelError(r.coord(kn), f"component {cname!r} is defined twice")
-            components.append(_component(r, cname, kn, vn))
+            if cname in known:
+                c0 = known[cname].coord
+                raise ModelError(r.coord(kn), f"component {cname!r} is defined twice (also at "
+                                              f"{c0})")
+            known[cname] = _component(r, cname, kn, vn)
+            components.append(known[cname])
 
     inputs = []
     if "inputs" in top:
@@ -434,19 +546,52 @@ def parse_text(text: str, path: str = "<model>", _seen: tuple[str, ...] = ()) ->
                   coord=r.coord(root), strict_causality=strict)
 
 
-def _imports(r: _Reader, node, seen) -> list[Component]:
-    out = []
+def _resolve(path, coord: Coord, shown) -> str:
+    """The absolute, symlink-free form of ``path``; a located error for a NUL byte or a
+    symlink loop."""
+    spath = str(path)
+    if "\0" in spath:
+        raise ModelError(coord, f"import path {_short(str(shown))} contains a NUL byte")
+    try:
+        return str(Path(spath).resolve(strict=False))
+    except (OSError, RuntimeError, ValueError):
+        raise ModelError(coord, f"cannot resolve {_short(str(shown))}: too many levels of "
+                                "symbolic links (a symlink loop?)") from None
+
+
+def _read_imports(r: _Reader, node, imports: _Imports) -> list[Component]:
+    """The components of the imported files, each file parsed once; a component reached along
+    two import paths is the same object, and is listed once."""
+    out: list[Component] = []
+    listed: set[int] = set()
     for item in r.seq(node, "imports"):
         im = r.mapping(item, "an import")
         _require(r, im, item, ("file",), "an import", required=("file",))
-        rel = r.string(im["file"][1], "file")
-        target = (Path(r.path).parent / rel)
-        if str(target.resolve()) in seen:
-            raise ModelError(r.coord(im["file"][1]), f"import cycle through {rel!r}")
-        if not target.is_file():
-            raise ModelError(r.coord(im["file"][1]), f"imported file {rel!r} does not exist")
-        sub = parse_file(target, seen)
-        out.extend(sub.components)
+        fnode = im["file"][1]
+        coord = r.coord(fnode)
+        rel = r.string(fnode, "file")
+        if not rel:
+            raise ModelError(coord, "an import names an empty file path")
+        target = _resolve(Path(r.path).parent / rel, coord, rel)
+        if target in imports.stack:
+            raise ModelError(coord, f"import cycle through {_short(rel)}")
+        sub = imports.cache.get(target)
+        if sub is None:
+            imports.files += 1
+            if imports.files > LIMITS.import_files:
+                raise ModelError(coord, f"more than {LIMITS.import_files} imported files "
+                                        "(the limit of distinct files one model may import)")
+            sub = parse_file(Path(r.path).parent / rel, imports, coord)
+            imports.cache[target] = sub
+        for c in sub.components:
+            if id(c) in listed:
+                continue
+            if any(o.name == c.name for o in out):
+                o = next(o for o in out if o.name == c.name)
+                raise ModelError(coord, f"component {c.name!r} is defined twice (at {o.coord} "
+                                        f"and {c.coord})")
+            listed.add(id(c))
+            out.append(c)
     return out
 
 
@@ -549,14 +694,21 @@ def _param_value(r: _Reader, pname: str, node):
                 rows.append(tuple(r.number(c, f"parameter {pname!r}") for c in row.value))
             else:
                 rows.append((r.number(row, f"parameter {pname!r}"),))
+        if not rows or not all(rows):
+            raise ModelError(r.coord(node), f"parameter {pname!r}: an empty matrix or row")
         if len({len(x) for x in rows}) != 1:
             raise ModelError(r.coord(node), f"parameter {pname!r}: rows of different lengths")
+        dim = LIMITS.matrix_dim
+        if len(rows) > dim or len(rows[0]) > dim:
+            raise ModelError(r.coord(node), f"parameter {pname!r}: a {len(rows)}x{len(rows[0])} "
+                                            f"matrix is larger than the limit of matrix size "
+                                            f"({dim} rows or columns)")
         return tuple(rows)
     v = r.scalar(node, f"parameter {pname!r}")
     if isinstance(v, (int, float)) and not isinstance(v, bool):
-        return float(v)
-    if isinstance(v, str) and _NUMBER.match(v.strip()):
-        return float(v)
+        return r.number(node, f"parameter {pname!r}")
+    if isinstance(v, str) and _NUMBER.fullmatch(v.strip()):
+        return r.number(node, f"parameter {pname!r}")
     if isinstance(v, str):
         return r.expr(node, f"parameter {pname!r}")
     raise ModelError(r.coord(node), f"parameter {pname!r} must be a number, a matrix or an "
@@ -574,7 +726,7 @@ def _element(r: _Reader, ename: str, kn, vn) -> Element:
         raise ModelError(r.coord(tnode), f"element {ename!r}: type must be text")
     effects = _effects(r, em)
     if etype not in ELEMENT_TYPES:
-        if not _IDENT.match(etype):
+        if not _IDENT.fullmatch(etype):
             raise ModelError(r.coord(tnode), f"element {ename!r}: unknown element type {etype!r}")
         # A component instance: every other key is a parameter value (checked at flattening).
         args = []
@@ -623,7 +775,7 @@ def _bond(r: _Reader, i: int, bn) -> Bond:
             raise ModelError(r.coord(bn), f"bond {i}: write [from, to]")
         src = _endpoint(r, bn.value[0], f"bond {i} 'from'")
         dst = _endpoint(r, bn.value[1], f"bond {i} 'to'")
-        return Bond(f"b{i}", src, dst, 1, r.coord(bn))
+        return Bond(f"b{i}", src, dst, 1, r.coord(bn), auto=True)
     bm = r.mapping(bn, f"bond {i}")
     _require(r, bm, bn, ("from", "to", "n", "name"), f"bond {i}", required=("from", "to"))
     name = f"b{i}"
@@ -636,7 +788,8 @@ def _bond(r: _Reader, i: int, bn) -> Bond:
             raise ModelError(r.coord(bm["n"][1]), f"bond {name!r}: cardinality must be 1.."
                                                   f"{MAX_CARDINALITY}, got {n}")
     return Bond(name, _endpoint(r, bm["from"][1], f"bond {name!r} 'from'"),
-                _endpoint(r, bm["to"][1], f"bond {name!r} 'to'"), n, r.coord(bn))
+                _endpoint(r, bm["to"][1], f"bond {name!r} 'to'"), n, r.coord(bn),
+                auto="name" not in bm)
 
 
 def _check_unique(body: Body, inputs) -> dict:
@@ -650,11 +803,21 @@ def _check_unique(body: Body, inputs) -> dict:
                 raise ModelError(it.coord, f"duplicate name {it.name!r}: already a {k0} "
                                            f"at line {c0.line}")
             seen[it.name] = (kind, it.coord)
-    bnames: dict[str, Coord] = {}
+    bnames: dict[str, Bond] = {}
     for b in body.bonds:
         if b.name in bnames:
+            other = bnames[b.name]
+            auto = other if other.auto else b if b.auto else None
+            if auto is not None:  # a user's name equal to another bond's automatic name
+                user = b if auto is other else other
+                raise ModelError(user.coord, f"bond name {b.name!r} is the automatic name of the "
+                                             f"bond at line {auto.coord.line}: choose another")
             raise ModelError(b.coord, f"duplicate bond name {b.name!r}")
-        if b.name in seen and not b.name.startswith("b"):
-            raise ModelError(b.coord, f"bond name {b.name!r} is already a {seen[b.name][0]}")
-        bnames[b.name] = b.coord
+        # An automatic name gives way to the user's names (the bond keeps it in generated code,
+        # e_b3, but an expression's b3 means the user's parameter, element or state).
+        if b.name in seen and not b.auto:
+            kind = seen[b.name][0]
+            raise ModelError(b.coord, f"bond name {b.name!r} is already "
+                                      f"{'an' if kind[0] in 'aeiou' else 'a'} {kind}")
+        bnames[b.name] = b
     return seen

@@ -7,9 +7,10 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import importlib.abc
 import importlib.util
+import linecache
 import sys
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,7 +18,9 @@ import yaml
 
 from .errors import Coord, ModelError
 from .expr import Expr
+from .limits import LIMITS
 from .parse import Model, _Reader, _param_value, _require, check_name, parse_file
+from .safeio import read_text_bounded
 
 METHODS = ("Radau", "BDF", "LSODA", "RK45", "RK23", "DOP853", "Rodas4")
 PLOT_KINDS = ("time", "path3d", "loci")
@@ -59,10 +62,7 @@ class Scene:
 
 def parse_scene(path: str | Path) -> Scene:
     path = str(path)
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ModelError(Coord(path, 1, 1), f"cannot read scene file: {exc}") from None
+    text = read_text_bounded(path, None, "scene file", LIMITS.scene_bytes)
     r = _Reader(path, text)
     root = r.compose()
     if root is None:
@@ -71,26 +71,42 @@ def parse_scene(path: str | Path) -> Scene:
     allowed = ("bgc_scene", "name", "description", "model", "duration", "t_span", "parameters",
                "inputs", "outputs", "solver", "breakpoints", "plots", "effects", "free")
     _require(r, top, root, allowed, "the scene", required=("bgc_scene", "model"))
-    if r.scalar(top["bgc_scene"][1], "bgc_scene") != 1:
+    version = r.scalar(top["bgc_scene"][1], "bgc_scene")
+    if isinstance(version, bool) or version != 1:
         raise ModelError(r.coord(top["bgc_scene"][1]), "unsupported scene format version")
     name = Path(path).stem
     if "name" in top:
         name = check_name(r.string(top["name"][1], "name"), r.coord(top["name"][1]), "scene")
     model_rel = r.string(top["model"][1], "model")
+    if "\0" in model_rel:
+        raise ModelError(r.coord(top["model"][1]), "the model's path contains a NUL byte")
     model_path = str(Path(path).parent / model_rel)
     if not Path(model_path).is_file():
         raise ModelError(r.coord(top["model"][1]), f"model file {model_rel!r} does not exist")
+    tmax = LIMITS.time_magnitude
+
+    def a_time(node, what):
+        v = r.number(node, what)
+        if abs(v) > tmax:
+            raise ModelError(r.coord(node), f"{what}: {v:g} s is beyond the limit of times "
+                                            f"(|t| <= {tmax:g} s)")
+        return v
+
     if "t_span" in top:
-        span = r.seq(top["t_span"][1], "t_span")
+        span_node = top["t_span"][1]
+        span = r.seq(span_node, "t_span")
         if len(span) != 2:
-            raise ModelError(r.coord(top["t_span"][1]), "t_span is [start, end]")
-        t0, t1 = (r.number(s, "t_span") for s in span)
+            raise ModelError(r.coord(span_node), "t_span is [start, end]")
+        t0, t1 = (a_time(s, "t_span") for s in span)
     elif "duration" in top:
-        t0, t1 = 0.0, r.number(top["duration"][1], "duration")
+        span_node = top["duration"][1]
+        t0, t1 = 0.0, a_time(span_node, "duration")
     else:
         raise ModelError(r.coord(root), "the scene: give duration or t_span")
     if not t1 > t0:
-        raise ModelError(r.coord(root), f"the scene: the end time {t1} is not after {t0}")
+        raise ModelError(r.coord(span_node), f"the scene: the end time {t1:g} is not after "
+                                             f"the start {t0:g}")
+    length = t1 - t0
     params = {}
     if "parameters" in top:
         for pname, (kn, vn) in r.mapping(top["parameters"][1], "parameters").items():
@@ -129,9 +145,21 @@ def parse_scene(path: str | Path) -> Scene:
                                                            f"(one of {', '.join(METHODS)})")
         for key in ("rtol", "atol", "dt", "max_step"):
             if key in sm:
-                v = r.number(sm[key][1], key)
+                v = r.number(sm[key][1], key)  # finite, within 10**300
+                where = r.coord(sm[key][1])
                 if not v > 0:
-                    raise ModelError(r.coord(sm[key][1]), f"solver {key} must be positive")
+                    raise ModelError(where, f"solver {key} must be positive")
+                if key == "rtol":
+                    check_rtol(v, where, "solver rtol")
+                if key == "dt" and length / v + 1 > LIMITS.output_samples:
+                    raise ModelError(where, f"solver dt {v:g} over {length:g} s gives "
+                                            f"{length / v + 1:.0f} output samples, more than "
+                                            f"the limit of {LIMITS.output_samples}")
+                if key == "max_step" and v < length * LIMITS.min_step_fraction:
+                    raise ModelError(where, f"solver max_step {v:g} is below the limit of "
+                                            f"{LIMITS.min_step_fraction:g} times the span "
+                                            f"({length * LIMITS.min_step_fraction:g} s): the "
+                                            "run would not end")
                 if key == "rtol":
                     rtol = v
                 elif key == "atol":
@@ -142,7 +170,12 @@ def parse_scene(path: str | Path) -> Scene:
                     max_step = v
     bps = ()
     if "breakpoints" in top:
-        bps = tuple(r.number(b, "breakpoint") for b in r.seq(top["breakpoints"][1], "breakpoints"))
+        items = r.seq(top["breakpoints"][1], "breakpoints")
+        if len(items) > LIMITS.breakpoints:
+            raise ModelError(r.coord(items[LIMITS.breakpoints]), f"more than "
+                                                                 f"{LIMITS.breakpoints} "
+                                                                 "breakpoints (the limit)")
+        bps = tuple(a_time(b, "breakpoint") for b in items)
     plots = []
     if "plots" in top:
         for pn in r.seq(top["plots"][1], "plots"):
@@ -184,6 +217,14 @@ def parse_scene(path: str | Path) -> Scene:
                  dt, max_step, bps, tuple(plots), effects, desc, r.coord(root),
                  hashlib.sha256(text.encode()).hexdigest()[:16], free, output_coords,
                  r.coord(top["model"][1]))
+
+
+def check_rtol(v: float, where: Coord | None, what: str) -> float:
+    """A relative tolerance: finite, within [LIMITS.min_rtol, 1] (a scene's, or ``--rtol``)."""
+    if not LIMITS.min_rtol <= v <= 1:  # false for NaN too
+        raise ModelError(where, f"{what} {v:g} is outside [{LIMITS.min_rtol:g}, 1] (the limit "
+                                "of tolerances: doubles carry about 16 digits)")
+    return v
 
 
 def apply_scene(model: Model, scene: Scene) -> Model:
@@ -237,15 +278,46 @@ def free_values(scene: Scene) -> dict:
 
 
 def load_module(source: str, name: str):
-    """Import generated source as a module (from a temporary file, so tracebacks show code)."""
-    d = Path(tempfile.mkdtemp(prefix="bgc_"))
-    f = d / f"{name}.py"
-    f.write_text(source, encoding="utf-8")
-    spec = importlib.util.spec_from_file_location(f"bgc_scene_{name}", f)
+    """Import generated source as a module, from memory: nothing is written to disk. The code
+    is compiled under a recognisable file name (``<bgc NAME>``) registered with ``linecache``,
+    so tracebacks and ``inspect`` still show the generated lines."""
+    from .emit import check_skeleton
+
+    check_skeleton(source)  # never execute a module whose top level is not the template's
+    modname = f"bgc_generated_{name}"
+    filename = f"<bgc {name}>"
+    loader = _SourceLoader(modname, filename, source)
+    spec = importlib.util.spec_from_loader(modname, loader, origin=filename)
     mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
+    mod.__file__ = filename
+    linecache.cache[filename] = (len(source), None, source.splitlines(True), filename)
+    sys.modules[modname] = mod
+    try:
+        loader.exec_module(mod)
+    except BaseException:
+        sys.modules.pop(modname, None)
+        raise
     return mod
+
+
+class _SourceLoader(importlib.abc.Loader):
+    """A loader for generated source held in memory (``get_source`` serves tracebacks,
+    ``get_data`` the module's own text)."""
+
+    def __init__(self, modname: str, filename: str, source: str):
+        self.modname, self.filename, self.source = modname, filename, source
+
+    def create_module(self, spec):
+        return None
+
+    def exec_module(self, module):
+        exec(compile(self.source, self.filename, "exec"), module.__dict__)
+
+    def get_source(self, fullname):
+        return self.source
+
+    def get_data(self, path):
+        return self.source.encode("utf-8")
 
 
 def scene_model(scene: Scene) -> Model:
