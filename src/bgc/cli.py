@@ -109,6 +109,12 @@ def check_cmd(model, strict_causality):
     bg = build_graph(m)
     strict = strict_causality or m.strict_causality
     caus = assign_causality(bg, allow_derivative=not strict)
+    if caus.derivative:
+        from .causality import fixed_r_culprit
+
+        culprit = fixed_r_culprit(bg, caus)
+        if culprit is not None:
+            raise ModelError(culprit[0], culprit[1])
     eqs = derive(bg, caus, newton=not strict)  # everything built and checked, as in compile
     out = io.StringIO()
     out.write(f"model {m.name}: {len(bg.elements)} elements, {len(bg.bonds)} bonds\n\n")

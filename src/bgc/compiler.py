@@ -6,7 +6,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from .causality import Causality, assign_causality, derivative_message
+from .causality import Causality, assign_causality, derivative_message, fixed_r_culprit
 from .emit import render
 from .equations import Equations, derive
 from .errors import ModelError
@@ -46,6 +46,10 @@ def compile_model(model: Model, progress=None, plan: Plan | None = None,
     special = plan is not None and not plan.trivial
     strict = strict_causality or model.strict_causality
     graph, caus = analyse(model, progress, allow_derivative=not strict)
+    if caus.derivative:  # an R law in the wrong fixed form is the mistake, not the storage
+        culprit = fixed_r_culprit(graph, caus)
+        if culprit is not None:
+            raise ModelError(culprit[0], culprit[1])
     if plan is not None:  # every effect the scene names (on or off) must exist
         effects = known_effects(graph)
         for eff in list(plan.effect_coords) + sorted(plan.effects_off):
