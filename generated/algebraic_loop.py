@@ -172,10 +172,10 @@ def jacobian(t, x, p=None, u=None):
     _d0 = 1/C1
     _c0 = 1/R3
     _c1 = 1/R2
-    _d10 = -_c0*_d0/(1 + _c0*(-_c1*R1*R1/(1 + _c1*R1) + R1))
+    _d1 = -_c0*_d0/(1 + _c0*(-_c1*R1*R1/(1 + _c1*R1) + R1))
 
     J = np.zeros((1, 1) + np.broadcast_shapes(x.shape[1:], _bshape))
-    J[0, 0] = _d10
+    J[0, 0] = _d1
     return J
 
 

@@ -58,6 +58,14 @@ class Causality:
         return "fixed"
 
 
+class CausalConflict(ModelError):
+    """A causal conflict, with the element where it arose (``at``)."""
+
+    def __init__(self, coord, message: str, at: str):
+        super().__init__(coord, message)
+        self.at = at
+
+
 class _Scap:
     def __init__(self, bg: BondGraph):
         self.bg = bg
@@ -77,9 +85,10 @@ class _Scap:
                 what = "effort" if setter == via else "flow"
                 src = lambda x, y: (self.kind(x) if x == y  # noqa: E731
                                     else f"{self.kind(x)} (through {self.kind(y)})")
-                raise ModelError(self.bg.element(via).coord,
+                raise CausalConflict(self.bg.element(via).coord,
                                  f"causal conflict on bond {b.id!r} ({b.src} -> {b.dst}): "
-                                 f"{src(origin, via)} and {src(o, o_via)} both impose its {what}")
+                                 f"{src(origin, via)} and {src(o, o_via)} both impose its {what}",
+                                 via)
             return
         self.effort_by[b.id] = setter
         self.origin[b.id] = (origin, via)
@@ -112,9 +121,16 @@ class _Scap:
                 if n_imp > 1:
                     imp = [b for b, s in zip(bonds, states) if s]
                     origins = sorted({self.origin[b.id][0] for b in imp})
-                    raise ModelError(el.coord, f"causal conflict at {self.kind(eid)}: "
-                                               f"{' and '.join(self.kind(o) for o in origins)} "
-                                               f"each impose its {'effort' if t == '0' else 'flow'}")
+                    raise CausalConflict(el.coord, f"causal conflict at {self.kind(eid)}: "
+                                                   f"{' and '.join(self.kind(o) for o in origins)} "
+                                                   f"each impose its "
+                                                   f"{'effort' if t == '0' else 'flow'}", eid)
+                if n_imp == 0 and bonds and all(st is False for st in states):
+                    what = "effort" if t == "0" else "flow"
+                    raise CausalConflict(el.coord, f"causal conflict at {self.kind(eid)}: every "
+                                                   f"bond has its "
+                                                   f"{'flow' if t == '0' else 'effort'} imposed "
+                                                   f"and none sets its {what}", eid)
                 if n_imp == 1:
                     for b, s in zip(bonds, states):
                         if s is None:  # not imposing: on a 0 the junction sets the effort
@@ -132,8 +148,9 @@ class _Scap:
                 elif eb is not None and ea is None:
                     self.set(a, self.other(a, eid) if eb == eid else eid, origin, eid, queue)
                 elif ea is not None and eb is not None and (ea == eid) == (eb == eid):
-                    raise ModelError(el.coord, f"causal conflict at {self.kind(eid)}: it must set "
-                                               "the effort on exactly one of its bonds")
+                    raise CausalConflict(el.coord, f"causal conflict at {self.kind(eid)}: it must "
+                                                   "set the effort on exactly one of its bonds",
+                                                   eid)
             elif t in ("GY", "MGY"):
                 a, b = bonds
                 ea, eb = self.effort_by.get(a.id), self.effort_by.get(b.id)
@@ -142,8 +159,8 @@ class _Scap:
                 elif eb is not None and ea is None:
                     self.set(a, eid if eb == eid else self.other(a, eid), origin, eid, queue)
                 elif ea is not None and eb is not None and (ea == eid) != (eb == eid):
-                    raise ModelError(el.coord, f"causal conflict at {self.kind(eid)}: it sets "
-                                               "both efforts or both flows")
+                    raise CausalConflict(el.coord, f"causal conflict at {self.kind(eid)}: it sets "
+                                                   "both efforts or both flows", eid)
 
     def decide(self, el: FlatElement, sets_effort: bool) -> None:
         (b,) = self.bg.bonds_of(el.id)
@@ -162,24 +179,33 @@ def assign_causality(bg: BondGraph, allow_derivative: bool = False) -> Causality
             s.decide(el, False)
         elif el.type == "R" and el.law and el.law[0] in FIXED_R:
             s.decide(el, el.law[0] == "effort")
-    # 2. storage in integral causality
-    for el in bg.elements:
-        if el.type in ("I", "C") and bg.bonds_of(el.id)[0].id not in s.effort_by:
-            s.decide(el, el.type == "C")
-    # 3. remaining R elements: resistance form
-    arbitrary = []
-    for el in bg.elements:
-        if el.type == "R" and bg.bonds_of(el.id)[0].id not in s.effort_by:
-            arbitrary.append(el.id)
-            s.decide(el, True)
-    # 4. open bonds (zero-order loops): the bond's source end sets the effort
-    open_bonds = []
-    for b in bg.bonds:
-        if b.id not in s.effort_by:
-            open_bonds.append(b.id)
-            q: deque = deque()
-            s.set(b, b.src, b.src, b.src, q)
-            s.propagate(q, b.src)
+    # 2. storage in integral causality. In file order when that leaves none in derivative
+    # causality (then the order does not matter); otherwise the independent set is chosen.
+    trial = _copy(s)
+    plain_err = None
+    try:
+        arbitrary, open_bonds = _finish(trial, [e for e in bg.elements if e.type in ("I", "C")])
+        plain_ok = not _derivative(bg, trial)
+    except ModelError as err:
+        plain_ok, plain_err = False, err
+    if plain_ok:
+        s = trial
+    else:
+        try:
+            _choose_independent(bg, s)
+            arbitrary, open_bonds = _finish(s, [])
+        except CausalConflict as err:
+            loop = closed_loop(bg, err.at)
+            if loop:
+                raise ModelError(err.coord, closed_loop_message(bg, loop, err.message)) from None
+            if plain_err is not None:
+                raise plain_err from None
+            raise
+        except ModelError:
+            if plain_err is not None:
+                raise plain_err from None
+            raise
+    _check_partial(bg, s)
     # Derivative causality
     derivative, forced = [], {}
     for el in bg.elements:
@@ -204,6 +230,183 @@ def assign_causality(bg: BondGraph, allow_derivative: bool = False) -> Causality
             raise ModelError(culprit[0], culprit[1])
         raise ModelError(bg.element(derivative[0]).coord, derivative_message(bg, caus))
     return caus
+
+
+def _copy(s: _Scap) -> _Scap:
+    c = _Scap(s.bg)
+    c.effort_by = dict(s.effort_by)
+    c.origin = dict(s.origin)
+    return c
+
+
+def _finish(s: _Scap, storage) -> tuple[list, list]:
+    """SCAP from step 2 on: the given storage elements in order, then R, then open bonds."""
+    bg = s.bg
+    for el in storage:
+        if bg.bonds_of(el.id)[0].id not in s.effort_by:
+            s.decide(el, el.type == "C")
+    # 3. remaining R elements: resistance form
+    arbitrary = []
+    for el in bg.elements:
+        if el.type == "R" and bg.bonds_of(el.id)[0].id not in s.effort_by:
+            arbitrary.append(el.id)
+            s.decide(el, True)
+    # 4. open bonds (zero-order loops): the bond's source end sets the effort
+    open_bonds = []
+    for b in bg.bonds:
+        if b.id not in s.effort_by:
+            open_bonds.append(b.id)
+            q: deque = deque()
+            s.set(b, b.src, b.src, b.src, q)
+            s.propagate(q, b.src)
+    return arbitrary, open_bonds
+
+
+def _derivative(bg: BondGraph, s: _Scap) -> list:
+    out = []
+    for el in bg.elements:
+        if el.type in ("I", "C"):
+            (b,) = bg.bonds_of(el.id)
+            if (s.effort_by.get(b.id) == el.id) == (el.type == "I"):
+                out.append(el.id)
+    return out
+
+
+#: Cost of a two-port in its non-preferred causality, by the modulus it must invert.
+INVERT_COST = {"MTF": 10, "MGY": 10, "TF": 1, "GY": 1}
+NONSQUARE_COST = 1000
+
+
+def _inversions(bg: BondGraph, s: _Scap) -> int:
+    """How much inverting a complete causal assignment asks: a modulated (state- or
+    time-dependent) modulus can vanish during the motion, a constant one cannot, and a
+    non-square one has no inverse at all."""
+    cost = 0
+    for el in bg.elements:
+        if el.type not in INVERT_COST:
+            continue
+        b1, b2 = sorted(bg.bonds_of(el.id), key=lambda b: b.dst != el.id)
+        if el.type in ("TF", "MTF"):
+            inverted = s.effort_by[b1.id] != el.id
+        else:
+            inverted = not (s.effort_by[b1.id] == el.id and s.effort_by[b2.id] == el.id)
+        if inverted:
+            cost += NONSQUARE_COST if b1.n != b2.n else INVERT_COST[el.type]
+    return cost
+
+
+def _choose_independent(bg: BondGraph, s: _Scap) -> None:
+    """Give integral causality to storage elements one at a time, each time the first (by
+    instance path, so the file's order does not matter) whose choice, completed by SCAP,
+    inverts the cheapest moduli (``_inversions``): the dependent elements are then those
+    reached through modulated or non-square moduli, and the map from the independent states
+    to them stays regular. Ties (e.g. equal inertias on one shaft) go to the first path."""
+    storage = sorted((e for e in bg.elements if e.type in ("I", "C")), key=lambda e: e.id)
+    while True:
+        cands = [e for e in storage if bg.bonds_of(e.id)[0].id not in s.effort_by]
+        if not cands:
+            return
+        best, best_score = None, None
+        for el in cands:
+            t = _copy(s)
+            try:
+                t.decide(el, el.type == "C")
+                _finish(t, [e for e in cands if e is not el])
+                score = (0, _inversions(bg, t), len(_derivative(bg, t)))
+            except ModelError:
+                score = (1, 0, 0)
+            if best_score is None or score < best_score:
+                best, best_score = el, score
+            if score[:2] == (0, 0):
+                break  # nothing inverted: cannot do better
+        s.decide(best, best.type == "C")
+
+
+def _check_partial(bg: BondGraph, s: _Scap) -> None:
+    for el in bg.elements:  # a non-square modulus left inverted: partly determined
+        if el.type in ("MTF", "MGY"):
+            b1, b2 = sorted(bg.bonds_of(el.id), key=lambda b: b.dst != el.id)
+            inv = (s.effort_by[b1.id] != el.id if el.type == "MTF" else
+                   not (s.effort_by[b1.id] == el.id and s.effort_by[b2.id] == el.id))
+            if inv and b1.n != b2.n:
+                big = b1 if b1.n > b2.n else b2
+                why = (f"multibond {big.id!r} ({big.src} -> {big.dst}, n={big.n}) is only "
+                       f"partly determined: causality reaches {el.type} {el.id!r} from its "
+                       f"n={big.n} side, and its {b2.n}x{b1.n} modulus has no inverse "
+                       f"(some components of {big.id!r} are dependent, some not)")
+                raise ModelError(el.coord, why + ": split the multibond (give the free "
+                                 "components their own storage element), or make a "
+                                 "connection on its causal path compliant (a C || R coupling "
+                                 "with a stiffness)")
+
+
+def closed_loop(bg: BondGraph, at: str) -> list[str]:
+    """A cycle through element ``at`` and the ground (every flow source joined to one ground
+    node: fixed points are one body), made of two node-disjoint paths from ``at`` to the
+    ground: a closed kinematic loop. Empty when there is none (or no inertia at all)."""
+    import networkx as nx
+
+    g = nx.Graph()
+    for b in bg.bonds:
+        g.add_edge(b.src, b.dst, bond=b.id)
+    ground = ("ground",)
+    for el in bg.elements:
+        if el.type == "Sf":
+            g.add_edge(el.id, ground, bond=None)
+    if at not in g or not any(el.type == "I" for el in bg.elements):
+        return []
+    if ground in g and nx.has_path(g, at, ground):
+        paths = sorted(nx.node_disjoint_paths(g, at, ground), key=len)
+        if len(paths) >= 2:
+            p1, p2 = paths[0], paths[1]
+            return [x if x != ground else "ground" for x in p1[:-1] + [ground] + p2[::-1][1:-1]]
+    return []
+
+
+def closed_loop_message(bg: BondGraph, loop: list[str], why: str) -> str:
+    """A closed kinematic loop: where, and the choice (one compliant coupling)."""
+    names = [x for x in loop if x != "ground"]
+    # the connections between bodies on the loop: bonds whose ends lie in different instances
+    joints = []
+    for a, b in zip(loop, loop[1:] + loop[:1]):
+        for bd in bg.bonds:
+            if {bd.src, bd.dst} == {a, b} and bd.src.rsplit(".", 1)[0] != bd.dst.rsplit(".", 1)[0]:
+                joints.append(bd)
+    # prefer the connection at the flow source that closes the loop (the last one written)
+    grounded = [bd for bd in joints if bg.element(bd.src).type == "Sf"
+                or bg.element(bd.dst).type == "Sf"]
+    pick = max(grounded or joints, key=lambda bd: bd.index) if joints else None
+    where = (f"bond {pick.id!r} ({pick.src} -> {pick.dst}, n={pick.n})" if pick
+             else "one of its bonds")
+    listed = ", ".join(names[:24]) + (f", ... ({len(names)} elements)" if len(names) > 24 else "")
+    through = " (closed through the ground, its flow sources)" if "ground" in loop else ""
+    return (f"closed kinematic loop{through} through {listed}: {why}. Differentiating the "
+            "constraint cannot hold it at position level; close the loop with one compliant "
+            f"coupling, e.g. at {where}: a 0-junction with a 1-junction carrying a C (stiffness "
+            "k, say 1e6..1e8 for metal joints) in parallel with an R, in place of the rigid "
+            "connection (the `joint` component of bench/planar_chain.py; the paper's remedy)")
+
+
+def dependent_report(bg: BondGraph, caus: Causality, eqs=None) -> str:
+    """What `bgc check` says about the storage elements in derivative causality."""
+    lines = ["dependent storage elements (derivative causality, eliminated):"]
+    deps = dict(eqs.dependent) if eqs is not None and getattr(eqs, "dependent", None) else {}
+    for eid in caus.derivative:
+        el = bg.element(eid)
+        origin, via = caus.forced_by[eid]
+        o = bg.element(origin)
+        v = bg.element(via)
+        through = (f"{v.type}-junction {via!r}" if v.type in ("0", "1") else f"{v.type} {via!r}")
+        if el.type == "I":
+            how = "p = M f, its flow f imposed by the causal path; its effort is dp/dt"
+        else:
+            how = "q = K^-1 e, its effort e imposed by the causal path; its flow is dq/dt"
+        on = deps.get(eid)
+        on_txt = f"; follows from {', '.join(on)}" if on else ""
+        unused = "; its `initial:` is not used" if el.initial is not None else ""
+        lines.append(f"  {el.type} {eid} (line {el.coord.line}): forced by {o.type} {origin} "
+                     f"through {through}{on_txt}; {how}{unused}")
+    return "\n".join(lines) + "\n"
 
 
 def fixed_r_culprit(bg: BondGraph, caus: Causality):

@@ -156,8 +156,11 @@ def main():
               "--scene: ./<name>_<scene>.py)")
 @click.option("--scene", type=click.Path(dir_okay=False),
               help="specialise for this scene (its signals, effects, parameters, outputs)")
+@click.option("--strict-causality", is_flag=True,
+              help="refuse derivative causality (every storage element independent) instead of "
+                   "eliminating the dependent storage elements")
 @click.option("-q", "--quiet", is_flag=True)
-def compile_cmd(model, output, scene, quiet):
+def compile_cmd(model, output, scene, quiet, strict_causality):
     """Compile MODEL.yaml into a Python module."""
     from .compiler import compile_model, write_atomic
     from .parse import parse_file
@@ -172,12 +175,13 @@ def compile_cmd(model, output, scene, quiet):
         if Path(sc.model_path).resolve() != Path(model).resolve():
             raise ModelError(sc.model_coord, f"the scene is for {sc.model_path}, not {model}")
         m = apply_scene(parse_file(model), sc)
-        c = compile_model(m, prog, plan_for(sc, build_graph(m).params))
+        c = compile_model(m, prog, plan_for(sc, build_graph(m).params),
+                          strict_causality=strict_causality)
         check_outputs(sc, [o[0] for o in c.equations.outputs])
         if output is None:
             output = Path(f"{c.model.name}_{sc.name}.py")
     else:
-        c = compile_model(parse_file(model), prog)
+        c = compile_model(parse_file(model), prog, strict_causality=strict_causality)
     if output is None:
         output = _default_output(Path(model), c.model.name)
     ins = _model_inputs(model, scene, sc.model_path if scene else None)
@@ -195,7 +199,10 @@ def _default_output(model: Path, name: str) -> Path:
 
 @main.command("check")
 @click.argument("model", type=click.Path(dir_okay=False))
-def check_cmd(model):
+@click.option("--strict-causality", is_flag=True,
+              help="refuse derivative causality (every storage element independent) instead of "
+                   "eliminating the dependent storage elements")
+def check_cmd(model, strict_causality):
     """Check MODEL.yaml completely (up to the equations) and list causality, states, warnings."""
     from .causality import assign_causality
     from .equations import derive
@@ -204,8 +211,15 @@ def check_cmd(model):
 
     m = parse_file(model)
     bg = build_graph(m)
-    caus = assign_causality(bg)
-    eqs = derive(bg, caus)  # every expression built and checked, as `bgc compile` would
+    strict = strict_causality or m.strict_causality
+    caus = assign_causality(bg, allow_derivative=not strict)
+    if caus.derivative:
+        from .causality import fixed_r_culprit
+
+        culprit = fixed_r_culprit(bg, caus)
+        if culprit is not None:
+            raise ModelError(culprit[0], culprit[1])
+    eqs = derive(bg, caus, newton=not strict)  # everything built and checked, as in compile
     out = io.StringIO()
     out.write(f"model {m.name}: {len(bg.elements)} elements, {len(bg.bonds)} bonds\n\n")
     out.write("causality (the stroke is at the end that receives the effort):\n")
@@ -222,7 +236,7 @@ def check_cmd(model):
             out.write(f"  {el.type:<3} {el.id}: {caus.form(bg, el)}\n")
     states = []
     for el in bg.elements:
-        if el.type in ("I", "C"):
+        if el.type in ("I", "C") and el.id not in caus.derivative:
             n = bg.bonds_of(el.id)[0].n
             states.append(f"{el.id}.{'p' if el.type == 'I' else 'q'}" + (f" ({n})" if n > 1 else ""))
     for st in bg.states:
@@ -232,6 +246,10 @@ def check_cmd(model):
         out.write(f"  {s}\n")
     all_integral = not caus.derivative
     out.write(f"\ncausality: {'all storage elements integral' if all_integral else 'derivative'}\n")
+    if caus.derivative:
+        from .causality import dependent_report
+
+        out.write(dependent_report(bg, caus, eqs))
     for loop in eqs.loops:
         out.write(f"note: {loop}\n")
     for wmsg in eqs.warnings:  # what the equations leave standing of causality's warnings
@@ -276,8 +294,11 @@ def graph_cmd(model, output):
               help="relative tolerance, finite, within the limit of tolerances (1e-14..1)")
 @click.option("--max-wall", type=POSITIVE, default=None,
               help="stop with an error once the integration has taken this many seconds")
+@click.option("--strict-causality", is_flag=True,
+              help="refuse derivative causality (every storage element independent) instead of "
+                   "eliminating the dependent storage elements")
 @click.option("-q", "--quiet", is_flag=True)
-def simulate_cmd(scene, out, plot_dir, method, rtol, max_wall, quiet):
+def simulate_cmd(scene, out, plot_dir, method, rtol, max_wall, strict_causality, quiet):
     """Compile the scene's model and simulate the scene."""
     from .outfiles import check_folder, check_output, write_output
     from .runner import run_scene
@@ -291,7 +312,8 @@ def simulate_cmd(scene, out, plot_dir, method, rtol, max_wall, quiet):
         check_output(out, _model_inputs(scene, sc.model_path, follow=False), "--out")
     if plot_dir is not None:
         check_folder(plot_dir, "--plot")
-    res = run_scene(sc, progress=prog, method=method, rtol=rtol, max_wall=max_wall)
+    res = run_scene(sc, progress=prog, method=method, rtol=rtol, max_wall=max_wall,
+                    strict_causality=strict_causality)
     ins = _model_inputs(scene, sc.model_path)
     figures = None
     if plot_dir is not None:  # every figure drawn before anything is written

@@ -4,7 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from .causality import Causality, assign_causality, derivative_message
+from .causality import Causality, assign_causality, derivative_message, fixed_r_culprit
 from .emit import render
 from .equations import Equations, derive
 from .errors import ModelError
@@ -33,13 +33,21 @@ def analyse(model: Model, progress=None, allow_derivative: bool = False
     return graph, assign_causality(graph, allow_derivative=allow_derivative)
 
 
-def compile_model(model: Model, progress=None, plan: Plan | None = None) -> Compiled:
+def compile_model(model: Model, progress=None, plan: Plan | None = None,
+                  strict_causality: bool = False, symbolic_max: int | None = None) -> Compiled:
     """Compile a model, specialised to a scene's plan (effects, folded parameters, outputs).
 
-    A plan that changes nothing gives exactly the module of the model alone."""
+    A plan that changes nothing gives exactly the module of the model alone. Storage elements
+    in derivative causality are eliminated (their states follow from the others) unless
+    ``strict_causality`` or the model's ``causality: strict`` asks for today's error."""
     say = progress or (lambda msg: None)
     special = plan is not None and not plan.trivial
-    graph, caus = analyse(model, progress, allow_derivative=special)
+    strict = strict_causality or model.strict_causality
+    graph, caus = analyse(model, progress, allow_derivative=not strict)
+    if caus.derivative:  # an R law in the wrong fixed form is the mistake, not the storage
+        culprit = fixed_r_culprit(graph, caus)
+        if culprit is not None:
+            raise ModelError(culprit[0], culprit[1])
     if plan is not None:  # every effect the scene names (on or off) must exist
         effects = known_effects(graph)
         for eff in list(plan.effect_coords) + sorted(plan.effects_off):
@@ -52,9 +60,14 @@ def compile_model(model: Model, progress=None, plan: Plan | None = None) -> Comp
     if special:
         say("specialising for the scene")
         full_states = state_owners(graph, caus)
-        if caus.derivative:  # the full model must be sound before anything is removed
+        if caus.derivative and plan.effects_off:
+            # turning effects off re-assigns causality, which assumes every storage element
+            # independent; folding parameters and slicing outputs work on the equations
             raise ModelError(graph.element(caus.derivative[0]).coord,
-                             derivative_message(graph, caus))
+                             derivative_message(graph, caus).replace(
+                                 "derivative causality:", "derivative causality (a scene "
+                                 "that turns effects off needs every storage element "
+                                 "independent):", 1))
         rem = remove_effects(graph, plan.effects_off, plan.coord)
         if plan.effects_off:
             notes.append("effects off: " + ", ".join(sorted(plan.effects_off)))
@@ -68,7 +81,9 @@ def compile_model(model: Model, progress=None, plan: Plan | None = None) -> Comp
             notes.append("parameters folded in as constants: " + ", ".join(
                 f"{k} = {_short(v)}" for k, v in sorted(plan.fold.items())))
     say("deriving equations")
-    eqs = derive(graph, caus, progress, fold=fold, zero=zero)
+    kw = {} if symbolic_max is None else {"symbolic_max": symbolic_max}
+    kw["newton"] = not strict  # strict: a nonlinear algebraic loop stays an error too
+    eqs = derive(graph, caus, progress, fold=fold, zero=zero, **kw)
     if special and plan.outputs:
         say("slicing to the requested outputs")
         eqs, snotes, _ = slice_outputs(eqs)
@@ -90,10 +105,12 @@ def _short(v) -> str:
     return repr(v)
 
 
-def compile_file(path: str | Path, progress=None) -> Compiled:
+def compile_file(path: str | Path, progress=None, strict_causality: bool = False,
+                 symbolic_max: int | None = None) -> Compiled:
     if progress:
         progress("parsing")
-    return compile_model(parse_file(path), progress)
+    return compile_model(parse_file(path), progress, strict_causality=strict_causality,
+                         symbolic_max=symbolic_max)
 
 
 def write_atomic(path: str | Path, text: str | bytes, inputs=None, what: str = "output") -> Path:

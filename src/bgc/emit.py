@@ -12,6 +12,7 @@ import ast
 import functools
 import itertools
 import keyword
+import re
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -180,6 +181,21 @@ class BgcPrinter(NumPyPrinter):
             out = f"{f}({out}, {a})"
         return out
 
+    def _print_LinSolve(self, expr):
+        # x = A^-1 b, batched (derivative causality's linear system, too large for symbols)
+        n = int(expr.args[0])
+        a = ", ".join(self._print(v) for v in expr.args[1:1 + n * n])
+        b = ", ".join(self._print(v) for v in expr.args[1 + n * n:])
+        self.uses_linsolve = True
+        return f"_bgc_linsolve({n}, ({a},), ({b},))"
+
+    def _print_NewtonSolve(self, expr):
+        k = int(expr.args[0])
+        return f"_newton_{k}({', '.join(self._print(a) for a in expr.args[1:])})"
+
+    def _print_LinSolveEntry(self, expr):
+        return f"{self._print(expr.args[0])}[{int(expr.args[1])}]"
+
     def _print_Float(self, expr):
         return repr(float(expr))
 
@@ -328,6 +344,16 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
                      list(eq.assignments) + list(lp.CD_assignments), ykeys)
     init = _function(eq, printer, [sv.initial for sv in eq.states], [], list(range(n)),
                      cse=False)
+    newton = []
+    for nl in eq.newton:  # nonlinear algebraic loops: a Newton solver each
+        newton.append({
+            "name": nl.name, "n": len(nl.tear), "args": [str(a) for a in nl.args],
+            "tear": [str(t) for t in nl.tear], "message": nl.where,
+            "body": [Line(str(sym), printer.doprint(e)) for sym, e in nl.body],
+            "residual": [printer.doprint(e) for e in nl.residual],
+            "jac": [printer.doprint(e) for e in nl.jac]})
+    if newton:
+        printer.uses_linsolve = True
     derived = [Line(str(a.symbol), printer.doprint(a.expr), a.why) for a in eq.derived]
     inputs, tables = [], []
     for iv in eq.inputs:
@@ -367,6 +393,7 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
         input_params=input_params, outputs=outputs, rhs=rhs, jac=jac, outs=outs, init=init,
         jac_keys=jkeys, n=n, imports=imports, ujac=ujac, yjac=yjac,
         tables=tables, input_labels=lp.input_labels, output_labels=lp.output_labels,
+        linsolve=getattr(printer, "uses_linsolve", False), newton=newton,
         all_param_symbols=[s for p in params for s in p["symbols"]] + [d.target for d in derived],
         runtime=runtime_source(),
     )
@@ -419,9 +446,10 @@ _MODEL_TOP = {
                "PARAM_DEFAULTS",
                "PARAM_UNITS", "_PARAM_NDIM", "INPUT_NAMES", "OUTPUT_NAMES", "OUTPUT_SHAPES",
                "JAC_SPARSITY", "_P0", "X0", "INPUT_LABELS", "OUTPUT_LABELS", "_TABLES",
-               "TABLE_BREAKPOINTS", "TABLE_MAX_STEP", "OUTPUT_UNITS", "INPUT_UNITS"},
+               "TABLE_BREAKPOINTS", "TABLE_MAX_STEP", "OUTPUT_UNITS", "INPUT_UNITS",
+               "_NEWTON_WARM"},
     "FunctionDef": {"_unpack", "_params", "_inputs", "initial_state", "rhs", "jacobian",
-                    "outputs", "input_jacobian", "output_jacobian"},
+                    "outputs", "input_jacobian", "output_jacobian", "_bgc_linsolve"},
     "ClassDef": {"_Unpacked"},
 }
 
@@ -471,6 +499,8 @@ def check_skeleton(text: str, backend: str = _TEMPLATES) -> None:
             continue
         kind, names = _top_names(node)
         allowed = _MODEL_TOP.get(kind, set())
+        if kind == "FunctionDef":  # one Newton solver per nonlinear algebraic loop
+            allowed = allowed | {n for n in names if re.fullmatch(r"_newton_[0-9]+", n)}
         if not names or not names <= allowed:
             raise SkeletonError(f"unexpected top-level {kind} {sorted(names)} at line "
                                 f"{getattr(node, 'lineno', '?')}")

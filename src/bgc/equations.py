@@ -14,6 +14,7 @@ import heapq
 import sys
 import itertools
 from dataclasses import dataclass, field
+from dataclasses import replace as dc_replace
 
 import networkx as nx
 import sympy as sp
@@ -26,6 +27,9 @@ from .graph import BondGraph, FlatElement, a_kind, code_name, join
 from .parse import TWO_PORTS
 
 T = sp.Symbol("t", real=True)
+# Linear systems from derivative causality up to this size are solved symbolically (Cramer-like
+# LU on symbols for the matrix entries); larger ones by a numeric solve in the generated code.
+SYMBOLIC_MAX = 4
 
 
 def _sym(name: str) -> sp.Symbol:
@@ -104,6 +108,9 @@ class Equations:
     jac_assignments: tuple[Assignment, ...]  # forward-mode derivative intermediates
     loops: tuple[str, ...]  # descriptions of the algebraic loops solved
     notes: tuple[str, ...] = field(default=())
+    # storage elements in derivative causality: (element id, the state names it follows from)
+    dependent: tuple = field(default=())
+    newton: tuple = field(default=())  # NewtonLoop: nonlinear algebraic loops
     #: causality's warnings that the equations leave standing: SCAP's arbitrary choice of an R's
     #: form is no longer a "possible algebraic loop" once the equations are derived (any loop
     #: was found and solved, and is listed in ``loops``; or there was none)
@@ -149,6 +156,7 @@ class _Ctx:
         self.state_vars: list[StateVar] = []
         self.inputs: dict[str, InputVar] = {}
         self.cache: dict = {}
+        self.dependent: list = []  # (element id, state symbols, their dt_ symbols)
 
     # -- parameters -------------------------------------------------------------------------
     def param(self, pid: str, coord: Coord):
@@ -326,7 +334,8 @@ def _fold_value(v):
 
 
 def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = None,
-           zero: dict | None = None) -> Equations:
+           zero: dict | None = None, symbolic_max: int = SYMBOLIC_MAX,
+           newton: bool = True) -> Equations:
     """State equations of a causal bond graph.
 
     ``fold``: parameter id -> value, turned into numbers; ``zero``: removed element id ->
@@ -389,9 +398,29 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
             shp = (shp[0],)
         outputs.append((out.name, shp, tuple(flat(val))))
 
+    tear_sets = ()
+    dependent = []
+    if ctx.dependent:
+        names = {sv.symbol: sv.name for sv in state_vars}
+        for eid, syms, _ in ctx.dependent:
+            seen, stack, on = set(), list(syms), set()
+            while stack:
+                v = stack.pop()
+                if v in seen:
+                    continue
+                seen.add(v)
+                if v in names:
+                    on.add(v)
+                elif v in defs:
+                    stack.extend(defs[v].expr.free_symbols)
+            dependent.append((eid, tuple(sv.name for sv in state_vars if sv.symbol in on)))
+        if progress:
+            progress("differentiating along the causal paths of dependent storage elements")
+        tear_sets = _time_derivatives(ctx, defs, owner, derivs, state_vars)
     if progress:
         progress("ordering assignments")
-    order, loops = _causal_order(bg, defs, owner)
+    nloops: list = [] if newton else None
+    order, loops = _causal_order(bg, defs, owner, tear_sets, symbolic_max, nloops)
     # Inline plain copies (junction equalities, sign flips, constants): they are not work.
     subs: dict = {}
     kept: list[Assignment] = []
@@ -426,13 +455,14 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
 
     if progress:
         progress("deriving the Jacobian")
-    jac, jac_assign = _jacobian(kept, state_vars, derivatives)
+    nloops = [dc_replace(nl, g=tuple(e.xreplace(subs) for e in nl.g)) for nl in nloops or ()]
+    jac, jac_assign = _jacobian(kept, state_vars, derivatives, nloops)
     _check_names(bg, ctx, state_vars)
     standing = tuple(w for w in caus.warnings if not w.startswith("R elements with causality"))
     return Equations(bg.model.name, tuple(state_vars), tuple(ctx.params.values()),
                      tuple(ctx_derived), tuple(ctx.inputs[i.name] for i in bg.model.inputs),
                      tuple(kept), derivatives, outputs, jac, tuple(jac_assign), tuple(loops),
-                     warnings=standing)
+                     warnings=standing, dependent=tuple(dependent), newton=tuple(nloops))
 
 
 _BAD_VALUES = (sp.zoo, sp.oo, -sp.oo, sp.nan, sp.I)
@@ -499,7 +529,8 @@ def _element_equations(ctx: _Ctx, el: FlatElement, define, derivs, state_vars):
         letter = "p" if t == "I" else "q"
         state = ctx.states.get(el.id)
         if state is None:
-            raise ModelError(el.coord, f"{what} is in derivative causality")
+            _dependent_storage(ctx, el, b, sgn, define)
+            return
         if t == "I":
             if key == "inertia":
                 m = _card(ctx.build(law, el.scope, what), n, el, key, square=True)
@@ -547,6 +578,48 @@ def _element_equations(ctx: _Ctx, el: FlatElement, define, derivs, state_vars):
             define(f, val, el, f"{el.id} (R): flow law")
         return
     raise ModelError(el.coord, f"unsupported element type {t}")  # pragma: no cover
+
+
+def _dependent_storage(ctx: _Ctx, el: FlatElement, b, sgn: int, define):
+    """A storage element in derivative causality: its state is a function of the others'.
+
+    An I receives its flow f: its momentum p = M f is an assignment and its effort is dp/dt;
+    a C receives its effort e: q = K^-1 e (or c e) and its flow is dq/dt. The time derivative
+    is a placeholder symbol ``dt_<p or q>`` that ``_time_derivatives`` defines by the chain
+    rule along the causal assignments (with the state derivatives as unknowns where needed).
+    """
+    t, n = el.type, b.n
+    key, law = el.law
+    what = f"{t} {el.id!r}"
+    e, f = ctx.e[b.id], ctx.f[b.id]
+    letter = "p" if t == "I" else "q"
+    if t == "I":
+        if key != "inertia":
+            raise ModelError(el.coord, f"{what} is in derivative causality (its flow follows from "
+                                       "the other states), which needs its momentum as a function "
+                                       "of its flow: give it an `inertia:` law, not `flow:`")
+        m = _card(ctx.build(law, el.scope, what), n, el, key, square=True)
+        val = m * f
+    else:
+        if key == "stiffness":
+            k = _card(ctx.build(law, el.scope, what), n, el, key, square=True)
+            val = _solve(k, e * sgn, el, key)
+        elif key == "compliance":
+            val = _card(ctx.build(law, el.scope, what), n, el, key, square=True) * (e * sgn)
+        else:
+            raise ModelError(el.coord, f"{what} is in derivative causality (its effort follows "
+                                       "from the other states), which needs its displacement as "
+                                       "a function of its effort: give it a `stiffness:` or "
+                                       "`compliance:` law, not `effort:`")
+    state = _vec(f"{letter}_{code_name(el.id)}", n)
+    dot = _vec(f"_dt_{letter}_{code_name(el.id)}", n)
+    define(state, val, el, f"{el.id} ({t}, derivative): {'momentum from flow' if t == 'I' else 'displacement from effort'}")
+    if t == "I":
+        define(e, dot * sgn, el, f"{el.id} (I, derivative): effort = dp/dt")
+    else:
+        define(f, dot, el, f"{el.id} (C, derivative): flow = dq/dt")
+    ctx.states[el.id] = state  # p() / q() read the dependent state
+    ctx.dependent.append((el.id, tuple(flat(state)), tuple(flat(dot))))
 
 
 def _card(val, n, el, key, square=False):
@@ -657,8 +730,324 @@ def _two_port(ctx: _Ctx, el: FlatElement, bonds, define):
             define(f2, _solve(mt, e1, el, key), el, f"{el.id} ({el.type}): f2 = M^-T e1")
 
 
-def _causal_order(bg: BondGraph, defs: dict, owner: dict):
-    """Assignments in causal order; algebraic loops solved where linear."""
+def _time_derivatives(ctx: _Ctx, defs: dict, owner: dict, derivs: dict, state_vars) -> tuple:
+    """Define the ``dt_`` symbols of the dependent storage elements by the chain rule.
+
+    Forward mode in time along the causal assignments: for every assignment v = g(...) that a
+    dependent state depends on, ``_dt_v = sum(dg/ds * _dt_s) + dg/dt``; a state's time
+    derivative is the symbol ``_dx_<state>``, itself assigned the state's derivative. The
+    loop this closes (state derivatives -> dependent efforts -> junctions -> state
+    derivatives) is linear in its unknowns and solved by ``_tear_solve``.
+    Returns the tear candidates: (the _dx_ symbols, the dependent dt_ symbols)."""
+    bg = ctx.bg
+    state_syms = {sv.symbol: sv for sv in state_vars}
+    input_syms = {s: iv.name for iv in ctx.inputs.values() for s in iv.symbols}
+    dt_syms = {d: eid for eid, _, dots in ctx.dependent for d in dots}
+    dep_of: dict = {}  # state symbol of a dependent element -> its dt_ symbol
+    for eid, states, dots in ctx.dependent:
+        dep_of.update(zip(states, dots))
+    # closure of the assignments the dependent states depend on
+    need, stack = set(), [s for s in dep_of]
+    while stack:
+        s = stack.pop()
+        if s in need or s not in defs:
+            continue
+        need.add(s)
+        stack.extend(d for d in defs[s].expr.free_symbols if d in defs)
+    dot: dict = {}
+    dx: dict = {}
+    for s in sorted(need, key=str):
+        dot[s] = dep_of.get(s) or _sym(f"_dt_{s}")
+    for s in sorted({d for v in need for d in defs[v].expr.free_symbols if d in state_syms},
+                    key=str):
+        dot[s] = _sym(f"_dx_{s}")
+        dx[dot[s]] = s
+    for s in sorted(need, key=str):
+        a = defs[s]
+        expr = a.expr
+        free = expr.free_symbols
+        for d in free:
+            if d in input_syms:
+                who = owner[s]
+                deps = sorted({e for e, st, _ in ctx.dependent})
+                raise ModelError(bg.element(who).coord,
+                                 f"derivative causality of {', '.join(map(repr, deps))}: its "
+                                 f"state follows from input {input_syms[d]!r} through "
+                                 f"{_kind(bg.element(who))}, whose time derivative bgc would "
+                                 "need; drive it through a compliant coupling, or make the "
+                                 "signal an expression of t")
+            if d in dt_syms:
+                raise ModelError(bg.element(dt_syms[d]).coord,
+                                 f"derivative causality of {dt_syms[d]!r} feeds another "
+                                 f"dependent element through {_kind(bg.element(owner[s]))}: "
+                                 "a second derivative would be needed (index > 2); add a "
+                                 "compliant coupling")
+        terms = [_clean(sp.diff(expr, d)) * dot[d] for d in sorted(free, key=str) if d in dot]
+        terms.append(_clean(sp.diff(expr, T)))
+        val = sp.Add(*terms)
+        defs[dot[s]] = Assignment(dot[s], val, f"d/dt of {s} ({a.why})" if s not in dep_of
+                                  else f"{owner[s]}: d/dt of its state (chain rule)")
+        owner[dot[s]] = owner[s]
+    for d, s in dx.items():
+        defs[d] = Assignment(d, derivs[s], f"derivative of state {state_syms[s].name}")
+        owner[d] = state_syms[s].owner
+    return (frozenset(dx), frozenset(dt_syms))
+
+
+def _tear_solve(bg, g, defs, owner, comp, index, tear_sets, symbolic_max):
+    """Solve an algebraic loop that is linear in its unknowns by tearing.
+
+    With the tear variables known, the rest of the loop is acyclic; every value in it is
+    affine in the tear variables, with coefficients found by forward-mode differentiation
+    along the loop (new assignments, free of loop variables: otherwise the loop is
+    nonlinear). The loop evaluated at tear = 0 gives the constant part. That leaves
+    (I - A) tear = b, solved symbolically on symbols standing for the entries while small,
+    else numerically in the generated code. Returns (description or None)."""
+    cset = set(comp)
+    best = None
+    cands = [sorted(cset & ts, key=index.get) for ts in tear_sets]
+    cands = [c for c in cands if c]
+    if len(cands) > 1:
+        cands.append(sorted(set(cands[0]) | set(cands[1]), key=index.get))
+    for cand in sorted(cands, key=len):
+        rest = [s for s in comp if s not in set(cand)]
+        if nx.is_directed_acyclic_graph(g.subgraph(rest)):
+            best = cand
+            break
+    if best is None:
+        return None
+    tear = best
+    tset = set(tear)
+    rest_g = g.subgraph([s for s in comp if s not in tset]).copy()
+    rest = schedule(rest_g, index)
+    els = sorted({owner[s] for s in comp if owner.get(s)})
+    where = _coord(bg, els[0])
+    counter = itertools.count(len(index))
+    new: list = []
+
+    def add(sym, expr, why, own):
+        defs[sym] = Assignment(sym, expr, why)
+        owner[sym] = own
+        index[sym] = next(counter)
+        new.append(sym)
+
+    C: dict = {t: {k: sp.Integer(1)} for k, t in enumerate(tear)}
+    tag = str(tear[0]).lstrip("_")
+    nco = itertools.count()
+
+    def coeffs(s):
+        expr = defs[s].expr
+        acc: dict = {}
+        for d in expr.free_symbols & cset:
+            part = _clean(sp.diff(expr, d))
+            if part == 0:
+                continue
+            bad = part.free_symbols & cset
+            if bad:
+                raise ModelError(where, "algebraic loop through " + ", ".join(
+                    _who(bg, e) for e in els) + f" is nonlinear in its unknowns "
+                    f"({', '.join(sorted(map(str, bad))[:6])}): bgc solves linear loops only")
+            for k, c in C.get(d, {}).items():
+                acc[k] = acc[k] + part * c if k in acc else part * c
+        out = {}
+        for k, v in sorted(acc.items()):
+            if v == 0:
+                continue
+            if _trivial(v):
+                out[k] = v
+            else:
+                sym = _sym(f"_l{next(nco)}_{tag}")
+                add(sym, v, "", owner[s])
+                out[k] = sym
+        return out
+
+    for s in rest:
+        C[s] = coeffs(s)
+    a_rows = [coeffs(t) for t in tear]
+    zero = {t: sp.Integer(0) for t in tear}
+    for s in rest:
+        z = _sym(f"_z_{s}".replace("__z_", "_z_"))
+        add(z, defs[s].expr.xreplace(zero), defs[s].why + " (loop at zero)", owner[s])
+        zero[s] = z
+    n = len(tear)
+    bsyms, A = [], sp.zeros(n, n)
+    for i, t in enumerate(tear):
+        bexpr = defs[t].expr.xreplace(zero)
+        if _trivial(bexpr):
+            bsyms.append(bexpr)
+        else:
+            b = _sym(f"_b{i}_{tag}")
+            add(b, bexpr, f"linear system for {', '.join(map(str, tear))}: right-hand side",
+                owner[t])
+            bsyms.append(b)
+        for k in range(n):
+            v = (1 if i == k else 0) - a_rows[i].get(k, 0)
+            if v == 0 or v.is_Number:
+                A[i, k] = v
+            else:
+                a = _sym(f"_A{i}_{k}_{tag}")
+                add(a, v, "linear system: matrix" if (i, k) == (0, 0) else "", owner[t])
+                A[i, k] = a
+    if n <= symbolic_max:
+        sol = list(A.LUsolve(sp.Matrix(bsyms)))
+        how = "symbolically"
+    else:
+        X = _sym(f"_X_{tag}")
+        add(X, LinSolve(n, *list(A), *bsyms), f"numeric linear solve ({n} unknowns)", owner[tear[0]])
+        sol = [LinSolveEntry(X, i) for i in range(n)]
+        how = "numerically (np.linalg.solve)"
+    for t, v in zip(tear, sol):
+        defs[t] = Assignment(t, v, defs[t].why + " (linear system solved)")
+    # rebuild the dependency edges of everything touched
+    for s in list(comp) + new:
+        g.add_node(s)
+        for dep in list(g.predecessors(s)):
+            g.remove_edge(dep, s)
+        for dep in _deps(defs[s].expr):
+            if dep in defs:
+                g.add_edge(dep, s)
+    desc = ", ".join(_who(bg, e) for e in els)
+    return (f"derivative causality: linear system in {n} unknown(s) "
+            f"({', '.join(str(t).lstrip('_') for t in tear)}) solved {how}, through {desc}")
+
+
+class LinSolve(sp.Function):
+    """x = A^-1 b for LinSolve(n, A entries row-major, b entries): printed as a batched solve."""
+
+    @classmethod
+    def eval(cls, *args):
+        return None
+
+    def _eval_derivative(self, s):  # the Jacobian goes through _linsolve_grad instead
+        raise ModelError(None, "internal: LinSolve differentiated symbolically")
+
+
+class LinSolveEntry(sp.Function):
+    """Component i of a LinSolve result (a symbol)."""
+
+    @classmethod
+    def eval(cls, *args):
+        return None
+
+
+@dataclass(frozen=True)
+class NewtonLoop:
+    """A nonlinear algebraic loop solved by Newton's method in the generated code."""
+
+    name: str  # the generated function
+    tear: tuple  # its unknowns (symbols)
+    args: tuple  # the symbols from outside the loop it reads
+    body: tuple  # (symbol, expr): the loop's other variables and the derivative coefficients
+    residual: tuple  # tear_i - g_i(...), zero at the solution
+    jac: tuple  # d residual / d tear, row-major
+    g: tuple  # g_i: the tear variables' own definitions (for the system Jacobian)
+    rest: tuple  # the loop's other variables, in order
+    where: str  # for the error message: "file:line:col: algebraic loop through ..."
+
+
+class NewtonSolve(sp.Function):
+    """The tear variables of Newton loop k: NewtonSolve(k, *outside symbols)."""
+
+    @classmethod
+    def eval(cls, *args):
+        return None
+
+
+def _cut_set(g: nx.DiGraph, comp: list, index: dict) -> list:
+    """Tear variables that leave the loop acyclic: greedily the node with the most
+    in x out edges inside what is still cyclic (ties: the first in causal priority)."""
+    tear: list = []
+    rest = set(comp)
+    while True:
+        sub = g.subgraph(rest)
+        cyc = [c for c in nx.strongly_connected_components(sub)
+               if len(c) > 1 or any(sub.has_edge(v, v) for v in c)]
+        if not cyc:
+            return tear
+        cand = max((v for c in cyc for v in c),
+                   key=lambda v: (sub.in_degree(v) * sub.out_degree(v), -index[v]))
+        tear.append(cand)
+        rest.discard(cand)
+
+
+def _newton_loop(bg, g, defs, owner, comp, index, newton: list) -> str:
+    k = len(newton)
+    tear = sorted(_cut_set(g, comp, index), key=index.get)
+    tset = set(tear)
+    rest = schedule(g.subgraph([s for s in comp if s not in tset]).copy(), index)
+    cset = set(comp)
+    els = sorted({owner[s] for s in comp})
+    desc = ", ".join(_who(bg, e) for e in els)
+    body: list = []
+    C: dict = {t: {i: sp.Integer(1)} for i, t in enumerate(tear)}
+    nco = itertools.count()
+
+    def coeffs(expr):
+        acc: dict = {}
+        for d in expr.free_symbols & cset:
+            part = _clean(sp.diff(expr, d))
+            if part == 0:
+                continue
+            for i, c in C.get(d, {}).items():
+                acc[i] = acc[i] + part * c if i in acc else part * c
+        out = {}
+        for i, v in sorted(acc.items()):
+            if v == 0:
+                continue
+            if _trivial(v):
+                out[i] = v
+            else:
+                sym = _sym(f"_nc{next(nco)}")
+                body.append((sym, v))
+                out[i] = sym
+        return out
+
+    for s in rest:
+        body.append((s, defs[s].expr))
+        C[s] = coeffs(defs[s].expr)
+    G = [defs[t].expr for t in tear]
+    n = len(tear)
+    a_rows = [coeffs(gi) for gi in G]
+    residual = tuple(t - gi for t, gi in zip(tear, G))
+    jac = tuple((1 if i == j else 0) - a_rows[i].get(j, 0) for i in range(n) for j in range(n))
+    inner = {sym for sym, _ in body} | tset
+    outside = set()
+    for e in [e for _, e in body] + list(residual) + list(jac):
+        outside |= sp.sympify(e).free_symbols - inner
+    args = tuple(sorted(outside, key=str))
+    c = _coord(bg, els[0])
+    where = f"{c}: " if c else ""
+    X = _sym(f"_nl{k}")
+    newton.append(NewtonLoop(f"_newton_{k}", tuple(tear), args, tuple(body), residual, jac,
+                             tuple(G), tuple(rest),
+                             f"{where}algebraic loop through {desc} (unknowns "
+                             f"{', '.join(map(str, tear))})"))
+    defs[X] = Assignment(X, NewtonSolve(k, *args), f"nonlinear algebraic loop through {desc}: "
+                                                   "Newton's method")
+    owner[X] = els[0]
+    index[X] = len(index)
+    for i, t in enumerate(tear):
+        defs[t] = Assignment(t, LinSolveEntry(X, i), defs[t].why + " (Newton)")
+    for v in list(comp) + [X]:
+        g.add_node(v)
+        for dep in list(g.predecessors(v)):
+            g.remove_edge(dep, v)
+        for dep in defs[v].expr.free_symbols:
+            if dep in defs:
+                g.add_edge(dep, v)
+    return (f"nonlinear algebraic loop solved by Newton's method in {n} unknown(s) "
+            f"({', '.join(map(str, tear))}), through {desc}")
+
+
+def _deps(expr):
+    return expr.free_symbols
+
+
+def _causal_order(bg: BondGraph, defs: dict, owner: dict, tear_sets=(),
+                  symbolic_max: int = SYMBOLIC_MAX, newton: list | None = None):
+    """Assignments in causal order; algebraic loops solved where linear (symbolically), and
+    nonlinear ones by Newton's method in the generated code when ``newton`` (a list that
+    receives the loops) is given."""
     g = nx.DiGraph()
     index = {s: i for i, s in enumerate(defs)}
     for s, a in defs.items():
@@ -673,6 +1062,15 @@ def _causal_order(bg: BondGraph, defs: dict, owner: dict):
             if not g.has_edge(s, s):
                 continue
         comp = sorted(comp, key=index.get)
+        if any(cset_t & set(comp) for cset_t in tear_sets):
+            done = _tear_solve(bg, g, defs, owner, comp, index, tear_sets, symbolic_max)
+            if done is None:
+                els = sorted({owner[s] for s in comp})
+                raise ModelError(_coord(bg, els[0]), "derivative causality: the loop "
+                                 "through " + ", ".join(_who(bg, e) for e in els)
+                                 + " cannot be torn at the state derivatives")
+            loops.append(done)
+            continue
         els = sorted({owner[s] for s in comp})
         desc = ", ".join(_kind(bg.element(e)) for e in els)
         eqs = [s - defs[s].expr for s in comp]
@@ -680,6 +1078,9 @@ def _causal_order(bg: BondGraph, defs: dict, owner: dict):
             A, rhs = sp.linear_eq_to_matrix(eqs, comp)
         except (sp.polys.polyerrors.PolynomialError, ValueError, TypeError):
             A = None
+        if (A is None or any(A.has(s) for s in comp)) and newton is not None:
+            loops.append(_newton_loop(bg, g, defs, owner, comp, index, newton))
+            continue
         if A is None or any(A.has(s) for s in comp):
             raise ModelError(bg.element(els[0]).coord,
                              f"algebraic loop through {desc} is nonlinear in its unknowns "
@@ -706,6 +1107,19 @@ def _causal_order(bg: BondGraph, defs: dict, owner: dict):
                     g.add_edge(dep, s)
     order = schedule(g, index)
     return order, loops
+
+
+def _who(bg: BondGraph, oid: str) -> str:
+    """An element (by kind) or an auxiliary state, for messages."""
+    if oid in bg._el:
+        return _kind(bg.element(oid))
+    return f"state {oid!r}"
+
+
+def _coord(bg: BondGraph, oid: str):
+    if oid in bg._el:
+        return bg.element(oid).coord
+    return next((st.coord for st in bg.states if st.id == oid), None)
 
 
 def _kind(el: FlatElement) -> str:
@@ -745,17 +1159,38 @@ def _clean(d):
     return d
 
 
-def _jacobian(kept: list[Assignment], state_vars, derivatives):
-    """Forward-mode Jacobian along the causal assignments.
+def _jacobian(kept: list[Assignment], state_vars, derivatives, nloops=()):
+    """Forward-mode Jacobian d(derivatives)/dx along the causal assignments."""
+    return forward_mode(kept, {sv.symbol: j for j, sv in enumerate(state_vars)},
+                        list(derivatives), "_d", nloops)
 
-    D[v] maps a state index j to dv/dx_j. Non-trivial entries become new intermediates
-    (``_d<k>``), so every emitted expression stays as small as one assignment's.
+
+def forward_mode(kept: list[Assignment], seeds: dict, finals: list, prefix: str = "_d",
+                 nloops=()):
+    """Forward-mode derivatives of ``finals`` with respect to the seed symbols (symbol ->
+    column) along the causal assignments ``kept``: the state Jacobian (seeds: the states) and
+    the linearisation's B, C, D (seeds: inputs or states; finals: derivatives or outputs).
+
+    D[v] maps a column j to dv/d(seed j). Non-trivial entries become new intermediates
+    (``<prefix><k>``), so every emitted expression stays as small as one assignment's; linear
+    solves and Newton loops are differentiated through (one more solve per column). Only the
+    assignments the finals depend on are visited (linear in model size).
     """
-    D: dict[sp.Symbol, dict[int, object]] = {}
-    for j, sv in enumerate(state_vars):
-        D[sv.symbol] = {j: sp.Integer(1)}
+    D: dict[sp.Symbol, dict[int, object]] = {s: {j: sp.Integer(1)} for s, j in seeds.items()}
     jac_assign: list[Assignment] = []
     counter = itertools.count()
+    need: set = set()
+    for e in finals:
+        need |= e.free_symbols
+    used = []
+    for a in reversed(kept):
+        if a.symbol in need:
+            used.append(a)
+            need |= a.expr.free_symbols
+            if isinstance(a.expr, NewtonSolve):  # the loop's own assignments feed it
+                for s in nloops[int(a.expr.args[0])].rest:
+                    need.add(s)
+    used.reverse()
 
     bridge = fastsym.Bridge() if fastsym.available() else None
 
@@ -781,7 +1216,91 @@ def _jacobian(kept: list[Assignment], state_vars, derivatives):
                 acc[j] = acc[j] + term if j in acc else term
         return {j: v for j, v in acc.items() if v != 0}
 
-    for a in kept:
+    solves: dict = {}  # LinSolve result symbol -> {state index: symbol of its derivative}
+    kept_map = {a.symbol: a for a in kept}
+
+    def local(seed: dict, exprs_of, order, outer: bool):
+        """Forward mode over the loop's variables with the tear variables seeded."""
+        Dl = dict(seed)
+        for s in order:
+            a = kept_map.get(s)
+            if a is None:
+                continue
+            acc: dict = {}
+            for d in a.expr.free_symbols:
+                ds = Dl.get(d) if d in Dl else (D.get(d) if outer else None)
+                if not ds:
+                    continue
+                part = _clean(sp.diff(a.expr, d))
+                if part == 0:
+                    continue
+                for j, dj in ds.items():
+                    acc[j] = acc[j] + part * dj if j in acc else part * dj
+            dv = {}
+            for j, v in sorted(acc.items()):
+                if v == 0:
+                    continue
+                if _trivial(v):
+                    dv[j] = v
+                else:
+                    sym = _sym(f"{prefix}{next(counter)}")
+                    jac_assign.append(Assignment(sym, v, ""))
+                    dv[j] = sym
+            Dl[s] = dv
+        out = []
+        for e in exprs_of:
+            acc = {}
+            for d in e.free_symbols:
+                ds = Dl.get(d) if d in Dl else (D.get(d) if outer else None)
+                if not ds:
+                    continue
+                part = _clean(sp.diff(e, d))
+                for j, dj in ds.items():
+                    acc[j] = acc[j] + part * dj if j in acc else part * dj
+            out.append({j: v for j, v in acc.items() if v != 0})
+        return out
+
+    for a in used:
+        if isinstance(a.expr, NewtonSolve):
+            # implicit function theorem at the solution: (I - dg/dz) dz = dg/dx (z held)
+            nl = nloops[int(a.expr.args[0])]
+            n = len(nl.tear)
+            gx = local({t: {} for t in nl.tear}, nl.g, nl.rest, True)
+            gz = local({t: {i: sp.Integer(1)} for i, t in enumerate(nl.tear)}, nl.g, nl.rest,
+                       False)
+            A = [(1 if i == k else 0) - gz[i].get(k, 0) for i in range(n) for k in range(n)]
+            solves[a.symbol] = {}
+            for j in sorted(set().union(*gx)):
+                s = _sym(f"{prefix}{next(counter)}")
+                jac_assign.append(Assignment(s, LinSolve(n, *A, *[gx[i].get(j, 0)
+                                                                  for i in range(n)]), ""))
+                solves[a.symbol][j] = s
+            continue
+        if isinstance(a.expr, LinSolve):
+            # d(A^-1 b) = A^-1 (db - dA x): one more solve with the same matrix per column
+            n = int(a.expr.args[0])
+            A, b = a.expr.args[1:1 + n * n], a.expr.args[1 + n * n:]
+            x = [LinSolveEntry(a.symbol, i) for i in range(n)]
+            gA, gb = [grad(v) for v in A], [grad(v) for v in b]
+            cols = sorted(set().union(*gA, *gb))
+            solves[a.symbol] = {}
+            for j in cols:
+                r = [gb[i].get(j, 0) - sum((gA[i * n + k].get(j, 0) * x[k] for k in range(n)),
+                                           sp.Integer(0)) for i in range(n)]
+                s = _sym(f"{prefix}{next(counter)}")
+                jac_assign.append(Assignment(s, LinSolve(n, *A, *r), ""))
+                solves[a.symbol][j] = s
+            continue
+        if isinstance(a.expr, LinSolveEntry):
+            X, i = a.expr.args
+            dv = {}
+            for j, s in solves.get(X, {}).items():
+                d = _sym(f"{prefix}{next(counter)}")
+                jac_assign.append(Assignment(d, LinSolveEntry(s, i), ""))
+                dv[j] = d
+            if dv:
+                D[a.symbol] = dv
+            continue
         g = grad(a.expr)
         if not g:
             continue
@@ -790,15 +1309,15 @@ def _jacobian(kept: list[Assignment], state_vars, derivatives):
             if _trivial(v):
                 dv[j] = v
             else:
-                s = _sym(f"_d{next(counter)}")
+                s = _sym(f"{prefix}{next(counter)}")
                 jac_assign.append(Assignment(s, v, ""))
                 dv[j] = s
         D[a.symbol] = dv
-    jac = {}
-    for i, expr in enumerate(derivatives):
+    out = {}
+    for i, expr in enumerate(finals):
         for j, v in grad(expr).items():
-            jac[(i, j)] = v
-    return jac, jac_assign
+            out[(i, j)] = v
+    return out, jac_assign
 
 
 def _check_names(bg: BondGraph, ctx: _Ctx, state_vars) -> None:
@@ -844,66 +1363,6 @@ class LinearParts:
     output_labels: tuple[str, ...]
 
 
-def forward_mode(kept, seeds: dict, finals: list, prefix: str):
-    """Forward-mode derivatives of ``finals`` with respect to the seed symbols (symbol ->
-    column) along the assignments ``kept``. Returns ({(row, column): expression}, new
-    intermediate assignments named ``<prefix><k>``). The chain rule as in :func:`_jacobian`
-    (symengine's derivatives when it is installed, else sympy's)."""
-    D: dict = {s: {j: sp.Integer(1)} for s, j in seeds.items()}
-    assign: list[Assignment] = []
-    counter = itertools.count()
-    bridge = fastsym.Bridge() if fastsym.available() else None
-
-    def grad(expr) -> dict:
-        syms = sorted((s for s in expr.free_symbols if D.get(s)), key=str)  # deterministic
-        if not syms:
-            return {}
-        parts = fastsym.partials(bridge, expr, syms) if bridge is not None else None
-        if parts is not None:
-            acc_se: dict = {}
-            for s, partial in parts.items():
-                for j, dj in D[s].items():
-                    term = partial * bridge.to_se(dj)
-                    acc_se[j] = acc_se[j] + term if j in acc_se else term
-            return {j: bridge.from_se(v) for j, v in acc_se.items() if v != 0}
-        acc: dict = {}
-        for s in syms:
-            partial = _clean(sp.diff(expr, s))
-            if partial == 0:
-                continue
-            for j, dj in D[s].items():
-                term = partial * dj
-                acc[j] = acc[j] + term if j in acc else term
-        return {j: v for j, v in acc.items() if v != 0}
-
-    need: set = set()  # only the assignments the finals depend on (linear in model size)
-    for e in finals:
-        need |= e.free_symbols
-    used = []
-    for a in reversed(kept):
-        if a.symbol in need:
-            used.append(a)
-            need |= a.expr.free_symbols
-    for a in reversed(used):
-        g = grad(a.expr)
-        if not g:
-            continue
-        dv = {}
-        for j, v in sorted(g.items()):
-            if _trivial(v):
-                dv[j] = v
-            else:
-                s = _sym(f"{prefix}{next(counter)}")
-                assign.append(Assignment(s, v, ""))
-                dv[j] = s
-        D[a.symbol] = dv
-    out = {}
-    for i, expr in enumerate(finals):
-        for j, v in grad(expr).items():
-            out[(i, j)] = v
-    return out, assign
-
-
 def _label(name: str, shape, k: int) -> str:
     if not shape:
         return name
@@ -927,9 +1386,10 @@ def linear_parts(eq: Equations) -> LinearParts:
             youts.append(v)
             olabels.append(_label(name, shp, k))
     kept = list(eq.assignments)
-    B, b_assign = forward_mode(kept, useeds, list(eq.derivatives), "_du")
-    C, c_assign = forward_mode(kept, xseeds, youts, "_dx")
-    D, d_assign = forward_mode(kept, useeds, youts, "_du")
+    nloops = tuple(getattr(eq, "newton", ()))
+    B, b_assign = forward_mode(kept, useeds, list(eq.derivatives), "_du", nloops)
+    C, c_assign = forward_mode(kept, xseeds, youts, "_dx", nloops)
+    D, d_assign = forward_mode(kept, useeds, youts, "_du", nloops)
     # B's and D's intermediates share a prefix: they live in different generated functions
     # except D's, which sits beside C's (prefix _dx): no clash inside one function.
     return LinearParts(B, tuple(b_assign), C, D, tuple(c_assign) + tuple(d_assign),

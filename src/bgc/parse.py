@@ -165,6 +165,7 @@ class Model:
     description: str = ""
     source_hash: str = ""
     coord: Coord = field(default=None)  # type: ignore[assignment]
+    strict_causality: bool = False  # `causality: strict`: derivative causality is an error
 
     def component(self, name: str) -> Component | None:
         for c in self.components:
@@ -485,8 +486,15 @@ def parse_text(text: str, path: str = "<model>", _imports: _Imports | None = Non
         raise ModelError(Coord(path, 1, 1), "the model file is empty")
     top = r.mapping(root, "the model")
     allowed = ("bgc", "name", "description", "parameters", "inputs", "elements", "bonds",
-               "states", "outputs", "components", "imports")
+               "states", "outputs", "components", "imports", "causality")
     _require(r, top, root, allowed, "the model", required=("bgc", "name", "elements", "bonds"))
+    strict = False
+    if "causality" in top:
+        mode = r.string(top["causality"][1], "causality")
+        if mode not in ("strict", "eliminate"):
+            raise ModelError(r.coord(top["causality"][1]), f"causality: {mode!r} is not one of "
+                                                            "'strict', 'eliminate'")
+        strict = mode == "strict"
     version = r.scalar(top["bgc"][1], "bgc")
     if isinstance(version, bool) or version != 1:
         raise ModelError(r.coord(top["bgc"][1]), f"unsupported format version {version!r} "
@@ -544,7 +552,7 @@ def parse_text(text: str, path: str = "<model>", _imports: _Imports | None = Non
     return Model(name=name, file=path, body=body, inputs=tuple(inputs),
                   components=tuple(components), description=description,
                   source_hash=hashlib.sha256(text.encode()).hexdigest()[:16],
-                  coord=r.coord(root))
+                  coord=r.coord(root), strict_causality=strict)
 
 
 def _resolve(path, coord: Coord, shown) -> str:

@@ -26,7 +26,8 @@ class SceneResult:
     run_time: float
 
 
-def compile_scene(scene: Scene, progress=None, specialise: bool = True):
+def compile_scene(scene: Scene, progress=None, specialise: bool = True,
+                  strict_causality: bool = False):
     """The scene's module: its signals compiled in, and (by default) specialised to it.
 
     ``specialise=False`` gives the scene's full model: the model with the scene's input
@@ -37,7 +38,7 @@ def compile_scene(scene: Scene, progress=None, specialise: bool = True):
         from .graph import build_graph
 
         plan = plan_for(scene, build_graph(model).params)
-    c = compile_model(model, progress, plan)
+    c = compile_model(model, progress, plan, strict_causality=strict_causality)
     with np.errstate(all="ignore"):  # X0 is computed on import: no numpy warnings
         mod = load_module(c.source, f"{c.model.name}_{scene.name}{'' if specialise else '_full'}")
     check_against(scene, mod)
@@ -59,11 +60,12 @@ def runtime_params(scene: Scene, mod) -> dict | None:
     return out or None
 
 
-def run_scene(path, progress=None, method=None, rtol=None, max_wall=None) -> SceneResult:
+def run_scene(path, progress=None, method=None, rtol=None, max_wall=None,
+              strict_causality: bool = False) -> SceneResult:
     say = progress or (lambda msg: None)
     scene = path if isinstance(path, Scene) else parse_scene(path)
     t0 = time.perf_counter()
-    c, mod = compile_scene(scene, progress)
+    c, mod = compile_scene(scene, progress, strict_causality=strict_causality)
     t1 = time.perf_counter()
     method = method or scene.method
     rtol = rtol or scene.rtol
