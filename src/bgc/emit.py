@@ -1,28 +1,26 @@
-"""Stage 5: equations -> one standalone numpy module, through the jinja2 templates.
+"""Stage 5b: the lowered equations (:mod:`bgc.lower`) -> one standalone numpy module, through
+the jinja2 templates.
 
 The expression printer is sympy's ``NumPyPrinter`` (strict: an unknown function is an error,
 never silently printed) with a few overrides for speed and readability; the generated import
-block lists what the printer actually used. Each function computes only what its results need:
-the assignments are pruned backwards from the results, common subexpressions are eliminated,
-and the definitions are scheduled in causal order.
+block lists what the printer actually used. Pruning, CSE and scheduling happen before, in the
+backend-neutral lowering that the C printer (:mod:`bgc.emit_c`) shares.
 """
 from __future__ import annotations
 
 import ast
 import functools
-import itertools
 import keyword
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
 import jinja2
-import networkx as nx
 import sympy as sp
 from sympy.printing.numpy import NumPyPrinter
 
-from . import __version__
-from .equations import Assignment, Equations, T, schedule
+from . import __version__, lower
+from .equations import Equations, T
 
 _IDENT_OK = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_")
 _TEMPLATES = "numpy"  # this backend's folder in templates/
@@ -171,6 +169,7 @@ class BgcPrinter(NumPyPrinter):
 
 @dataclass(frozen=True)
 class Line:
+    """A printed definition (the template's view of :class:`bgc.lower.Line`)."""
     target: str
     code: str
     comment: str = ""
@@ -178,6 +177,7 @@ class Line:
 
 @dataclass(frozen=True)
 class Function:
+    """A printed function (the template's view of :class:`bgc.lower.Function`)."""
     params: tuple[str, ...]  # parameter identifiers the body uses
     inputs: tuple[str, ...]
     states: tuple[str, ...]
@@ -186,91 +186,11 @@ class Function:
     ops: int  # operation count after CSE
 
 
-def _prune(results: list, assigns: list[Assignment]) -> list[Assignment]:
-    need = set()
-    for r in results:
-        need |= r.free_symbols
-    keep = []
-    for a in reversed(assigns):
-        if a.symbol in need:
-            keep.append(a)
-            need |= a.expr.free_symbols
-    keep.reverse()
-    return keep
-
-
-def _function(eq: Equations, printer: BgcPrinter, results: list, assigns: list[Assignment],
-              keys: list, cse: bool = True) -> Function:
-    """Prune, CSE and schedule one generated function's body."""
-    assigns = _prune(results, assigns)
-    exprs = [a.expr for a in assigns] + list(results)
-    if cse and exprs:
-        repl, reduced = sp.cse(exprs, symbols=(sp.Symbol(f"_c{i}", real=True)
-                                               for i in itertools.count()),
-                               order="none", list=True)
-    else:
-        repl, reduced = [], exprs
-    defs = [(s, e, "") for s, e in repl]
-    defs += [(a.symbol, r, a.why) for a, r in zip(assigns, reduced[:len(assigns)])]
-    res = reduced[len(assigns):]
-    # schedule: cse temporaries just before their first use, assignments in causal order
-    g = nx.DiGraph()
-    index = {}
-    byname = {}
-    defined = {s for s, _, _ in defs}
-    for s, e, why in defs:
-        g.add_node(s)
-        byname[s] = (e, why)
-        for d in e.free_symbols:
-            if d in defined:
-                g.add_edge(d, s)
-    pos = {a.symbol: i for i, a in enumerate(assigns)}
-    first_use: dict = {}
-    for s, e, _ in defs:
-        if s in pos:
-            for d in e.free_symbols:
-                if d in defined:
-                    first_use[d] = min(first_use.get(d, 10 ** 9), pos[s])
-    for s, e, _ in reversed(defs[:len(repl)]):  # temporaries used by later temporaries
-        for d in e.free_symbols:
-            if d in defined and s in first_use:
-                first_use[d] = min(first_use.get(d, 10 ** 9), first_use[s])
-    for s, _, _ in defs:
-        if s in pos:
-            index[s] = 2 * pos[s] + 1
-        else:
-            index[s] = 2 * first_use.get(s, len(assigns)) if s in first_use else 2 * len(assigns)
-    order = schedule(g, index)
-    lines = []
-    for s in order:
-        e, why = byname[s]
-        lines.append(Line(str(s), printer.doprint(e), why))
-    results_code = []
-    for k, r in zip(keys, res):
-        results_code.append((k, printer.doprint(r)))
-    used = set()
-    for s, e, _ in defs:
-        used |= e.free_symbols
-    for r in res:
-        used |= r.free_symbols
-    pnames = tuple(str(s) for pv in eq.params for s in pv.symbols if s in used)
-    pnames += tuple(str(a.symbol) for a in eq.derived if a.symbol in used)
-    inames = tuple(str(s) for iv in eq.inputs for s in iv.symbols if s in used)
-    snames = tuple(str(sv.symbol) if sv.symbol in used else "_" for sv in eq.states)
-    ops = _count_ops([e for _, e, _ in defs] + list(res))
-    return Function(pnames, inames, snames, tuple(lines), tuple(results_code), ops)
-
-
-def _count_ops(exprs) -> int:
-    """Arithmetic operations and function calls, counted on the expression trees (cheap)."""
-    n = 0
-    for e in exprs:
-        for node in sp.preorder_traversal(e):
-            if node.is_Add or node.is_Mul:
-                n += len(node.args) - 1
-            elif node.is_Pow or node.is_Function or isinstance(node, sp.Piecewise):
-                n += 1
-    return n
+def printed(fn: lower.Function, printer) -> Function:
+    """One lowered function with its expressions printed (lines first, then results)."""
+    lines = tuple(Line(str(ln.target), printer.doprint(ln.expr), ln.comment) for ln in fn.lines)
+    results = tuple((k, printer.doprint(r)) for k, r in fn.results)
+    return Function(fn.params, fn.inputs, fn.states, lines, results, fn.ops)
 
 
 def _pyrepr(v) -> str:
@@ -282,26 +202,15 @@ def _pyrepr(v) -> str:
 
 
 def render(eq: Equations, *, source: str, source_hash: str, description: str = "",
-           header_notes: tuple[str, ...] = (), progress=None) -> str:
+           header_notes: tuple[str, ...] = (), progress=None, lowered=None) -> str:
+    """The numpy module's text; ``lowered`` (the model's :func:`bgc.lower.lower`) is made
+    here unless given, so that several backends can share one lowering."""
     printer = BgcPrinter()
     n = len(eq.states)
-    say = progress or (lambda msg: None)
-    say("emitting rhs")
-    rhs = _function(eq, printer, list(eq.derivatives), list(eq.assignments), list(range(n)))
-    say("emitting jacobian")
-    jkeys = sorted(eq.jacobian)
-    jac = _function(eq, printer, [eq.jacobian[k] for k in jkeys],
-                    list(eq.assignments) + list(eq.jac_assignments), jkeys)
-    say("emitting outputs")
-    oexprs, okeys = [], []
-    for name, shp, vals in eq.outputs:
-        for k, v in enumerate(vals):
-            oexprs.append(v)
-            okeys.append((name, k))
-    outs = _function(eq, printer, oexprs, list(eq.assignments), okeys)
-    init = _function(eq, printer, [sv.initial for sv in eq.states], [], list(range(n)),
-                     cse=False)
-    derived = [Line(str(a.symbol), printer.doprint(a.expr), a.why) for a in eq.derived]
+    low = lowered if lowered is not None else lower.lower(eq, progress)
+    rhs, jac, outs, init = (printed(f, printer) for f in (low.rhs, low.jac, low.outs, low.init))
+    jkeys = list(low.jac_keys)
+    derived = [Line(str(a.target), printer.doprint(a.expr), a.comment) for a in low.derived]
     inputs = []
     for iv in eq.inputs:
         inputs.append({"name": iv.name, "symbols": [str(s) for s in iv.symbols],
