@@ -12,8 +12,6 @@ import ast
 import functools
 import keyword
 from dataclasses import dataclass
-from importlib import resources
-from pathlib import Path
 
 import jinja2
 import sympy as sp
@@ -21,6 +19,7 @@ from sympy.printing.numpy import NumPyPrinter
 
 from . import __version__, lower
 from .equations import Equations, T
+from .paths import templates_dir
 
 _IDENT_OK = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_")
 _TEMPLATES = "numpy"  # this backend's folder in templates/
@@ -252,15 +251,6 @@ def _identifiers(eq: Equations):
         yield from (str(s) for s in pv.symbols)
     for a in eq.assignments:
         yield str(a.symbol)
-
-
-def templates_dir() -> Path:
-    """templates/ of the source tree, else the installed package's copy (bgc.templates)."""
-    here = Path(__file__).resolve().parent
-    repo_templates = here.parent.parent / "templates"
-    if (repo_templates / _TEMPLATES / "module.py.j2").is_file():
-        return repo_templates
-    return Path(str(resources.files("bgc.templates")))
 
 
 def _loader():
