@@ -69,8 +69,8 @@ def _build_entry(compiled, backend, cache, progress, name):
         from . import cbuild
 
         files, wrapper = c_files(compiled)
-        for name, text in files.items():
-            write_atomic(tmp / name, text)
+        for fname, text in files.items():
+            write_atomic(tmp / fname, text)
         (progress or (lambda m: None))(f"building the C library ({len(files)} model units)")
         cbuild.build_library(tmp, sorted(files), cache=cache)
         write_atomic(tmp / MODULE_FILE, wrapper)

@@ -215,7 +215,7 @@ def simulate_cmd(scene, out, plot_dir, method, rtol, atol, max_wall, backend, no
             prog(f"wrote {p}")
     st = res.stats
     click.echo(f"{res.scene.name}: t = {res.t[0]:g}..{res.t[-1]:g} s, {len(res.t)} points, "
-               f"{res.method} ({res.backend}) rtol={res.rtol:g} atol={res.atol:g}: "
+               f"{res.method} rtol={res.rtol:g} atol={res.atol:g} ({res.backend} backend): "
                f"{st['nfev']} rhs calls, {st['njev']} Jacobians, "
                f"{st.get('nlu', 0)} LU; compile {res.compile_time:.2f} s, "
                f"integrate {res.run_time:.2f} s")
