@@ -101,7 +101,7 @@ def main():
     nlines = sum(t.count("\n") for t in files.values())
     say("## Compile")
     say()
-    say(f"| stage | time |")
+    say("| stage | time |")
     say("|---|---|")
     say(f"| symbolic compile of the circle scene's 3R2S ({len(npm.STATE_NAMES)} states, "
         f"{int(npm.JAC_SPARSITY.sum())} Jacobian entries), CPU | {t_sym:.2f} s |")

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from bgc import backends, cbuild
-from bgc.cache import Cache
+
 from bgc.compiler import compile_file
 from bgc.emit_c import c_comment, c_string_literal
 from bgc.scene import load_module
