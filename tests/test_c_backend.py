@@ -101,7 +101,7 @@ def test_parameter_batches_broadcast_like_numpy():
 
 
 def _span(name):
-    return {"van_der_pol": (0.0, 0.5), "3r2s": (0.0, 0.2)}.get(name, (0.0, 1.0))
+    return {"van_der_pol": (0.0, 0.5), "3r2s": (0.0, 0.05)}.get(name, (0.0, 1.0))
 
 
 @needs_cc
