@@ -55,6 +55,18 @@ def _internal(exc: BaseException):
 
 
 class _Group(click.Group):
+    """Catches user errors; registers `bgc accuracy` (a heavy module) only when asked for."""
+
+    def get_command(self, ctx, name):
+        if name == "accuracy" and "accuracy" not in self.commands:
+            _register_accuracy()
+        return super().get_command(ctx, name)
+
+    def list_commands(self, ctx):
+        if "accuracy" not in self.commands:
+            _register_accuracy()
+        return super().list_commands(ctx)
+
     def invoke(self, ctx):
         try:
             return super().invoke(ctx)
@@ -156,12 +168,16 @@ def main():
               "--scene: ./<name>_<scene>.py)")
 @click.option("--scene", type=click.Path(dir_okay=False),
               help="specialise for this scene (its signals, effects, parameters, outputs)")
+@click.option("--target", type=click.Choice(("numpy", "c")), default="numpy", show_default=True,
+              help="numpy: one Python module; c: C sources, a wrapper module and the built "
+                   "library in the folder -o")
+@click.option("--no-cache", is_flag=True, help="do not use the compile cache (C runtime objects)")
 @click.option("--strict-causality", is_flag=True,
               help="refuse derivative causality (every storage element independent) instead of "
                    "eliminating the dependent storage elements")
 @click.option("-q", "--quiet", is_flag=True)
-def compile_cmd(model, output, scene, quiet, strict_causality):
-    """Compile MODEL.yaml into a Python module."""
+def compile_cmd(model, output, scene, target, no_cache, quiet, strict_causality):
+    """Compile MODEL.yaml into a Python module (or, --target c, C sources and a library)."""
     from .compiler import compile_model, write_atomic
     from .parse import parse_file
 
@@ -182,6 +198,16 @@ def compile_cmd(model, output, scene, quiet, strict_causality):
             output = Path(f"{c.model.name}_{sc.name}.py")
     else:
         c = compile_model(parse_file(model), prog, strict_causality=strict_causality)
+    if target == "c":
+        from . import backends, cache as cache_mod, cbuild
+
+        if output is None:
+            raise ModelError(None, "--target c writes a folder: give it with -o OUTDIR")
+        cbuild.identity()  # a clear message without a compiler
+        path = backends.write_c(c, output, None if no_cache else cache_mod.Cache(), prog)
+        prog(f"wrote {output}/ (C sources, {path.name}, {cbuild.LIB_NAME}): "
+             f"{len(c.equations.states)} states, {len(c.equations.jacobian)} Jacobian entries")
+        return
     if output is None:
         output = _default_output(Path(model), c.model.name)
     ins = _model_inputs(model, scene, sc.model_path if scene else None)
@@ -292,14 +318,21 @@ def graph_cmd(model, output):
               help="override the scene's solver method (Rodas4: the generated module's own)")
 @click.option("--rtol", type=float, default=None,
               help="relative tolerance, finite, within the limit of tolerances (1e-14..1)")
+@click.option("--atol", type=POSITIVE, default=None,
+              help="absolute tolerance (default: the scene's solver atol)")
 @click.option("--max-wall", type=POSITIVE, default=None,
               help="stop with an error once the integration has taken this many seconds")
+@click.option("--backend", type=click.Choice(("numpy", "c")), default=None,
+              help="numpy module, or C (the step loop in a compiled library); default: the "
+                   "scene's solver backend, else numpy")
+@click.option("--no-cache", is_flag=True, help="compile afresh, without the compile cache")
 @click.option("--strict-causality", is_flag=True,
               help="refuse derivative causality (every storage element independent) instead of "
                    "eliminating the dependent storage elements")
 @click.option("-q", "--quiet", is_flag=True)
-def simulate_cmd(scene, out, plot_dir, method, rtol, max_wall, strict_causality, quiet):
-    """Compile the scene's model and simulate the scene."""
+def simulate_cmd(scene, out, plot_dir, method, rtol, atol, max_wall, backend, no_cache,
+                 strict_causality, quiet):
+    """Compile the scene's model (or take it from the compile cache) and simulate the scene."""
     from .outfiles import check_folder, check_output, write_output
     from .runner import run_scene
     from .scene import check_rtol, parse_scene
@@ -313,6 +346,7 @@ def simulate_cmd(scene, out, plot_dir, method, rtol, max_wall, strict_causality,
     if plot_dir is not None:
         check_folder(plot_dir, "--plot")
     res = run_scene(sc, progress=prog, method=method, rtol=rtol, max_wall=max_wall,
+                    atol=atol, backend=backend, use_cache=not no_cache,
                     strict_causality=strict_causality)
     ins = _model_inputs(scene, sc.model_path)
     figures = None
@@ -331,7 +365,8 @@ def simulate_cmd(scene, out, plot_dir, method, rtol, max_wall, strict_causality,
             prog(f"wrote {p}")
     st = res.stats
     click.echo(f"{res.scene.name}: t = {res.t[0]:g}..{res.t[-1]:g} s, {len(res.t)} points, "
-               f"{res.method} rtol={res.rtol:g}: {st['nfev']} rhs calls, {st['njev']} Jacobians, "
+               f"{res.method} rtol={res.rtol:g} atol={res.atol:g} ({res.backend} backend): "
+               f"{st['nfev']} rhs calls, {st['njev']} Jacobians, "
                f"{st.get('nlu', 0)} LU; compile {res.compile_time:.2f} s, "
                f"integrate {res.run_time:.2f} s")
 
@@ -553,15 +588,39 @@ def _example_files() -> dict:
         if (docs / name).is_file():
             out[f"docs/{name}"] = docs / name
     return out
+@main.group("cache")
+def cache_cmd():
+    """The compile cache ($BGC_CACHE_DIR, else ~/.cache/bgc)."""
+
+
+@cache_cmd.command("info")
+def cache_info_cmd():
+    """Where the cache is, how many entries per target, how many bytes."""
+    from .cache import Cache
+
+    info = Cache().info()
+    ents = ", ".join(f"{k} {v}" for k, v in info["entries"].items()) or "empty"
+    click.echo(f"{info['path']}: {ents}; {info['bytes'] / 1e6:.1f} MB")
+
+
+@cache_cmd.command("clear")
+def cache_clear_cmd():
+    """Remove every cache entry."""
+    from .cache import Cache
+
+    c = Cache()
+    n = c.clear()
+    click.echo(f"{c.path}: removed {n} entries")
 
 
 def _register_accuracy():
+    """`bgc accuracy` lives in a heavy module: registered only when asked for (warm runs of
+    other commands never import it)."""
     from .accuracy import register
 
     register(main)
+    main.commands["accuracy"].epilog = f"\b\nExample:\n  {_EXAMPLES['accuracy']}\n\n{_DOCS}"
 
-
-_register_accuracy()
 
 _DOCS = "Docs: docs/model-format.md (the format), docs/api.md (Python), README.md."
 _EXAMPLES = {

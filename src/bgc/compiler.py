@@ -9,6 +9,7 @@ from .emit import render
 from .equations import Equations, derive
 from .errors import ModelError
 from .graph import BondGraph, build_graph
+from .lower import lower
 from .parse import Model, parse_file
 from .specialize import (Plan, known_effects, recausal, remove_effects, select_outputs,
                          slice_outputs, state_owners, states_note)
@@ -22,6 +23,7 @@ class Compiled:
     equations: Equations
     source: str  # the generated module's text
     notes: tuple[str, ...] = ()  # what specialisation removed and why (also in the header)
+    lowered: object = None  # bgc.lower.Lowered: the backend-neutral functions (C printer too)
 
 
 def analyse(model: Model, progress=None, allow_derivative: bool = False
@@ -92,11 +94,12 @@ def compile_model(model: Model, progress=None, plan: Plan | None = None,
         notes.append(states_note(full_states, {sv.name for sv in eqs.states}, rem))
     if notes:
         notes.insert(0, f"specialised for scene {plan.scene!r}")
+    low = lower(eqs, progress)
     text = render(eqs, source=Path(model.file).name, source_hash=model.source_hash,
                   description=model.description, header_notes=tuple(notes), progress=progress,
                   output_units={o.name: o.unit for o in model.body.outputs},
-                  input_units={i.name: i.unit for i in model.inputs})
-    return Compiled(model, graph, caus, eqs, text, tuple(notes))
+                  input_units={i.name: i.unit for i in model.inputs}, lowered=low)
+    return Compiled(model, graph, caus, eqs, text, tuple(notes), low)
 
 
 def _short(v) -> str:

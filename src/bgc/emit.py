@@ -1,35 +1,29 @@
-"""Stage 5: equations -> one standalone numpy module, through the jinja2 templates.
+"""Stage 5b: the lowered equations (:mod:`bgc.lower`) -> one standalone numpy module, through
+the jinja2 templates.
 
 The expression printer is sympy's ``NumPyPrinter`` (strict: an unknown function is an error,
 never silently printed) with a few overrides for speed and readability; the generated import
-block lists what the printer actually used. Each function computes only what its results need:
-the assignments are pruned backwards from the results, common subexpressions are eliminated,
-and the definitions are scheduled in causal order.
+block lists what the printer actually used. Pruning, CSE and scheduling happen before, in the
+backend-neutral lowering that the C printer (:mod:`bgc.emit_c`) shares.
 """
 from __future__ import annotations
 
 import ast
-import functools
-import itertools
 import keyword
-import re
 from dataclasses import dataclass
-from importlib import resources
-from pathlib import Path
 
 import jinja2
-import networkx as nx
 import sympy as sp
 from sympy.printing.numpy import NumPyPrinter
 
-from . import __version__, fastsym
-from .equations import Assignment, Equations, T, linear_parts, schedule
+from . import __version__, lower
+from .equations import Equations, T, linear_parts
+from .paths import templates_dir
+from .skeleton import (ALLOWED_IMPORTS, SkeletonError, check_skeleton,  # noqa: F401 (re-exported)
+                       runtime_source)
 
 _IDENT_OK = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_")
 _TEMPLATES = "numpy"  # this backend's folder in templates/
-_RUNTIME_MARK = "# ==== bgc numpy runtime: copied below this line ====\n"
-# Modules the generated code may import (numpy always; the printer may ask for these).
-ALLOWED_IMPORTS = frozenset({"numpy", "scipy", "scipy.special", "math"})
 
 
 # ---------------------------------------------------------------------------------------------
@@ -217,94 +211,17 @@ class Function:
     ops: int  # operation count after CSE
 
 
-def _prune(results: list, assigns: list[Assignment]) -> list[Assignment]:
-    need = set()
-    for r in results:
-        need |= r.free_symbols
-    keep = []
-    for a in reversed(assigns):
-        if a.symbol in need:
-            keep.append(a)
-            need |= a.expr.free_symbols
-    keep.reverse()
-    return keep
+def printed(fn: lower.Function, printer) -> Function:
+    """One lowered function with its expressions printed (lines first, then results)."""
+    lines = tuple(Line(str(ln.target), printer.doprint(ln.expr), ln.comment) for ln in fn.lines)
+    results = tuple((k, printer.doprint(r)) for k, r in fn.results)
+    return Function(fn.params, fn.inputs, fn.states, lines, results, fn.ops)
 
 
-def _function(eq: Equations, printer: BgcPrinter, results: list, assigns: list[Assignment],
-              keys: list, cse: bool = True) -> Function:
-    """Prune, CSE and schedule one generated function's body."""
-    assigns = _prune(results, assigns)
-    exprs = [a.expr for a in assigns] + list(results)
-    if cse and exprs:
-        names = (sp.Symbol(f"_c{i}", real=True) for i in itertools.count())
-        fast = fastsym.cse(exprs, lambda: next(names))  # symengine, when it can read them all
-        if fast is not None:
-            repl, reduced = fast
-        else:
-            repl, reduced = sp.cse(exprs, symbols=names, order="none", list=True)
-    else:
-        repl, reduced = [], exprs
-    defs = [(s, e, "") for s, e in repl]
-    defs += [(a.symbol, r, a.why) for a, r in zip(assigns, reduced[:len(assigns)])]
-    res = reduced[len(assigns):]
-    # schedule: cse temporaries just before their first use, assignments in causal order
-    g = nx.DiGraph()
-    index = {}
-    byname = {}
-    defined = {s for s, _, _ in defs}
-    for s, e, why in defs:
-        g.add_node(s)
-        byname[s] = (e, why)
-        for d in e.free_symbols:
-            if d in defined:
-                g.add_edge(d, s)
-    pos = {a.symbol: i for i, a in enumerate(assigns)}
-    first_use: dict = {}
-    for s, e, _ in defs:
-        if s in pos:
-            for d in e.free_symbols:
-                if d in defined:
-                    first_use[d] = min(first_use.get(d, 10 ** 9), pos[s])
-    for s, e, _ in reversed(defs[:len(repl)]):  # temporaries used by later temporaries
-        for d in e.free_symbols:
-            if d in defined and s in first_use:
-                first_use[d] = min(first_use.get(d, 10 ** 9), first_use[s])
-    for s, _, _ in defs:
-        if s in pos:
-            index[s] = 2 * pos[s] + 1
-        else:
-            index[s] = 2 * first_use.get(s, len(assigns)) if s in first_use else 2 * len(assigns)
-    order = schedule(g, index)
-    lines = []
-    for s in order:
-        e, why = byname[s]
-        lines.append(Line(str(s), printer.doprint(e), why))
-    results_code = []
-    for k, r in zip(keys, res):
-        results_code.append((k, printer.doprint(r)))
-    used = set()
-    for s, e, _ in defs:
-        used |= e.free_symbols
-    for r in res:
-        used |= r.free_symbols
-    pnames = tuple(str(s) for pv in eq.params for s in pv.symbols if s in used)
-    pnames += tuple(str(a.symbol) for a in eq.derived if a.symbol in used)
-    inames = tuple(str(s) for iv in eq.inputs for s in iv.symbols if s in used)
-    snames = tuple(str(sv.symbol) if sv.symbol in used else "_" for sv in eq.states)
-    ops = _count_ops([e for _, e, _ in defs] + list(res))
-    return Function(pnames, inames, snames, tuple(lines), tuple(results_code), ops)
-
-
-def _count_ops(exprs) -> int:
-    """Arithmetic operations and function calls, counted on the expression trees (cheap)."""
-    n = 0
-    for e in exprs:
-        for node in sp.preorder_traversal(e):
-            if node.is_Add or node.is_Mul:
-                n += len(node.args) - 1
-            elif node.is_Pow or node.is_Function or isinstance(node, sp.Piecewise):
-                n += 1
-    return n
+def _function(eq: Equations, printer, results: list, assigns: list, keys: list,
+              cse: bool = True) -> Function:
+    """Lower (prune, CSE, schedule: :mod:`bgc.lower`) and print one generated function."""
+    return printed(lower.lower_function(eq, results, assigns, keys, cse), printer)
 
 
 def _pyrepr(v) -> str:
@@ -317,23 +234,16 @@ def _pyrepr(v) -> str:
 
 def render(eq: Equations, *, source: str, source_hash: str, description: str = "",
            header_notes: tuple[str, ...] = (), progress=None,
-           output_units: dict | None = None, input_units: dict | None = None) -> str:
+           output_units: dict | None = None, input_units: dict | None = None,
+           lowered=None) -> str:
+    """The numpy module's text; ``lowered`` (the model's :func:`bgc.lower.lower`) is made
+    here unless given, so that several backends can share one lowering."""
     printer = BgcPrinter()
     n = len(eq.states)
     say = progress or (lambda msg: None)
-    say("emitting rhs")
-    rhs = _function(eq, printer, list(eq.derivatives), list(eq.assignments), list(range(n)))
-    say("emitting jacobian")
-    jkeys = sorted(eq.jacobian)
-    jac = _function(eq, printer, [eq.jacobian[k] for k in jkeys],
-                    list(eq.assignments) + list(eq.jac_assignments), jkeys)
-    say("emitting outputs")
-    oexprs, okeys = [], []
-    for name, shp, vals in eq.outputs:
-        for k, v in enumerate(vals):
-            oexprs.append(v)
-            okeys.append((name, k))
-    outs = _function(eq, printer, oexprs, list(eq.assignments), okeys)
+    low = lowered if lowered is not None else lower.lower(eq, progress)
+    rhs, jac, outs = (printed(f, printer) for f in (low.rhs, low.jac, low.outs))
+    jkeys = list(low.jac_keys)
     say("emitting the linearisation's B, C, D")
     lp = linear_parts(eq)
     bkeys = sorted(lp.B)
@@ -342,8 +252,7 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
     ykeys = [("C",) + k for k in sorted(lp.C)] + [("D",) + k for k in sorted(lp.D)]
     yjac = _function(eq, printer, [lp.C[k] for k in sorted(lp.C)] + [lp.D[k] for k in sorted(lp.D)],
                      list(eq.assignments) + list(lp.CD_assignments), ykeys)
-    init = _function(eq, printer, [sv.initial for sv in eq.states], [], list(range(n)),
-                     cse=False)
+    init = printed(low.init, printer)
     newton = []
     for nl in eq.newton:  # nonlinear algebraic loops: a Newton solver each
         newton.append({
@@ -412,99 +321,5 @@ def _identifiers(eq: Equations):
         yield str(a.symbol)
 
 
-def templates_dir() -> Path:
-    """templates/ of the source tree, else the installed package's copy (bgc.templates)."""
-    here = Path(__file__).resolve().parent
-    repo_templates = here.parent.parent / "templates"
-    if (repo_templates / _TEMPLATES / "module.py.j2").is_file():
-        return repo_templates
-    return Path(str(resources.files("bgc.templates")))
-
-
 def _loader():
     return jinja2.FileSystemLoader(str(templates_dir()))
-
-
-@functools.lru_cache(maxsize=None)
-def runtime_source(backend: str = _TEMPLATES) -> str:
-    """The part of templates/<backend>/runtime.py copied into every generated module."""
-    text = (templates_dir() / backend / "runtime.py").read_text(encoding="utf-8")
-    head, sep, body = text.partition(_RUNTIME_MARK)
-    if not sep:
-        raise AssertionError(f"runtime.py has no marker line {_RUNTIME_MARK!r}")
-    return body.strip("\n")
-
-
-# ---------------------------------------------------------------------------------------------
-# The skeleton check: after rendering, the module's top-level statements must be exactly the
-# template's. Model text can only ever appear inside literals; if escaping were ever wrong, a
-# stray statement would show here and nothing would be written.
-
-#: Names the model part of the template binds at top level, with the statement kind.
-_MODEL_TOP = {
-    "Assign": {"BGC_VERSION", "MODEL_HASH", "N_STATES", "STATE_NAMES", "STATE_OWNERS",
-               "PARAM_DEFAULTS",
-               "PARAM_UNITS", "_PARAM_NDIM", "INPUT_NAMES", "OUTPUT_NAMES", "OUTPUT_SHAPES",
-               "JAC_SPARSITY", "_P0", "X0", "INPUT_LABELS", "OUTPUT_LABELS", "_TABLES",
-               "TABLE_BREAKPOINTS", "TABLE_MAX_STEP", "OUTPUT_UNITS", "INPUT_UNITS",
-               "_NEWTON_WARM"},
-    "FunctionDef": {"_unpack", "_params", "_inputs", "initial_state", "rhs", "jacobian",
-                    "outputs", "input_jacobian", "output_jacobian", "_bgc_linsolve"},
-    "ClassDef": {"_Unpacked"},
-}
-
-
-class SkeletonError(AssertionError):
-    """The rendered module's top level is not the template's (a bug, never written out)."""
-
-
-def _top_names(node) -> tuple[str, set]:
-    kind = type(node).__name__
-    if isinstance(node, (ast.FunctionDef, ast.ClassDef)):
-        return kind, {node.name}
-    if isinstance(node, ast.Assign):
-        names = set()
-        for tgt in node.targets:
-            base = tgt.value if isinstance(tgt, ast.Subscript) else tgt
-            if not isinstance(base, ast.Name):
-                return kind, {"<complex target>"}
-            names.add(base.id)
-        return kind, names
-    return kind, set()
-
-
-def check_skeleton(text: str, backend: str = _TEMPLATES) -> None:
-    """Parse the generated module and check its top-level statements: a docstring, the
-    imports the printer may ask for, the model part's own definitions (each name once at most,
-    except JAC_SPARSITY's pattern assignment) and then, statement for statement, the runtime."""
-    runtime = runtime_source(backend)
-    if not text.endswith("\n\n\n" + runtime + "\n"):  # the runtime, verbatim, at the end
-        raise SkeletonError(f"the runtime part differs from templates/{backend}/runtime.py")
-    try:  # the model part must parse on its own: nothing in it can reach into the runtime
-        head = ast.parse(text[:-len(runtime) - 1]).body
-    except SyntaxError as exc:
-        raise SkeletonError(f"generated module does not parse: {exc}") from None
-    if not head:
-        raise SkeletonError("the generated module has no model part")
-    doc = head[0]
-    if not (isinstance(doc, ast.Expr) and isinstance(doc.value, ast.Constant)
-            and isinstance(doc.value.value, str)):
-        raise SkeletonError("the module does not start with its docstring")
-    seen: dict[str, int] = {}
-    for node in head[1:]:
-        if isinstance(node, ast.Import):
-            for a in node.names:
-                if a.name not in ALLOWED_IMPORTS or a.asname not in (None, "np"):
-                    raise SkeletonError(f"unexpected import {a.name!r}")
-            continue
-        kind, names = _top_names(node)
-        allowed = _MODEL_TOP.get(kind, set())
-        if kind == "FunctionDef":  # one Newton solver per nonlinear algebraic loop
-            allowed = allowed | {n for n in names if re.fullmatch(r"_newton_[0-9]+", n)}
-        if not names or not names <= allowed:
-            raise SkeletonError(f"unexpected top-level {kind} {sorted(names)} at line "
-                                f"{getattr(node, 'lineno', '?')}")
-        for nm in names:
-            seen[nm] = seen.get(nm, 0) + 1
-            if seen[nm] > (2 if nm == "JAC_SPARSITY" else 1):
-                raise SkeletonError(f"{nm} bound twice at top level")

@@ -9,15 +9,28 @@ so name resolution (parameters, states, bond variables) stays with the stage tha
 from __future__ import annotations
 
 import ast
+import functools
 import math
 import warnings
 from dataclasses import dataclass
 from typing import Callable, Protocol
 
-import sympy as sp
-
 from .errors import Coord, ModelError
 from .limits import LIMITS
+
+
+class _LazySympy:
+    """sympy, imported on first use: parsing and checking a model or scene needs no sympy, so a
+    warm `bgc simulate` (the module from the compile cache) never imports it."""
+
+    def __getattr__(self, name):
+        import sympy
+
+        globals()["sp"] = sympy
+        return getattr(sympy, name)
+
+
+sp = _LazySympy()
 
 #: Functions an expression may call, with their number of arguments (None: any, at least one).
 FUNCTIONS: dict[str, tuple[int, int | None]] = {
@@ -30,7 +43,19 @@ FUNCTIONS: dict[str, tuple[int, int | None]] = {
 }
 #: Functions whose argument names a bond, element or junction rather than a value.
 BOND_FUNCTIONS = ("e", "f", "p", "q", "power")
-CONSTANTS = {"pi": sp.pi}
+class _Constants:
+    """Named constants: the names are known without sympy, the values built on use."""
+
+    def __contains__(self, name):
+        return name == "pi"
+
+    def __getitem__(self, name):
+        if name != "pi":
+            raise KeyError(name)
+        return sp.pi
+
+
+CONSTANTS = _Constants()
 
 #: Deepest nesting of an expression tree (a guard against stack exhaustion in later stages).
 MAX_DEPTH = LIMITS.expr_depth
@@ -284,12 +309,11 @@ def build(expr: Expr, resolver: Resolver):
         raise ModelError(expr.coord, "expression is nested too deeply") from None
 
 
-_NONFINITE = (sp.zoo, sp.oo, -sp.oo, sp.nan)
 
 
 def _finite(v) -> bool:
     items = v if isinstance(v, sp.MatrixBase) else (v,)
-    return not any(isinstance(x, sp.Basic) and x.has(*_NONFINITE) for x in items)
+    return not any(isinstance(x, sp.Basic) and x.has(sp.zoo, sp.oo, -sp.oo, sp.nan) for x in items)
 
 
 def _too_big(v) -> bool:
@@ -332,14 +356,19 @@ def _pow(a: float, b: float) -> float:
         raise _NumError("overflow") from None
 
 
-_MATH1 = {
-    sp.exp: math.exp, sp.log: math.log, sp.sin: math.sin, sp.cos: math.cos, sp.tan: math.tan,
-    sp.asin: math.asin, sp.acos: math.acos, sp.atan: math.atan, sp.sinh: math.sinh,
-    sp.cosh: math.cosh, sp.tanh: math.tanh, sp.Abs: abs,
-    sp.sign: lambda a: (a > 0) - (a < 0),
-}
-_RELATIONS = {sp.StrictLessThan: lambda a, b: a < b, sp.LessThan: lambda a, b: a <= b,
-              sp.StrictGreaterThan: lambda a, b: a > b, sp.GreaterThan: lambda a, b: a >= b}
+@functools.lru_cache(maxsize=None)
+def _tables():
+    """sympy function -> its double-precision evaluation, and sympy relations -> operators
+    (built on first use: importing this module must not import sympy, see __getattr__)."""
+    math1 = {
+        sp.exp: math.exp, sp.log: math.log, sp.sin: math.sin, sp.cos: math.cos,
+        sp.tan: math.tan, sp.asin: math.asin, sp.acos: math.acos, sp.atan: math.atan,
+        sp.sinh: math.sinh, sp.cosh: math.cosh, sp.tanh: math.tanh, sp.Abs: abs,
+        sp.sign: lambda a: (a > 0) - (a < 0),
+    }
+    relations = {sp.StrictLessThan: lambda a, b: a < b, sp.LessThan: lambda a, b: a <= b,
+                 sp.StrictGreaterThan: lambda a, b: a > b, sp.GreaterThan: lambda a, b: a >= b}
+    return math1, relations
 
 
 def numeric(v, memo: dict | None = None):
@@ -380,7 +409,7 @@ def _num1(v, memo):  # noqa: C901 - one case per sympy class
     if isinstance(v, (sp.Float, sp.NumberSymbol)):
         return float(v)
     if isinstance(v, (sp.Add, sp.Mul, sp.Pow, sp.Min, sp.Max, sp.atan2, sp.Heaviside)) or (
-            v.func in _MATH1):
+            v.func in _tables()[0]):
         args = [_num(a, memo) for a in v.args]
         if any(a is None for a in args):
             return None
@@ -404,7 +433,7 @@ def _num1(v, memo):  # noqa: C901 - one case per sympy class
                 return 1.0 if args[0] > 0 else 0.0 if args[0] < 0 else args[1]
             if v.func in (sp.log,) and args[0] <= 0:
                 raise _NumError("complex" if args[0] < 0 else "undefined")
-            return _MATH1[v.func](*args)
+            return _tables()[0][v.func](*args)
         except OverflowError:
             raise _NumError("overflow") from None
         except ValueError:  # math domain error: asin(2), acos(-3)
@@ -415,12 +444,12 @@ def _num1(v, memo):  # noqa: C901 - one case per sympy class
         for val, cond in v.args:
             if cond is sp.true:
                 return _num(val, memo)
-            if type(cond) not in _RELATIONS:
+            if type(cond) not in _tables()[1]:
                 return None
             a, b = _num(cond.lhs, memo), _num(cond.rhs, memo)
             if a is None or b is None:
                 return None
-            if _RELATIONS[type(cond)](a, b):
+            if _tables()[1][type(cond)](a, b):
                 return _num(val, memo)
         raise _NumError("undefined")
     return None
@@ -637,7 +666,7 @@ class _Builder:
             return sp.Piecewise((a, c), (b, True))
         args = [self.visit(a) for a in node.args]
         shapes = [shape_of(a) for a in args]
-        fn = _FUNCS.get(name)
+        fn = _funcs().get(name)
         if fn is not None:  # elementwise scalar functions
             if name in ("atan2", "min", "max"):
                 if any(shapes):
@@ -701,12 +730,19 @@ class _Builder:
         raise self.err(node, f"unknown function {name!r}")
 
 
-_FUNCS: dict[str, Callable] = {
-    "sin": sp.sin, "cos": sp.cos, "tan": sp.tan, "asin": sp.asin, "acos": sp.acos,
-    "atan": sp.atan, "atan2": sp.atan2, "sinh": sp.sinh, "cosh": sp.cosh, "tanh": sp.tanh,
-    "exp": sp.exp, "log": sp.log, "sqrt": sp.sqrt, "abs": sp.Abs, "sign": sp.sign,
-    "min": sp.Min, "max": sp.Max, "heaviside": lambda a: sp.Heaviside(a, 1),
-}
+_FUNCS: dict[str, Callable] = {}
+
+
+def _funcs() -> dict[str, Callable]:
+    """The functions' sympy meanings (built on first use: sympy is imported lazily)."""
+    if not _FUNCS:
+        _FUNCS.update({
+            "sin": sp.sin, "cos": sp.cos, "tan": sp.tan, "asin": sp.asin, "acos": sp.acos,
+            "atan": sp.atan, "atan2": sp.atan2, "sinh": sp.sinh, "cosh": sp.cosh,
+            "tanh": sp.tanh, "exp": sp.exp, "log": sp.log, "sqrt": sp.sqrt, "abs": sp.Abs,
+            "sign": sp.sign, "min": sp.Min, "max": sp.Max,
+            "heaviside": lambda a: sp.Heaviside(a, 1)})
+    return _FUNCS
 
 
 def _fmt(shape: tuple[int, ...]) -> str:

@@ -25,6 +25,7 @@ from .safeio import read_text_bounded
 
 METHODS = ("Radau", "BDF", "LSODA", "RK45", "RK23", "DOP853", "Rodas4")
 PLOT_KINDS = ("time", "path3d", "loci")
+BACKENDS = ("numpy", "c")
 
 
 @dataclass(frozen=True)
@@ -62,6 +63,7 @@ class Scene:
     # initial states: None (the model's), "equilibrium", or {state or element: (value, Coord)}
     initial: object = None
     initial_coord: Coord | None = None
+    backend: str = "numpy"  # solver.backend: numpy, or c (the C step loop)
 
 
 def parse_scene(path: str | Path) -> Scene:
@@ -143,9 +145,16 @@ def parse_scene(path: str | Path) -> Scene:
                                                          "(leave the key out for all of them)")
         outputs = tuple(output_coords)
     method, rtol, atol, dt, max_step = "Radau", 1e-6, 1e-9, None, float("inf")
+    backend = "numpy"
     if "solver" in top:
         sm = r.mapping(top["solver"][1], "solver")
-        _require(r, sm, top["solver"][1], ("method", "rtol", "atol", "dt", "max_step"), "solver")
+        _require(r, sm, top["solver"][1], ("method", "rtol", "atol", "dt", "max_step", "backend"),
+                 "solver")
+        if "backend" in sm:
+            backend = r.string(sm["backend"][1], "backend")
+            if backend not in BACKENDS:
+                raise ModelError(r.coord(sm["backend"][1]), f"unknown backend {backend!r} "
+                                                            f"(one of {', '.join(BACKENDS)})")
         if "method" in sm:
             method = r.string(sm["method"][1], "method")
             if method not in METHODS:
@@ -227,7 +236,8 @@ def parse_scene(path: str | Path) -> Scene:
     return Scene(path, name, model_path, (t0, t1), params, inputs, outputs, method, rtol, atol,
                  dt, max_step, bps, tuple(plots), effects, desc, r.coord(root),
                  hashlib.sha256(text.encode()).hexdigest()[:16], free, output_coords,
-                 r.coord(top["model"][1]), initial, initial_coord)
+                 r.coord(top["model"][1]), initial, initial_coord,
+                 backend)
 
 
 def _initial(r: _Reader, node):
@@ -367,16 +377,17 @@ def free_values(scene: Scene) -> dict:
     return {k: v for k, v in param_values(scene).items() if k in scene.free}
 
 
-def load_module(source: str, name: str):
+def load_module(source: str, name: str, check=None, code=None):
     """Import generated source as a module, from memory: nothing is written to disk. The code
     is compiled under a recognisable file name (``<bgc NAME>``) registered with ``linecache``,
     so tracebacks and ``inspect`` still show the generated lines."""
-    from .emit import check_skeleton
-
-    check_skeleton(source)  # never execute a module whose top level is not the template's
+    if code is None:  # code: compiled from checked text (a trusted cache entry)
+        if check is None:
+            from .skeleton import check_skeleton as check
+        check(source)  # never execute a module whose top level is not the template's
     modname = f"bgc_generated_{name}"
     filename = f"<bgc {name}>"
-    loader = _SourceLoader(modname, filename, source)
+    loader = _SourceLoader(modname, filename, source, code)
     spec = importlib.util.spec_from_loader(modname, loader, origin=filename)
     mod = importlib.util.module_from_spec(spec)
     mod.__file__ = filename
@@ -394,14 +405,16 @@ class _SourceLoader(importlib.abc.Loader):
     """A loader for generated source held in memory (``get_source`` serves tracebacks,
     ``get_data`` the module's own text)."""
 
-    def __init__(self, modname: str, filename: str, source: str):
-        self.modname, self.filename, self.source = modname, filename, source
+    def __init__(self, modname: str, filename: str, source: str, code=None):
+        self.modname, self.filename, self.source, self.code = modname, filename, source, code
 
     def create_module(self, spec):
         return None
 
     def exec_module(self, module):
-        exec(compile(self.source, self.filename, "exec"), module.__dict__)
+        code = self.code if self.code is not None else compile(self.source, self.filename,
+                                                                 "exec")
+        exec(code, module.__dict__)
 
     def get_source(self, fullname):
         return self.source

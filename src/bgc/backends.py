@@ -1,0 +1,135 @@
+"""Backends: from a compiled model to a loaded module (numpy, or C through a shared library),
+through the compile cache.
+
+``load(...)`` is what `bgc simulate` uses: on a cache hit it reads the entry and imports the
+module without importing sympy or the compiler; on a miss it compiles (the caller's
+``compile_fn``), writes the entry atomically and loads it.
+"""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+BACKENDS = ("numpy", "c")
+MODULE_FILE = "module.py"
+CODE_FILE = "module.code"
+
+
+def c_files(compiled) -> tuple[dict, str]:
+    """(C sources by file name, wrapper text) of a compiled model."""
+    from .cbuild import LIB_NAME
+    from .emit_c import render_c, render_wrapper
+
+    m = compiled.model
+    csrc = render_c(compiled.lowered, source=Path(m.file).name, source_hash=m.source_hash,
+                    description=m.description, header_notes=compiled.notes)
+    wrapper = render_wrapper(compiled.lowered, compiled.source, csrc, LIB_NAME)
+    return dict(csrc.files), wrapper
+
+
+def write_c(compiled, outdir, cache=None, progress=None) -> Path:
+    """Write the C sources, the runtime's sources, the wrapper (``<name>.py``) and the built
+    library into outdir; returns the wrapper's path."""
+    from . import cbuild
+    from .compiler import write_atomic
+
+    say = progress or (lambda msg: None)
+    out = Path(outdir)
+    out.mkdir(parents=True, exist_ok=True)
+    files, wrapper = c_files(compiled)
+    for name, text in files.items():
+        write_atomic(out / name, text)
+    rt = out / "runtime"
+    rt.mkdir(exist_ok=True)
+    for f in cbuild.runtime_sources() + cbuild.runtime_headers():
+        shutil.copyfile(f, rt / f.name)
+    say(f"building the C library ({len(files)} model units)")
+    cbuild.build_library(out, sorted(files), cache=cache)
+    path = out / f"{compiled.model.name}.py"
+    write_atomic(path, wrapper)
+    return path
+
+
+def _code_file(tmp: Path, text: str, name: str) -> None:
+    """The module's compiled code beside its text: a warm load skips parsing and compiling
+    (the cache key includes the Python version; the text was checked when written)."""
+    import marshal
+
+    (tmp / CODE_FILE).write_bytes(marshal.dumps(compile(text, f"<bgc {name}>", "exec")))
+
+
+def _build_entry(compiled, backend, cache, progress, name):
+    def build(tmp: Path):
+        from .compiler import write_atomic
+
+        if backend == "numpy":
+            write_atomic(tmp / MODULE_FILE, compiled.source)
+            _code_file(tmp, compiled.source, name)
+            return
+        from . import cbuild
+
+        files, wrapper = c_files(compiled)
+        for fname, text in files.items():
+            write_atomic(tmp / fname, text)
+        (progress or (lambda m: None))(f"building the C library ({len(files)} model units)")
+        cbuild.build_library(tmp, sorted(files), cache=cache)
+        write_atomic(tmp / MODULE_FILE, wrapper)
+        _code_file(tmp, wrapper, name)
+    return build
+
+
+def load_entry(entry: Path, backend: str, name: str, trusted: bool = False):
+    """Import the module of a cache entry (or a folder holding module.py). ``trusted``: the
+    entry is in a checked cache directory and was checked when written; its compiled code
+    (module.code) is used as it is."""
+    from .scene import load_module
+
+    entry = Path(entry)
+    text = (entry / MODULE_FILE).read_text(encoding="utf-8")
+    code = None
+    if trusted and (entry / CODE_FILE).is_file():
+        import marshal
+
+        try:
+            code = marshal.loads((entry / CODE_FILE).read_bytes())
+        except (ValueError, EOFError, TypeError):
+            code = None
+    if backend == "numpy":
+        return load_module(text, name, code=code)
+    from .cbuild import LIB_NAME
+    from .skeleton import check_wrapper
+
+    mod = load_module(text, name, check=check_wrapper, code=code)
+    mod._bind(Path(entry) / LIB_NAME)
+    return mod
+
+
+def load(name: str, backend: str, key: str | None, compile_fn, cache=None, progress=None):
+    """(compiled or None, module): from the cache when key hits, else compiled now.
+
+    compile_fn() -> Compiled. cache: a bgc.cache.Cache, or None (no caching: the C library is
+    built in a temporary folder)."""
+    say = progress or (lambda msg: None)
+    if cache is not None and key is not None:
+        entry = cache.get(backend, key)
+        if entry is not None:
+            say(f"cache hit ({backend} {key[:12]})")
+            return None, load_entry(entry, backend, name, trusted=True)
+    compiled = compile_fn()
+    if backend == "numpy" and (cache is None or key is None):
+        from .scene import load_module
+
+        return compiled, load_module(compiled.source, name)
+    if cache is None or key is None:
+        import tempfile
+
+        d = Path(tempfile.mkdtemp(prefix="bgc-c-"))
+        try:
+            _build_entry(compiled, backend, None, progress, name)(d)
+            # loaded (the mapping outlives the file): nothing is left behind
+            return compiled, load_entry(d, backend, name)
+        finally:
+            shutil.rmtree(d, ignore_errors=True)
+    entry = cache.get_or_build(backend, key,
+                               _build_entry(compiled, backend, cache, progress, name))
+    return compiled, load_entry(entry, backend, name, trusted=True)

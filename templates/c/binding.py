@@ -1,0 +1,279 @@
+"""bgc's C binding: the part of every C-backend wrapper module that calls the shared library.
+
+A wrapper module is the numpy module of the same model (its constants, parameter handling and
+Python runtime), then the C part: a few constants and everything below the marker line of this
+file, copied verbatim. The functions defined here replace the numpy module's rhs, jacobian,
+outputs, initial_state and simulate by calls into the library (ctypes; no compiler needed at
+run time); the numpy versions stay available as _np_rhs, ... for input overrides (u=) and for
+scipy's methods, which the wrapper hands to the numpy runtime with the compiled rhs and
+Jacobian. The names the numpy part defines are declared here for readers and linters only.
+"""
+# flake8: noqa: F821
+from __future__ import annotations
+
+import numpy as np
+
+N_STATES: int
+STATE_NAMES: tuple
+OUTPUT_NAMES: tuple
+OUTPUT_SHAPES: dict
+JAC_SPARSITY: np.ndarray
+_PARAM_NDIM: dict
+C_LIBRARY: str
+C_DIGEST: str
+_C_NP = _C_NNZ = _C_NOUT = 0
+rhs = jacobian = outputs = initial_state = simulate = _params = _batched = None
+_output_times = _error = SimResult = SimulationError = None
+
+# ==== bgc C binding: copied below this line ====
+import ctypes as _ct
+import os as _os
+
+_np_rhs, _np_jacobian, _np_outputs, _np_initial_state, _np_simulate = (
+    rhs, jacobian, outputs, initial_state, simulate)
+C_METHODS = {"Rodas4": 0, "Radau": 1}  # the methods whose step loop runs in C
+_C_STATUS = {1: "non-finite value", 2: "too many steps", 3: "step size too small",
+             4: "wall time exceeded", 5: "singular iteration matrix", 6: "model failure",
+             7: "bad arguments"}
+_LIB = None
+_DP = _ct.c_void_p  # arrays are passed by address (ndarray.ctypes.data)
+_JAC_ROWS, _JAC_COLS = np.nonzero(JAC_SPARSITY)
+_OUT_SIZES = tuple(int(np.prod(OUTPUT_SHAPES[_o], dtype=int)) for _o in OUTPUT_NAMES)
+
+
+def _bind(path):
+    """Load the shared library at path (the one built from this module's C sources)."""
+    global _LIB
+    lib = _ct.CDLL(_os.fspath(path))
+    lib.bgcm_digest.restype = _ct.c_char_p
+    if lib.bgcm_digest().decode("ascii") != C_DIGEST:
+        raise ImportError(f"{path}: the library was built from other C sources than this "
+                          "module's (rebuild it with `bgc compile --target c`)")
+    ev = [_ct.c_int, _DP, _ct.c_int, _DP, _ct.c_int, _DP, _ct.c_int, _DP]
+    for fn in ("bgcm_eval_rhs", "bgcm_eval_jac", "bgcm_eval_outputs"):
+        getattr(lib, fn).argtypes, getattr(lib, fn).restype = ev, None
+    lib.bgcm_eval_init.argtypes, lib.bgcm_eval_init.restype = [_ct.c_int, _DP, _ct.c_int, _DP], None
+    lib.bgcm_info.argtypes = [_ct.POINTER(_ct.c_int)]
+    lib.bgcm_state_name.restype = _ct.c_char_p
+    lib.bgcm_simulate.restype = _ct.c_int
+    lib.bgcm_simulate.argtypes = [
+        _ct.c_int, _ct.c_double, _DP, _ct.c_int, _ct.c_double, _ct.c_double, _ct.c_long,
+        _ct.c_double, _DP, _ct.c_int, _DP, _ct.c_int, _ct.c_int, _DP, _DP, _ct.c_double,
+        _ct.c_double, _DP, _DP, _ct.c_char_p, _ct.c_int]
+    info = (_ct.c_int * 5)()
+    lib.bgcm_info(info)
+    if tuple(info[:4]) != (N_STATES, _C_NP, _C_NNZ, _C_NOUT):
+        raise ImportError(f"{path}: the library's sizes {tuple(info[:4])} are not the module's")
+    _LIB = lib
+    return lib
+
+
+def _lib():
+    if _LIB is None:
+        raise RuntimeError("the C library is not loaded: import the wrapper from the folder "
+                           f"that holds {C_LIBRARY}, or call _bind(path)")
+    return _LIB
+
+
+def _ptr(a):
+    return a.ctypes.data
+
+
+def _c_array(a, shape):
+    """a broadcast to shape, as a C-contiguous float64 array."""
+    return np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=float), shape))
+
+
+def _instances(t, x, p, extra=()):
+    """Flatten (t, x, p) over their broadcast batch shape B: (B, nb, T, st, X, sx, P, sp) with
+    strides 0 for a value shared by every instance."""
+    pv, bshape = _params(p)
+    x = np.asarray(x, dtype=float)
+    t = np.asarray(t, dtype=float)
+    B = np.broadcast_shapes(x.shape[1:], bshape, t.shape, extra)
+    nb = int(np.prod(B, dtype=int))
+    if t.ndim == 0:
+        T, st = np.array([float(t)]), 0
+    else:
+        T, st = _c_array(t, B).reshape(nb), 1
+    if x.ndim == 1:
+        X, sx = np.ascontiguousarray(x), 0
+    else:
+        X, sx = np.moveaxis(_c_array(x, (N_STATES,) + B).reshape(N_STATES, nb), 0, 1), N_STATES
+        X = np.ascontiguousarray(X)
+    if not bshape:
+        P, sp = _P_flat(pv), 0
+    else:
+        P = np.empty((nb, _C_NP))
+        for k, v in enumerate(pv):
+            P[:, k] = np.broadcast_to(np.asarray(v, dtype=float), B).reshape(nb)
+        sp = _C_NP
+    return B, nb, T, st, X, sx, P, sp
+
+
+def _P_flat(pv):
+    return np.array([float(v) for v in pv], dtype=float).reshape(max(_C_NP, 1))
+
+
+def _p_flat_cached(p):
+    """The flat parameter values of p (no batch), kept for the last p seen: the solvers call
+    rhs thousands of times with the same parameters."""
+    global _P_LAST
+    if _P_LAST is not None and _P_LAST[0] is p:
+        return _P_LAST[1]
+    pv, bshape = _params(p)
+    if bshape:
+        return None
+    flat = _P_flat(pv)
+    if p is None or type(p).__name__ == "_Unpacked":
+        _P_LAST = (p, flat)
+    return flat
+
+
+_P_LAST = None
+
+
+def rhs(t, x, p=None, u=None):
+    """dx/dt at time t, computed in C. x: (n,) or (n, *batch). Input overrides u run in the
+    numpy code (the C functions compute the scene's signals themselves)."""
+    if u is not None:
+        return _np_rhs(t, x, p, u)
+    if type(x) is np.ndarray and x.shape == (N_STATES,) and x.dtype == np.float64 and np.ndim(t) == 0:
+        P = _p_flat_cached(p)
+        if P is not None:  # one instance: the fast path
+            x = np.ascontiguousarray(x)
+            dx = np.empty(N_STATES)
+            _lib().bgcm_eval_rhs(1, _ptr(np.array([float(t)])), 0, _ptr(x), 0, _ptr(P), 0,
+                                 _ptr(dx))
+            return dx
+    B, nb, T, st, X, sx, P, sp = _instances(t, x, p)
+    DX = np.empty((nb, N_STATES))
+    _lib().bgcm_eval_rhs(nb, _ptr(T), st, _ptr(X), sx, _ptr(P), sp, _ptr(DX))
+    return np.moveaxis(DX, 0, 1).reshape((N_STATES,) + B) if B else DX[0]
+
+
+def jacobian(t, x, p=None, u=None):
+    """d(rhs)/dx, analytic, computed in C: (n, n, *batch)."""
+    if u is not None:
+        return _np_jacobian(t, x, p, u)
+    B, nb, T, st, X, sx, P, sp = _instances(t, x, p)
+    JV = np.empty((nb, max(_C_NNZ, 1)))
+    _lib().bgcm_eval_jac(nb, _ptr(T), st, _ptr(X), sx, _ptr(P), sp, _ptr(JV))
+    J = np.zeros((N_STATES, N_STATES, nb))
+    J[_JAC_ROWS, _JAC_COLS] = JV[:, :_C_NNZ].T
+    return J.reshape((N_STATES, N_STATES) + B)
+
+
+def outputs(t, x, p=None, u=None):
+    """The model's outputs, computed in C: name -> array of shape (*output_shape, *batch)."""
+    if u is not None:
+        return _np_outputs(t, x, p, u)
+    B, nb, T, st, X, sx, P, sp = _instances(t, x, p)
+    Y = np.empty((nb, max(_C_NOUT, 1)))
+    _lib().bgcm_eval_outputs(nb, _ptr(T), st, _ptr(X), sx, _ptr(P), sp, _ptr(Y))
+    out, k = {}, 0
+    for name, size in zip(OUTPUT_NAMES, _OUT_SIZES):
+        out[name] = np.moveaxis(Y[:, k:k + size], 0, 1).reshape(OUTPUT_SHAPES[name] + B)
+        k += size
+    return out
+
+
+def initial_state(p=None):
+    """The initial state x0 (n, *batch) from the parameters, computed in C."""
+    B, nb, T, st, X, sx, P, sp = _instances(0.0, np.zeros(N_STATES), p)
+    X0 = np.empty((nb, N_STATES))
+    _lib().bgcm_eval_init(nb, _ptr(P), sp, _ptr(X0))
+    return np.moveaxis(X0, 0, 1).reshape((N_STATES,) + B)
+
+
+def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, u=None,
+             x0=None, dt=None, breakpoints=(), jac=True, max_step=np.inf, max_steps=50_000,
+             stiff_check=True, max_wall=None, h0=0.0, nthreads=None):
+    """Integrate over t_span; returns SimResult (t, x, y) as the numpy module's simulate.
+
+    method "Rodas4" or "Radau" (Radau IIA of order 5): the whole step loop runs in C, one call
+    per run; a batch (parameters or x0 spanning a batch shape) integrates each instance with
+    its own step size, spread over nthreads threads (default: every CPU) when the library has
+    OpenMP. max_steps counts steps per instance. Other methods, input overrides u and
+    jac=False run in the numpy module's Python step loop (with the compiled rhs and Jacobian
+    where they apply). Without t_eval and dt the output times are 1001 uniform points
+    (the C loop writes output times only, not every step). Statistics in result.stats: nfev,
+    njev, nlu, nsteps (accepted steps), nrejected, nstiff, summed over a batch.
+    """
+    if method not in C_METHODS or u is not None or not jac:
+        return _np_simulate(t_span, t_eval=t_eval, method=method, rtol=rtol, atol=atol, p=p,
+                            u=u, x0=x0, dt=dt, breakpoints=breakpoints, jac=jac,
+                            max_step=max_step, max_steps=max_steps, stiff_check=stiff_check,
+                            max_wall=max_wall)
+    t0, t1 = float(t_span[0]), float(t_span[1])
+    if not t1 > t0:
+        raise ValueError("the C integrators run forward in time: give t_span with t1 > t0")
+    x0, batch = _batched(x0, p)
+    pv, bshape = _params(p)
+    nb = int(np.prod(batch, dtype=int))
+    X0 = np.ascontiguousarray(np.moveaxis(np.asarray(x0, dtype=float).reshape(N_STATES, nb), 0, 1))
+    P = np.empty((nb, max(_C_NP, 1)))
+    for k, v in enumerate(pv):
+        P[:, k] = np.broadcast_to(np.asarray(v, dtype=float), batch).reshape(nb)
+    times = _output_times(t0, t1, t_eval, dt)
+    if times is None:
+        times = np.linspace(t0, t1, 1001)
+    times = np.ascontiguousarray(times, dtype=float)
+    a = np.asarray(atol, dtype=float)
+    if a.ndim == 0:
+        A = np.array([float(a)])
+    elif a.shape == (N_STATES,):
+        A = np.ascontiguousarray(a)
+    else:
+        raise ValueError(f"atol: give a scalar or one value per state ({N_STATES}) for the C "
+                         "integrators")
+    bps = np.array(sorted({float(b) for b in breakpoints if t0 < float(b) < t1}) or [0.0])
+    nbps = len(bps) if any(t0 < float(b) < t1 for b in breakpoints) else 0
+    Y = np.empty((nb, len(times), N_STATES))
+    S = np.zeros((nb, 10))
+    msg = _ct.create_string_buffer(256)
+    wall = 0.0 if max_wall is None else float(max_wall)
+    ms = float(max_step) if np.isfinite(max_step) else 0.0
+    threads = int(nthreads or _os.cpu_count() or 1)
+    _lib().bgcm_simulate(C_METHODS[method], float(rtol), _ptr(A), len(A), float(h0), ms,
+                         int(max_steps), wall, _ptr(times), len(times), _ptr(bps), nbps, nb,
+                         _ptr(P), _ptr(X0), t0, t1, _ptr(Y), _ptr(S), msg, threads)
+    stats = {"nfev": int(S[:, 3].sum()), "njev": int(S[:, 4].sum()), "nlu": int(S[:, 5].sum()),
+             "nsteps": int(S[:, 1].sum()), "nrejected": int(S[:, 2].sum()), "nstiff": 0}
+    failed = np.nonzero(S[:, 6])[0]
+    if failed.size:
+        raise _error(SimulationError, _c_message(method, S, failed, msg.value, batch),
+                     float(S[failed[0], 7]), stats)
+    X = Y.transpose(2, 0, 1).reshape((N_STATES,) + batch + (len(times),))
+    pt = None if p is None else {
+        name: np.asarray(v)[..., None] if np.ndim(v) > _PARAM_NDIM[name] else v
+        for name, v in p.items()}
+    return SimResult(times, X, outputs(times, X, pt), stats)
+
+
+def _c_message(method, S, failed, raw, batch):
+    """The located diagnostic of the first failed instance: state name and time, as the numpy
+    module gives them."""
+    k = int(failed[0])
+    status, t, bad, where = int(S[k, 6]), float(S[k, 7]), int(S[k, 8]), int(S[k, 9])
+    inst = ""
+    if batch:
+        inst = f" (batch instance {np.unravel_index(k, batch)}, {failed.size} of {S.shape[0]} failed)"
+    if status == 1 and 0 <= bad < N_STATES:
+        what = "right-hand side" if where == 0 else "Jacobian row"
+        return (f"{method} failed at t = {t:.6g}: non-finite value in the {what} of state "
+                f"{STATE_NAMES[bad]!r}{inst}")
+    detail = raw.decode("utf-8", "replace") or _C_STATUS.get(status, f"status {status}")
+    return f"{method} failed at t = {t:.6g}: {detail}{inst}"
+
+
+def _autobind():
+    """Bind the library beside this module's file, when imported from a folder that holds it."""
+    here = globals().get("__file__")
+    if here and _os.path.isfile(here):
+        path = _os.path.join(_os.path.dirname(_os.path.abspath(here)), C_LIBRARY)
+        if _os.path.isfile(path):
+            _bind(path)
+
+
+_autobind()
