@@ -252,5 +252,14 @@ def _register_accuracy():
 _register_accuracy()
 
 
+def _register_sweep():
+    from .sweep import register
+
+    register(main)
+
+
+_register_sweep()
+
+
 if __name__ == "__main__":  # pragma: no cover
     main()

@@ -70,7 +70,8 @@ def parse_scene(path: str | Path) -> Scene:
         raise ModelError(Coord(path, 1, 1), "the scene file is empty")
     top = r.mapping(root, "the scene")
     allowed = ("bgc_scene", "name", "description", "model", "duration", "t_span", "parameters",
-               "inputs", "outputs", "solver", "breakpoints", "plots", "effects", "free")
+               "inputs", "outputs", "solver", "breakpoints", "plots", "effects", "free",
+               "sweep")  # sweep: read by bgc.sweep (bgc sweep); bgc simulate ignores it
     _require(r, top, root, allowed, "the scene", required=("bgc_scene", "model"))
     if r.scalar(top["bgc_scene"][1], "bgc_scene") != 1:
         raise ModelError(r.coord(top["bgc_scene"][1]), "unsupported scene format version")
