@@ -295,3 +295,34 @@ def test_cli_on_a_running_scheduler_with_initial_states_and_plots(tmp_path, clie
     p.write_text(p.read_text().replace("400.0", "500.0"))
     res = CliRunner().invoke(main, ["sweep", str(p), "--out", str(out), "--scheduler", addr])
     assert res.exit_code == 2 and "another sweep" in res.output and "Traceback" not in res.output
+
+
+# ---------------------------------------------------------------------------------------------
+# bgc accuracy on the same engine
+
+
+@pytest.mark.slow
+def test_accuracy_with_two_workers_gives_the_results_of_one(tmp_path, bgc_cli):
+    import csv
+
+    scene = str(MODELS / "scenes" / "pendulum_swing.yaml")
+    rows = {}
+    for w in (1, 2):
+        out = tmp_path / f"w{w}"
+        r = bgc_cli("accuracy", scene, "--out", str(out), "--methods", "RK45,Radau",
+                    "--tols", "1e-3:1e-5", "--jac-methods", "Radau", "--jac-tols", "1e-4",
+                    "--repeats", "1", "--t-end", "3", "--ref-rtol", "1e-10",
+                    "--workers", str(w), "-q")
+        assert r.returncode == 0, r.stderr[-2000:]
+        with open(out / "pendulum_swing_runs.csv") as f:
+            rows[w] = list(csv.DictReader(f))
+    assert len(rows[1]) == len(rows[2]) == 2 + 2 * 3 + 3  # refs, study grid, Jacobian modes
+    timing = {"wall_s", "walls_s", "n_repeats"}
+    for a, b in zip(rows[1], rows[2]):
+        assert a["status"] == "ok", a
+        # everything but the wall times is the same: counts exactly, errors to the digit
+        assert {k: v for k, v in a.items() if k not in timing} == \
+            {k: v for k, v in b.items() if k not in timing}
+    # and the study is a study: Radau's error falls as its tolerance tightens
+    radau = [float(r["err"]) for r in rows[2] if r["kind"] == "study" and r["method"] == "Radau"]
+    assert radau[0] > radau[1] > radau[2]
