@@ -21,8 +21,6 @@ from __future__ import annotations
 import ast
 import inspect
 
-import numpy as np
-
 
 def _jax():
     import jax
@@ -122,11 +120,9 @@ def jax_functions(mod, p=None, jit=True):
 
 def available() -> bool:
     """Is JAX importable here?"""
-    try:
-        import jax  # noqa: F401
-    except ImportError:
-        return False
-    return True
+    import importlib.util
+
+    return importlib.util.find_spec("jax") is not None
 
 
 __all__ = ["jax_functions", "available"]
