@@ -47,7 +47,10 @@ def main():
     ap.add_argument("--chunk", type=int, default=8)
     ap.add_argument("--serial", type=int, default=4, help="single runs in the serial loop")
     ap.add_argument("--write", action="store_true", help="write bench/RESULTS_sweep.md")
+    ap.add_argument("--accuracy", action="store_true",
+                    help="also: bgc accuracy on the pendulum, serially and on --workers")
     a = ap.parse_args()
+    acc = accuracy_walls(a.workers) if a.accuracy else ""
 
     t0 = time.perf_counter()
     prep = sweep.prepare(SCENE)
@@ -120,6 +123,7 @@ def main():
     print()
     print(table)
     print(notes)
+    print(acc)
     if a.write:
         cmd = "python bench/bench_sweep.py " + " ".join(sys.argv[1:])
         text = (
@@ -129,9 +133,41 @@ def main():
             f"Scene `models/scenes/3r2s_circle_sweep.yaml`: the 3R2S circle, {mod.N_STATES} "
             f"states, Radau rtol {prep.rtol:g}, {prep.t_span[1] - prep.t_span[0]:g} s; "
             f"{n} instances (m2 x m3 x k_r: 2 x 2 x 4).\n\n"
-            + table + "\n\n" + notes)
+            + table + "\n\n" + notes + acc)
         (ROOT / "bench" / "RESULTS_sweep.md").write_text(text, encoding="utf-8")
         print("wrote bench/RESULTS_sweep.md")
+
+
+def accuracy_walls(workers) -> str:
+    """Wall time of one work-precision study of the pendulum (4 methods x 6 tolerances, the
+    two references), run one after another here and as Dask tasks on `workers` processes."""
+    from bgc.accuracy import prepare as acc_prepare
+    from bgc.accuracy import study
+
+    setup = acc_prepare(ROOT / "models" / "scenes" / "pendulum_swing.yaml", t_end=10.0)
+    kw = dict(methods=("RK45", "DOP853", "Radau", "BDF"), tols=tuple(10.0 ** -k for k in
+                                                                    range(3, 9)),
+              budget=60.0, repeats=1, ref_rtol=1e-11, jac_methods=())
+    t1 = time.perf_counter()
+    s1 = study(setup, **kw)
+    serial = time.perf_counter() - t1
+    client = sweep.client_for("local", workers)
+    try:
+        t1 = time.perf_counter()
+        s2 = study(setup, client=client, **kw)
+        par = time.perf_counter() - t1
+    finally:
+        sweep.close_client(client)
+    same = all((r.status, r.nfev, r.njev, r.nsteps, r.err) == (q.status, q.nfev, q.njev,
+                                                                 q.nsteps, q.err)
+               for r, q in zip(s1.runs, s2.runs))
+    line = (f"\n`bgc accuracy` on the pendulum (t = 0..10 s; RK45, DOP853, Radau, BDF x rtol "
+            f"1e-3..1e-8; references at rtol 1e-11; one repeat; study() as --workers runs "
+            f"it): {serial:.1f} s one run after another, {par:.1f} s as Dask tasks on "
+            f"{workers} workers (cluster start-up not included): {serial / par:.2f}x; the "
+            f"runs' statuses, counts and errors {'identical' if same else 'DIFFER'}.\n")
+    print(line, flush=True)
+    return line
 
 
 if __name__ == "__main__":
