@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,8 +18,7 @@ pytest.importorskip("zarr")
 
 from bgc import sweep  # noqa: E402
 
-from conftest import MODELS  # noqa: E402
-
+MODELS = Path(__file__).resolve().parents[1] / "models"
 MSD = MODELS / "msd.yaml"
 
 
