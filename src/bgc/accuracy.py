@@ -320,11 +320,15 @@ class Run:
     final_err: float = math.nan
     final_err_state: str = ""
     kind: str = "study"  # study | jacobian | reference
+    solution: tuple | None = None  # (t, x, y) while the errors wait for the reference (Dask)
 
 
 def measure(setup: Setup, ref: Reference, method, rtol, atol=None, jac_mode="analytic",
             budget=60.0, repeats=3) -> Run:
-    """Median wall time of up to `repeats` solves within `budget` seconds, in a child."""
+    """Median wall time of up to `repeats` solves within `budget` seconds, in a child.
+
+    ref=None: the run does not wait for the reference; it keeps its solution (Run.solution)
+    and :func:`with_errors` adds the errors once the reference is there."""
     atol = rtol * setup.atol_scale if atol is None else atol
     jac_label = jac_mode if method in IMPLICIT else "none"
 
@@ -346,6 +350,9 @@ def measure(setup: Setup, ref: Reference, method, rtol, atol=None, jac_mode="ana
             if time.perf_counter() - start + walls[-1] > budget:
                 break
         res, st = out
+        if ref is None:
+            return walls, st, {"solution": (np.asarray(res.t), np.asarray(res.x), {
+                k: np.asarray(res.y[k]) for k in setup.outputs})}
         return walls, st, errors(setup, ref, res.t, res.x, res.y)
 
     def quiet_work():  # an explicit method blowing up on a stiff scene warns on every call
@@ -365,6 +372,19 @@ def measure(setup: Setup, ref: Reference, method, rtol, atol=None, jac_mode="ana
     if not type(val).__name__ == "SimulationError":
         msg = f"{type(val).__name__}: {msg}"
     return replace(run, status="failed", message=msg[:600])
+
+
+def with_errors(setup: Setup, ref: Reference, run: Run) -> Run:
+    """A run measured without the reference (measure(ref=None)), with its errors: the same
+    numbers errors() gives inside the run's child."""
+    if run.solution is None:
+        return run
+    try:
+        errs = errors(setup, ref, *run.solution)
+    except Exception as exc:  # noqa: BLE001 - as a failure inside the child is reported
+        return replace(run, solution=None, status="failed",
+                       message=f"{type(exc).__name__}: {exc}"[:600])
+    return replace(run, solution=None, **errs)
 
 
 @dataclass
@@ -494,7 +514,9 @@ def _line(r: Run) -> str:
 # a worker, which compiles its own module from the source text and still runs each solve in a
 # forked child with its budget (run_isolated). A method's tolerances run one after another,
 # loosest first, so that one over the budget still skips the tighter ones; methods, the
-# Jacobian comparison and the two references run side by side.
+# Jacobian comparison and the two references run side by side. The runs do not wait for the
+# reference: each keeps its solution, and its errors are computed here once the reference is
+# in (the same function on the same arrays as inside a child, so the same numbers).
 
 _WORKER_SETUPS: dict = {}
 
@@ -562,12 +584,10 @@ def _study_on(client, setup, methods, tols, budget, repeats, ref_rtol, ref_metho
             return None, val[2]
         return val, ""
 
-    say(f"references: {', '.join(ref_methods)} at rtol {ref_rtol:g}, atol {ref_atol:g} ...")
+    say(f"references: {', '.join(ref_methods)} at rtol {ref_rtol:g}, atol {ref_atol:g}; the "
+        "runs meanwhile (their errors once the reference is there) ...")
     rf = [client.submit(_task, "ref", fbare, (m, ref_rtol, ref_atol, ref_budget), pure=False)
           for m in ref_methods]
-    # the study's runs need the first reference; the second only checks it
-    r0, _ = ref_of(rf[0].result(), False)
-    fref = client.scatter(r0, broadcast=True)
     tols_sorted = sorted(tols, reverse=True)
     order = [(m, tol, "analytic", "study") for m in methods for tol in tols_sorted]
     order += [(m, tol, mode, "jacobian") for m in jac_methods for tol in jac_tols
@@ -576,7 +596,7 @@ def _study_on(client, setup, methods, tols, budget, repeats, ref_rtol, ref_metho
 
     def submit(item):
         m, tol, mode, kind = item
-        return client.submit(_task, "run", fbare, (fref, m, tol, None, mode, budget, repeats),
+        return client.submit(_task, "run", fbare, (None, m, tol, None, mode, budget, repeats),
                              pure=False)
 
     pending = {}
@@ -594,7 +614,7 @@ def _study_on(client, setup, methods, tols, budget, repeats, ref_rtol, ref_metho
         if kind == "jacobian":
             r = replace(r, kind="jacobian")
         results[item] = r
-        say(_line(r))
+        say(_line(r).replace("error nan, final nan, ", "") if r.status == "ok" else _line(r))
         if kind == "study":
             rest = [t for t in tols_sorted if t < tol]
             if rest and r.status == "budget":
@@ -607,6 +627,8 @@ def _study_on(client, setup, methods, tols, budget, repeats, ref_rtol, ref_metho
                 f2 = submit(nxt)
                 pending[f2] = nxt
                 ac.add(f2)
+    r0, _ = ref_of(rf[0].result(), False)
+    results = {k: with_errors(setup, r0, r) for k, r in results.items()}
     runs = [results[i] for i in order if i[3] == "study"]
     jac_runs = [results[i] for i in order if i[3] == "jacobian"]
     check_note = ""
