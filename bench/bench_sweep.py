@@ -49,8 +49,12 @@ def main():
     ap.add_argument("--write", action="store_true", help="write bench/RESULTS_sweep.md")
     ap.add_argument("--accuracy", action="store_true",
                     help="also: bgc accuracy on the pendulum, serially and on --workers")
+    ap.add_argument("--accuracy-only", action="store_true",
+                    help="only the accuracy study's timing (prints; writes nothing)")
     a = ap.parse_args()
-    acc = accuracy_walls(a.workers) if a.accuracy else ""
+    acc = accuracy_walls(a.workers) if a.accuracy or a.accuracy_only else ""
+    if a.accuracy_only:
+        return
 
     t0 = time.perf_counter()
     prep = sweep.prepare(SCENE)
@@ -155,6 +159,9 @@ def accuracy_walls(workers) -> str:
     try:
         t1 = time.perf_counter()
         s2 = study(setup, client=client, **kw)
+        cold = time.perf_counter() - t1
+        t1 = time.perf_counter()  # again, on workers that have compiled and warmed up
+        s2 = study(setup, client=client, **kw)
         par = time.perf_counter() - t1
     finally:
         sweep.close_client(client)
@@ -164,7 +171,8 @@ def accuracy_walls(workers) -> str:
     line = (f"\n`bgc accuracy` on the pendulum (t = 0..10 s; RK45, DOP853, Radau, BDF x rtol "
             f"1e-3..1e-8; references at rtol 1e-11; one repeat; study() as --workers runs "
             f"it): {serial:.1f} s one run after another, {par:.1f} s as Dask tasks on "
-            f"{workers} workers (cluster start-up not included): {serial / par:.2f}x; the "
+            f"{workers} workers ({serial / par:.2f}x; {cold:.1f} s the first time, the workers "
+            f"compiling the module and importing scipy; cluster start-up not included); the "
             f"runs' statuses, counts and errors {'identical' if same else 'DIFFER'}.\n")
     print(line, flush=True)
     return line

@@ -567,7 +567,9 @@ def _study_on(client, setup, methods, tols, budget, repeats, ref_rtol, ref_metho
     from distributed import as_completed
 
     bare = replace(setup, module=None)
-    fbare = client.scatter(bare, broadcast=True)
+    # a fresh key (hash=False): a key shared with an earlier study's data could be released
+    # by that study's futures going away while this one still needs it
+    fbare = client.scatter(bare, broadcast=True, hash=False)
     stiff, index = is_stiff(setup)
     if ref_methods is None:
         ref_methods = ("Radau", "BDF") if stiff else ("Radau", "DOP853")

@@ -36,6 +36,7 @@ import json
 import math
 import sys
 import time
+import uuid
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -629,8 +630,10 @@ def client_for(scheduler=None, workers=None):
     from distributed import Client, LocalCluster
 
     if scheduler in (None, "", "local"):
-        # workers may fork children (bgc accuracy isolates each run in one)
-        with dask.config.set({"distributed.worker.daemon": False}):
+        # workers may fork children (bgc accuracy isolates each run in one); no statistical
+        # profiler sampling the workers 100 times a second (it competes for the cores)
+        with dask.config.set({"distributed.worker.daemon": False,
+                              "distributed.worker.profile.enabled": False}):
             cluster = LocalCluster(n_workers=workers or 2, threads_per_worker=1,
                                    processes=True, dashboard_address=None)
         client = Client(cluster)
@@ -689,9 +692,10 @@ def run_sweep(prep: Prepared, out, client, chunk: int = 16, restart: bool = Fals
     counter(ndone, inst, 0)
     failed = computed = 0
     if todo:
-        fprep = client.scatter(prep, broadcast=True)
-        futures = {client.submit(run_chunk, fprep, *spans[k], key=f"bgc-sweep-{k}-"
-                                 f"{prep.digest(chunk)}", pure=False): k for k in todo}
+        fprep = client.scatter(prep, broadcast=True, hash=False)
+        run = uuid.uuid4().hex[:8]  # fresh keys: never those of an earlier, cancelled run
+        futures = {client.submit(run_chunk, fprep, *spans[k], key=f"bgc-sweep-{k}-{run}",
+                                 pure=False): k for k in todo}
         try:
             for fut in as_completed(futures):
                 k = futures[fut]
