@@ -2,7 +2,7 @@
 Rosenbrock method Rodas4.
 
     bgc accuracy SCENE.yaml [--out DIR] [--methods RK45,DOP853,Radau,BDF,LSODA,Rodas4]
-                 [--tols 1e-3:1e-10] [--budget 60] [--repeats 3]
+                 [--tols 1e-3:1e-10] [--budget 60] [--repeats 3] [--workers N | --scheduler ADDR]
 
 What is measured (everything through the generated module's own ``simulate``):
 
@@ -25,6 +25,10 @@ Every solve runs in a forked child process with a deadline: the rhs and Jacobian
 the budget is spent, and the child is killed if it still has not answered shortly after.
 A method that fails, or exceeds the budget, is reported as such; once a method exceeds the
 budget at one tolerance, tighter tolerances are skipped (they cost at least as much).
+
+With --workers N (a local Dask cluster) or --scheduler ADDRESS, the references and runs are
+Dask tasks (see _study_on): the same runs, each still in its own child with its budget, and
+the same results.
 """
 from __future__ import annotations
 
