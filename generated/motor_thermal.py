@@ -42,6 +42,10 @@ Outputs: current, motor_speed, load_speed, load_angle, shaft_torque, power_in, c
 """
 import numpy as np
 
+# The array namespace of the code below: numpy. rhs, jacobian and outputs take theirs from x
+# (the array API standard: numpy, CuPy, torch, ... arrays; see _namespace).
+xp = np
+
 BGC_VERSION = '0.1.0'
 MODEL_HASH = '935180bd33f84ac4'
 N_STATES = 8
@@ -188,8 +192,11 @@ class _Unpacked(tuple):
 _P0 = _Unpacked(_unpack(PARAM_DEFAULTS))
 
 
-def _params(p):
-    """(values, batch shape): the defaults overridden by p (a dict, or already unpacked)."""
+def _params(p, xp=np):
+    """(values, batch shape): the defaults overridden by p (a dict, or already unpacked);
+    with another array namespace xp, the values as its arrays (see _in_namespace)."""
+    if xp is not np:
+        return _in_namespace(_params(p), xp)
     if p is None:
         return _P0
     if isinstance(p, _Unpacked):
@@ -200,7 +207,7 @@ def _params(p):
     return _Unpacked(_unpack({**PARAM_DEFAULTS, **{k: np.asarray(v, dtype=float) if np.ndim(v) else v for k, v in p.items()}}))
 
 
-def _inputs(t, _pv, u):
+def _inputs(t, _pv, u, xp=np):
     """The input signals at time t: the scene's override u[name](t), else the default."""
     V0 = _pv[0]
     tau_L = _pv[12]
@@ -235,8 +242,10 @@ X0 = initial_state()
 
 
 def rhs(t, x, p=None, u=None):
-    """dx/dt at time t. x: (n,) or (n, *batch); returns an array of x's (broadcast) shape."""
-    _pv, _bshape = _params(p)
+    """dx/dt at time t. x: (n,) or (n, *batch), an array of any array-API library; returns
+    an array of x's (broadcast) shape, of x's library."""
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     R_a = _pv[1]
     alpha = _pv[2]
     L_a = _pv[3]
@@ -253,12 +262,12 @@ def rhs(t, x, p=None, u=None):
     R_wh = _pv[15]
     C_h = _pv[16]
     R_ha = _pv[17]
-    _uv = _inputs(t, _pv, u)
+    _uv = _inputs(t, _pv, u, xp)
     u_V = _uv[0]
     u_TL = _uv[1]
 
-    x = np.asarray(x, dtype=float)
-    p_winding_L, p_rotor_J, q_drivetrain__k_s, p_drivetrain__J_L, q_C_wind, q_C_house, _, _, = x
+    x = xp.asarray(x, dtype=xp.float64)
+    p_winding_L, p_rotor_J, q_drivetrain__k_s, p_drivetrain__J_L, q_C_wind, q_C_house, _, _, = xp.unstack(x)
     # causal order: efforts and flows of the bond graph
     # winding_L (I, integral): flow from momentum
     f_b3 = p_winding_L/L_a
@@ -312,21 +321,22 @@ def rhs(t, x, p=None, u=None):
     # 0-junction housing_T: flow balance
     f_b14 = f_b12 - f_b15
 
-    dx = np.empty((8,) + np.broadcast_shapes(x.shape[1:], _bshape))
-    dx[0] = e_b3
-    dx[1] = e_b6
-    dx[2] = f_drivetrain__b3
-    dx[3] = e_drivetrain__b7
-    dx[4] = f_b10
-    dx[5] = f_b14
-    dx[6] = f_drivetrain__b7
-    dx[7] = _c0
+    dx = xp.empty((8,) + np.broadcast_shapes(x.shape[1:], _bshape), device=_device(x))
+    dx[0, ...] = e_b3
+    dx[1, ...] = e_b6
+    dx[2, ...] = f_drivetrain__b3
+    dx[3, ...] = e_drivetrain__b7
+    dx[4, ...] = f_b10
+    dx[5, ...] = f_b14
+    dx[6, ...] = f_drivetrain__b7
+    dx[7, ...] = _c0
     return dx
 
 
 def jacobian(t, x, p=None, u=None):
     """d(rhs)/dx, analytic (forward mode along the causal order): (n, n, *batch)."""
-    _pv, _bshape = _params(p)
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     R_a = _pv[1]
     alpha = _pv[2]
     L_a = _pv[3]
@@ -344,8 +354,8 @@ def jacobian(t, x, p=None, u=None):
     C_h = _pv[16]
     R_ha = _pv[17]
 
-    x = np.asarray(x, dtype=float)
-    p_winding_L, _, _, _, q_C_wind, _, _, _, = x
+    x = xp.asarray(x, dtype=xp.float64)
+    p_winding_L, _, _, _, q_C_wind, _, _, _, = xp.unstack(x)
     _c0 = 1/L_a
     # winding_L (I, integral): flow from momentum
     f_b3 = _c0*p_winding_L
@@ -386,33 +396,35 @@ def jacobian(t, x, p=None, u=None):
     _d24 = _d20/R_ha
     _d25 = -_d24 + _d22
 
-    J = np.zeros((8, 8) + np.broadcast_shapes(x.shape[1:], _bshape))
-    J[0, 0] = -_d16
-    J[0, 1] = -_d3
-    J[0, 4] = -_d17
-    J[1, 0] = _d1
-    J[1, 1] = _d12
-    J[1, 2] = -_d10
-    J[1, 3] = -_d11
-    J[2, 1] = _d5
-    J[2, 3] = -_d6
-    J[3, 1] = _d7
-    J[3, 2] = k_s
-    J[3, 3] = _d14
-    J[4, 0] = _d18
-    J[4, 4] = _d23
-    J[4, 5] = -_d22
-    J[5, 4] = _d21
-    J[5, 5] = _d25
-    J[6, 3] = _d6
-    J[7, 0] = _c4 + _c3
-    J[7, 4] = _c5
+    J = xp.zeros((8, 8) + np.broadcast_shapes(x.shape[1:], _bshape),
+                 device=_device(x))
+    J[0, 0, ...] = -_d16
+    J[0, 1, ...] = -_d3
+    J[0, 4, ...] = -_d17
+    J[1, 0, ...] = _d1
+    J[1, 1, ...] = _d12
+    J[1, 2, ...] = -_d10
+    J[1, 3, ...] = -_d11
+    J[2, 1, ...] = _d5
+    J[2, 3, ...] = -_d6
+    J[3, 1, ...] = _d7
+    J[3, 2, ...] = k_s
+    J[3, 3, ...] = _d14
+    J[4, 0, ...] = _d18
+    J[4, 4, ...] = _d23
+    J[4, 5, ...] = -_d22
+    J[5, 4, ...] = _d21
+    J[5, 5, ...] = _d25
+    J[6, 3, ...] = _d6
+    J[7, 0, ...] = _c4 + _c3
+    J[7, 4, ...] = _c5
     return J
 
 
 def outputs(t, x, p=None, u=None):
     """The model's outputs: name -> array of shape (*output_shape, *batch)."""
-    _pv, _bshape = _params(p)
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     R_a = _pv[1]
     alpha = _pv[2]
     L_a = _pv[3]
@@ -421,11 +433,11 @@ def outputs(t, x, p=None, u=None):
     J_L = _pv[10]
     C_w = _pv[14]
     C_h = _pv[16]
-    _uv = _inputs(t, _pv, u)
+    _uv = _inputs(t, _pv, u, xp)
     u_V = _uv[0]
 
-    x = np.asarray(x, dtype=float)
-    p_winding_L, p_rotor_J, q_drivetrain__k_s, p_drivetrain__J_L, q_C_wind, q_C_house, s_drivetrain__angle, s_E_cu, = x
+    x = xp.asarray(x, dtype=xp.float64)
+    p_winding_L, p_rotor_J, q_drivetrain__k_s, p_drivetrain__J_L, q_C_wind, q_C_house, s_drivetrain__angle, s_E_cu, = xp.unstack(x)
     # winding_L (I, integral): flow from momentum
     f_b3 = p_winding_L/L_a
     # rotor_J (I, integral): flow from momentum
@@ -441,19 +453,19 @@ def outputs(t, x, p=None, u=None):
     # C_house (C, integral): effort from displacement
     e_b14 = q_C_house/C_h
 
-    _shape = np.broadcast_shapes(x.shape[1:], np.shape(t), _bshape)
-    _b = lambda v: np.broadcast_to(v, _shape)  # noqa: E731
+    _shape = np.broadcast_shapes(x.shape[1:], getattr(t, "shape", ()), _bshape)
+    _b = lambda v: xp.broadcast_to(xp.asarray(v, device=_device(x)), _shape)  # noqa: E731
     return {
-        'current': np.array(_b(f_b3)),
-        'motor_speed': np.array(_b(f_b6)),
-        'load_speed': np.array(_b(f_drivetrain__b7)),
-        'load_angle': np.array(_b(s_drivetrain__angle)),
-        'shaft_torque': np.array(_b(e_drivetrain__b4)),
-        'power_in': np.array(_b(u_V*f_b3)),
-        'copper_loss': np.array(_b(e_b2*f_b3)),
-        'copper_energy': np.array(_b(s_E_cu)),
-        'winding_temp': np.array(_b(e_b10)),
-        'housing_temp': np.array(_b(e_b14)),
+        'current': xp.asarray(_b(f_b3), copy=True),
+        'motor_speed': xp.asarray(_b(f_b6), copy=True),
+        'load_speed': xp.asarray(_b(f_drivetrain__b7), copy=True),
+        'load_angle': xp.asarray(_b(s_drivetrain__angle), copy=True),
+        'shaft_torque': xp.asarray(_b(e_drivetrain__b4), copy=True),
+        'power_in': xp.asarray(_b(u_V*f_b3), copy=True),
+        'copper_loss': xp.asarray(_b(e_b2*f_b3), copy=True),
+        'copper_energy': xp.asarray(_b(s_E_cu), copy=True),
+        'winding_temp': xp.asarray(_b(e_b10), copy=True),
+        'housing_temp': xp.asarray(_b(e_b14), copy=True),
     }
 
 
@@ -571,6 +583,41 @@ _STIFF_SAMPLE = 8  # batch instances whose eigenvalues a check computes (bounded
 _AT_LIMIT = 0.7  # a step "at the stability limit": at least this fraction of the stable step
 _DECAYED = 10.0  # a stiff mode decays by at least e^-10 over the rest of the span
 _NEAR_AXIS = 0.087  # sin(5 degrees)
+
+
+# --------------------------------------------------------------------------------------------
+# Array namespaces: rhs, jacobian and outputs run on the arrays of any library that follows
+# the array API standard that allow item assignment (CuPy, torch, array-api-strict), taking
+# the namespace from x through array-api-compat; numpy arrays (and Python numbers) take numpy
+# itself, so the numpy path needs neither array-api-compat nor any wrapper.
+
+def _namespace(x):
+    """The array namespace of x: numpy for numpy arrays and numbers, else the standard's."""
+    if isinstance(x, (np.ndarray, np.generic, float, int, list, tuple)):
+        return np
+    try:
+        import array_api_compat
+    except ImportError:  # without array-api-compat, everything is numpy
+        return np
+    return array_api_compat.array_namespace(x)
+
+
+def _device(x):
+    """Where new arrays go: None (numpy's default) for numpy, else x's device."""
+    if isinstance(x, np.ndarray):
+        return None
+    import array_api_compat
+
+    return array_api_compat.device(x)
+
+
+def _in_namespace(unpacked, xp):
+    """Unpacked parameters as xp's arrays (numpy scalars as Python floats, which mix with any
+    library's arrays; numpy's own scalars would turn the results back into numpy arrays)."""
+    vals, bshape = unpacked
+    return tuple(xp.asarray(v) if isinstance(v, np.ndarray) and v.ndim else
+                 float(v) if isinstance(v, (np.ndarray, np.generic)) else v
+                 for v in vals), bshape
 
 
 def _error(cls, message, t, stats):

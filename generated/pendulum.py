@@ -18,6 +18,10 @@ Outputs: theta, omega, energy.
 """
 import numpy as np
 
+# The array namespace of the code below: numpy. rhs, jacobian and outputs take theirs from x
+# (the array API standard: numpy, CuPy, torch, ... arrays; see _namespace).
+xp = np
+
 BGC_VERSION = '0.1.0'
 MODEL_HASH = '3714a7801e1a0051'
 N_STATES = 2
@@ -89,8 +93,11 @@ class _Unpacked(tuple):
 _P0 = _Unpacked(_unpack(PARAM_DEFAULTS))
 
 
-def _params(p):
-    """(values, batch shape): the defaults overridden by p (a dict, or already unpacked)."""
+def _params(p, xp=np):
+    """(values, batch shape): the defaults overridden by p (a dict, or already unpacked);
+    with another array namespace xp, the values as its arrays (see _in_namespace)."""
+    if xp is not np:
+        return _in_namespace(_params(p), xp)
     if p is None:
         return _P0
     if isinstance(p, _Unpacked):
@@ -116,62 +123,67 @@ X0 = initial_state()
 
 
 def rhs(t, x, p=None, u=None):
-    """dx/dt at time t. x: (n,) or (n, *batch); returns an array of x's (broadcast) shape."""
-    _pv, _bshape = _params(p)
+    """dx/dt at time t. x: (n,) or (n, *batch), an array of any array-API library; returns
+    an array of x's (broadcast) shape, of x's library."""
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     m = _pv[0]
     l = _pv[1]
     g = _pv[2]
 
-    x = np.asarray(x, dtype=float)
-    p_bob, q_gravity, = x
+    x = xp.asarray(x, dtype=xp.float64)
+    p_bob, q_gravity, = xp.unstack(x)
     # causal order: efforts and flows of the bond graph
     # bob (I, integral): flow from momentum
     f_b1 = p_bob/(l*l*m)
     # gravity (C, integral): effort from displacement
-    e_b2 = g*l*m*np.sin(q_gravity)
+    e_b2 = g*l*m*xp.sin(q_gravity)
 
-    dx = np.empty((2,) + np.broadcast_shapes(x.shape[1:], _bshape))
-    dx[0] = -e_b2
-    dx[1] = f_b1
+    dx = xp.empty((2,) + np.broadcast_shapes(x.shape[1:], _bshape), device=_device(x))
+    dx[0, ...] = -e_b2
+    dx[1, ...] = f_b1
     return dx
 
 
 def jacobian(t, x, p=None, u=None):
     """d(rhs)/dx, analytic (forward mode along the causal order): (n, n, *batch)."""
-    _pv, _bshape = _params(p)
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     m = _pv[0]
     l = _pv[1]
     g = _pv[2]
 
-    x = np.asarray(x, dtype=float)
-    _, q_gravity, = x
+    x = xp.asarray(x, dtype=xp.float64)
+    _, q_gravity, = xp.unstack(x)
     _d0 = 1/(l*l*m)
-    _d1 = g*l*m*np.cos(q_gravity)
+    _d1 = g*l*m*xp.cos(q_gravity)
 
-    J = np.zeros((2, 2) + np.broadcast_shapes(x.shape[1:], _bshape))
-    J[0, 1] = -_d1
-    J[1, 0] = _d0
+    J = xp.zeros((2, 2) + np.broadcast_shapes(x.shape[1:], _bshape),
+                 device=_device(x))
+    J[0, 1, ...] = -_d1
+    J[1, 0, ...] = _d0
     return J
 
 
 def outputs(t, x, p=None, u=None):
     """The model's outputs: name -> array of shape (*output_shape, *batch)."""
-    _pv, _bshape = _params(p)
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     m = _pv[0]
     l = _pv[1]
     g = _pv[2]
 
-    x = np.asarray(x, dtype=float)
-    p_bob, q_gravity, = x
+    x = xp.asarray(x, dtype=xp.float64)
+    p_bob, q_gravity, = xp.unstack(x)
     # bob (I, integral): flow from momentum
     f_b1 = p_bob/(l*l*m)
 
-    _shape = np.broadcast_shapes(x.shape[1:], np.shape(t), _bshape)
-    _b = lambda v: np.broadcast_to(v, _shape)  # noqa: E731
+    _shape = np.broadcast_shapes(x.shape[1:], getattr(t, "shape", ()), _bshape)
+    _b = lambda v: xp.broadcast_to(xp.asarray(v, device=_device(x)), _shape)  # noqa: E731
     return {
-        'theta': np.array(_b(q_gravity)),
-        'omega': np.array(_b(f_b1)),
-        'energy': np.array(_b((1/2)*f_b1*p_bob + g*l*m*(1 - np.cos(q_gravity)))),
+        'theta': xp.asarray(_b(q_gravity), copy=True),
+        'omega': xp.asarray(_b(f_b1), copy=True),
+        'energy': xp.asarray(_b((1/2)*f_b1*p_bob + g*l*m*(1 - xp.cos(q_gravity))), copy=True),
     }
 
 
@@ -208,7 +220,7 @@ def output_jacobian(t, x, p=None, u=None):
     C[0, 1] = 1
     C[1, 0] = _dx0
     C[2, 0] = (1/2)*f_b1 + (1/2)*_dx0*p_bob
-    C[2, 1] = g*l*m*np.sin(q_gravity)
+    C[2, 1] = g*l*m*xp.sin(q_gravity)
     return C, D
 
 
@@ -260,6 +272,41 @@ _STIFF_SAMPLE = 8  # batch instances whose eigenvalues a check computes (bounded
 _AT_LIMIT = 0.7  # a step "at the stability limit": at least this fraction of the stable step
 _DECAYED = 10.0  # a stiff mode decays by at least e^-10 over the rest of the span
 _NEAR_AXIS = 0.087  # sin(5 degrees)
+
+
+# --------------------------------------------------------------------------------------------
+# Array namespaces: rhs, jacobian and outputs run on the arrays of any library that follows
+# the array API standard that allow item assignment (CuPy, torch, array-api-strict), taking
+# the namespace from x through array-api-compat; numpy arrays (and Python numbers) take numpy
+# itself, so the numpy path needs neither array-api-compat nor any wrapper.
+
+def _namespace(x):
+    """The array namespace of x: numpy for numpy arrays and numbers, else the standard's."""
+    if isinstance(x, (np.ndarray, np.generic, float, int, list, tuple)):
+        return np
+    try:
+        import array_api_compat
+    except ImportError:  # without array-api-compat, everything is numpy
+        return np
+    return array_api_compat.array_namespace(x)
+
+
+def _device(x):
+    """Where new arrays go: None (numpy's default) for numpy, else x's device."""
+    if isinstance(x, np.ndarray):
+        return None
+    import array_api_compat
+
+    return array_api_compat.device(x)
+
+
+def _in_namespace(unpacked, xp):
+    """Unpacked parameters as xp's arrays (numpy scalars as Python floats, which mix with any
+    library's arrays; numpy's own scalars would turn the results back into numpy arrays)."""
+    vals, bshape = unpacked
+    return tuple(xp.asarray(v) if isinstance(v, np.ndarray) and v.ndim else
+                 float(v) if isinstance(v, (np.ndarray, np.generic)) else v
+                 for v in vals), bshape
 
 
 def _error(cls, message, t, stats):

@@ -22,6 +22,10 @@ Outputs: position, velocity, spring_force.
 """
 import numpy as np
 
+# The array namespace of the code below: numpy. rhs, jacobian and outputs take theirs from x
+# (the array API standard: numpy, CuPy, torch, ... arrays; see _namespace).
+xp = np
+
 BGC_VERSION = '0.1.0'
 MODEL_HASH = 'f2b9f22236308f3d'
 N_STATES = 6
@@ -119,8 +123,11 @@ class _Unpacked(tuple):
 _P0 = _Unpacked(_unpack(PARAM_DEFAULTS))
 
 
-def _params(p):
-    """(values, batch shape): the defaults overridden by p (a dict, or already unpacked)."""
+def _params(p, xp=np):
+    """(values, batch shape): the defaults overridden by p (a dict, or already unpacked);
+    with another array namespace xp, the values as its arrays (see _in_namespace)."""
+    if xp is not np:
+        return _in_namespace(_params(p), xp)
     if p is None:
         return _P0
     if isinstance(p, _Unpacked):
@@ -149,8 +156,10 @@ X0 = initial_state()
 
 
 def rhs(t, x, p=None, u=None):
-    """dx/dt at time t. x: (n,) or (n, *batch); returns an array of x's (broadcast) shape."""
-    _pv, _bshape = _params(p)
+    """dx/dt at time t. x: (n,) or (n, *batch), an array of any array-API library; returns
+    an array of x's (broadcast) shape, of x's library."""
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     m = _pv[0]
     g = _pv[1]
     K_0_0 = _pv[2]
@@ -172,8 +181,8 @@ def rhs(t, x, p=None, u=None):
     D_2_1 = _pv[18]
     D_2_2 = _pv[19]
 
-    x = np.asarray(x, dtype=float)
-    p_mass_0, p_mass_1, p_mass_2, q_spring_0, q_spring_1, q_spring_2, = x
+    x = xp.asarray(x, dtype=xp.float64)
+    p_mass_0, p_mass_1, p_mass_2, q_spring_0, q_spring_1, q_spring_2, = xp.unstack(x)
     # causal order: efforts and flows of the bond graph
     # gravity (Se): effort
     e_b1_2 = -g*m
@@ -203,19 +212,20 @@ def rhs(t, x, p=None, u=None):
     # 1-junction v: effort balance
     e_b2_2 = e_b1_2 - e_b3_2 - e_b4_2
 
-    dx = np.empty((6,) + np.broadcast_shapes(x.shape[1:], _bshape))
-    dx[0] = e_b2_0
-    dx[1] = e_b2_1
-    dx[2] = e_b2_2
-    dx[3] = f_b2_0
-    dx[4] = f_b2_1
-    dx[5] = f_b2_2
+    dx = xp.empty((6,) + np.broadcast_shapes(x.shape[1:], _bshape), device=_device(x))
+    dx[0, ...] = e_b2_0
+    dx[1, ...] = e_b2_1
+    dx[2, ...] = e_b2_2
+    dx[3, ...] = f_b2_0
+    dx[4, ...] = f_b2_1
+    dx[5, ...] = f_b2_2
     return dx
 
 
 def jacobian(t, x, p=None, u=None):
     """d(rhs)/dx, analytic (forward mode along the causal order): (n, n, *batch)."""
-    _pv, _bshape = _params(p)
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     m = _pv[0]
     K_0_0 = _pv[2]
     K_0_1 = _pv[3]
@@ -236,7 +246,7 @@ def jacobian(t, x, p=None, u=None):
     D_2_1 = _pv[18]
     D_2_2 = _pv[19]
 
-    x = np.asarray(x, dtype=float)
+    x = xp.asarray(x, dtype=xp.float64)
     _c0 = 1/m
     _d0 = _c0
     _d1 = _c0
@@ -251,34 +261,36 @@ def jacobian(t, x, p=None, u=None):
     _d10 = _d1*D_2_1
     _d11 = _d2*D_2_2
 
-    J = np.zeros((6, 6) + np.broadcast_shapes(x.shape[1:], _bshape))
-    J[0, 0] = -_d3
-    J[0, 1] = -_d4
-    J[0, 2] = -_d5
-    J[0, 3] = -K_0_0
-    J[0, 4] = -K_0_1
-    J[0, 5] = -K_0_2
-    J[1, 0] = -_d6
-    J[1, 1] = -_d7
-    J[1, 2] = -_d8
-    J[1, 3] = -K_1_0
-    J[1, 4] = -K_1_1
-    J[1, 5] = -K_1_2
-    J[2, 0] = -_d9
-    J[2, 1] = -_d10
-    J[2, 2] = -_d11
-    J[2, 3] = -K_2_0
-    J[2, 4] = -K_2_1
-    J[2, 5] = -K_2_2
-    J[3, 0] = _d0
-    J[4, 1] = _d1
-    J[5, 2] = _d2
+    J = xp.zeros((6, 6) + np.broadcast_shapes(x.shape[1:], _bshape),
+                 device=_device(x))
+    J[0, 0, ...] = -_d3
+    J[0, 1, ...] = -_d4
+    J[0, 2, ...] = -_d5
+    J[0, 3, ...] = -K_0_0
+    J[0, 4, ...] = -K_0_1
+    J[0, 5, ...] = -K_0_2
+    J[1, 0, ...] = -_d6
+    J[1, 1, ...] = -_d7
+    J[1, 2, ...] = -_d8
+    J[1, 3, ...] = -K_1_0
+    J[1, 4, ...] = -K_1_1
+    J[1, 5, ...] = -K_1_2
+    J[2, 0, ...] = -_d9
+    J[2, 1, ...] = -_d10
+    J[2, 2, ...] = -_d11
+    J[2, 3, ...] = -K_2_0
+    J[2, 4, ...] = -K_2_1
+    J[2, 5, ...] = -K_2_2
+    J[3, 0, ...] = _d0
+    J[4, 1, ...] = _d1
+    J[5, 2, ...] = _d2
     return J
 
 
 def outputs(t, x, p=None, u=None):
     """The model's outputs: name -> array of shape (*output_shape, *batch)."""
-    _pv, _bshape = _params(p)
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     m = _pv[0]
     K_0_0 = _pv[2]
     K_0_1 = _pv[3]
@@ -290,8 +302,8 @@ def outputs(t, x, p=None, u=None):
     K_2_1 = _pv[9]
     K_2_2 = _pv[10]
 
-    x = np.asarray(x, dtype=float)
-    p_mass_0, p_mass_1, p_mass_2, q_spring_0, q_spring_1, q_spring_2, = x
+    x = xp.asarray(x, dtype=xp.float64)
+    p_mass_0, p_mass_1, p_mass_2, q_spring_0, q_spring_1, q_spring_2, = xp.unstack(x)
     _c0 = 1/m
     # mass (I, integral): flow from momentum
     f_b2_0 = _c0*p_mass_0
@@ -306,12 +318,12 @@ def outputs(t, x, p=None, u=None):
     # spring (C, integral): effort from displacement
     e_b3_2 = K_2_0*q_spring_0 + K_2_1*q_spring_1 + K_2_2*q_spring_2
 
-    _shape = np.broadcast_shapes(x.shape[1:], np.shape(t), _bshape)
-    _b = lambda v: np.broadcast_to(v, _shape)  # noqa: E731
+    _shape = np.broadcast_shapes(x.shape[1:], getattr(t, "shape", ()), _bshape)
+    _b = lambda v: xp.broadcast_to(xp.asarray(v, device=_device(x)), _shape)  # noqa: E731
     return {
-        'position': np.stack([_b(q_spring_0), _b(q_spring_1), _b(q_spring_2), ]).reshape((3,) + _shape),
-        'velocity': np.stack([_b(f_b2_0), _b(f_b2_1), _b(f_b2_2), ]).reshape((3,) + _shape),
-        'spring_force': np.stack([_b(e_b3_0), _b(e_b3_1), _b(e_b3_2), ]).reshape((3,) + _shape),
+        'position': xp.reshape(xp.stack([_b(q_spring_0), _b(q_spring_1), _b(q_spring_2), ]), (3,) + _shape),
+        'velocity': xp.reshape(xp.stack([_b(f_b2_0), _b(f_b2_1), _b(f_b2_2), ]), (3,) + _shape),
+        'spring_force': xp.reshape(xp.stack([_b(e_b3_0), _b(e_b3_1), _b(e_b3_2), ]), (3,) + _shape),
     }
 
 
@@ -417,6 +429,41 @@ _STIFF_SAMPLE = 8  # batch instances whose eigenvalues a check computes (bounded
 _AT_LIMIT = 0.7  # a step "at the stability limit": at least this fraction of the stable step
 _DECAYED = 10.0  # a stiff mode decays by at least e^-10 over the rest of the span
 _NEAR_AXIS = 0.087  # sin(5 degrees)
+
+
+# --------------------------------------------------------------------------------------------
+# Array namespaces: rhs, jacobian and outputs run on the arrays of any library that follows
+# the array API standard that allow item assignment (CuPy, torch, array-api-strict), taking
+# the namespace from x through array-api-compat; numpy arrays (and Python numbers) take numpy
+# itself, so the numpy path needs neither array-api-compat nor any wrapper.
+
+def _namespace(x):
+    """The array namespace of x: numpy for numpy arrays and numbers, else the standard's."""
+    if isinstance(x, (np.ndarray, np.generic, float, int, list, tuple)):
+        return np
+    try:
+        import array_api_compat
+    except ImportError:  # without array-api-compat, everything is numpy
+        return np
+    return array_api_compat.array_namespace(x)
+
+
+def _device(x):
+    """Where new arrays go: None (numpy's default) for numpy, else x's device."""
+    if isinstance(x, np.ndarray):
+        return None
+    import array_api_compat
+
+    return array_api_compat.device(x)
+
+
+def _in_namespace(unpacked, xp):
+    """Unpacked parameters as xp's arrays (numpy scalars as Python floats, which mix with any
+    library's arrays; numpy's own scalars would turn the results back into numpy arrays)."""
+    vals, bshape = unpacked
+    return tuple(xp.asarray(v) if isinstance(v, np.ndarray) and v.ndim else
+                 float(v) if isinstance(v, (np.ndarray, np.generic)) else v
+                 for v in vals), bshape
 
 
 def _error(cls, message, t, stats):

@@ -23,6 +23,10 @@ Outputs: charge, current, v_C, stored_energy, energy_in, energy_R.
 """
 import numpy as np
 
+# The array namespace of the code below: numpy. rhs, jacobian and outputs take theirs from x
+# (the array API standard: numpy, CuPy, torch, ... arrays; see _namespace).
+xp = np
+
 BGC_VERSION = '0.1.0'
 MODEL_HASH = '4a167a2f62789461'
 N_STATES = 4
@@ -101,8 +105,11 @@ class _Unpacked(tuple):
 _P0 = _Unpacked(_unpack(PARAM_DEFAULTS))
 
 
-def _params(p):
-    """(values, batch shape): the defaults overridden by p (a dict, or already unpacked)."""
+def _params(p, xp=np):
+    """(values, batch shape): the defaults overridden by p (a dict, or already unpacked);
+    with another array namespace xp, the values as its arrays (see _in_namespace)."""
+    if xp is not np:
+        return _in_namespace(_params(p), xp)
     if p is None:
         return _P0
     if isinstance(p, _Unpacked):
@@ -113,7 +120,7 @@ def _params(p):
     return _Unpacked(_unpack({**PARAM_DEFAULTS, **{k: np.asarray(v, dtype=float) if np.ndim(v) else v for k, v in p.items()}}))
 
 
-def _inputs(t, _pv, u):
+def _inputs(t, _pv, u, xp=np):
     """The input signals at time t: the scene's override u[name](t), else the default."""
     V0 = _pv[3]
     if u is not None and 'Vs' in u:
@@ -139,16 +146,18 @@ X0 = initial_state()
 
 
 def rhs(t, x, p=None, u=None):
-    """dx/dt at time t. x: (n,) or (n, *batch); returns an array of x's (broadcast) shape."""
-    _pv, _bshape = _params(p)
+    """dx/dt at time t. x: (n,) or (n, *batch), an array of any array-API library; returns
+    an array of x's (broadcast) shape, of x's library."""
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     R = _pv[0]
     L = _pv[1]
     C = _pv[2]
-    _uv = _inputs(t, _pv, u)
+    _uv = _inputs(t, _pv, u, xp)
     u_Vs = _uv[0]
 
-    x = np.asarray(x, dtype=float)
-    p_inductor, q_capacitor, _, _, = x
+    x = xp.asarray(x, dtype=xp.float64)
+    p_inductor, q_capacitor, _, _, = xp.unstack(x)
     # causal order: efforts and flows of the bond graph
     # inductor (I, integral): flow from momentum
     f_b2 = p_inductor/L
@@ -159,25 +168,26 @@ def rhs(t, x, p=None, u=None):
     # 1-junction loop: effort balance
     e_b2 = u_Vs - e_b3 - e_b4
 
-    dx = np.empty((4,) + np.broadcast_shapes(x.shape[1:], _bshape))
-    dx[0] = e_b2
-    dx[1] = f_b2
-    dx[2] = f_b2*u_Vs
-    dx[3] = e_b4*f_b2
+    dx = xp.empty((4,) + np.broadcast_shapes(x.shape[1:], _bshape), device=_device(x))
+    dx[0, ...] = e_b2
+    dx[1, ...] = f_b2
+    dx[2, ...] = f_b2*u_Vs
+    dx[3, ...] = e_b4*f_b2
     return dx
 
 
 def jacobian(t, x, p=None, u=None):
     """d(rhs)/dx, analytic (forward mode along the causal order): (n, n, *batch)."""
-    _pv, _bshape = _params(p)
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     R = _pv[0]
     L = _pv[1]
     C = _pv[2]
-    _uv = _inputs(t, _pv, u)
+    _uv = _inputs(t, _pv, u, xp)
     u_Vs = _uv[0]
 
-    x = np.asarray(x, dtype=float)
-    p_inductor, _, _, _, = x
+    x = xp.asarray(x, dtype=xp.float64)
+    p_inductor, _, _, _, = xp.unstack(x)
     _c0 = 1/L
     # inductor (I, integral): flow from momentum
     f_b2 = _c0*p_inductor
@@ -187,37 +197,39 @@ def jacobian(t, x, p=None, u=None):
     _d1 = 1/C
     _d2 = R*_d0
 
-    J = np.zeros((4, 4) + np.broadcast_shapes(x.shape[1:], _bshape))
-    J[0, 0] = -_d2
-    J[0, 1] = -_d1
-    J[1, 0] = _d0
-    J[2, 0] = _d0*u_Vs
-    J[3, 0] = _d0*e_b4 + _d2*f_b2
+    J = xp.zeros((4, 4) + np.broadcast_shapes(x.shape[1:], _bshape),
+                 device=_device(x))
+    J[0, 0, ...] = -_d2
+    J[0, 1, ...] = -_d1
+    J[1, 0, ...] = _d0
+    J[2, 0, ...] = _d0*u_Vs
+    J[3, 0, ...] = _d0*e_b4 + _d2*f_b2
     return J
 
 
 def outputs(t, x, p=None, u=None):
     """The model's outputs: name -> array of shape (*output_shape, *batch)."""
-    _pv, _bshape = _params(p)
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     L = _pv[1]
     C = _pv[2]
 
-    x = np.asarray(x, dtype=float)
-    p_inductor, q_capacitor, s_E_in, s_E_R, = x
+    x = xp.asarray(x, dtype=xp.float64)
+    p_inductor, q_capacitor, s_E_in, s_E_R, = xp.unstack(x)
     # inductor (I, integral): flow from momentum
     f_b2 = p_inductor/L
     # capacitor (C, integral): effort from displacement
     e_b3 = q_capacitor/C
 
-    _shape = np.broadcast_shapes(x.shape[1:], np.shape(t), _bshape)
-    _b = lambda v: np.broadcast_to(v, _shape)  # noqa: E731
+    _shape = np.broadcast_shapes(x.shape[1:], getattr(t, "shape", ()), _bshape)
+    _b = lambda v: xp.broadcast_to(xp.asarray(v, device=_device(x)), _shape)  # noqa: E731
     return {
-        'charge': np.array(_b(q_capacitor)),
-        'current': np.array(_b(f_b2)),
-        'v_C': np.array(_b(e_b3)),
-        'stored_energy': np.array(_b((1/2)*e_b3*q_capacitor + (1/2)*f_b2*p_inductor)),
-        'energy_in': np.array(_b(s_E_in)),
-        'energy_R': np.array(_b(s_E_R)),
+        'charge': xp.asarray(_b(q_capacitor), copy=True),
+        'current': xp.asarray(_b(f_b2), copy=True),
+        'v_C': xp.asarray(_b(e_b3), copy=True),
+        'stored_energy': xp.asarray(_b((1/2)*e_b3*q_capacitor + (1/2)*f_b2*p_inductor), copy=True),
+        'energy_in': xp.asarray(_b(s_E_in), copy=True),
+        'energy_R': xp.asarray(_b(s_E_R), copy=True),
     }
 
 
@@ -318,6 +330,41 @@ _STIFF_SAMPLE = 8  # batch instances whose eigenvalues a check computes (bounded
 _AT_LIMIT = 0.7  # a step "at the stability limit": at least this fraction of the stable step
 _DECAYED = 10.0  # a stiff mode decays by at least e^-10 over the rest of the span
 _NEAR_AXIS = 0.087  # sin(5 degrees)
+
+
+# --------------------------------------------------------------------------------------------
+# Array namespaces: rhs, jacobian and outputs run on the arrays of any library that follows
+# the array API standard that allow item assignment (CuPy, torch, array-api-strict), taking
+# the namespace from x through array-api-compat; numpy arrays (and Python numbers) take numpy
+# itself, so the numpy path needs neither array-api-compat nor any wrapper.
+
+def _namespace(x):
+    """The array namespace of x: numpy for numpy arrays and numbers, else the standard's."""
+    if isinstance(x, (np.ndarray, np.generic, float, int, list, tuple)):
+        return np
+    try:
+        import array_api_compat
+    except ImportError:  # without array-api-compat, everything is numpy
+        return np
+    return array_api_compat.array_namespace(x)
+
+
+def _device(x):
+    """Where new arrays go: None (numpy's default) for numpy, else x's device."""
+    if isinstance(x, np.ndarray):
+        return None
+    import array_api_compat
+
+    return array_api_compat.device(x)
+
+
+def _in_namespace(unpacked, xp):
+    """Unpacked parameters as xp's arrays (numpy scalars as Python floats, which mix with any
+    library's arrays; numpy's own scalars would turn the results back into numpy arrays)."""
+    vals, bshape = unpacked
+    return tuple(xp.asarray(v) if isinstance(v, np.ndarray) and v.ndim else
+                 float(v) if isinstance(v, (np.ndarray, np.generic)) else v
+                 for v in vals), bshape
 
 
 def _error(cls, message, t, stats):

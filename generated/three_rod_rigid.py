@@ -47,6 +47,10 @@ Outputs: th1, w1, v1, th2, w2, v2, th3, w3, v3, p1, F1.
 """
 import numpy as np
 
+# The array namespace of the code below: numpy. rhs, jacobian and outputs take theirs from x
+# (the array API standard: numpy, CuPy, torch, ... arrays; see _namespace).
+xp = np
+
 BGC_VERSION = '0.1.0'
 MODEL_HASH = 'e2f926328d359fd3'
 N_STATES = 6
@@ -210,8 +214,11 @@ class _Unpacked(tuple):
 _P0 = _Unpacked(_unpack(PARAM_DEFAULTS))
 
 
-def _params(p):
-    """(values, batch shape): the defaults overridden by p (a dict, or already unpacked)."""
+def _params(p, xp=np):
+    """(values, batch shape): the defaults overridden by p (a dict, or already unpacked);
+    with another array namespace xp, the values as its arrays (see _in_namespace)."""
+    if xp is not np:
+        return _in_namespace(_params(p), xp)
     if p is None:
         return _P0
     if isinstance(p, _Unpacked):
@@ -222,13 +229,13 @@ def _params(p):
     return _Unpacked(_unpack({**PARAM_DEFAULTS, **{k: np.asarray(v, dtype=float) if np.ndim(v) else v for k, v in p.items()}}))
 
 
-def _inputs(t, _pv, u):
+def _inputs(t, _pv, u, xp=np):
     """The input signals at time t: the scene's override u[name](t), else the default."""
     tau0 = _pv[16]
     if u is not None and 'tau' in u:
         u_tau = np.asarray(u['tau'](t), dtype=float)
     else:
-        u_tau = tau0*np.sin(2*t)
+        u_tau = tau0*xp.sin(2*t)
     return (u_tau, )
 
 
@@ -262,8 +269,10 @@ X0 = initial_state()
 
 
 def rhs(t, x, p=None, u=None):
-    """dx/dt at time t. x: (n,) or (n, *batch); returns an array of x's (broadcast) shape."""
-    _pv, _bshape = _params(p)
+    """dx/dt at time t. x: (n,) or (n, *batch), an array of any array-API library; returns
+    an array of x's (broadcast) shape, of x's library."""
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     g = _pv[0]
     m1 = _pv[1]
     l1 = _pv[2]
@@ -274,11 +283,11 @@ def rhs(t, x, p=None, u=None):
     m3 = _pv[11]
     l3 = _pv[12]
     c3 = _pv[15]
-    _uv = _inputs(t, _pv, u)
+    _uv = _inputs(t, _pv, u, xp)
     u_tau = _uv[0]
 
-    x = np.asarray(x, dtype=float)
-    p_rod1__Ir, p_rod2__Ir, p_rod3__Ir, s_rod1__th, s_rod2__th, s_rod3__th, = x
+    x = xp.asarray(x, dtype=xp.float64)
+    p_rod1__Ir, p_rod2__Ir, p_rod3__Ir, s_rod1__th, s_rod2__th, s_rod3__th, = xp.unstack(x)
     # causal order: efforts and flows of the bond graph
     # rod1.grav (Se): effort
     e_rod1__b1_1 = -g*m1
@@ -307,10 +316,10 @@ def rhs(t, x, p=None, u=None):
     e_b12 = c3*f_b12
     _l0_dx_p_rod1__Ir = _c0
     _c3 = (1/2)*_l0_dx_p_rod1__Ir
-    _c4 = l1*np.sin(s_rod1__th)
+    _c4 = l1*xp.sin(s_rod1__th)
     _c5 = _c4*_c3
     _l1_dx_p_rod1__Ir = _c5
-    _c6 = l1*np.cos(s_rod1__th)
+    _c6 = l1*xp.cos(s_rod1__th)
     _c7 = _c3*_c6
     _l2_dx_p_rod1__Ir = -_c7
     _l3_dx_p_rod1__Ir = -_c5
@@ -318,11 +327,11 @@ def rhs(t, x, p=None, u=None):
     _l5_dx_p_rod1__Ir = _c7
     _l6_dx_p_rod1__Ir = _l5_dx_p_rod1__Ir - _l2_dx_p_rod1__Ir
     _l7_dx_p_rod1__Ir = _c1
-    _c8 = l2*np.sin(s_rod2__th)
+    _c8 = l2*xp.sin(s_rod2__th)
     _c9 = (1/2)*_c8
     _c10 = _c9*_l7_dx_p_rod1__Ir
     _l8_dx_p_rod1__Ir = _c10
-    _c11 = l2*np.cos(s_rod2__th)
+    _c11 = l2*xp.cos(s_rod2__th)
     _c12 = (1/2)*_c11
     _c13 = _c12*_l7_dx_p_rod1__Ir
     _l9_dx_p_rod1__Ir = -_c13
@@ -331,10 +340,10 @@ def rhs(t, x, p=None, u=None):
     _l12_dx_p_rod1__Ir = _c13
     _l13_dx_p_rod1__Ir = _l12_dx_p_rod1__Ir - _l9_dx_p_rod1__Ir
     _l14_dx_p_rod1__Ir = _c2
-    _c14 = l3*np.sin(s_rod3__th)
+    _c14 = l3*xp.sin(s_rod3__th)
     _c15 = (1/2)*_c14
     _l15_dx_p_rod1__Ir = _c15*_l14_dx_p_rod1__Ir
-    _c16 = l3*np.cos(s_rod3__th)
+    _c16 = l3*xp.cos(s_rod3__th)
     _c17 = (1/2)*_c16
     _l16_dx_p_rod1__Ir = -_c17*_l14_dx_p_rod1__Ir
     _l17_dx_p_rod1__Ir = -m1*_l1_dx_p_rod1__Ir
@@ -580,19 +589,20 @@ def rhs(t, x, p=None, u=None):
     # 1-junction rod1.w: effort balance
     e_rod1__b3 = _c41 - e_rod1__b4 - e_rod1__b8
 
-    dx = np.empty((6,) + np.broadcast_shapes(x.shape[1:], _bshape))
-    dx[0] = e_rod1__b3
-    dx[1] = e_rod2__b3
-    dx[2] = e_rod3__b3
-    dx[3] = f_rod1__b3
-    dx[4] = f_rod2__b3
-    dx[5] = f_rod3__b3
+    dx = xp.empty((6,) + np.broadcast_shapes(x.shape[1:], _bshape), device=_device(x))
+    dx[0, ...] = e_rod1__b3
+    dx[1, ...] = e_rod2__b3
+    dx[2, ...] = e_rod3__b3
+    dx[3, ...] = f_rod1__b3
+    dx[4, ...] = f_rod2__b3
+    dx[5, ...] = f_rod3__b3
     return dx
 
 
 def jacobian(t, x, p=None, u=None):
     """d(rhs)/dx, analytic (forward mode along the causal order): (n, n, *batch)."""
-    _pv, _bshape = _params(p)
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     g = _pv[0]
     m1 = _pv[1]
     l1 = _pv[2]
@@ -603,11 +613,11 @@ def jacobian(t, x, p=None, u=None):
     m3 = _pv[11]
     l3 = _pv[12]
     c3 = _pv[15]
-    _uv = _inputs(t, _pv, u)
+    _uv = _inputs(t, _pv, u, xp)
     u_tau = _uv[0]
 
-    x = np.asarray(x, dtype=float)
-    p_rod1__Ir, p_rod2__Ir, p_rod3__Ir, s_rod1__th, s_rod2__th, s_rod3__th, = x
+    x = xp.asarray(x, dtype=xp.float64)
+    p_rod1__Ir, p_rod2__Ir, p_rod3__Ir, s_rod1__th, s_rod2__th, s_rod3__th, = xp.unstack(x)
     # rod1.grav (Se): effort
     e_rod1__b1_1 = -g*m1
     _c0 = 12/(l1*l1*m1)
@@ -634,12 +644,12 @@ def jacobian(t, x, p=None, u=None):
     # fr3 (R): effort = r f
     e_b12 = c3*f_b12
     _l0_dx_p_rod1__Ir = _c0
-    _c3 = np.sin(s_rod1__th)
+    _c3 = xp.sin(s_rod1__th)
     _c4 = (1/2)*l1
     _c5 = _c4*_c3
     _c6 = _c5*_l0_dx_p_rod1__Ir
     _l1_dx_p_rod1__Ir = _c6
-    _c7 = np.cos(s_rod1__th)
+    _c7 = xp.cos(s_rod1__th)
     _c8 = _c4*_c7
     _c9 = _c8*_l0_dx_p_rod1__Ir
     _c10 = -_c9
@@ -650,11 +660,11 @@ def jacobian(t, x, p=None, u=None):
     _l5_dx_p_rod1__Ir = _c9
     _l6_dx_p_rod1__Ir = _l5_dx_p_rod1__Ir - _l2_dx_p_rod1__Ir
     _l7_dx_p_rod1__Ir = _c1
-    _c12 = l2*np.sin(s_rod2__th)
+    _c12 = l2*xp.sin(s_rod2__th)
     _c13 = (1/2)*_c12
     _c14 = _c13*_l7_dx_p_rod1__Ir
     _l8_dx_p_rod1__Ir = _c14
-    _c15 = l2*np.cos(s_rod2__th)
+    _c15 = l2*xp.cos(s_rod2__th)
     _c16 = (1/2)*_c15
     _c17 = _c16*_l7_dx_p_rod1__Ir
     _c18 = -_c17
@@ -665,11 +675,11 @@ def jacobian(t, x, p=None, u=None):
     _l12_dx_p_rod1__Ir = _c17
     _l13_dx_p_rod1__Ir = _l12_dx_p_rod1__Ir - _l9_dx_p_rod1__Ir
     _l14_dx_p_rod1__Ir = _c2
-    _c20 = l3*np.sin(s_rod3__th)
+    _c20 = l3*xp.sin(s_rod3__th)
     _c21 = (1/2)*_c20
     _c22 = _c21*_l14_dx_p_rod1__Ir
     _l15_dx_p_rod1__Ir = _c22
-    _c23 = l3*np.cos(s_rod3__th)
+    _c23 = l3*xp.cos(s_rod3__th)
     _c24 = (1/2)*_c23
     _c25 = _c24*_l14_dx_p_rod1__Ir
     _l16_dx_p_rod1__Ir = -_c25
@@ -1470,34 +1480,36 @@ def jacobian(t, x, p=None, u=None):
     _d429 = -_d411 - _d423
     _d430 = -_d412 - _d424
 
-    J = np.zeros((6, 6) + np.broadcast_shapes(x.shape[1:], _bshape))
-    J[0, 0] = _d425
-    J[0, 1] = _d426
-    J[0, 2] = _d427
-    J[0, 3] = _d428
-    J[0, 4] = _d429
-    J[0, 5] = _d430
-    J[1, 0] = _d401
-    J[1, 1] = _d402
-    J[1, 2] = _d403
-    J[1, 3] = _d404
-    J[1, 4] = _d405
-    J[1, 5] = _d406
-    J[2, 0] = -_d375
-    J[2, 1] = _d381
-    J[2, 2] = _d382
-    J[2, 3] = -_d378
-    J[2, 4] = -_d379
-    J[2, 5] = -_d380
-    J[3, 0] = _d0
-    J[4, 1] = _d2
-    J[5, 2] = _d3
+    J = xp.zeros((6, 6) + np.broadcast_shapes(x.shape[1:], _bshape),
+                 device=_device(x))
+    J[0, 0, ...] = _d425
+    J[0, 1, ...] = _d426
+    J[0, 2, ...] = _d427
+    J[0, 3, ...] = _d428
+    J[0, 4, ...] = _d429
+    J[0, 5, ...] = _d430
+    J[1, 0, ...] = _d401
+    J[1, 1, ...] = _d402
+    J[1, 2, ...] = _d403
+    J[1, 3, ...] = _d404
+    J[1, 4, ...] = _d405
+    J[1, 5, ...] = _d406
+    J[2, 0, ...] = -_d375
+    J[2, 1, ...] = _d381
+    J[2, 2, ...] = _d382
+    J[2, 3, ...] = -_d378
+    J[2, 4, ...] = -_d379
+    J[2, 5, ...] = -_d380
+    J[3, 0, ...] = _d0
+    J[4, 1, ...] = _d2
+    J[5, 2, ...] = _d3
     return J
 
 
 def outputs(t, x, p=None, u=None):
     """The model's outputs: name -> array of shape (*output_shape, *batch)."""
-    _pv, _bshape = _params(p)
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     g = _pv[0]
     m1 = _pv[1]
     l1 = _pv[2]
@@ -1508,11 +1520,11 @@ def outputs(t, x, p=None, u=None):
     m3 = _pv[11]
     l3 = _pv[12]
     c3 = _pv[15]
-    _uv = _inputs(t, _pv, u)
+    _uv = _inputs(t, _pv, u, xp)
     u_tau = _uv[0]
 
-    x = np.asarray(x, dtype=float)
-    p_rod1__Ir, p_rod2__Ir, p_rod3__Ir, s_rod1__th, s_rod2__th, s_rod3__th, = x
+    x = xp.asarray(x, dtype=xp.float64)
+    p_rod1__Ir, p_rod2__Ir, p_rod3__Ir, s_rod1__th, s_rod2__th, s_rod3__th, = xp.unstack(x)
     # rod1.grav (Se): effort
     e_rod1__b1_1 = -g*m1
     _c0 = 12/(l1*l1*m1)
@@ -1520,12 +1532,12 @@ def outputs(t, x, p=None, u=None):
     f_rod1__b3 = _c0*p_rod1__Ir
     # fr1 (R): effort = r f
     e_b6 = c1*f_rod1__b3
-    _c1 = l1*np.sin(s_rod1__th)
+    _c1 = l1*xp.sin(s_rod1__th)
     _c2 = (1/2)*_c1
     _c3 = _c2*f_rod1__b3
     # rod1.mA (MTF): f2 = M f1
     f_rod1__b5_0 = _c3
-    _c4 = l1*np.cos(s_rod1__th)
+    _c4 = l1*xp.cos(s_rod1__th)
     _c5 = (1/2)*_c4
     _c6 = _c5*f_rod1__b3
     # rod1.mA (MTF): f2 = M f1
@@ -1549,12 +1561,12 @@ def outputs(t, x, p=None, u=None):
     _c9 = 12/(l2*l2*m2)
     # rod2.Ir (I, integral): flow from momentum
     f_rod2__b3 = _c9*p_rod2__Ir
-    _c10 = l2*np.sin(s_rod2__th)
+    _c10 = l2*xp.sin(s_rod2__th)
     _c11 = (1/2)*_c10
     _c12 = _c11*f_rod2__b3
     # rod2.mA (MTF): f2 = M f1
     f_rod2__b5_0 = _c12
-    _c13 = l2*np.cos(s_rod2__th)
+    _c13 = l2*xp.cos(s_rod2__th)
     _c14 = (1/2)*_c13
     _c15 = _c14*f_rod2__b3
     # rod2.mA (MTF): f2 = M f1
@@ -1577,10 +1589,10 @@ def outputs(t, x, p=None, u=None):
     # rod3.Ir (I, integral): flow from momentum
     f_rod3__b3 = _c16*p_rod3__Ir
     _c17 = (1/2)*l3
-    _c18 = _c17*np.sin(s_rod3__th)
+    _c18 = _c17*xp.sin(s_rod3__th)
     # rod3.mA (MTF): f2 = M f1
     f_rod3__b5_0 = _c18*f_rod3__b3
-    _c19 = np.cos(s_rod3__th)
+    _c19 = xp.cos(s_rod3__th)
     _c20 = _c19*_c17
     # rod3.mA (MTF): f2 = M f1
     f_rod3__b5_1 = -_c20*f_rod3__b3
@@ -1772,20 +1784,20 @@ def outputs(t, x, p=None, u=None):
     # rod1.It: d/dt of its state (chain rule)
     _dt_p_rod1__It_1 = -m1*_dt_f_rod1__b5_1
 
-    _shape = np.broadcast_shapes(x.shape[1:], np.shape(t), _bshape)
-    _b = lambda v: np.broadcast_to(v, _shape)  # noqa: E731
+    _shape = np.broadcast_shapes(x.shape[1:], getattr(t, "shape", ()), _bshape)
+    _b = lambda v: xp.broadcast_to(xp.asarray(v, device=_device(x)), _shape)  # noqa: E731
     return {
-        'th1': np.array(_b(s_rod1__th)),
-        'w1': np.array(_b(f_rod1__b3)),
-        'v1': np.stack([_b(_c7), _b(_c8), ]).reshape((2,) + _shape),
-        'th2': np.array(_b(s_rod2__th)),
-        'w2': np.array(_b(f_rod2__b3)),
-        'v2': np.stack([_b(f_rod2__b6_0), _b(f_rod2__b6_1), ]).reshape((2,) + _shape),
-        'th3': np.array(_b(s_rod3__th)),
-        'w3': np.array(_b(f_rod3__b3)),
-        'v3': np.stack([_b(f_rod3__b6_0), _b(f_rod3__b6_1), ]).reshape((2,) + _shape),
-        'p1': np.stack([_b(p_rod1__It_0), _b(p_rod1__It_1), ]).reshape((2,) + _shape),
-        'F1': np.stack([_b(_dt_p_rod1__It_0), _b(_dt_p_rod1__It_1), ]).reshape((2,) + _shape),
+        'th1': xp.asarray(_b(s_rod1__th), copy=True),
+        'w1': xp.asarray(_b(f_rod1__b3), copy=True),
+        'v1': xp.reshape(xp.stack([_b(_c7), _b(_c8), ]), (2,) + _shape),
+        'th2': xp.asarray(_b(s_rod2__th), copy=True),
+        'w2': xp.asarray(_b(f_rod2__b3), copy=True),
+        'v2': xp.reshape(xp.stack([_b(f_rod2__b6_0), _b(f_rod2__b6_1), ]), (2,) + _shape),
+        'th3': xp.asarray(_b(s_rod3__th), copy=True),
+        'w3': xp.asarray(_b(f_rod3__b3), copy=True),
+        'v3': xp.reshape(xp.stack([_b(f_rod3__b6_0), _b(f_rod3__b6_1), ]), (2,) + _shape),
+        'p1': xp.reshape(xp.stack([_b(p_rod1__It_0), _b(p_rod1__It_1), ]), (2,) + _shape),
+        'F1': xp.reshape(xp.stack([_b(_dt_p_rod1__It_0), _b(_dt_p_rod1__It_1), ]), (2,) + _shape),
     }
 
 
@@ -1804,10 +1816,10 @@ def input_jacobian(t, x, p=None, u=None):
     _, _, _, s_rod1__th, s_rod2__th, s_rod3__th, = x
     _c0 = 12/(l1*l1*m1)
     _l0_dx_p_rod1__Ir = _c0
-    _c1 = (1/2)*l1*np.sin(s_rod1__th)
+    _c1 = (1/2)*l1*xp.sin(s_rod1__th)
     _c2 = _c1*_l0_dx_p_rod1__Ir
     _l1_dx_p_rod1__Ir = _c2
-    _c3 = l1*np.cos(s_rod1__th)
+    _c3 = l1*xp.cos(s_rod1__th)
     _c4 = (1/2)*_c3
     _c5 = _c4*_l0_dx_p_rod1__Ir
     _l2_dx_p_rod1__Ir = -_c5
@@ -1818,10 +1830,10 @@ def input_jacobian(t, x, p=None, u=None):
     _c6 = 12/(l2*l2*m2)
     _l7_dx_p_rod1__Ir = _c6
     _c7 = (1/2)*l2
-    _c8 = _c7*np.sin(s_rod2__th)
+    _c8 = _c7*xp.sin(s_rod2__th)
     _c9 = _c8*_l7_dx_p_rod1__Ir
     _l8_dx_p_rod1__Ir = _c9
-    _c10 = _c7*np.cos(s_rod2__th)
+    _c10 = _c7*xp.cos(s_rod2__th)
     _c11 = _c10*_l7_dx_p_rod1__Ir
     _l9_dx_p_rod1__Ir = -_c11
     _l10_dx_p_rod1__Ir = -_c9
@@ -1830,9 +1842,9 @@ def input_jacobian(t, x, p=None, u=None):
     _l13_dx_p_rod1__Ir = _l12_dx_p_rod1__Ir - _l9_dx_p_rod1__Ir
     _c12 = 12/(l3*l3*m3)
     _l14_dx_p_rod1__Ir = _c12
-    _c13 = (1/2)*l3*np.sin(s_rod3__th)
+    _c13 = (1/2)*l3*xp.sin(s_rod3__th)
     _l15_dx_p_rod1__Ir = _c13*_l14_dx_p_rod1__Ir
-    _c14 = l3*np.cos(s_rod3__th)
+    _c14 = l3*xp.cos(s_rod3__th)
     _c15 = (1/2)*_c14
     _l16_dx_p_rod1__Ir = -_c15*_l14_dx_p_rod1__Ir
     _l17_dx_p_rod1__Ir = -m1*_l1_dx_p_rod1__Ir
@@ -1989,12 +2001,12 @@ def output_jacobian(t, x, p=None, u=None):
     # fr3 (R): effort = r f
     e_b12 = c3*f_b12
     _l0_dx_p_rod1__Ir = _c0
-    _c3 = np.sin(s_rod1__th)
+    _c3 = xp.sin(s_rod1__th)
     _c4 = (1/2)*l1
     _c5 = _c4*_c3
     _c6 = _c5*_l0_dx_p_rod1__Ir
     _l1_dx_p_rod1__Ir = _c6
-    _c7 = np.cos(s_rod1__th)
+    _c7 = xp.cos(s_rod1__th)
     _c8 = _c4*_c7
     _c9 = _c8*_l0_dx_p_rod1__Ir
     _c10 = -_c9
@@ -2005,11 +2017,11 @@ def output_jacobian(t, x, p=None, u=None):
     _l5_dx_p_rod1__Ir = _c9
     _l6_dx_p_rod1__Ir = _l5_dx_p_rod1__Ir - _l2_dx_p_rod1__Ir
     _l7_dx_p_rod1__Ir = _c1
-    _c12 = l2*np.sin(s_rod2__th)
+    _c12 = l2*xp.sin(s_rod2__th)
     _c13 = (1/2)*_c12
     _c14 = _c13*_l7_dx_p_rod1__Ir
     _l8_dx_p_rod1__Ir = _c14
-    _c15 = l2*np.cos(s_rod2__th)
+    _c15 = l2*xp.cos(s_rod2__th)
     _c16 = (1/2)*_c15
     _c17 = _c16*_l7_dx_p_rod1__Ir
     _c18 = -_c17
@@ -2020,12 +2032,12 @@ def output_jacobian(t, x, p=None, u=None):
     _l12_dx_p_rod1__Ir = _c17
     _l13_dx_p_rod1__Ir = _l12_dx_p_rod1__Ir - _l9_dx_p_rod1__Ir
     _l14_dx_p_rod1__Ir = _c2
-    _c20 = np.sin(s_rod3__th)
+    _c20 = xp.sin(s_rod3__th)
     _c21 = (1/2)*l3
     _c22 = _c20*_c21
     _c23 = _c22*_l14_dx_p_rod1__Ir
     _l15_dx_p_rod1__Ir = _c23
-    _c24 = np.cos(s_rod3__th)
+    _c24 = xp.cos(s_rod3__th)
     _c25 = _c24*_c21
     _c26 = _c25*_l14_dx_p_rod1__Ir
     _l16_dx_p_rod1__Ir = -_c26
@@ -2629,6 +2641,41 @@ _STIFF_SAMPLE = 8  # batch instances whose eigenvalues a check computes (bounded
 _AT_LIMIT = 0.7  # a step "at the stability limit": at least this fraction of the stable step
 _DECAYED = 10.0  # a stiff mode decays by at least e^-10 over the rest of the span
 _NEAR_AXIS = 0.087  # sin(5 degrees)
+
+
+# --------------------------------------------------------------------------------------------
+# Array namespaces: rhs, jacobian and outputs run on the arrays of any library that follows
+# the array API standard that allow item assignment (CuPy, torch, array-api-strict), taking
+# the namespace from x through array-api-compat; numpy arrays (and Python numbers) take numpy
+# itself, so the numpy path needs neither array-api-compat nor any wrapper.
+
+def _namespace(x):
+    """The array namespace of x: numpy for numpy arrays and numbers, else the standard's."""
+    if isinstance(x, (np.ndarray, np.generic, float, int, list, tuple)):
+        return np
+    try:
+        import array_api_compat
+    except ImportError:  # without array-api-compat, everything is numpy
+        return np
+    return array_api_compat.array_namespace(x)
+
+
+def _device(x):
+    """Where new arrays go: None (numpy's default) for numpy, else x's device."""
+    if isinstance(x, np.ndarray):
+        return None
+    import array_api_compat
+
+    return array_api_compat.device(x)
+
+
+def _in_namespace(unpacked, xp):
+    """Unpacked parameters as xp's arrays (numpy scalars as Python floats, which mix with any
+    library's arrays; numpy's own scalars would turn the results back into numpy arrays)."""
+    vals, bshape = unpacked
+    return tuple(xp.asarray(v) if isinstance(v, np.ndarray) and v.ndim else
+                 float(v) if isinstance(v, (np.ndarray, np.generic)) else v
+                 for v in vals), bshape
 
 
 def _error(cls, message, t, stats):

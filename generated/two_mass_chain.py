@@ -26,6 +26,10 @@ Outputs: x1, x2, vel1, vel2, link_force.
 """
 import numpy as np
 
+# The array namespace of the code below: numpy. rhs, jacobian and outputs take theirs from x
+# (the array API standard: numpy, CuPy, torch, ... arrays; see _namespace).
+xp = np
+
 BGC_VERSION = '0.1.0'
 MODEL_HASH = '349615bdefaa43e3'
 N_STATES = 4
@@ -115,8 +119,11 @@ class _Unpacked(tuple):
 _P0 = _Unpacked(_unpack(PARAM_DEFAULTS))
 
 
-def _params(p):
-    """(values, batch shape): the defaults overridden by p (a dict, or already unpacked)."""
+def _params(p, xp=np):
+    """(values, batch shape): the defaults overridden by p (a dict, or already unpacked);
+    with another array namespace xp, the values as its arrays (see _in_namespace)."""
+    if xp is not np:
+        return _in_namespace(_params(p), xp)
     if p is None:
         return _P0
     if isinstance(p, _Unpacked):
@@ -127,7 +134,7 @@ def _params(p):
     return _Unpacked(_unpack({**PARAM_DEFAULTS, **{k: np.asarray(v, dtype=float) if np.ndim(v) else v for k, v in p.items()}}))
 
 
-def _inputs(t, _pv, u):
+def _inputs(t, _pv, u, xp=np):
     """The input signals at time t: the scene's override u[name](t), else the default."""
     F0 = _pv[6]
     if u is not None and 'F' in u:
@@ -153,19 +160,21 @@ X0 = initial_state()
 
 
 def rhs(t, x, p=None, u=None):
-    """dx/dt at time t. x: (n,) or (n, *batch); returns an array of x's (broadcast) shape."""
-    _pv, _bshape = _params(p)
+    """dx/dt at time t. x: (n,) or (n, *batch), an array of any array-API library; returns
+    an array of x's (broadcast) shape, of x's library."""
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     m1 = _pv[0]
     m2 = _pv[1]
     k1 = _pv[2]
     c1 = _pv[3]
     k2 = _pv[4]
     c2 = _pv[5]
-    _uv = _inputs(t, _pv, u)
+    _uv = _inputs(t, _pv, u, xp)
     u_F = _uv[0]
 
-    x = np.asarray(x, dtype=float)
-    p_mass1, p_mass2, q_wall_spring, q_link_spring, = x
+    x = xp.asarray(x, dtype=xp.float64)
+    p_mass1, p_mass2, q_wall_spring, q_link_spring, = xp.unstack(x)
     # causal order: efforts and flows of the bond graph
     # mass1 (I, integral): flow from momentum
     f_b8 = p_mass1/m1
@@ -188,17 +197,18 @@ def rhs(t, x, p=None, u=None):
     # 1-junction v1: effort balance
     e_b8 = e_b5 - e_b10 - e_b9
 
-    dx = np.empty((4,) + np.broadcast_shapes(x.shape[1:], _bshape))
-    dx[0] = e_b8
-    dx[1] = e_b2
-    dx[2] = f_b8
-    dx[3] = f_b5
+    dx = xp.empty((4,) + np.broadcast_shapes(x.shape[1:], _bshape), device=_device(x))
+    dx[0, ...] = e_b8
+    dx[1, ...] = e_b2
+    dx[2, ...] = f_b8
+    dx[3, ...] = f_b5
     return dx
 
 
 def jacobian(t, x, p=None, u=None):
     """d(rhs)/dx, analytic (forward mode along the causal order): (n, n, *batch)."""
-    _pv, _bshape = _params(p)
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     m1 = _pv[0]
     m2 = _pv[1]
     k1 = _pv[2]
@@ -206,7 +216,7 @@ def jacobian(t, x, p=None, u=None):
     k2 = _pv[4]
     c2 = _pv[5]
 
-    x = np.asarray(x, dtype=float)
+    x = xp.asarray(x, dtype=xp.float64)
     _d0 = 1/m1
     _d1 = 1/m2
     _d2 = c1*_d0
@@ -214,30 +224,32 @@ def jacobian(t, x, p=None, u=None):
     _d4 = c2*_d1
     _d5 = _d3 - _d2
 
-    J = np.zeros((4, 4) + np.broadcast_shapes(x.shape[1:], _bshape))
-    J[0, 0] = _d5
-    J[0, 1] = _d4
-    J[0, 2] = -k1
-    J[0, 3] = k2
-    J[1, 0] = -_d3
-    J[1, 1] = -_d4
-    J[1, 3] = -k2
-    J[2, 0] = _d0
-    J[3, 0] = -_d0
-    J[3, 1] = _d1
+    J = xp.zeros((4, 4) + np.broadcast_shapes(x.shape[1:], _bshape),
+                 device=_device(x))
+    J[0, 0, ...] = _d5
+    J[0, 1, ...] = _d4
+    J[0, 2, ...] = -k1
+    J[0, 3, ...] = k2
+    J[1, 0, ...] = -_d3
+    J[1, 1, ...] = -_d4
+    J[1, 3, ...] = -k2
+    J[2, 0, ...] = _d0
+    J[3, 0, ...] = -_d0
+    J[3, 1, ...] = _d1
     return J
 
 
 def outputs(t, x, p=None, u=None):
     """The model's outputs: name -> array of shape (*output_shape, *batch)."""
-    _pv, _bshape = _params(p)
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     m1 = _pv[0]
     m2 = _pv[1]
     k2 = _pv[4]
     c2 = _pv[5]
 
-    x = np.asarray(x, dtype=float)
-    p_mass1, p_mass2, q_wall_spring, q_link_spring, = x
+    x = xp.asarray(x, dtype=xp.float64)
+    p_mass1, p_mass2, q_wall_spring, q_link_spring, = xp.unstack(x)
     # mass1 (I, integral): flow from momentum
     f_b8 = p_mass1/m1
     # mass2 (I, integral): flow from momentum
@@ -251,14 +263,14 @@ def outputs(t, x, p=None, u=None):
     # 1-junction stretch: effort balance
     e_b5 = e_b6 + e_b7
 
-    _shape = np.broadcast_shapes(x.shape[1:], np.shape(t), _bshape)
-    _b = lambda v: np.broadcast_to(v, _shape)  # noqa: E731
+    _shape = np.broadcast_shapes(x.shape[1:], getattr(t, "shape", ()), _bshape)
+    _b = lambda v: xp.broadcast_to(xp.asarray(v, device=_device(x)), _shape)  # noqa: E731
     return {
-        'x1': np.array(_b(q_wall_spring)),
-        'x2': np.array(_b(q_link_spring + q_wall_spring)),
-        'vel1': np.array(_b(f_b8)),
-        'vel2': np.array(_b(f_b2)),
-        'link_force': np.array(_b(e_b5)),
+        'x1': xp.asarray(_b(q_wall_spring), copy=True),
+        'x2': xp.asarray(_b(q_link_spring + q_wall_spring), copy=True),
+        'vel1': xp.asarray(_b(f_b8), copy=True),
+        'vel2': xp.asarray(_b(f_b2), copy=True),
+        'link_force': xp.asarray(_b(e_b5), copy=True),
     }
 
 
@@ -352,6 +364,41 @@ _STIFF_SAMPLE = 8  # batch instances whose eigenvalues a check computes (bounded
 _AT_LIMIT = 0.7  # a step "at the stability limit": at least this fraction of the stable step
 _DECAYED = 10.0  # a stiff mode decays by at least e^-10 over the rest of the span
 _NEAR_AXIS = 0.087  # sin(5 degrees)
+
+
+# --------------------------------------------------------------------------------------------
+# Array namespaces: rhs, jacobian and outputs run on the arrays of any library that follows
+# the array API standard that allow item assignment (CuPy, torch, array-api-strict), taking
+# the namespace from x through array-api-compat; numpy arrays (and Python numbers) take numpy
+# itself, so the numpy path needs neither array-api-compat nor any wrapper.
+
+def _namespace(x):
+    """The array namespace of x: numpy for numpy arrays and numbers, else the standard's."""
+    if isinstance(x, (np.ndarray, np.generic, float, int, list, tuple)):
+        return np
+    try:
+        import array_api_compat
+    except ImportError:  # without array-api-compat, everything is numpy
+        return np
+    return array_api_compat.array_namespace(x)
+
+
+def _device(x):
+    """Where new arrays go: None (numpy's default) for numpy, else x's device."""
+    if isinstance(x, np.ndarray):
+        return None
+    import array_api_compat
+
+    return array_api_compat.device(x)
+
+
+def _in_namespace(unpacked, xp):
+    """Unpacked parameters as xp's arrays (numpy scalars as Python floats, which mix with any
+    library's arrays; numpy's own scalars would turn the results back into numpy arrays)."""
+    vals, bshape = unpacked
+    return tuple(xp.asarray(v) if isinstance(v, np.ndarray) and v.ndim else
+                 float(v) if isinstance(v, (np.ndarray, np.generic)) else v
+                 for v in vals), bshape
 
 
 def _error(cls, message, t, stats):

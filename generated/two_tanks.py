@@ -27,6 +27,10 @@ Outputs: h1, h2, vol1, vol2, flow12, outflow, volume_in, volume_out.
 """
 import numpy as np
 
+# The array namespace of the code below: numpy. rhs, jacobian and outputs take theirs from x
+# (the array API standard: numpy, CuPy, torch, ... arrays; see _namespace).
+xp = np
+
 BGC_VERSION = '0.1.0'
 MODEL_HASH = '5478dd89f6654566'
 N_STATES = 4
@@ -123,8 +127,11 @@ class _Unpacked(tuple):
 _P0 = _Unpacked(_unpack(PARAM_DEFAULTS))
 
 
-def _params(p):
-    """(values, batch shape): the defaults overridden by p (a dict, or already unpacked)."""
+def _params(p, xp=np):
+    """(values, batch shape): the defaults overridden by p (a dict, or already unpacked);
+    with another array namespace xp, the values as its arrays (see _in_namespace)."""
+    if xp is not np:
+        return _in_namespace(_params(p), xp)
     if p is None:
         return _P0
     if isinstance(p, _Unpacked):
@@ -135,7 +142,7 @@ def _params(p):
     return _Unpacked(_unpack({**PARAM_DEFAULTS, **{k: np.asarray(v, dtype=float) if np.ndim(v) else v for k, v in p.items()}}))
 
 
-def _inputs(t, _pv, u):
+def _inputs(t, _pv, u, xp=np):
     """The input signals at time t: the scene's override u[name](t), else the default."""
     Q0 = _pv[7]
     if u is not None and 'Qin' in u:
@@ -161,8 +168,10 @@ X0 = initial_state()
 
 
 def rhs(t, x, p=None, u=None):
-    """dx/dt at time t. x: (n,) or (n, *batch); returns an array of x's (broadcast) shape."""
-    _pv, _bshape = _params(p)
+    """dx/dt at time t. x: (n,) or (n, *batch), an array of any array-API library; returns
+    an array of x's (broadcast) shape, of x's library."""
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     rho = _pv[0]
     g = _pv[1]
     A1 = _pv[2]
@@ -170,11 +179,11 @@ def rhs(t, x, p=None, u=None):
     Cd = _pv[4]
     a12 = _pv[5]
     aout = _pv[6]
-    _uv = _inputs(t, _pv, u)
+    _uv = _inputs(t, _pv, u, xp)
     u_Qin = _uv[0]
 
-    x = np.asarray(x, dtype=float)
-    q_tank1, q_tank2, _, _, = x
+    x = xp.asarray(x, dtype=xp.float64)
+    q_tank1, q_tank2, _, _, = xp.unstack(x)
     # causal order: efforts and flows of the bond graph
     _c0 = g*rho
     # tank1 (C, integral): effort from displacement
@@ -183,27 +192,28 @@ def rhs(t, x, p=None, u=None):
     e_b6 = _c0*q_tank2/A2
     # 1-junction j12: effort balance
     e_b4 = e_b2 - e_b6
-    _c1 = Cd*np.sqrt(2)*np.sqrt(1/rho)
+    _c1 = Cd*xp.sqrt(2)*xp.sqrt(1/rho)
     # orifice12 (R): flow law
-    f_b4 = _c1*a12*np.sqrt(abs(e_b4))*np.sign(e_b4)
+    f_b4 = _c1*a12*xp.sqrt(abs(e_b4))*xp.sign(e_b4)
     # 0-junction p1: flow balance
     f_b2 = u_Qin - f_b4
     # outlet (R): flow law
-    f_b7 = _c1*aout*np.sqrt(abs(e_b6))*np.sign(e_b6)
+    f_b7 = _c1*aout*xp.sqrt(abs(e_b6))*xp.sign(e_b6)
     # 0-junction p2: flow balance
     f_b6 = f_b4 - f_b7
 
-    dx = np.empty((4,) + np.broadcast_shapes(x.shape[1:], _bshape))
-    dx[0] = f_b2
-    dx[1] = f_b6
-    dx[2] = u_Qin
-    dx[3] = f_b7
+    dx = xp.empty((4,) + np.broadcast_shapes(x.shape[1:], _bshape), device=_device(x))
+    dx[0, ...] = f_b2
+    dx[1, ...] = f_b6
+    dx[2, ...] = u_Qin
+    dx[3, ...] = f_b7
     return dx
 
 
 def jacobian(t, x, p=None, u=None):
     """d(rhs)/dx, analytic (forward mode along the causal order): (n, n, *batch)."""
-    _pv, _bshape = _params(p)
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     rho = _pv[0]
     g = _pv[1]
     A1 = _pv[2]
@@ -212,8 +222,8 @@ def jacobian(t, x, p=None, u=None):
     a12 = _pv[5]
     aout = _pv[6]
 
-    x = np.asarray(x, dtype=float)
-    q_tank1, q_tank2, _, _, = x
+    x = xp.asarray(x, dtype=xp.float64)
+    q_tank1, q_tank2, _, _, = xp.unstack(x)
     _c0 = 1/A1
     _c1 = g*rho
     # tank1 (C, integral): effort from displacement
@@ -225,25 +235,27 @@ def jacobian(t, x, p=None, u=None):
     e_b4 = e_b2 - e_b6
     _d0 = _c0*g*rho
     _d1 = _c2*g*rho
-    _c3 = (1/2)*Cd*np.sqrt(2)*np.sqrt(1/rho)
-    _c4 = _c3*a12*np.sign(e_b4)*np.sign(e_b4)/np.sqrt(abs(e_b4))
+    _c3 = (1/2)*Cd*xp.sqrt(2)*xp.sqrt(1/rho)
+    _c4 = _c3*a12*xp.sign(e_b4)*xp.sign(e_b4)/xp.sqrt(abs(e_b4))
     _d2 = _c4*_d0
     _d3 = -_c4*_d1
-    _d4 = _c3*_d1*aout*np.sign(e_b6)*np.sign(e_b6)/np.sqrt(abs(e_b6))
+    _d4 = _c3*_d1*aout*xp.sign(e_b6)*xp.sign(e_b6)/xp.sqrt(abs(e_b6))
     _d5 = _d3 - _d4
 
-    J = np.zeros((4, 4) + np.broadcast_shapes(x.shape[1:], _bshape))
-    J[0, 0] = -_d2
-    J[0, 1] = -_d3
-    J[1, 0] = _d2
-    J[1, 1] = _d5
-    J[3, 1] = _d4
+    J = xp.zeros((4, 4) + np.broadcast_shapes(x.shape[1:], _bshape),
+                 device=_device(x))
+    J[0, 0, ...] = -_d2
+    J[0, 1, ...] = -_d3
+    J[1, 0, ...] = _d2
+    J[1, 1, ...] = _d5
+    J[3, 1, ...] = _d4
     return J
 
 
 def outputs(t, x, p=None, u=None):
     """The model's outputs: name -> array of shape (*output_shape, *batch)."""
-    _pv, _bshape = _params(p)
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     rho = _pv[0]
     g = _pv[1]
     A1 = _pv[2]
@@ -252,8 +264,8 @@ def outputs(t, x, p=None, u=None):
     a12 = _pv[5]
     aout = _pv[6]
 
-    x = np.asarray(x, dtype=float)
-    q_tank1, q_tank2, s_Vin, s_Vout, = x
+    x = xp.asarray(x, dtype=xp.float64)
+    q_tank1, q_tank2, s_Vin, s_Vout, = xp.unstack(x)
     _c0 = g*rho
     # tank1 (C, integral): effort from displacement
     e_b2 = _c0*q_tank1/A1
@@ -262,24 +274,24 @@ def outputs(t, x, p=None, u=None):
     # 1-junction j12: effort balance
     e_b4 = e_b2 - e_b6
     _c1 = 1/rho
-    _c2 = Cd*np.sqrt(2)*np.sqrt(_c1)
+    _c2 = Cd*xp.sqrt(2)*xp.sqrt(_c1)
     # orifice12 (R): flow law
-    f_b4 = _c2*a12*np.sqrt(abs(e_b4))*np.sign(e_b4)
+    f_b4 = _c2*a12*xp.sqrt(abs(e_b4))*xp.sign(e_b4)
     # outlet (R): flow law
-    f_b7 = _c2*aout*np.sqrt(abs(e_b6))*np.sign(e_b6)
+    f_b7 = _c2*aout*xp.sqrt(abs(e_b6))*xp.sign(e_b6)
     _c3 = _c1/g
 
-    _shape = np.broadcast_shapes(x.shape[1:], np.shape(t), _bshape)
-    _b = lambda v: np.broadcast_to(v, _shape)  # noqa: E731
+    _shape = np.broadcast_shapes(x.shape[1:], getattr(t, "shape", ()), _bshape)
+    _b = lambda v: xp.broadcast_to(xp.asarray(v, device=_device(x)), _shape)  # noqa: E731
     return {
-        'h1': np.array(_b(_c3*e_b2)),
-        'h2': np.array(_b(_c3*e_b6)),
-        'vol1': np.array(_b(q_tank1)),
-        'vol2': np.array(_b(q_tank2)),
-        'flow12': np.array(_b(f_b4)),
-        'outflow': np.array(_b(f_b7)),
-        'volume_in': np.array(_b(s_Vin)),
-        'volume_out': np.array(_b(s_Vout)),
+        'h1': xp.asarray(_b(_c3*e_b2), copy=True),
+        'h2': xp.asarray(_b(_c3*e_b6), copy=True),
+        'vol1': xp.asarray(_b(q_tank1), copy=True),
+        'vol2': xp.asarray(_b(q_tank2), copy=True),
+        'flow12': xp.asarray(_b(f_b4), copy=True),
+        'outflow': xp.asarray(_b(f_b7), copy=True),
+        'volume_in': xp.asarray(_b(s_Vin), copy=True),
+        'volume_out': xp.asarray(_b(s_Vout), copy=True),
     }
 
 
@@ -323,11 +335,11 @@ def output_jacobian(t, x, p=None, u=None):
     _dx0 = _c0*g*rho
     _dx1 = _c2*g*rho
     _c3 = 1/rho
-    _c4 = (1/2)*Cd*np.sqrt(2)*np.sqrt(_c3)
-    _c5 = _c4*a12*np.sign(e_b4)*np.sign(e_b4)/np.sqrt(abs(e_b4))
+    _c4 = (1/2)*Cd*xp.sqrt(2)*xp.sqrt(_c3)
+    _c5 = _c4*a12*xp.sign(e_b4)*xp.sign(e_b4)/xp.sqrt(abs(e_b4))
     _dx2 = _c5*_dx0
     _dx3 = -_c5*_dx1
-    _dx4 = _c4*_dx1*aout*np.sign(e_b6)*np.sign(e_b6)/np.sqrt(abs(e_b6))
+    _dx4 = _c4*_dx1*aout*xp.sign(e_b6)*xp.sign(e_b6)/xp.sqrt(abs(e_b6))
     _c6 = 1/g
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
@@ -393,6 +405,41 @@ _STIFF_SAMPLE = 8  # batch instances whose eigenvalues a check computes (bounded
 _AT_LIMIT = 0.7  # a step "at the stability limit": at least this fraction of the stable step
 _DECAYED = 10.0  # a stiff mode decays by at least e^-10 over the rest of the span
 _NEAR_AXIS = 0.087  # sin(5 degrees)
+
+
+# --------------------------------------------------------------------------------------------
+# Array namespaces: rhs, jacobian and outputs run on the arrays of any library that follows
+# the array API standard that allow item assignment (CuPy, torch, array-api-strict), taking
+# the namespace from x through array-api-compat; numpy arrays (and Python numbers) take numpy
+# itself, so the numpy path needs neither array-api-compat nor any wrapper.
+
+def _namespace(x):
+    """The array namespace of x: numpy for numpy arrays and numbers, else the standard's."""
+    if isinstance(x, (np.ndarray, np.generic, float, int, list, tuple)):
+        return np
+    try:
+        import array_api_compat
+    except ImportError:  # without array-api-compat, everything is numpy
+        return np
+    return array_api_compat.array_namespace(x)
+
+
+def _device(x):
+    """Where new arrays go: None (numpy's default) for numpy, else x's device."""
+    if isinstance(x, np.ndarray):
+        return None
+    import array_api_compat
+
+    return array_api_compat.device(x)
+
+
+def _in_namespace(unpacked, xp):
+    """Unpacked parameters as xp's arrays (numpy scalars as Python floats, which mix with any
+    library's arrays; numpy's own scalars would turn the results back into numpy arrays)."""
+    vals, bshape = unpacked
+    return tuple(xp.asarray(v) if isinstance(v, np.ndarray) and v.ndim else
+                 float(v) if isinstance(v, (np.ndarray, np.generic)) else v
+                 for v in vals), bshape
 
 
 def _error(cls, message, t, stats):

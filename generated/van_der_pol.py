@@ -19,6 +19,10 @@ Outputs: v, dv_dt, i_L, i_R.
 """
 import numpy as np
 
+# The array namespace of the code below: numpy. rhs, jacobian and outputs take theirs from x
+# (the array API standard: numpy, CuPy, torch, ... arrays; see _namespace).
+xp = np
+
 BGC_VERSION = '0.1.0'
 MODEL_HASH = 'aa17768c5f384a7e'
 N_STATES = 2
@@ -97,8 +101,11 @@ class _Unpacked(tuple):
 _P0 = _Unpacked(_unpack(PARAM_DEFAULTS))
 
 
-def _params(p):
-    """(values, batch shape): the defaults overridden by p (a dict, or already unpacked)."""
+def _params(p, xp=np):
+    """(values, batch shape): the defaults overridden by p (a dict, or already unpacked);
+    with another array namespace xp, the values as its arrays (see _in_namespace)."""
+    if xp is not np:
+        return _in_namespace(_params(p), xp)
     if p is None:
         return _P0
     if isinstance(p, _Unpacked):
@@ -128,15 +135,17 @@ X0 = initial_state()
 
 
 def rhs(t, x, p=None, u=None):
-    """dx/dt at time t. x: (n,) or (n, *batch); returns an array of x's (broadcast) shape."""
-    _pv, _bshape = _params(p)
+    """dx/dt at time t. x: (n,) or (n, *batch), an array of any array-API library; returns
+    an array of x's (broadcast) shape, of x's library."""
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     L = _pv[1]
     g = _pv[2]
     V0 = _pv[3]
     C = _pv[5]
 
-    x = np.asarray(x, dtype=float)
-    q_cap, p_ind, = x
+    x = xp.asarray(x, dtype=xp.float64)
+    q_cap, p_ind, = xp.unstack(x)
     # causal order: efforts and flows of the bond graph
     # cap (C, integral): effort from displacement
     e_b1 = q_cap/C
@@ -147,22 +156,23 @@ def rhs(t, x, p=None, u=None):
     # 0-junction node: flow balance
     f_b1 = -f_b2 - f_b3
 
-    dx = np.empty((2,) + np.broadcast_shapes(x.shape[1:], _bshape))
-    dx[0] = f_b1
-    dx[1] = e_b1
+    dx = xp.empty((2,) + np.broadcast_shapes(x.shape[1:], _bshape), device=_device(x))
+    dx[0, ...] = f_b1
+    dx[1, ...] = e_b1
     return dx
 
 
 def jacobian(t, x, p=None, u=None):
     """d(rhs)/dx, analytic (forward mode along the causal order): (n, n, *batch)."""
-    _pv, _bshape = _params(p)
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     L = _pv[1]
     g = _pv[2]
     V0 = _pv[3]
     C = _pv[5]
 
-    x = np.asarray(x, dtype=float)
-    q_cap, _, = x
+    x = xp.asarray(x, dtype=xp.float64)
+    q_cap, _, = xp.unstack(x)
     _c0 = 1/C
     # cap (C, integral): effort from displacement
     e_b1 = _c0*q_cap
@@ -170,23 +180,25 @@ def jacobian(t, x, p=None, u=None):
     _d1 = 1/L
     _d2 = g*_d0*(-1 + e_b1*e_b1/(V0*V0))
 
-    J = np.zeros((2, 2) + np.broadcast_shapes(x.shape[1:], _bshape))
-    J[0, 0] = -_d2
-    J[0, 1] = -_d1
-    J[1, 0] = _d0
+    J = xp.zeros((2, 2) + np.broadcast_shapes(x.shape[1:], _bshape),
+                 device=_device(x))
+    J[0, 0, ...] = -_d2
+    J[0, 1, ...] = -_d1
+    J[1, 0, ...] = _d0
     return J
 
 
 def outputs(t, x, p=None, u=None):
     """The model's outputs: name -> array of shape (*output_shape, *batch)."""
-    _pv, _bshape = _params(p)
+    xp = _namespace(x)
+    _pv, _bshape = _params(p, xp)
     L = _pv[1]
     g = _pv[2]
     V0 = _pv[3]
     C = _pv[5]
 
-    x = np.asarray(x, dtype=float)
-    q_cap, p_ind, = x
+    x = xp.asarray(x, dtype=xp.float64)
+    q_cap, p_ind, = xp.unstack(x)
     _c0 = 1/C
     # cap (C, integral): effort from displacement
     e_b1 = _c0*q_cap
@@ -197,13 +209,13 @@ def outputs(t, x, p=None, u=None):
     # 0-junction node: flow balance
     f_b1 = -f_b2 - f_b3
 
-    _shape = np.broadcast_shapes(x.shape[1:], np.shape(t), _bshape)
-    _b = lambda v: np.broadcast_to(v, _shape)  # noqa: E731
+    _shape = np.broadcast_shapes(x.shape[1:], getattr(t, "shape", ()), _bshape)
+    _b = lambda v: xp.broadcast_to(xp.asarray(v, device=_device(x)), _shape)  # noqa: E731
     return {
-        'v': np.array(_b(e_b1)),
-        'dv_dt': np.array(_b(_c0*f_b1)),
-        'i_L': np.array(_b(f_b2)),
-        'i_R': np.array(_b(f_b3)),
+        'v': xp.asarray(_b(e_b1), copy=True),
+        'dv_dt': xp.asarray(_b(_c0*f_b1), copy=True),
+        'i_L': xp.asarray(_b(f_b2), copy=True),
+        'i_R': xp.asarray(_b(f_b3), copy=True),
     }
 
 
@@ -296,6 +308,41 @@ _STIFF_SAMPLE = 8  # batch instances whose eigenvalues a check computes (bounded
 _AT_LIMIT = 0.7  # a step "at the stability limit": at least this fraction of the stable step
 _DECAYED = 10.0  # a stiff mode decays by at least e^-10 over the rest of the span
 _NEAR_AXIS = 0.087  # sin(5 degrees)
+
+
+# --------------------------------------------------------------------------------------------
+# Array namespaces: rhs, jacobian and outputs run on the arrays of any library that follows
+# the array API standard that allow item assignment (CuPy, torch, array-api-strict), taking
+# the namespace from x through array-api-compat; numpy arrays (and Python numbers) take numpy
+# itself, so the numpy path needs neither array-api-compat nor any wrapper.
+
+def _namespace(x):
+    """The array namespace of x: numpy for numpy arrays and numbers, else the standard's."""
+    if isinstance(x, (np.ndarray, np.generic, float, int, list, tuple)):
+        return np
+    try:
+        import array_api_compat
+    except ImportError:  # without array-api-compat, everything is numpy
+        return np
+    return array_api_compat.array_namespace(x)
+
+
+def _device(x):
+    """Where new arrays go: None (numpy's default) for numpy, else x's device."""
+    if isinstance(x, np.ndarray):
+        return None
+    import array_api_compat
+
+    return array_api_compat.device(x)
+
+
+def _in_namespace(unpacked, xp):
+    """Unpacked parameters as xp's arrays (numpy scalars as Python floats, which mix with any
+    library's arrays; numpy's own scalars would turn the results back into numpy arrays)."""
+    vals, bshape = unpacked
+    return tuple(xp.asarray(v) if isinstance(v, np.ndarray) and v.ndim else
+                 float(v) if isinstance(v, (np.ndarray, np.generic)) else v
+                 for v in vals), bshape
 
 
 def _error(cls, message, t, stats):

@@ -22,7 +22,7 @@ POINT = {X: 1.7, Y: 0.6, Z: 2.3}
 
 
 def _numeric(text: str) -> float:
-    env = {"np": np, "numpy": np, **{str(k): v for k, v in POINT.items()}}
+    env = {"np": np, "xp": np, "numpy": np, **{str(k): v for k, v in POINT.items()}}
     return float(eval(compile(text, "<printed>", "eval"), env))  # noqa: S307 - our own output
 
 

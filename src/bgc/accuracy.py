@@ -2,7 +2,7 @@
 Rosenbrock method Rodas4.
 
     bgc accuracy SCENE.yaml [--out DIR] [--methods RK45,DOP853,Radau,BDF,LSODA,Rodas4]
-                 [--tols 1e-3:1e-10] [--budget 60] [--repeats 3]
+                 [--tols 1e-3:1e-10] [--budget 60] [--repeats 3] [--workers N | --scheduler ADDR]
 
 What is measured (everything through the generated module's own ``simulate``):
 
@@ -25,6 +25,10 @@ Every solve runs in a forked child process with a deadline: the rhs and Jacobian
 the budget is spent, and the child is killed if it still has not answered shortly after.
 A method that fails, or exceeds the budget, is reported as such; once a method exceeds the
 budget at one tolerance, tighter tolerances are skipped (they cost at least as much).
+
+With --workers N (a local Dask cluster) or --scheduler ADDRESS, the references and runs are
+Dask tasks (see _study_on): the same runs, each still in its own child with its budget, and
+the same results.
 """
 from __future__ import annotations
 
@@ -82,6 +86,7 @@ class Setup:
     compile_time: float = 0.0
     compiled: object = None  # the Compiled scene module (for diagnoses)
     cmodule: object = None  # the C backend's module, for the C methods (made on first use)
+    source: str = ""  # the module's source text: Dask workers compile their own copy
 
 
 def prepare(scene_path, t_end=None, atol_scale=None, breakpoints=(), progress=None) -> Setup:
@@ -97,7 +102,7 @@ def prepare(scene_path, t_end=None, atol_scale=None, breakpoints=(), progress=No
 
     scene = scene_path if hasattr(scene_path, "t_span") else parse_scene(scene_path)
     t0c = time.perf_counter()
-    c, mod = compile_scene(scene, progress)
+    compiled, mod = compile_scene(scene, progress)
     ct = time.perf_counter() - t0c
     t0, t1 = scene.t_span
     if t_end is not None:
@@ -116,7 +121,7 @@ def prepare(scene_path, t_end=None, atol_scale=None, breakpoints=(), progress=No
     return Setup(Path(scene.file).stem, scene, mod, values(scene) or None, (t0, t1),
                  t_eval, tuple(sorted({float(b) for b in (*scene.breakpoints, *breakpoints)
                                        if t0 < b < t1})), scene.max_step,
-                 outs, float(atol_scale), ct, c)
+                 outs, float(atol_scale), ct, compiled, compiled.source)
 
 
 @contextlib.contextmanager
@@ -358,11 +363,15 @@ class Run:
     final_err: float = math.nan
     final_err_state: str = ""
     kind: str = "study"  # study | jacobian | reference
+    solution: tuple | None = None  # (t, x, y) while the errors wait for the reference (Dask)
 
 
 def measure(setup: Setup, ref: Reference, method, rtol, atol=None, jac_mode="analytic",
             budget=60.0, repeats=3) -> Run:
-    """Median wall time of up to `repeats` solves within `budget` seconds, in a child."""
+    """Median wall time of up to `repeats` solves within `budget` seconds, in a child.
+
+    ref=None: the run does not wait for the reference; it keeps its solution (Run.solution)
+    and :func:`with_errors` adds the errors once the reference is there."""
     atol = rtol * setup.atol_scale if atol is None else atol
     jac_label = jac_mode if method in IMPLICIT else "none"
 
@@ -384,6 +393,9 @@ def measure(setup: Setup, ref: Reference, method, rtol, atol=None, jac_mode="ana
             if time.perf_counter() - start + walls[-1] > budget:
                 break
         res, st = out
+        if ref is None:
+            return walls, st, {"solution": (np.asarray(res.t), np.asarray(res.x), {
+                k: np.asarray(res.y[k]) for k in setup.outputs})}
         return walls, st, errors(setup, ref, res.t, res.x, res.y)
 
     def quiet_work():  # an explicit method blowing up on a stiff scene warns on every call
@@ -403,6 +415,19 @@ def measure(setup: Setup, ref: Reference, method, rtol, atol=None, jac_mode="ana
     if not type(val).__name__ == "SimulationError":
         msg = f"{type(val).__name__}: {msg}"
     return replace(run, status="failed", message=msg[:600])
+
+
+def with_errors(setup: Setup, ref: Reference, run: Run) -> Run:
+    """A run measured without the reference (measure(ref=None)), with its errors: the same
+    numbers errors() gives inside the run's child."""
+    if run.solution is None:
+        return run
+    try:
+        errs = errors(setup, ref, *run.solution)
+    except Exception as exc:  # noqa: BLE001 - as a failure inside the child is reported
+        return replace(run, solution=None, status="failed",
+                       message=f"{type(exc).__name__}: {exc}"[:600])
+    return replace(run, solution=None, **errs)
 
 
 @dataclass
@@ -453,8 +478,12 @@ def parse_methods(text, allowed=ALL_METHODS) -> tuple:
 
 def study(setup: Setup, methods=METHODS, tols=DEFAULT_TOLS, budget=60.0, repeats=3,
           ref_rtol=1e-12, ref_methods=None, ref_budget=900.0, jac_methods=("Radau", "BDF"),
-          jac_tols=(1e-4, 1e-6, 1e-8), progress=None) -> Study:
+          jac_tols=(1e-4, 1e-6, 1e-8), progress=None, client=None) -> Study:
+    """The study; with a dask.distributed client, its runs are Dask tasks (see _Grid)."""
     say = progress or (lambda msg: None)
+    if client is not None:
+        return _study_on(client, setup, methods, tols, budget, repeats, ref_rtol, ref_methods,
+                         ref_budget, jac_methods, jac_tols, say)
     _warm_up(setup)
     if any(m in C_METHODS for m in methods):  # built here, before the runs' forked children
         say("building the C backend's module for the C methods")
@@ -526,6 +555,155 @@ def _line(r: Run) -> str:
     return (f"{head} error {r.err:.2e}, final {r.final_err:.2e}, {r.wall:.3f} s "
             f"(median of {len(r.walls)}), {r.nsteps} steps, {r.nfev} rhs, {r.njev} Jac, "
             f"{r.nlu} LU")
+
+
+# --------------------------------------------------------------------------------------------
+# the same study as Dask tasks: every reference and every (method, tolerance) run is a task on
+# a worker, which compiles its own module from the source text and still runs each solve in a
+# forked child with its budget (run_isolated). A method's tolerances run one after another,
+# loosest first, so that one over the budget still skips the tighter ones; methods, the
+# Jacobian comparison and the two references run side by side. The runs do not wait for the
+# reference: each keeps its solution, and its errors are computed here once the reference is
+# in (the same function on the same arrays as inside a child, so the same numbers).
+
+_WORKER_SETUPS: dict = {}
+
+
+def _worker_setup(bare: Setup) -> Setup:
+    """The setup with this process's own module (compiled once per process, warmed up)."""
+    import hashlib
+
+    from .scene import load_module
+
+    key = hashlib.sha256(bare.source.encode()).hexdigest()
+    if key not in _WORKER_SETUPS:
+        mod = load_module(bare.source, f"{bare.name}_acc_{key[:8]}")
+        _WORKER_SETUPS[key] = replace(bare, module=mod)
+        _warm_up(_WORKER_SETUPS[key])
+    return _WORKER_SETUPS[key]
+
+
+@contextlib.contextmanager
+def _children_allowed():
+    """Let this process fork (a Dask worker process is daemonic unless configured otherwise,
+    and multiprocessing refuses children of daemonic processes; ours are killed by us)."""
+    proc = mp.current_process()
+    daemon = proc._config.get("daemon")
+    proc._config["daemon"] = False
+    try:
+        yield
+    finally:
+        if daemon is not None:
+            proc._config["daemon"] = daemon
+
+
+def _task(kind, bare: Setup, args):
+    """One reference (kind 'ref') or measured run (kind 'run') on a worker. A reference that
+    fails comes back as ('error', coord, message): a ModelError does not pickle."""
+    setup = _worker_setup(bare)
+    with _children_allowed():
+        if kind == "ref":
+            try:
+                return reference(setup, *args)
+            except ModelError as exc:
+                return ("error", exc.coord, exc.message)
+        return measure(setup, *args)
+
+
+def _study_on(client, setup, methods, tols, budget, repeats, ref_rtol, ref_methods,
+              ref_budget, jac_methods, jac_tols, say) -> Study:
+    from distributed import as_completed
+
+    bare = replace(setup, module=None, compiled=None, cmodule=None)  # workers rebuild them
+    # a fresh key (hash=False): a key shared with an earlier study's data could be released
+    # by that study's futures going away while this one still needs it
+    fbare = client.scatter(bare, broadcast=True, hash=False)
+    stiff, index = is_stiff(setup)
+    if ref_methods is None:
+        ref_methods = ("Radau", "BDF") if stiff else ("Radau", "DOP853")
+    ref_atol = ref_rtol * setup.atol_scale
+    say(f"{setup.name}: {setup.module.N_STATES} states, t = {setup.t_span[0]:g}..."
+        f"{setup.t_span[1]:g} s, {len(setup.t_eval)} output points; stiffness index "
+        f"{index:.3g} ({'stiff' if stiff else 'not stiff'}); atol = rtol x {setup.atol_scale:g}"
+        f"; on {len(client.scheduler_info()['workers'])} Dask workers")
+
+    def ref_of(val, fallback_ok):
+        if isinstance(val, tuple) and val and val[0] == "error":
+            if not fallback_ok:
+                raise ModelError(val[1], val[2])
+            return None, val[2]
+        return val, ""
+
+    say(f"references: {', '.join(ref_methods)} at rtol {ref_rtol:g}, atol {ref_atol:g}; the "
+        "runs meanwhile (their errors once the reference is there) ...")
+    rf = [client.submit(_task, "ref", fbare, (m, ref_rtol, ref_atol, ref_budget), pure=False)
+          for m in ref_methods]
+    tols_sorted = sorted(tols, reverse=True)
+    order = [(m, tol, "analytic", "study") for m in methods for tol in tols_sorted]
+    order += [(m, tol, mode, "jacobian") for m in jac_methods for tol in jac_tols
+              for mode in JAC_MODES]
+    results: dict = {}
+
+    def submit(item):
+        m, tol, mode, kind = item
+        return client.submit(_task, "run", fbare, (None, m, tol, None, mode, budget, repeats),
+                             pure=False)
+
+    pending = {}
+    for m in methods:  # each method's loosest tolerance first
+        pending[submit((m, tols_sorted[0], "analytic", "study"))] = (m, tols_sorted[0],
+                                                                      "analytic", "study")
+    for item in order:
+        if item[3] == "jacobian":
+            pending[submit(item)] = item
+    ac = as_completed(list(pending))
+    for fut in ac:
+        item = pending.pop(fut)
+        m, tol, mode, kind = item
+        r = fut.result()
+        if kind == "jacobian":
+            r = replace(r, kind="jacobian")
+        results[item] = r
+        say(_line(r).replace("error nan, final nan, ", "") if r.status == "ok" else _line(r))
+        if kind == "study":
+            rest = [t for t in tols_sorted if t < tol]
+            if rest and r.status == "budget":
+                for t in rest:
+                    results[(m, t, mode, kind)] = Run(
+                        m, t, t * setup.atol_scale, "analytic" if m in IMPLICIT else "none",
+                        "skipped", f"skipped: over the budget at rtol {tol:g}")
+            elif rest:
+                nxt = (m, rest[0], mode, kind)
+                f2 = submit(nxt)
+                pending[f2] = nxt
+                ac.add(f2)
+    r0, _ = ref_of(rf[0].result(), False)
+    results = {k: with_errors(setup, r0, r) for k, r in results.items()}
+    runs = [results[i] for i in order if i[3] == "study"]
+    jac_runs = [results[i] for i in order if i[3] == "jacobian"]
+    check_note = ""
+    r1, err = ref_of(rf[1].result(), True)
+    if r1 is None:
+        check_note = (f"{ref_methods[1]} at rtol {ref_rtol:g} did not finish ({err}); the "
+                      f"check is {ref_methods[0]} at rtol {10 * ref_rtol:g} instead "
+                      "(a convergence check, not an independent method)")
+        say(check_note)
+        r1, _ = ref_of(client.submit(_task, "ref", fbare, (ref_methods[0], 10 * ref_rtol,
+                                                           10 * ref_atol, ref_budget),
+                                     pure=False).result(), False)
+    refs = (r0, r1)
+    for r in refs:
+        say(f"reference: {r.method} done in {r.wall:.2f} s ({r.stats['nsteps']} steps, "
+            f"{r.stats['nfev']} rhs, {r.stats['njev']} Jacobians)")
+    ref_methods = tuple(r.method for r in refs)
+    agree = errors(setup, refs[0], refs[1].t, refs[1].x, refs[1].y)
+    say(f"reference agreement ({ref_methods[1]} vs {ref_methods[0]}): output error "
+        f"{agree['err']:.2e} ({agree['err_output']}), final state {agree['final_err']:.2e}")
+    settings = {"ref_rtol": ref_rtol, "ref_atol": ref_atol, "ref_methods": tuple(ref_methods),
+                "budget": budget, "repeats": repeats, "atol_scale": setup.atol_scale,
+                "tols": tuple(tols), "methods": tuple(methods), "jac_tols": tuple(jac_tols),
+                "jac_methods": tuple(jac_methods), "check_note": check_note}
+    return Study(setup, refs, agree, stiff, index, runs, jac_runs, settings)
 
 
 # --------------------------------------------------------------------------------------------
@@ -860,9 +1038,15 @@ def register(main_group):
     @click.option("--t-end", type=finite(), default=None, help="stop the scene early (s)")
     @click.option("--breakpoints", "extra_bps", default="",
                   help="comma-separated instants where inputs jump, added to the scene's")
+    @click.option("--workers", type=click.IntRange(1, 1024), default=None,
+                  help="run the study's runs as Dask tasks on a local cluster of this many "
+                       "worker processes (default: one after another, here)")
+    @click.option("--scheduler", default=None,
+                  help="run them on this running Dask scheduler instead")
     @click.option("-q", "--quiet", is_flag=True)
     def accuracy_cmd(scene, out_dir, methods, tols, atol_scale, budget, repeats, ref_rtol,
-                     ref_methods, ref_budget, jac_methods, jac_tols, t_end, extra_bps, quiet):
+                     ref_methods, ref_budget, jac_methods, jac_tols, t_end, extra_bps, workers,
+                     scheduler, quiet):
         """Work-precision study of SCENE.yaml: error against wall time and rhs calls."""
         say = _progress(quiet)
         ms = parse_methods(methods)
@@ -898,9 +1082,20 @@ def register(main_group):
         from .runner import check_start
 
         check_start(setup.compiled, setup.module, sc, setup.p)  # nan or inf at t0: one line
-        with np.errstate(all="ignore"):  # (inherited by the forked runs)
-            st = study(setup, ms, tl, budget, repeats, ref_rtol, rms, ref_budget, jms, jtl,
-                       say)
+        client = None
+        if workers is not None or scheduler is not None:
+            from .sweep import client_for
+
+            client = client_for(scheduler or "local", workers)
+        try:
+            with np.errstate(all="ignore"):  # (inherited by the forked runs)
+                st = study(setup, ms, tl, budget, repeats, ref_rtol, rms, ref_budget, jms, jtl,
+                           say, client)
+        finally:
+            if client is not None:
+                from .sweep import close_client
+
+                close_client(client)
         for f in write_all(st, out):
             say(f"wrote {f}")
         a = st.agreement

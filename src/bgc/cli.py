@@ -640,5 +640,14 @@ for _name, _cmd in main.commands.items():
         _cmd.epilog = f"\b\nExample:\n  {_EXAMPLES[_name]}\n\n{_DOCS}"
 
 
+def _register_sweep():
+    from .sweep import register
+
+    register(main)
+
+
+_register_sweep()
+
+
 if __name__ == "__main__":  # pragma: no cover
     main()

@@ -79,8 +79,22 @@ def docstring(text: str) -> str:
     return s
 
 
+# numpy's names for functions whose array-API standard name differs (numpy >= 2 has both)
+_STANDARD_NAMES = {"arcsin": "asin", "arccos": "acos", "arctan": "atan", "arctan2": "atan2",
+                   "arcsinh": "asinh", "arccosh": "acosh", "arctanh": "atanh", "power": "pow",
+                   "absolute": "abs", "amax": "max", "amin": "min", "conjugate": "conj"}
+# names of the array API standard (2023.12) the printer may emit: elementwise functions,
+# where, and the constants
+_STANDARD = frozenset("""abs acos acosh asin asinh atan atan2 atanh ceil clip conj copysign
+    cos cosh exp expm1 floor hypot imag isfinite isinf isnan log log1p log2 log10 logaddexp
+    logical_and logical_not logical_or logical_xor maximum minimum nextafter pow real
+    remainder round sign signbit sin sinh sqrt square tan tanh trunc where max min sum prod
+    pi e inf nan""".split())
+
+
 class BgcPrinter(NumPyPrinter):
-    """NumPyPrinter writing ``np.`` and cheap forms of common operations."""
+    """NumPyPrinter writing the array API's functions as ``xp.`` (the namespace of the
+    inputs), numpy's others as ``np.``, and cheap forms of common operations."""
 
     def __init__(self):
         # order="none": print terms in sympy's canonical argument order (deterministic, and
@@ -107,7 +121,14 @@ class BgcPrinter(NumPyPrinter):
         if register:
             parts = fqn.split(".")
             self.module_imports[".".join(parts[:-1])].add(parts[-1])
-        return "np." + fqn[len("numpy."):] if fqn.startswith("numpy.") else fqn
+        if fqn.startswith("numpy."):
+            name = fqn[len("numpy."):]
+            name = _STANDARD_NAMES.get(name, name)
+            # the array API standard's functions through the namespace xp (numpy itself for
+            # numpy inputs, else the inputs' own, see templates/numpy/runtime.py); anything
+            # else stays numpy's
+            return ("xp." if name in _STANDARD else "np.") + name
+        return fqn
 
     def _print_Pow(self, expr, rational=False):
         b, e = expr.as_base_exp()

@@ -39,7 +39,7 @@ def runtime_source(backend: str = _TEMPLATES) -> str:
 
 #: Names the model part of the template binds at top level, with the statement kind.
 _MODEL_TOP = {
-    "Assign": {"BGC_VERSION", "MODEL_HASH", "N_STATES", "STATE_NAMES", "STATE_OWNERS",
+    "Assign": {"xp", "BGC_VERSION", "MODEL_HASH", "N_STATES", "STATE_NAMES", "STATE_OWNERS",
                "PARAM_DEFAULTS",
                "PARAM_UNITS", "_PARAM_NDIM", "INPUT_NAMES", "OUTPUT_NAMES", "OUTPUT_SHAPES",
                "JAC_SPARSITY", "_P0", "X0", "INPUT_LABELS", "OUTPUT_LABELS", "_TABLES",
