@@ -138,7 +138,7 @@ def rhs(t, x, p=None, u=None):
     e_b7 = q_cap/C1
     _c0 = 1/R3
     _c1 = 1/R2
-    _c2 = R1*_c1
+    _c2 = _c1*R1
     _c3 = 1/(1 + _c2)
     # load_R (R): flow = e / r (algebraic loop, solved)
     f_b6 = _c0*(u_Vs - e_b7 - _c2*_c3*u_Vs)/(1 + _c0*(R1 - _c1*_c3*R1*R1))
@@ -160,7 +160,7 @@ def jacobian(t, x, p=None, u=None):
     _d0 = 1/C1
     _c0 = 1/R3
     _c1 = 1/R2
-    _d10 = -_c0*_d0/(1 + _c0*(R1 - _c1*R1*R1/(1 + R1*_c1)))
+    _d10 = -_c0*_d0/(1 + _c0*(-_c1*R1*R1/(1 + _c1*R1) + R1))
 
     J = np.zeros((1, 1) + np.broadcast_shapes(x.shape[1:], _bshape))
     J[0, 0] = _d10
@@ -181,22 +181,21 @@ def outputs(t, x, p=None, u=None):
     q_cap, = x
     # cap (C, integral): effort from displacement
     e_b7 = q_cap/C1
-    _c0 = 1/R2
-    _c1 = R1*_c0
-    _c2 = 1/(1 + _c1)
-    _c3 = 1/R3
-    _c4 = -u_Vs
-    _c5 = _c3*(-_c4 - e_b7 - _c1*_c2*u_Vs)/(1 + _c3*(R1 - _c0*_c2*R1*R1))
-    _c6 = _c2*(_c0*u_Vs - _c1*_c5)
-    _c7 = _c5 + _c6
+    _c0 = 1/R3
+    _c1 = 1/R2
+    _c2 = _c1*R1
+    _c3 = 1/(1 + _c2)
+    _c4 = _c0*(u_Vs - e_b7 - _c2*_c3*u_Vs)/(1 + _c0*(R1 - _c1*_c3*R1*R1))
+    _c5 = _c3*(_c1*u_Vs - _c2*_c4)
+    _c6 = _c5 + _c4
     # 1-junction j_in: common flow (algebraic loop, solved)
-    f_b2 = _c7
+    f_b2 = _c6
     # 1-junction j_in: effort balance (algebraic loop, solved)
-    e_b3 = -_c4 - R1*_c7
+    e_b3 = u_Vs - _c6*R1
     # shunt_R (R): flow = e / r (algebraic loop, solved)
-    f_b4 = _c6
+    f_b4 = _c5
     # load_R (R): flow = e / r (algebraic loop, solved)
-    f_b6 = _c5
+    f_b6 = _c4
 
     _shape = np.broadcast_shapes(x.shape[1:], np.shape(t), _bshape)
     _b = lambda v: np.broadcast_to(v, _shape)  # noqa: E731

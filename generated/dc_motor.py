@@ -190,7 +190,7 @@ def jacobian(t, x, p=None, u=None):
     _d2 = K*_d0
     _d3 = 1/J_r
     _d4 = K*_d3
-    _d5 = _d3*b
+    _d5 = b*_d3
 
     J = np.zeros((2, 2) + np.broadcast_shapes(x.shape[1:], _bshape))
     J[0, 0] = -_d1
@@ -227,7 +227,7 @@ def outputs(t, x, p=None, u=None):
         'speed': np.array(_b(f_b6)),
         'back_emf': np.array(_b(e_b4)),
         'torque': np.array(_b(e_b5)),
-        'power_in': np.array(_b(f_b3*u_V)),
+        'power_in': np.array(_b(u_V*f_b3)),
     }
 
 

@@ -274,7 +274,7 @@ def rhs(t, x, p=None, u=None):
     # C_wind (C, integral): effort from displacement
     e_b10 = q_C_wind/C_w
     # winding_R (R): effort = r f
-    e_b2 = R_a*f_b3*(1 + alpha*e_b10)
+    e_b2 = R_a*f_b3*(1 + e_b10*alpha)
     # 1-junction armature: effort balance
     e_b3 = u_V - e_b2 - e_b4
     _c0 = e_b2*f_b3
@@ -333,14 +333,14 @@ def jacobian(t, x, p=None, u=None):
     _c1 = 1/C_w
     # C_wind (C, integral): effort from displacement
     e_b10 = _c1*q_C_wind
-    _c2 = R_a*(1 + alpha*e_b10)
+    _c2 = R_a*(1 + e_b10*alpha)
     # winding_R (R): effort = r f
     e_b2 = _c2*f_b3
     _d0 = _c0
     _d1 = K*_d0
     _d2 = 1/J_m
     _d3 = K*_d2
-    _d4 = _d2*b_m
+    _d4 = b_m*_d2
     _d5 = N*_d2
     _d6 = 1/J_L
     _d7 = _d5*c_s
@@ -348,16 +348,16 @@ def jacobian(t, x, p=None, u=None):
     _d9 = N*_d7
     _d10 = N*k_s
     _d11 = N*_d8
-    _d12 = -_d4 - _d9
-    _d13 = _d6*b_L
-    _d14 = _d8 - _d13
+    _d12 = -_d9 - _d4
+    _d13 = b_L*_d6
+    _d14 = -_d13 + _d8
     _d15 = _c1
     _d16 = _c2*_d0
-    _d17 = R_a*_d15*alpha*f_b3
-    _c3 = _d0*e_b2
-    _c4 = _d16*f_b3
-    _d18 = _c3*eta + _c4*eta
-    _c5 = _d17*f_b3
+    _d17 = R_a*f_b3*_d15*alpha
+    _c3 = f_b3*_d16
+    _c4 = _d0*e_b2
+    _d18 = _c4*eta + _c3*eta
+    _c5 = f_b3*_d17
     _d19 = _c5*eta
     _d20 = 1/C_h
     _c6 = 1/R_wh
@@ -365,7 +365,7 @@ def jacobian(t, x, p=None, u=None):
     _d22 = -_c6*_d20
     _d23 = _d19 - _d21
     _d24 = _d20/R_ha
-    _d25 = _d22 - _d24
+    _d25 = -_d24 + _d22
 
     J = np.zeros((8, 8) + np.broadcast_shapes(x.shape[1:], _bshape))
     J[0, 0] = -_d16
@@ -386,7 +386,7 @@ def jacobian(t, x, p=None, u=None):
     J[5, 4] = _d21
     J[5, 5] = _d25
     J[6, 3] = _d6
-    J[7, 0] = _c3 + _c4
+    J[7, 0] = _c4 + _c3
     J[7, 4] = _c5
     return J
 
@@ -418,7 +418,7 @@ def outputs(t, x, p=None, u=None):
     # C_wind (C, integral): effort from displacement
     e_b10 = q_C_wind/C_w
     # winding_R (R): effort = r f
-    e_b2 = R_a*f_b3*(1 + alpha*e_b10)
+    e_b2 = R_a*f_b3*(1 + e_b10*alpha)
     # C_house (C, integral): effort from displacement
     e_b14 = q_C_house/C_h
 
@@ -430,7 +430,7 @@ def outputs(t, x, p=None, u=None):
         'load_speed': np.array(_b(f_drivetrain__b7)),
         'load_angle': np.array(_b(s_drivetrain__angle)),
         'shaft_torque': np.array(_b(e_drivetrain__b4)),
-        'power_in': np.array(_b(f_b3*u_V)),
+        'power_in': np.array(_b(u_V*f_b3)),
         'copper_loss': np.array(_b(e_b2*f_b3)),
         'copper_energy': np.array(_b(s_E_cu)),
         'winding_temp': np.array(_b(e_b10)),

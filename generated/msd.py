@@ -150,7 +150,7 @@ def jacobian(t, x, p=None, u=None):
 
     x = np.asarray(x, dtype=float)
     _d0 = 1/m
-    _d1 = _d0*c
+    _d1 = c*_d0
 
     J = np.zeros((2, 2) + np.broadcast_shapes(x.shape[1:], _bshape))
     J[0, 0] = -_d1

@@ -224,15 +224,15 @@ def jacobian(t, x, p=None, u=None):
     _d0 = _c0
     _d1 = _c0
     _d2 = _c0
-    _d3 = D_0_0*_d0
-    _d4 = D_0_1*_d1
-    _d5 = D_0_2*_d2
-    _d6 = D_1_0*_d0
-    _d7 = D_1_1*_d1
-    _d8 = D_1_2*_d2
-    _d9 = D_2_0*_d0
-    _d10 = D_2_1*_d1
-    _d11 = D_2_2*_d2
+    _d3 = _d0*D_0_0
+    _d4 = _d1*D_0_1
+    _d5 = _d2*D_0_2
+    _d6 = _d0*D_1_0
+    _d7 = _d1*D_1_1
+    _d8 = _d2*D_1_2
+    _d9 = _d0*D_2_0
+    _d10 = _d1*D_2_1
+    _d11 = _d2*D_2_2
 
     J = np.zeros((6, 6) + np.broadcast_shapes(x.shape[1:], _bshape))
     J[0, 0] = -_d3

@@ -194,18 +194,17 @@ def jacobian(t, x, p=None, u=None):
     x = np.asarray(x, dtype=float)
     _d0 = 1/m1
     _d1 = 1/m2
-    _d2 = _d0*c1
-    _d3 = -_d0*c2
-    _d4 = _d1*c2
-    _c0 = -_d3
-    _d5 = -_c0 - _d2
+    _d2 = c1*_d0
+    _d3 = -c2*_d0
+    _d4 = c2*_d1
+    _d5 = _d3 - _d2
 
     J = np.zeros((4, 4) + np.broadcast_shapes(x.shape[1:], _bshape))
     J[0, 0] = _d5
     J[0, 1] = _d4
     J[0, 2] = -k1
     J[0, 3] = k2
-    J[1, 0] = _c0
+    J[1, 0] = -_d3
     J[1, 1] = -_d4
     J[1, 3] = -k2
     J[2, 0] = _d0

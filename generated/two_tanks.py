@@ -199,17 +199,17 @@ def jacobian(t, x, p=None, u=None):
 
     x = np.asarray(x, dtype=float)
     q_tank1, q_tank2, _, _, = x
-    _c0 = g*rho
-    _c1 = _c0/A1
+    _c0 = 1/A1
+    _c1 = g*rho
     # tank1 (C, integral): effort from displacement
-    e_b2 = _c1*q_tank1
-    _c2 = _c0/A2
+    e_b2 = _c0*_c1*q_tank1
+    _c2 = 1/A2
     # tank2 (C, integral): effort from displacement
-    e_b6 = _c2*q_tank2
+    e_b6 = _c1*_c2*q_tank2
     # 1-junction j12: effort balance
     e_b4 = e_b2 - e_b6
-    _d0 = _c1
-    _d1 = _c2
+    _d0 = _c0*g*rho
+    _d1 = _c2*g*rho
     _c3 = (1/2)*Cd*np.sqrt(2)*np.sqrt(1/rho)
     _c4 = _c3*a12*np.sign(e_b4)*np.sign(e_b4)/np.sqrt(abs(e_b4))
     _d2 = _c4*_d0

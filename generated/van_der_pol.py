@@ -155,7 +155,7 @@ def jacobian(t, x, p=None, u=None):
     e_b1 = _c0*q_cap
     _d0 = _c0
     _d1 = 1/L
-    _d2 = _d0*g*(-1 + e_b1*e_b1/(V0*V0))
+    _d2 = g*_d0*(-1 + e_b1*e_b1/(V0*V0))
 
     J = np.zeros((2, 2) + np.broadcast_shapes(x.shape[1:], _bshape))
     J[0, 0] = -_d2

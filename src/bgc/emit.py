@@ -89,6 +89,21 @@ class BgcPrinter(NumPyPrinter):
         # far cheaper than sorting every sum for display)
         super().__init__({"fully_qualified_modules": True, "strict": True, "order": "none",
                           "allow_unknown_functions": False})
+        self._memo: dict = {}
+
+    def doprint(self, expr, assign_to=None):
+        # The same expression (an effort or flow of the causal order) is printed once per
+        # module, not once per function that uses it; the imports it needs were registered
+        # the first time.
+        if assign_to is not None:
+            return super().doprint(expr, assign_to)
+        try:
+            return self._memo[expr]
+        except KeyError:
+            out = self._memo[expr] = super().doprint(expr)
+            return out
+        except TypeError:  # unhashable
+            return super().doprint(expr)
 
     def _module_format(self, fqn, register=True):
         if register:
@@ -306,17 +321,15 @@ def check_skeleton(text: str, backend: str = _TEMPLATES) -> None:
     """Parse the generated module and check its top-level statements: a docstring, the
     imports the printer may ask for, the model part's own definitions (each name once at most,
     except JAC_SPARSITY's pattern assignment) and then, statement for statement, the runtime."""
-    try:
-        tree = ast.parse(text)
+    runtime = runtime_source(backend)
+    if not text.endswith("\n\n\n" + runtime + "\n"):  # the runtime, verbatim, at the end
+        raise SkeletonError(f"the runtime part differs from templates/{backend}/runtime.py")
+    try:  # the model part must parse on its own: nothing in it can reach into the runtime
+        head = ast.parse(text[:-len(runtime) - 1]).body
     except SyntaxError as exc:
         raise SkeletonError(f"generated module does not parse: {exc}") from None
-    body = tree.body
-    rt = ast.parse(runtime_source(backend)).body
-    if len(body) < len(rt) + 2:
-        raise SkeletonError("generated module is shorter than its runtime")
-    head, tail = body[:len(body) - len(rt)], body[len(body) - len(rt):]
-    if [ast.dump(s) for s in tail] != [ast.dump(s) for s in rt]:
-        raise SkeletonError("the runtime part differs from templates/numpy/runtime.py")
+    if not head:
+        raise SkeletonError("the generated module has no model part")
     doc = head[0]
     if not (isinstance(doc, ast.Expr) and isinstance(doc.value, ast.Constant)
             and isinstance(doc.value.value, str)):

@@ -18,6 +18,7 @@ import networkx as nx
 import sympy as sp
 
 from .causality import Causality
+from . import fastsym
 from .errors import Coord, ModelError
 from .expr import Expr, build, shape_of
 from .graph import BondGraph, FlatElement, code_name, join
@@ -713,16 +714,26 @@ def _jacobian(kept: list[Assignment], state_vars, derivatives):
     jac_assign: list[Assignment] = []
     counter = itertools.count()
 
+    bridge = fastsym.Bridge() if fastsym.available() else None
+
     def grad(expr) -> dict[int, object]:
+        syms = sorted((s for s in expr.free_symbols if D.get(s)), key=str)  # deterministic
+        if not syms:
+            return {}
+        parts = fastsym.partials(bridge, expr, syms) if bridge is not None else None
+        if parts is not None:  # symengine: same algebra, a hundred times faster
+            acc_se: dict[int, object] = {}
+            for s, partial in parts.items():
+                for j, dj in D[s].items():
+                    term = partial * bridge.to_se(dj)
+                    acc_se[j] = acc_se[j] + term if j in acc_se else term
+            return {j: bridge.from_se(v) for j, v in acc_se.items() if v != 0}
         acc: dict[int, object] = {}
-        for s in expr.free_symbols:
-            ds = D.get(s)
-            if not ds:
-                continue
+        for s in syms:
             partial = _clean(sp.diff(expr, s))
             if partial == 0:
                 continue
-            for j, dj in ds.items():
+            for j, dj in D[s].items():
                 term = partial * dj
                 acc[j] = acc[j] + term if j in acc else term
         return {j: v for j, v in acc.items() if v != 0}

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import networkx as nx
 import sympy as sp
 
+from . import fastsym
 from .equations import Assignment, Equations, schedule
 
 
@@ -70,9 +71,12 @@ def lower_function(eq: Equations, results: list, assigns: list[Assignment], keys
     assigns = _prune(results, assigns)
     exprs = [a.expr for a in assigns] + list(results)
     if cse and exprs:
-        repl, reduced = sp.cse(exprs, symbols=(sp.Symbol(f"_c{i}", real=True)
-                                               for i in itertools.count()),
-                               order="none", list=True)
+        names = (sp.Symbol(f"_c{i}", real=True) for i in itertools.count())
+        fast = fastsym.cse(exprs, lambda: next(names))  # symengine, when it can read them all
+        if fast is not None:
+            repl, reduced = fast
+        else:
+            repl, reduced = sp.cse(exprs, symbols=names, order="none", list=True)
     else:
         repl, reduced = [], exprs
     defs = [(s, e, "") for s, e in repl]

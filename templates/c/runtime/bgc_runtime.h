@@ -8,7 +8,8 @@
 #ifndef BGC_RUNTIME_H
 #define BGC_RUNTIME_H
 
-#include <complex.h>
+/* bumped whenever the runtime's behaviour or ABI changes (compile caches may key on it) */
+#define BGC_RUNTIME_VERSION 1
 
 #ifdef __cplusplus
 extern "C" {
@@ -94,36 +95,14 @@ void bgc_radau5_constants(double *out);
 /* dense LU with partial pivoting, row-major a (n x n) in place; 0, or k+1 when pivot k is 0 */
 int bgc_dense_lu(int n, double *a, int *piv);
 void bgc_dense_solve(int n, const double *lu, const int *piv, double *b);
-int bgc_dense_lu_z(int n, double complex *a, int *piv);
-void bgc_dense_solve_z(int n, const double complex *lu, const int *piv, double complex *b);
 /* plan-ordered sparse LU without pivoting on the L+U value array a (nnz_lu, permuted order,
  * filled by the caller or by bgc_sparse_assemble); 0, or k+1 when pivot k is too small
  * relative to its row (|u_kk| <= 1e-10 * max|a_k.| before elimination) or not finite */
 int bgc_sparse_lu(const struct bgc_lu_plan *pl, double *a);
 void bgc_sparse_solve(const struct bgc_lu_plan *pl, const double *a, double *b, double *w);
-int bgc_sparse_lu_z(const struct bgc_lu_plan *pl, double complex *a);
-void bgc_sparse_solve_z(const struct bgc_lu_plan *pl, const double complex *a,
-                        double complex *b, double complex *w);
-
-/* The linear solver an integrator uses for (c I - J): sparse along the model's plan when it
- * has one (falling back to dense partial pivoting for a step whose pivot is too small), else
- * dense. Internal, but declared here for the integrator files. */
-typedef struct {
-    int n, nnz; const int *row, *col; const struct bgc_lu_plan *plan;
-    int use_dense, use_dense_z;   /* the current factorisation is dense (no plan, fallback) */
-    double *a; int *piv;          /* sparse nnz_lu values, or NULL without a plan */
-    double *ad;                   /* dense n*n (fallback or no plan) */
-    double complex *az, *adz; int *pivz;
-    double *w; double complex *wz;
-    long fallbacks;
-} bgc_linsys;
-int bgc_linsys_init(bgc_linsys *ls, const bgc_model *m, int complex_too);
-void bgc_linsys_free(bgc_linsys *ls);
-/* factor c*I - J, J given by values jv on the model's pattern; 0 ok, nonzero singular */
-int bgc_linsys_factor(bgc_linsys *ls, double c, const double *jv);
-void bgc_linsys_solve(bgc_linsys *ls, double *b);
-int bgc_linsys_factor_z(bgc_linsys *ls, double complex c, const double *jv);
-void bgc_linsys_solve_z(bgc_linsys *ls, double complex *b);
+/* The complex LU routines and the integrators' linear solver are declared in
+ * bgc_internal.h: this header stays free of <complex.h> (whose macro I would clash with
+ * generated code). */
 
 #ifdef __cplusplus
 }
