@@ -646,11 +646,38 @@ fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component comp, fmi2Real nom[],
                                           "for, the model has %d", (unsigned)nx, D->n);
     if (nx == 0) return fmi2OK;
     if (!nom) return ERR(c, "fmi2GetNominalsOfContinuousStates: NULL array");
-    for (size_t i = 0; i < nx; i++) nom[i] = 1.0;
+    /* the scene's absolute tolerance over its relative one: importers that take
+     * atol = nominal * rtol (FMPy does) then use the scene's tolerances */
+    double nominal = D->atol / D->rtol;
+    for (size_t i = 0; i < nx; i++) nom[i] = nominal;
     return fmi2OK;
 }
 
 /* ---- Co-Simulation ---------------------------------------------------------------------- */
+
+/* Jacobian values on the pattern by forward differences of the rhs: the fallback of a step
+ * whose analytic Jacobian is not finite (e.g. sqrt(|e|) at e = 0 in a flow law) */
+static int fd_jac(double t, const double *x, const double *p, double *jv)
+{
+    int n = D->n;
+    double *buf = malloc(sizeof(double) * (size_t)(3 * n) + 1);
+    if (!buf) return 1;
+    double *f0 = buf, *f1 = buf + n, *xs = buf + 2 * n;
+    int rc = D->model->rhs(t, x, p, f0);
+    memcpy(xs, x, sizeof(double) * (size_t)n);
+    for (int j = 0; j < n && !rc; j++) {
+        double h = 1.4901161193847656e-08 * fmax(1.0, fabs(x[j]));
+        xs[j] = x[j] + h;
+        h = xs[j] - x[j];
+        rc = D->model->rhs(t, xs, p, f1);
+        xs[j] = x[j];
+        for (int e = 0; e < D->nnz; e++)
+            if (D->model->jac_col[e] == j) jv[e] = (f1[D->model->jac_row[e]] - f0[D->model->jac_row[e]]) / h;
+    }
+    /* (bgc's patterns have each (row, col) once) */
+    free(buf);
+    return rc;
+}
 
 fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real currentCommunicationPoint,
                       fmi2Real communicationStepSize, fmi2Boolean noSetFMUStatePriorToCurrentPoint)
@@ -683,6 +710,15 @@ fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real currentCommunicationPoint,
     bgc_stats st;
     memset(&st, 0, sizeof st);
     int rc = bgc_integrate(D->model, c->p, c->t, t1, c->x, &opt, c->xnew, &st);
+    if (rc == BGC_ERR_NONFINITE && st.bad_where == 1) {
+        /* the analytic Jacobian is not finite somewhere on the way: again with differences */
+        bgc_model fd = *D->model;
+        fd.jac = fd_jac;
+        logf_(c, fmi2OK, "logAll", "fmi2DoStep: %s; again with a difference Jacobian",
+              st.message);
+        memset(&st, 0, sizeof st);
+        rc = bgc_integrate(&fd, c->p, c->t, t1, c->x, &opt, c->xnew, &st);
+    }
     if (rc != BGC_OK || !all_finite(c->xnew, D->n, NULL)) {
         st.message[sizeof st.message - 1] = '\0';
         logf_(c, fmi2Discard, "logStatusDiscard", "fmi2DoStep: the integration from t = %g to "
