@@ -1,4 +1,5 @@
-"""Regenerate every golden module: generated/<name>.py from each model in models/.
+"""Regenerate every golden module: generated/<name>.py from each model in models/, and the C
+sources of a few small models under generated/c/<name>/.
 
 Run `python scripts/regenerate.py` after a reviewed change to bgc's code generation, then
 review `git diff generated/` before committing.
@@ -13,6 +14,9 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from bgc.compiler import compile_file, write_atomic  # noqa: E402
 
+#: models whose generated C sources are golden files too (small: the C printer's reference)
+C_GOLDEN = ("msd", "dc_motor")
+
 
 def main() -> None:
     for model in sorted((ROOT / "models").glob("*.yaml")):
@@ -21,6 +25,13 @@ def main() -> None:
         write_atomic(out, c.source)
         print(f"{model.relative_to(ROOT)} -> {out.relative_to(ROOT)} "
               f"({len(c.equations.states)} states)")
+        if model.stem in C_GOLDEN:
+            from bgc.backends import c_files
+
+            files, _ = c_files(c)
+            for name, text in files.items():
+                write_atomic(ROOT / "generated" / "c" / c.model.name / name, text)
+            print(f"  C sources -> generated/c/{c.model.name}/ ({', '.join(sorted(files))})")
 
 
 if __name__ == "__main__":

@@ -13,6 +13,7 @@ import importlib.util
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -22,6 +23,9 @@ import pytest
 # threads only contend with the other worker (under load a 95x95 LU took ~47 ms instead of
 # ~0.1 ms). Subprocesses started by the tests inherit it.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+# The compile cache of the whole test session: a fresh private directory (never the user's),
+# inherited by the subprocesses the tests start.
+os.environ.setdefault("BGC_CACHE_DIR", tempfile.mkdtemp(prefix="bgc-test-cache-"))
 
 ROOT = Path(__file__).resolve().parents[1]
 MODELS = ROOT / "models"

@@ -12,6 +12,7 @@ from pathlib import Path
 
 BACKENDS = ("numpy", "c")
 MODULE_FILE = "module.py"
+CODE_FILE = "module.code"
 
 
 def c_files(compiled) -> tuple[dict, str]:
@@ -49,35 +50,56 @@ def write_c(compiled, outdir, cache=None, progress=None) -> Path:
     return path
 
 
-def _build_entry(compiled, backend, cache, progress):
+def _code_file(tmp: Path, text: str, name: str) -> None:
+    """The module's compiled code beside its text: a warm load skips parsing and compiling
+    (the cache key includes the Python version; the text was checked when written)."""
+    import marshal
+
+    (tmp / CODE_FILE).write_bytes(marshal.dumps(compile(text, f"<bgc {name}>", "exec")))
+
+
+def _build_entry(compiled, backend, cache, progress, name):
     def build(tmp: Path):
         from .compiler import write_atomic
 
         if backend == "numpy":
             write_atomic(tmp / MODULE_FILE, compiled.source)
+            _code_file(tmp, compiled.source, name)
             return
         from . import cbuild
 
         files, wrapper = c_files(compiled)
-        for name, text in files.items():
-            write_atomic(tmp / name, text)
+        for fname, text in files.items():
+            write_atomic(tmp / fname, text)
         (progress or (lambda m: None))(f"building the C library ({len(files)} model units)")
         cbuild.build_library(tmp, sorted(files), cache=cache)
         write_atomic(tmp / MODULE_FILE, wrapper)
+        _code_file(tmp, wrapper, name)
     return build
 
 
-def load_entry(entry: Path, backend: str, name: str):
-    """Import the module of a cache entry (or an output folder holding module.py)."""
+def load_entry(entry: Path, backend: str, name: str, trusted: bool = False):
+    """Import the module of a cache entry (or a folder holding module.py). ``trusted``: the
+    entry is in a checked cache directory and was checked when written; its compiled code
+    (module.code) is used as it is."""
     from .scene import load_module
 
-    text = (Path(entry) / MODULE_FILE).read_text(encoding="utf-8")
-    if backend == "numpy":
-        return load_module(text, name)
-    from .cbuild import LIB_NAME
-    from .emit_c import check_wrapper
+    entry = Path(entry)
+    text = (entry / MODULE_FILE).read_text(encoding="utf-8")
+    code = None
+    if trusted and (entry / CODE_FILE).is_file():
+        import marshal
 
-    mod = load_module(text, name, check=check_wrapper)
+        try:
+            code = marshal.loads((entry / CODE_FILE).read_bytes())
+        except (ValueError, EOFError, TypeError):
+            code = None
+    if backend == "numpy":
+        return load_module(text, name, code=code)
+    from .cbuild import LIB_NAME
+    from .skeleton import check_wrapper
+
+    mod = load_module(text, name, check=check_wrapper, code=code)
     mod._bind(Path(entry) / LIB_NAME)
     return mod
 
@@ -92,7 +114,7 @@ def load(name: str, backend: str, key: str | None, compile_fn, cache=None, progr
         entry = cache.get(backend, key)
         if entry is not None:
             say(f"cache hit ({backend} {key[:12]})")
-            return None, load_entry(entry, backend, name)
+            return None, load_entry(entry, backend, name, trusted=True)
     compiled = compile_fn()
     if backend == "numpy" and (cache is None or key is None):
         from .scene import load_module
@@ -102,7 +124,8 @@ def load(name: str, backend: str, key: str | None, compile_fn, cache=None, progr
         import tempfile
 
         d = Path(tempfile.mkdtemp(prefix="bgc-c-"))
-        _build_entry(compiled, backend, None, progress)(d)
+        _build_entry(compiled, backend, None, progress, name)(d)
         return compiled, load_entry(d, backend, name)
-    entry = cache.get_or_build(backend, key, _build_entry(compiled, backend, cache, progress))
-    return compiled, load_entry(entry, backend, name)
+    entry = cache.get_or_build(backend, key,
+                               _build_entry(compiled, backend, cache, progress, name))
+    return compiled, load_entry(entry, backend, name, trusted=True)

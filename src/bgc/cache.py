@@ -18,6 +18,7 @@ import hashlib
 import os
 import shutil
 import stat
+import sys
 import tempfile
 from pathlib import Path
 
@@ -174,9 +175,9 @@ def _tool_versions() -> str:
     try:
         from importlib.metadata import version
 
-        return f"sympy {version('sympy')}"
+        return f"sympy {version('sympy')}; python {sys.version}"
     except Exception:  # noqa: BLE001
-        return "sympy ?"
+        return f"sympy ?; python {sys.version}"
 
 
 def _code_digest() -> str:

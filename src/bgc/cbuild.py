@@ -67,6 +67,22 @@ def available() -> bool:
 
 @functools.lru_cache(maxsize=None)
 def _openmp(cc: tuple[str, ...]) -> bool:
+    """Does the compiler build OpenMP code? Probed once per compiler; the answer is kept in
+    the compile cache (when there is a safe one), so a warm run starts no compiler."""
+    ident = hashlib.sha256(_identity(cc).encode() + b"\0" + " ".join(cc).encode()).hexdigest()
+    try:
+        from .cache import Cache
+
+        store = Cache()
+        d = store.get_or_build("c-runtime", "openmp-" + ident[:32],
+                               lambda tmp: (tmp / "openmp").write_text(
+                                   "1" if _probe_openmp(cc) else "0"))
+        return (d / "openmp").read_text() == "1"
+    except (OSError, ModelError):
+        return _probe_openmp(cc)
+
+
+def _probe_openmp(cc: tuple[str, ...]) -> bool:
     with tempfile.TemporaryDirectory(prefix="bgc-omp-") as d:
         src = Path(d) / "probe.c"
         src.write_text("#include <omp.h>\nint f(void) { return omp_get_max_threads(); }\n")

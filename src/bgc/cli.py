@@ -53,9 +53,13 @@ def main():
               "--scene: ./<name>_<scene>.py)")
 @click.option("--scene", type=click.Path(dir_okay=False),
               help="specialise for this scene (its signals, effects, parameters, outputs)")
+@click.option("--target", type=click.Choice(("numpy", "c")), default="numpy", show_default=True,
+              help="numpy: one Python module; c: C sources, a wrapper module and the built "
+                   "library in the folder -o")
+@click.option("--no-cache", is_flag=True, help="do not use the compile cache (C runtime objects)")
 @click.option("-q", "--quiet", is_flag=True)
-def compile_cmd(model, output, scene, quiet):
-    """Compile MODEL.yaml into a Python module."""
+def compile_cmd(model, output, scene, target, no_cache, quiet):
+    """Compile MODEL.yaml into a Python module (or, --target c, C sources and a library)."""
     from .compiler import compile_model, write_atomic
     from .parse import parse_file
 
@@ -75,6 +79,16 @@ def compile_cmd(model, output, scene, quiet):
             output = Path(f"{c.model.name}_{sc.name}.py")
     else:
         c = compile_model(parse_file(model), prog)
+    if target == "c":
+        from . import backends, cache as cache_mod, cbuild
+
+        if output is None:
+            raise ModelError(None, "--target c writes a folder: give it with -o OUTDIR")
+        cbuild.identity()  # a clear message without a compiler
+        path = backends.write_c(c, output, None if no_cache else cache_mod.Cache(), prog)
+        prog(f"wrote {output}/ (C sources, {path.name}, {cbuild.LIB_NAME}): "
+             f"{len(c.equations.states)} states, {len(c.equations.jacobian)} Jacobian entries")
+        return
     if output is None:
         output = _default_output(Path(model), c.model.name)
     write_atomic(output, c.source)
@@ -170,15 +184,22 @@ def graph_cmd(model, output):
 @click.option("--method", type=click.Choice(SOLVER_METHODS), default=None,
               help="override the scene's solver method (Rodas4: the generated module's own)")
 @click.option("--rtol", type=click.FloatRange(min=0.0, min_open=True), default=None)
+@click.option("--atol", type=click.FloatRange(min=0.0, min_open=True), default=None,
+              help="absolute tolerance (default: the scene's solver atol)")
 @click.option("--max-wall", type=click.FloatRange(min=0.0, min_open=True), default=None,
               help="stop with an error once the integration has taken this many seconds")
+@click.option("--backend", type=click.Choice(("numpy", "c")), default=None,
+              help="numpy module, or C (the step loop in a compiled library); default: the "
+                   "scene's solver backend, else numpy")
+@click.option("--no-cache", is_flag=True, help="compile afresh, without the compile cache")
 @click.option("-q", "--quiet", is_flag=True)
-def simulate_cmd(scene, out, plot_dir, method, rtol, max_wall, quiet):
-    """Compile the scene's model and simulate the scene."""
+def simulate_cmd(scene, out, plot_dir, method, rtol, atol, max_wall, backend, no_cache, quiet):
+    """Compile the scene's model (or take it from the compile cache) and simulate the scene."""
     from .runner import run_scene
 
     prog = _Progress(quiet)
-    res = run_scene(scene, progress=prog, method=method, rtol=rtol, max_wall=max_wall)
+    res = run_scene(scene, progress=prog, method=method, rtol=rtol, max_wall=max_wall,
+                    atol=atol, backend=backend, use_cache=not no_cache)
     if out:
         buf = io.BytesIO()
         np.savez_compressed(buf, t=res.t, **res.y)
@@ -194,7 +215,8 @@ def simulate_cmd(scene, out, plot_dir, method, rtol, max_wall, quiet):
             prog(f"wrote {p}")
     st = res.stats
     click.echo(f"{res.scene.name}: t = {res.t[0]:g}..{res.t[-1]:g} s, {len(res.t)} points, "
-               f"{res.method} rtol={res.rtol:g}: {st['nfev']} rhs calls, {st['njev']} Jacobians, "
+               f"{res.method} rtol={res.rtol:g} atol={res.atol:g} ({res.backend} backend): "
+               f"{st['nfev']} rhs calls, {st['njev']} Jacobians, "
                f"{st.get('nlu', 0)} LU; compile {res.compile_time:.2f} s, "
                f"integrate {res.run_time:.2f} s")
 
@@ -241,6 +263,31 @@ def explain_cmd(scene, rounds, quiet):
     out.write(f"\n(operations after CSE, counted in the generated code; rhs cost: median of "
               f"{rounds} interleaved rounds at the initial state, default parameters)\n")
     click.echo(out.getvalue(), nl=False)
+
+
+@main.group("cache")
+def cache_cmd():
+    """The compile cache ($BGC_CACHE_DIR, else ~/.cache/bgc)."""
+
+
+@cache_cmd.command("info")
+def cache_info_cmd():
+    """Where the cache is, how many entries per target, how many bytes."""
+    from .cache import Cache
+
+    info = Cache().info()
+    ents = ", ".join(f"{k} {v}" for k, v in info["entries"].items()) or "empty"
+    click.echo(f"{info['path']}: {ents}; {info['bytes'] / 1e6:.1f} MB")
+
+
+@cache_cmd.command("clear")
+def cache_clear_cmd():
+    """Remove every cache entry."""
+    from .cache import Cache
+
+    c = Cache()
+    n = c.clear()
+    click.echo(f"{c.path}: removed {n} entries")
 
 
 @main.command("export")

@@ -9,7 +9,6 @@ backend-neutral lowering that the C printer (:mod:`bgc.emit_c`) shares.
 from __future__ import annotations
 
 import ast
-import functools
 import keyword
 from dataclasses import dataclass
 
@@ -20,12 +19,11 @@ from sympy.printing.numpy import NumPyPrinter
 from . import __version__, lower
 from .equations import Equations, T
 from .paths import templates_dir
+from .skeleton import (ALLOWED_IMPORTS, SkeletonError, check_skeleton,  # noqa: F401 (re-exported)
+                       runtime_source)
 
 _IDENT_OK = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_")
 _TEMPLATES = "numpy"  # this backend's folder in templates/
-_RUNTIME_MARK = "# ==== bgc numpy runtime: copied below this line ====\n"
-# Modules the generated code may import (numpy always; the printer may ask for these).
-ALLOWED_IMPORTS = frozenset({"numpy", "scipy", "scipy.special", "math"})
 
 
 # ---------------------------------------------------------------------------------------------
@@ -89,21 +87,6 @@ class BgcPrinter(NumPyPrinter):
         # far cheaper than sorting every sum for display)
         super().__init__({"fully_qualified_modules": True, "strict": True, "order": "none",
                           "allow_unknown_functions": False})
-        self._memo: dict = {}
-
-    def doprint(self, expr, assign_to=None):
-        # The same expression (an effort or flow of the causal order) is printed once per
-        # module, not once per function that uses it; the imports it needs were registered
-        # the first time.
-        if assign_to is not None:
-            return super().doprint(expr, assign_to)
-        try:
-            return self._memo[expr]
-        except KeyError:
-            out = self._memo[expr] = super().doprint(expr)
-            return out
-        except TypeError:  # unhashable
-            return super().doprint(expr)
 
     def _module_format(self, fqn, register=True):
         if register:
@@ -272,81 +255,4 @@ def _loader():
     return jinja2.FileSystemLoader(str(templates_dir()))
 
 
-@functools.lru_cache(maxsize=None)
-def runtime_source(backend: str = _TEMPLATES) -> str:
-    """The part of templates/<backend>/runtime.py copied into every generated module."""
-    text = (templates_dir() / backend / "runtime.py").read_text(encoding="utf-8")
-    head, sep, body = text.partition(_RUNTIME_MARK)
-    if not sep:
-        raise AssertionError(f"runtime.py has no marker line {_RUNTIME_MARK!r}")
-    return body.strip("\n")
 
-
-# ---------------------------------------------------------------------------------------------
-# The skeleton check: after rendering, the module's top-level statements must be exactly the
-# template's. Model text can only ever appear inside literals; if escaping were ever wrong, a
-# stray statement would show here and nothing would be written.
-
-#: Names the model part of the template binds at top level, with the statement kind.
-_MODEL_TOP = {
-    "Assign": {"BGC_VERSION", "MODEL_HASH", "N_STATES", "STATE_NAMES", "PARAM_DEFAULTS",
-               "PARAM_UNITS", "_PARAM_NDIM", "INPUT_NAMES", "OUTPUT_NAMES", "OUTPUT_SHAPES",
-               "JAC_SPARSITY", "_P0", "X0"},
-    "FunctionDef": {"_unpack", "_params", "_inputs", "initial_state", "rhs", "jacobian",
-                    "outputs"},
-    "ClassDef": {"_Unpacked"},
-}
-
-
-class SkeletonError(AssertionError):
-    """The rendered module's top level is not the template's (a bug, never written out)."""
-
-
-def _top_names(node) -> tuple[str, set]:
-    kind = type(node).__name__
-    if isinstance(node, (ast.FunctionDef, ast.ClassDef)):
-        return kind, {node.name}
-    if isinstance(node, ast.Assign):
-        names = set()
-        for tgt in node.targets:
-            base = tgt.value if isinstance(tgt, ast.Subscript) else tgt
-            if not isinstance(base, ast.Name):
-                return kind, {"<complex target>"}
-            names.add(base.id)
-        return kind, names
-    return kind, set()
-
-
-def check_skeleton(text: str, backend: str = _TEMPLATES) -> None:
-    """Parse the generated module and check its top-level statements: a docstring, the
-    imports the printer may ask for, the model part's own definitions (each name once at most,
-    except JAC_SPARSITY's pattern assignment) and then, statement for statement, the runtime."""
-    runtime = runtime_source(backend)
-    if not text.endswith("\n\n\n" + runtime + "\n"):  # the runtime, verbatim, at the end
-        raise SkeletonError(f"the runtime part differs from templates/{backend}/runtime.py")
-    try:  # the model part must parse on its own: nothing in it can reach into the runtime
-        head = ast.parse(text[:-len(runtime) - 1]).body
-    except SyntaxError as exc:
-        raise SkeletonError(f"generated module does not parse: {exc}") from None
-    if not head:
-        raise SkeletonError("the generated module has no model part")
-    doc = head[0]
-    if not (isinstance(doc, ast.Expr) and isinstance(doc.value, ast.Constant)
-            and isinstance(doc.value.value, str)):
-        raise SkeletonError("the module does not start with its docstring")
-    seen: dict[str, int] = {}
-    for node in head[1:]:
-        if isinstance(node, ast.Import):
-            for a in node.names:
-                if a.name not in ALLOWED_IMPORTS or a.asname not in (None, "np"):
-                    raise SkeletonError(f"unexpected import {a.name!r}")
-            continue
-        kind, names = _top_names(node)
-        allowed = _MODEL_TOP.get(kind, set())
-        if not names or not names <= allowed:
-            raise SkeletonError(f"unexpected top-level {kind} {sorted(names)} at line "
-                                f"{getattr(node, 'lineno', '?')}")
-        for nm in names:
-            seen[nm] = seen.get(nm, 0) + 1
-            if seen[nm] > (2 if nm == "JAC_SPARSITY" else 1):
-                raise SkeletonError(f"{nm} bound twice at top level")

@@ -17,7 +17,6 @@ renamed where they would collide with C keywords or the C library.
 """
 from __future__ import annotations
 
-import ast
 import functools
 import hashlib
 from dataclasses import dataclass
@@ -29,14 +28,11 @@ from sympy.printing.precedence import PRECEDENCE
 
 from . import __version__
 from .emit import _loader, comment as py_comment, lit
-from .paths import templates_dir
+from .skeleton import WRAPPER_MARK, binding_source, check_wrapper  # noqa: F401
 from .equations import T
 from .lower import Lowered
 
 _TEMPLATES = "c"
-_BINDING_MARK = "# ==== bgc C binding: copied below this line ====\n"
-#: the line that separates the numpy part of a wrapper module from its C part
-WRAPPER_MARK = "# ==== bgc C backend ====\n"
 #: lines (definitions plus results) per generated C function, and functions per unit
 PART_LINES = 250
 UNIT_PARTS = 4
@@ -304,7 +300,9 @@ def render_c(low: Lowered, *, source: str, source_hash: str, description: str = 
         files.append((f"model_part{k}.c", env.get_template("c/part.c.j2").render(
             parts=unit, unit=k, **common)))
     olens = [len(vals) for _, _, vals in eq.outputs]
+    lu_plan = _lu_plan(len(eq.states), low.jac_keys)
     main = env.get_template("c/model.c.j2").render(
+        lu_plan=lu_plan,
         fns=fns, n=len(eq.states), np=len(ctx.param_syms), jac_keys=low.jac_keys,
         states=[sv.name for sv in eq.states], outputs=[o[0] for o in eq.outputs],
         nout=sum(olens), all_parts=all_parts,
@@ -319,6 +317,19 @@ def render_c(low: Lowered, *, source: str, source_hash: str, description: str = 
     return CSources(tuple(files), digest)
 
 
+def _lu_plan(n: int, keys) -> str:
+    """The C text of a sparse LU plan for the iteration matrices, when bgc.sparse_lu (the C
+    runtime's planner) has one that beats the dense LU; "" for the dense LU."""
+    try:
+        from .sparse_lu import make_plan, plan_c, prefer_sparse
+    except ImportError:
+        return ""
+    if not keys:
+        return ""
+    plan = make_plan(n, [k[0] for k in keys], [k[1] for k in keys])
+    return plan_c(plan, "bgcm_lu_plan") if prefer_sparse(plan) else ""
+
+
 @functools.lru_cache(maxsize=None)
 def _env():
     env = jinja2.Environment(loader=_loader(), keep_trailing_newline=True, trim_blocks=True,
@@ -326,16 +337,6 @@ def _env():
                              autoescape=False)
     env.filters.update(cstr=c_string_literal, ccomment=c_comment, lit=lit, comment=py_comment)
     return env
-
-
-@functools.lru_cache(maxsize=None)
-def binding_source() -> str:
-    """The part of templates/c/binding.py copied into every wrapper module."""
-    text = (templates_dir() / _TEMPLATES / "binding.py").read_text(encoding="utf-8")
-    head, sep, body = text.partition(_BINDING_MARK)
-    if not sep:
-        raise AssertionError(f"binding.py has no marker line {_BINDING_MARK!r}")
-    return body.strip("\n")
 
 
 def render_wrapper(low: Lowered, numpy_source: str, csrc: CSources, lib_name: str) -> str:
@@ -349,38 +350,3 @@ def render_wrapper(low: Lowered, numpy_source: str, csrc: CSources, lib_name: st
         nnz=len(low.jac_keys), nout=sum(olens), binding=binding_source())
     check_wrapper(text)
     return text
-
-
-#: names the C part of a wrapper binds at top level (before the binding)
-_C_TOP = {"C_LIBRARY", "C_DIGEST", "_C_NP", "_C_NNZ", "_C_NOUT"}
-
-
-def check_wrapper(text: str) -> None:
-    """The wrapper's skeleton: the numpy module (checked as such), then the C constants, then
-    exactly templates/c/binding.py's part."""
-    from .emit import SkeletonError, check_skeleton
-
-    head, sep, tail = text.rpartition(WRAPPER_MARK)
-    if not sep:
-        raise SkeletonError("the wrapper has no C part")
-    check_skeleton(head)
-    try:
-        body = ast.parse(tail).body
-    except SyntaxError as exc:
-        raise SkeletonError(f"the wrapper's C part does not parse: {exc}") from None
-    rt = ast.parse(binding_source()).body
-    if len(body) < len(rt):
-        raise SkeletonError("the wrapper's C part is shorter than the binding")
-    top, rest = body[:len(body) - len(rt)], body[len(body) - len(rt):]
-    if [ast.dump(s) for s in rest] != [ast.dump(s) for s in rt]:
-        raise SkeletonError("the wrapper's binding differs from templates/c/binding.py")
-    seen = set()
-    for node in top:
-        if not (isinstance(node, ast.Assign) and len(node.targets) == 1
-                and isinstance(node.targets[0], ast.Name) and node.targets[0].id in _C_TOP
-                and isinstance(node.value, ast.Constant)):
-            raise SkeletonError(f"unexpected statement in the wrapper's C part at line "
-                                f"{getattr(node, 'lineno', '?')}")
-        if node.targets[0].id in seen:
-            raise SkeletonError(f"{node.targets[0].id} bound twice")
-        seen.add(node.targets[0].id)

@@ -13,9 +13,21 @@ import math
 from dataclasses import dataclass
 from typing import Callable, Protocol
 
-import sympy as sp
-
 from .errors import Coord, ModelError
+
+
+class _LazySympy:
+    """sympy, imported on first use: parsing and checking a model or scene needs no sympy, so a
+    warm `bgc simulate` (the module from the compile cache) never imports it."""
+
+    def __getattr__(self, name):
+        import sympy
+
+        globals()["sp"] = sympy
+        return getattr(sympy, name)
+
+
+sp = _LazySympy()
 
 #: Functions an expression may call, with their number of arguments (None: any, at least one).
 FUNCTIONS: dict[str, tuple[int, int | None]] = {
@@ -28,7 +40,19 @@ FUNCTIONS: dict[str, tuple[int, int | None]] = {
 }
 #: Functions whose argument names a bond, element or junction rather than a value.
 BOND_FUNCTIONS = ("e", "f", "p", "q", "power")
-CONSTANTS = {"pi": sp.pi}
+class _Constants:
+    """Named constants: the names are known without sympy, the values built on use."""
+
+    def __contains__(self, name):
+        return name == "pi"
+
+    def __getitem__(self, name):
+        if name != "pi":
+            raise KeyError(name)
+        return sp.pi
+
+
+CONSTANTS = _Constants()
 
 #: Deepest nesting of an expression tree (a guard against stack exhaustion in later stages).
 MAX_DEPTH = 200
@@ -264,12 +288,11 @@ def build(expr: Expr, resolver: Resolver):
         raise ModelError(expr.coord, "expression is nested too deeply") from None
 
 
-_NONFINITE = (sp.zoo, sp.oo, -sp.oo, sp.nan)
 
 
 def _finite(v) -> bool:
     items = v if isinstance(v, sp.MatrixBase) else (v,)
-    return not any(isinstance(x, sp.Basic) and x.has(*_NONFINITE) for x in items)
+    return not any(isinstance(x, sp.Basic) and x.has(sp.zoo, sp.oo, -sp.oo, sp.nan) for x in items)
 
 
 def _too_big(v) -> bool:
@@ -430,7 +453,7 @@ class _Builder:
             return sp.Piecewise((a, c), (b, True))
         args = [self.visit(a) for a in node.args]
         shapes = [shape_of(a) for a in args]
-        fn = _FUNCS.get(name)
+        fn = _funcs().get(name)
         if fn is not None:  # elementwise scalar functions
             if name in ("atan2", "min", "max"):
                 if any(shapes):
@@ -489,12 +512,19 @@ class _Builder:
         raise self.err(node, f"unknown function {name!r}")
 
 
-_FUNCS: dict[str, Callable] = {
-    "sin": sp.sin, "cos": sp.cos, "tan": sp.tan, "asin": sp.asin, "acos": sp.acos,
-    "atan": sp.atan, "atan2": sp.atan2, "sinh": sp.sinh, "cosh": sp.cosh, "tanh": sp.tanh,
-    "exp": sp.exp, "log": sp.log, "sqrt": sp.sqrt, "abs": sp.Abs, "sign": sp.sign,
-    "min": sp.Min, "max": sp.Max, "heaviside": lambda a: sp.Heaviside(a, 1),
-}
+_FUNCS: dict[str, Callable] = {}
+
+
+def _funcs() -> dict[str, Callable]:
+    """The functions' sympy meanings (built on first use: sympy is imported lazily)."""
+    if not _FUNCS:
+        _FUNCS.update({
+            "sin": sp.sin, "cos": sp.cos, "tan": sp.tan, "asin": sp.asin, "acos": sp.acos,
+            "atan": sp.atan, "atan2": sp.atan2, "sinh": sp.sinh, "cosh": sp.cosh,
+            "tanh": sp.tanh, "exp": sp.exp, "log": sp.log, "sqrt": sp.sqrt, "abs": sp.Abs,
+            "sign": sp.sign, "min": sp.Min, "max": sp.Max,
+            "heaviside": lambda a: sp.Heaviside(a, 1)})
+    return _FUNCS
 
 
 def _fmt(shape: tuple[int, ...]) -> str:

@@ -3,10 +3,10 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from .compiler import compile_model
 from .errors import ModelError
 from .scene import (Scene, check_against, free_values, load_module, param_values, parse_scene,
                     plan_for, scene_model)
@@ -24,6 +24,8 @@ class SceneResult:
     rtol: float
     compile_time: float
     run_time: float
+    backend: str = "numpy"
+    atol: float = 1e-9
 
 
 def compile_scene(scene: Scene, progress=None, specialise: bool = True):
@@ -37,6 +39,8 @@ def compile_scene(scene: Scene, progress=None, specialise: bool = True):
         from .graph import build_graph
 
         plan = plan_for(scene, build_graph(model).params)
+    from .compiler import compile_model
+
     c = compile_model(model, progress, plan)
     mod = load_module(c.source, f"{c.model.name}_{scene.name}{'' if specialise else '_full'}")
     check_against(scene, mod)
@@ -55,25 +59,62 @@ def runtime_params(scene: Scene, mod) -> dict | None:
     return out or None
 
 
-def run_scene(path, progress=None, method=None, rtol=None, max_wall=None) -> SceneResult:
+def scene_module(scene: Scene, progress=None, backend: str = "numpy", use_cache: bool = True):
+    """The scene's specialised module for a backend, through the compile cache: a warm run
+    imports neither sympy nor the compiler. Without a C compiler, backend "c" says so and
+    falls back to numpy. Returns (backend used, module)."""
+    from . import backends, cache as cache_mod
+
+    say = progress or (lambda msg: None)
+    if backend == "c":
+        from . import cbuild
+
+        if not cbuild.available():
+            say(f"no C compiler ({' '.join(cbuild.compiler())!r} cannot run; set CC): "
+                "using the numpy backend")
+            backend = "numpy"
+    store = cache_mod.Cache() if use_cache else None
+    key = cache_mod.key(backend, scene.model_path, scene.file) if store is not None else None
+
+    def compile_fn():
+        c, _ = _compiled(scene, progress)
+        return c
+    name = f"{Path(scene.model_path).stem}_{scene.name}"
+    _, mod = backends.load(name, backend, key, compile_fn, store, progress)
+    check_against(scene, mod)
+    return backend, mod
+
+
+def _compiled(scene: Scene, progress=None):
+    from .compiler import compile_model
+    from .graph import build_graph
+
+    model = scene_model(scene)
+    return compile_model(model, progress, plan_for(scene, build_graph(model).params)), model
+
+
+def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=None,
+              backend=None, use_cache: bool = True) -> SceneResult:
     say = progress or (lambda msg: None)
     scene = parse_scene(path)
     t0 = time.perf_counter()
-    c, mod = compile_scene(scene, progress)
+    backend, mod = scene_module(scene, progress, backend or scene.backend, use_cache)
     t1 = time.perf_counter()
     method = method or scene.method
     rtol = rtol or scene.rtol
-    say(f"simulating {scene.name} with {method}, rtol {rtol:g}")
+    atol = scene.atol if atol is None else atol
+    say(f"simulating {scene.name} with {method} ({backend}), rtol {rtol:g}, atol {atol:g}")
     dt = scene.dt or (scene.t_span[1] - scene.t_span[0]) / 1000
     try:
-        res = mod.simulate(scene.t_span, dt=dt, method=method, rtol=rtol, atol=scene.atol,
+        res = mod.simulate(scene.t_span, dt=dt, method=method, rtol=rtol, atol=atol,
                            p=runtime_params(scene, mod), breakpoints=scene.breakpoints,
                            max_step=scene.max_step, max_wall=max_wall)
     except mod.SimulationError as exc:
         raise ModelError(scene.coord, f"simulation failed: {exc}") from None
     t2 = time.perf_counter()
     t, x, y = res
-    return SceneResult(scene, mod, t, x, y, res.stats, method, rtol, t1 - t0, t2 - t1)
+    return SceneResult(scene, mod, t, x, y, res.stats, method, rtol, t1 - t0, t2 - t1,
+                       backend, atol)
 
 
 # ---------------------------------------------------------------------------------------------

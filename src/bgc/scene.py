@@ -22,6 +22,7 @@ from .parse import Model, _Reader, _param_value, _require, check_name, parse_fil
 
 METHODS = ("Radau", "BDF", "LSODA", "RK45", "RK23", "DOP853", "Rodas4")
 PLOT_KINDS = ("time", "path3d", "loci")
+BACKENDS = ("numpy", "c")
 
 
 @dataclass(frozen=True)
@@ -56,6 +57,7 @@ class Scene:
     free: tuple[str, ...] = ()  # scene parameters that stay parameters (not folded)
     output_coords: dict = dataclasses.field(default_factory=dict)  # output -> Coord
     model_coord: Coord | None = None  # where the scene names its model
+    backend: str = "numpy"  # solver.backend: numpy, or c (the C step loop)
 
 
 def parse_scene(path: str | Path) -> Scene:
@@ -120,9 +122,16 @@ def parse_scene(path: str | Path) -> Scene:
                                                          "(leave the key out for all of them)")
         outputs = tuple(output_coords)
     method, rtol, atol, dt, max_step = "Radau", 1e-6, 1e-9, None, float("inf")
+    backend = "numpy"
     if "solver" in top:
         sm = r.mapping(top["solver"][1], "solver")
-        _require(r, sm, top["solver"][1], ("method", "rtol", "atol", "dt", "max_step"), "solver")
+        _require(r, sm, top["solver"][1], ("method", "rtol", "atol", "dt", "max_step", "backend"),
+                 "solver")
+        if "backend" in sm:
+            backend = r.string(sm["backend"][1], "backend")
+            if backend not in BACKENDS:
+                raise ModelError(r.coord(sm["backend"][1]), f"unknown backend {backend!r} "
+                                                            f"(one of {', '.join(BACKENDS)})")
         if "method" in sm:
             method = r.string(sm["method"][1], "method")
             if method not in METHODS:
@@ -184,7 +193,7 @@ def parse_scene(path: str | Path) -> Scene:
     return Scene(path, name, model_path, (t0, t1), params, inputs, outputs, method, rtol, atol,
                  dt, max_step, bps, tuple(plots), effects, desc, r.coord(root),
                  hashlib.sha256(text.encode()).hexdigest()[:16], free, output_coords,
-                 r.coord(top["model"][1]))
+                 r.coord(top["model"][1]), backend)
 
 
 def apply_scene(model: Model, scene: Scene) -> Model:
@@ -237,16 +246,17 @@ def free_values(scene: Scene) -> dict:
     return {k: v for k, v in param_values(scene).items() if k in scene.free}
 
 
-def load_module(source: str, name: str, check=None):
+def load_module(source: str, name: str, check=None, code=None):
     """Import generated source as a module, from memory: nothing is written to disk. The code
     is compiled under a recognisable file name (``<bgc NAME>``) registered with ``linecache``,
     so tracebacks and ``inspect`` still show the generated lines."""
-    if check is None:
-        from .emit import check_skeleton as check
-    check(source)  # never execute a module whose top level is not the template's
+    if code is None:  # code: compiled from checked text (a trusted cache entry)
+        if check is None:
+            from .skeleton import check_skeleton as check
+        check(source)  # never execute a module whose top level is not the template's
     modname = f"bgc_generated_{name}"
     filename = f"<bgc {name}>"
-    loader = _SourceLoader(modname, filename, source)
+    loader = _SourceLoader(modname, filename, source, code)
     spec = importlib.util.spec_from_loader(modname, loader, origin=filename)
     mod = importlib.util.module_from_spec(spec)
     mod.__file__ = filename
@@ -264,14 +274,16 @@ class _SourceLoader(importlib.abc.Loader):
     """A loader for generated source held in memory (``get_source`` serves tracebacks,
     ``get_data`` the module's own text)."""
 
-    def __init__(self, modname: str, filename: str, source: str):
-        self.modname, self.filename, self.source = modname, filename, source
+    def __init__(self, modname: str, filename: str, source: str, code=None):
+        self.modname, self.filename, self.source, self.code = modname, filename, source, code
 
     def create_module(self, spec):
         return None
 
     def exec_module(self, module):
-        exec(compile(self.source, self.filename, "exec"), module.__dict__)
+        code = self.code if self.code is not None else compile(self.source, self.filename,
+                                                                 "exec")
+        exec(code, module.__dict__)
 
     def get_source(self, fullname):
         return self.source

@@ -36,7 +36,7 @@ _C_STATUS = {1: "non-finite value", 2: "too many steps", 3: "step size too small
              4: "wall time exceeded", 5: "singular iteration matrix", 6: "model failure",
              7: "bad arguments"}
 _LIB = None
-_DP = _ct.POINTER(_ct.c_double)
+_DP = _ct.c_void_p  # arrays are passed by address (ndarray.ctypes.data)
 _JAC_ROWS, _JAC_COLS = np.nonzero(JAC_SPARSITY)
 _OUT_SIZES = tuple(int(np.prod(OUTPUT_SHAPES[_o], dtype=int)) for _o in OUTPUT_NAMES)
 
@@ -76,7 +76,7 @@ def _lib():
 
 
 def _ptr(a):
-    return a.ctypes.data_as(_DP)
+    return a.ctypes.data
 
 
 def _c_array(a, shape):
@@ -115,11 +115,37 @@ def _P_flat(pv):
     return np.array([float(v) for v in pv], dtype=float).reshape(max(_C_NP, 1))
 
 
+def _p_flat_cached(p):
+    """The flat parameter values of p (no batch), kept for the last p seen: the solvers call
+    rhs thousands of times with the same parameters."""
+    global _P_LAST
+    if _P_LAST is not None and _P_LAST[0] is p:
+        return _P_LAST[1]
+    pv, bshape = _params(p)
+    if bshape:
+        return None
+    flat = _P_flat(pv)
+    if p is None or type(p).__name__ == "_Unpacked":
+        _P_LAST = (p, flat)
+    return flat
+
+
+_P_LAST = None
+
+
 def rhs(t, x, p=None, u=None):
     """dx/dt at time t, computed in C. x: (n,) or (n, *batch). Input overrides u run in the
     numpy code (the C functions compute the scene's signals themselves)."""
     if u is not None:
         return _np_rhs(t, x, p, u)
+    if type(x) is np.ndarray and x.shape == (N_STATES,) and x.dtype == np.float64 and np.ndim(t) == 0:
+        P = _p_flat_cached(p)
+        if P is not None:  # one instance: the fast path
+            x = np.ascontiguousarray(x)
+            dx = np.empty(N_STATES)
+            _lib().bgcm_eval_rhs(1, _ptr(np.array([float(t)])), 0, _ptr(x), 0, _ptr(P), 0,
+                                 _ptr(dx))
+            return dx
     B, nb, T, st, X, sx, P, sp = _instances(t, x, p)
     DX = np.empty((nb, N_STATES))
     _lib().bgcm_eval_rhs(nb, _ptr(T), st, _ptr(X), sx, _ptr(P), sp, _ptr(DX))

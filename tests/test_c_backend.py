@@ -1,0 +1,292 @@
+"""The C backend against the numpy module (the reference): rhs, Jacobian, outputs and initial
+state at random points; whole runs of every example model; batches against single runs;
+non-finite diagnostics; the C text door (string literals, comments); golden C sources; the
+numpy fallback without a compiler.
+
+The numpy module is an independent implementation of the same lowered equations (other
+printer, other arithmetic order), and its integrations here use scipy's Radau at tight
+tolerances, an integrator that shares no code with the C runtime.
+"""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bgc import backends, cbuild
+from bgc.cache import Cache
+from bgc.compiler import compile_file
+from bgc.emit_c import c_comment, c_string_literal
+from bgc.scene import load_module
+
+ROOT = Path(__file__).resolve().parents[1]
+MODELS = sorted(p.stem for p in (ROOT / "models").glob("*.yaml"))
+SLOW = {"3r2s"}  # the C build of its Jacobian takes tens of seconds on a loaded machine
+HAVE_CC = cbuild.available()
+HAVE_RUNTIME = bool(cbuild.runtime_sources())
+
+needs_cc = pytest.mark.skipif(not HAVE_CC, reason="no C compiler (CI installs one)")
+needs_runtime = pytest.mark.skipif(not HAVE_RUNTIME,
+                                   reason="the C runtime (templates/c/runtime/*.c) is missing")
+
+_built: dict = {}
+
+
+def _pair(name):
+    """(numpy module, C module) of models/<name>.yaml, built once per session."""
+    if name not in _built:
+        c = compile_file(ROOT / "models" / f"{name}.yaml")
+        np_mod = load_module(c.source, f"{name}_np_test")
+        _, c_mod = backends.load(f"{name}_c_test", "c", None, lambda: c, None)
+        _built[name] = (np_mod, c_mod)
+    return _built[name]
+
+
+def _param(name):
+    return pytest.param(name, marks=pytest.mark.slow) if name in SLOW else name
+
+
+def _close(a, b, rel=1e-12):
+    """|a - b| within rel of the larger magnitude (elementwise, with the array's scale as a
+    floor for entries that cancel to near zero)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    scale = np.maximum(np.maximum(np.abs(a), np.abs(b)), 1e-300)
+    floor = rel * max(float(np.max(np.abs(b))) if b.size else 0.0, 1e-300) * 1e-3
+    return bool(np.all(np.abs(a - b) <= rel * scale + floor))
+
+
+def _points(m, rng, k=4):
+    """Random states near the initial state (positive where the model needs it: tanks)."""
+    x0 = np.asarray(m.X0, float)
+    xs = x0[:, None] * (1 + 0.3 * rng.standard_normal((len(x0), k))) + \
+        0.2 * rng.standard_normal((len(x0), k)) * (np.abs(x0[:, None]) + 0.1)
+    return np.abs(xs) if "tanks" in m.__name__ else xs
+
+
+@needs_cc
+@needs_runtime
+@pytest.mark.parametrize("name", [_param(n) for n in MODELS])
+def test_rhs_jacobian_outputs_match_numpy(name):
+    npm, cm = _pair(name)
+    rng = np.random.default_rng(11)
+    X = _points(npm, rng)
+    for k in range(X.shape[1]):
+        t = float(rng.uniform(0, 2))
+        x = X[:, k]
+        assert _close(cm.rhs(t, x), npm.rhs(t, x)), (name, k)
+        assert _close(cm.jacobian(t, x), npm.jacobian(t, x)), (name, k)
+        yc, yn = cm.outputs(t, x), npm.outputs(t, x)
+        assert set(yc) == set(yn)
+        for o in yn:
+            assert yc[o].shape == yn[o].shape and _close(yc[o], yn[o]), (name, o)
+    # a batch of states at once, and the initial state
+    assert _close(cm.rhs(0.5, X), npm.rhs(0.5, X))
+    assert _close(cm.jacobian(0.5, X), npm.jacobian(0.5, X))
+    assert _close(cm.initial_state(), npm.initial_state())
+
+
+@needs_cc
+@needs_runtime
+def test_parameter_batches_broadcast_like_numpy():
+    npm, cm = _pair("dc_motor")
+    p = {"R_a": np.array([1.0, 2.0, 3.0]), "K": np.array([[0.04], [0.06]])}  # batch (2, 3)
+    x = npm.X0 + 0.5
+    assert cm.rhs(0.1, x, p).shape == npm.rhs(0.1, x, p).shape == (2, 2, 3)
+    assert _close(cm.rhs(0.1, x, p), npm.rhs(0.1, x, p))
+    assert _close(cm.jacobian(0.1, x, p), npm.jacobian(0.1, x, p))
+
+
+def _span(name):
+    return {"van_der_pol": (0.0, 0.5), "3r2s": (0.0, 0.2)}.get(name, (0.0, 1.0))
+
+
+@needs_cc
+@needs_runtime
+@pytest.mark.parametrize("name", [_param(n) for n in MODELS])
+@pytest.mark.parametrize("method", ["Rodas4", "Radau"])
+def test_whole_runs_match_numpy(name, method):
+    """C Rodas4 and Radau at rtol 1e-8 against scipy's Radau (numpy module) at rtol 1e-11:
+    every state, at every output time, within 1e-5 of its scale."""
+    npm, cm = _pair(name)
+    span = _span(name)
+    # off zero head: a square-root orifice has an infinite slope there
+    x0 = npm.X0 + 0.1 if name == "two_tanks" else None
+    ref = npm.simulate(span, dt=(span[1] - span[0]) / 50, method="Radau", rtol=1e-11,
+                       atol=1e-13, x0=x0)
+    res = cm.simulate(span, dt=(span[1] - span[0]) / 50, method=method, rtol=1e-8, atol=1e-11,
+                      x0=x0)
+    assert res.t.shape == ref.t.shape and np.allclose(res.t, ref.t, rtol=0, atol=1e-12)
+    scale = np.max(np.abs(ref.x), axis=-1, keepdims=True) + 1e-9
+    err = np.max(np.abs(res.x - ref.x) / scale)
+    assert err < 1e-5, (name, method, err)
+    assert res.stats["nsteps"] > 0 and res.stats["nfev"] > res.stats["nsteps"]
+    assert set(ref.stats) <= set(res.stats)
+    for o in ref.y:
+        assert res.y[o].shape == ref.y[o].shape
+
+
+@needs_cc
+@needs_runtime
+@pytest.mark.parametrize("method", ["Rodas4", "Radau"])
+def test_batch_equals_single_runs(method):
+    npm, cm = _pair("dc_motor")
+    Ra = np.array([1.0, 2.0, 4.0, 8.0])
+    batch = cm.simulate((0, 0.5), dt=0.01, method=method, rtol=1e-7, p={"R_a": Ra})
+    assert batch.x.shape == (2, 4, 51)
+    for k, r in enumerate(Ra):
+        one = cm.simulate((0, 0.5), dt=0.01, method=method, rtol=1e-7, p={"R_a": float(r)})
+        # each instance takes its own steps: the same arithmetic as the single run
+        assert np.allclose(batch.x[:, k], one.x, rtol=1e-12, atol=1e-15)
+        for o in one.y:
+            assert np.allclose(batch.y[o][..., k, :], one.y[o], rtol=1e-12, atol=1e-15)
+
+
+@needs_cc
+@needs_runtime
+def test_closed_form_msd():
+    """The mass-spring-damper's step response against its closed form (no bgc code)."""
+    _, cm = _pair("msd")
+    m, k, c, F0 = 2.0, 200.0, 4.0, 10.0
+    wn, zeta = np.sqrt(k / m), c / (2 * np.sqrt(k * m))
+    wd = wn * np.sqrt(1 - zeta ** 2)
+    for method in ("Rodas4", "Radau"):
+        r = cm.simulate((0, 2), dt=0.01, method=method, rtol=1e-10, atol=1e-13)
+        t = r.t
+        q = F0 / k * (1 - np.exp(-zeta * wn * t) * (np.cos(wd * t)
+                                                   + zeta / np.sqrt(1 - zeta ** 2) * np.sin(wd * t)))
+        assert np.max(np.abs(r.y["position"] - q)) < 1e-8 * F0 / k * 100
+
+
+@needs_cc
+@needs_runtime
+def test_nonfinite_is_located():
+    """A zero mass makes the velocity p/m non-finite: the error names the state and time."""
+    _, cm = _pair("msd")
+    with pytest.raises(cm.SimulationError) as exc:
+        cm.simulate((0, 1), dt=0.1, method="Rodas4", p={"m": 0.0})
+    msg = str(exc.value)
+    assert "non-finite" in msg and "t = 0" in msg
+    assert any(repr(s) in msg for s in cm.STATE_NAMES), msg
+    assert exc.value.t == 0.0 and "nfev" in exc.value.stats
+
+
+@needs_cc
+@needs_runtime
+def test_other_methods_and_input_overrides_use_the_python_loop():
+    npm, cm = _pair("msd")
+    a = cm.simulate((0, 1), dt=0.1, method="RK45", rtol=1e-9, atol=1e-12)
+    b = npm.simulate((0, 1), dt=0.1, method="RK45", rtol=1e-9, atol=1e-12)
+    assert np.allclose(a.x, b.x, rtol=1e-9, atol=1e-12)
+    u = {"F": lambda t: 5.0 + 0 * np.asarray(t)}
+    assert _close(cm.rhs(0.0, npm.X0 + 1, u=u), npm.rhs(0.0, npm.X0 + 1, u=u))
+
+
+# ---------------------------------------------------------------------------------------------
+# The C text door, checked by the C compiler itself
+
+_WEIRD = ['plain', 'quote " and backslash \\ and ??/ trigraph', "new\nline\r\ttab",
+          "star */ comment /* open", "unicode \u00e9\u2028\U0001F600", "\x00nul\x7f", "%s%n"]
+
+
+@needs_cc
+def test_c_string_literal_round_trips_through_the_compiler(tmp_path):
+    src = ["#include <stdio.h>", "int main(void) {"]
+    for s in _WEIRD:
+        src.append(f"  fwrite({c_string_literal(s)}, 1, sizeof({c_string_literal(s)}) - 1, "
+                   "stdout); putchar(255);")
+        src.append(f"  /* {c_comment(s)} */")
+    src += ["  return 0;", "}"]
+    (tmp_path / "t.c").write_text("\n".join(src) + "\n", encoding="ascii")
+    subprocess.run(cbuild.compiler() + ["-std=c99", "-Werror", "-o", str(tmp_path / "t"),
+                                        str(tmp_path / "t.c")], check=True, capture_output=True)
+    out = subprocess.run([str(tmp_path / "t")], capture_output=True, check=True).stdout
+    parts = out.split(b"\xff")[:-1]  # 0xff never occurs in UTF-8
+    assert parts == [s.encode("utf-8") for s in _WEIRD]
+
+
+def test_c_comment_cannot_end_the_comment():
+    for s in _WEIRD + ["*/*/", "**//", "a*\u200b/"]:
+        c = c_comment(s)
+        assert "*/" not in c and "/*" not in c and "??" not in c and c.isascii()
+        assert "\n" not in c and "\r" not in c
+
+
+# ---------------------------------------------------------------------------------------------
+# Golden C sources (scripts/regenerate.py writes them)
+
+@pytest.mark.parametrize("name", ["msd", "dc_motor"])
+def test_generated_c_is_golden(name):
+    c = compile_file(ROOT / "models" / f"{name}.yaml")
+    files, wrapper = backends.c_files(c)
+    gold = ROOT / "generated" / "c" / name
+    assert sorted(p.name for p in gold.glob("*.c")) == sorted(files)
+    for fname, text in files.items():
+        assert text == (gold / fname).read_text(encoding="utf-8"), (
+            f"generated/c/{name}/{fname} differs: review, then run scripts/regenerate.py")
+    # deterministic: a second rendering is the same text
+    again, _ = backends.c_files(compile_file(ROOT / "models" / f"{name}.yaml"))
+    assert again == files
+
+
+# ---------------------------------------------------------------------------------------------
+# The command line
+
+def _bgc(*args, env=None, cwd=None):
+    return subprocess.run([sys.executable, "-m", "bgc", *args], capture_output=True, text=True,
+                          env={**os.environ, **(env or {})}, cwd=cwd, timeout=600)
+
+
+def test_without_a_compiler_simulate_falls_back_to_numpy(tmp_path):
+    out = tmp_path / "r.npz"
+    p = _bgc("simulate", str(ROOT / "models/scenes/msd_step.yaml"), "--backend", "c", "--out",
+             str(out), env={"CC": "/nonexistent/cc", "BGC_CACHE_DIR": str(tmp_path / "cache")})
+    assert p.returncode == 0, p.stderr
+    assert "no C compiler" in p.stderr and "numpy" in p.stderr
+    assert "(numpy backend)" in p.stdout
+    assert out.is_file()
+
+
+def test_compile_target_c_without_a_compiler_is_one_clear_error(tmp_path):
+    p = _bgc("compile", str(ROOT / "models/msd.yaml"), "--target", "c", "-o",
+             str(tmp_path / "out"), env={"CC": "/nonexistent/cc"})
+    assert p.returncode == 2
+    assert "no C compiler" in p.stderr and "Traceback" not in p.stderr
+
+
+@needs_cc
+@needs_runtime
+def test_compile_target_c_writes_an_importable_folder(tmp_path):
+    out = tmp_path / "out"
+    p = _bgc("compile", str(ROOT / "models/msd.yaml"), "--target", "c", "-o", str(out), "-q")
+    assert p.returncode == 0, p.stderr
+    assert (out / "model.c").is_file() and (out / cbuild.LIB_NAME).is_file()
+    assert (out / "runtime" / "bgc_runtime.h").is_file()
+    code = ("import importlib.util, sys, numpy as np\n"
+            "sys.modules['bgc'] = None\n"
+            f"spec = importlib.util.spec_from_file_location('w', {str(out / 'msd.py')!r})\n"
+            "m = importlib.util.module_from_spec(spec); spec.loader.exec_module(m)\n"
+            "r = m.simulate((0, 1), dt=0.5, method='Rodas4')\n"
+            "print(m._LIB is not None, r.x.shape)\n")
+    q = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path)
+    assert q.returncode == 0, q.stderr
+    assert q.stdout.split() == ["True", "(2,", "3)"]
+
+
+@needs_cc
+@needs_runtime
+def test_simulate_backend_c_agrees_with_numpy(tmp_path):
+    env = {"BGC_CACHE_DIR": str(tmp_path / "cache")}
+    scene = str(ROOT / "models/scenes/msd_step.yaml")
+    a = _bgc("simulate", scene, "--backend", "c", "--out", str(tmp_path / "c.npz"),
+             "--rtol", "1e-9", "--atol", "1e-12", env=env)
+    b = _bgc("simulate", scene, "--out", str(tmp_path / "n.npz"), "--rtol", "1e-9",
+             "--atol", "1e-12", env=env)
+    assert a.returncode == 0 and b.returncode == 0, a.stderr + b.stderr
+    assert "(c backend)" in a.stdout and "atol=1e-12" in a.stdout and "compile" in a.stdout
+    ra, rb = np.load(tmp_path / "c.npz"), np.load(tmp_path / "n.npz")
+    assert np.allclose(ra["t"], rb["t"])
+    assert np.max(np.abs(ra["position"] - rb["position"])) < 1e-7 * np.max(np.abs(rb["position"]))
