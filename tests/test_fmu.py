@@ -175,3 +175,254 @@ def test_input_set_through_the_fmi_api(fmus, fmi_type):
     # and the input is what the FMU reports back
     after = r["time"] > 0.5 + 1e-9
     assert np.all(r["F"][after] == -5.0) and np.all(r["F"][r["time"] < 0.5 - 1e-9] == 10.0)
+
+
+# ---------------------------------------------------------------------------------------------
+# the low-level API: bad calls, instances, directional derivatives
+
+_BAD_CALLS = r'''
+import ctypes, math, sys
+import numpy as np
+from fmpy import read_model_description, extract
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import (FMU2Model, FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE,
+                       fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                       fmi2StepFinishedTYPE, fmi2OK, fmi2Error, fmi2Discard, fmi2True,
+                       fmi2False, fmi2ModelExchange, fmi2CoSimulation)
+
+path = sys.argv[1]
+md = read_model_description(path)
+d = extract(path)
+vr = {v.name: v.valueReference for v in md.modelVariables}
+nvr = len(md.modelVariables)
+messages = []
+
+def logger(env, name, status, category, message):
+    messages.append((status, message.decode()))
+
+def kw(cls):
+    return dict(guid=md.guid, unzipDirectory=d, instanceName="bad",
+                modelIdentifier=(md.coSimulation or md.modelExchange).modelIdentifier)
+
+def status_of(f, *a):
+    try:
+        f(*a)
+        return fmi2OK
+    except FMICallException as exc:
+        return int(str(exc).split("status ")[1].split()[0])
+
+def expect(st, want, what):
+    if st != want:
+        print("FAILED", what, st, want)
+        sys.exit(3)
+
+cb = fmi2CallbackFunctions()
+cb.logger = fmi2CallbackLoggerTYPE(logger)
+cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(0)
+cb.freeMemory = fmi2CallbackFreeMemoryTYPE(0)
+cb.stepFinished = fmi2StepFinishedTYPE(0)
+cb.componentEnvironment = None
+
+s = FMU2Slave(**kw(FMU2Slave))
+# a null logger (and no memory functions): the FMU instantiates and never calls it
+nul = fmi2CallbackFunctions()
+nul.logger = fmi2CallbackLoggerTYPE(0)
+nul.allocateMemory = fmi2CallbackAllocateMemoryTYPE(0)
+nul.freeMemory = fmi2CallbackFreeMemoryTYPE(0)
+nul.stepFinished = fmi2StepFinishedTYPE(0)
+s.instantiate(callbacks=nul)
+expect(status_of(s.doStep, 0.0, 0.1), fmi2Error, "doStep before initialization, null logger")
+expect(status_of(s.getReal, [nvr + 5]), fmi2Error, "unknown vr, null logger")
+s.fmi2FreeInstance(s.component)  # (FMPy's freeInstance also unloads the library)
+# a null callbacks struct, a wrong GUID, a NULL instance name: no instance
+raw = s.fmi2Instantiate
+comp = raw(b"x", fmi2CoSimulation, md.guid.encode(), b"", None, fmi2False, fmi2False)
+# (FMPy wraps the struct pointer; NULL callbacks give an instance without a logger or none)
+if comp:
+    s.fmi2FreeInstance(comp)
+expect(bool(raw(b"x", fmi2CoSimulation, b"{not-the-guid}", b"", ctypes.byref(cb), fmi2False,
+               fmi2False)), False, "wrong GUID")
+expect(bool(raw(None, fmi2CoSimulation, md.guid.encode(), b"", ctypes.byref(cb), fmi2False,
+               fmi2False)), False, "NULL name")
+expect(bool(raw(b"x", 7, md.guid.encode(), b"", ctypes.byref(cb), fmi2False, fmi2False)),
+       False, "bad type")
+# a NULL component everywhere
+for name in ("fmi2EnterInitializationMode", "fmi2ExitInitializationMode", "fmi2Terminate",
+             "fmi2Reset"):
+    expect(s._functions[name](None), fmi2Error, name + "(NULL)")
+expect(s._functions["fmi2GetReal"](None, None, 1, None), fmi2Error, "GetReal(NULL)")
+s.fmi2FreeInstance(None)
+s.freeLibrary()
+
+s = FMU2Slave(**kw(FMU2Slave))
+s.instantiate(callbacks=cb)
+f = s._functions
+c = s.component
+expect(status_of(s.doStep, 0.0, 0.1), fmi2Error, "doStep in Instantiated")
+expect(status_of(s.exitInitializationMode), fmi2Error, "exit init before enter")
+s.setupExperiment(startTime=0.0)
+s.enterInitializationMode()
+expect(status_of(s.setupExperiment), fmi2Error, "setupExperiment in init mode")
+s.exitInitializationMode()
+expect(status_of(s.getReal, [nvr]), fmi2Error, "unknown value reference")
+expect(status_of(s.getInteger, [0]), fmi2Error, "no integer variables")
+expect(status_of(s.getBoolean, [0]), fmi2Error, "no boolean variables")
+expect(status_of(s.getString, [0]), fmi2Error, "no string variables")
+expect(status_of(s.setReal, [vr["F"]], [float("nan")]), fmi2Error, "NaN input")
+expect(status_of(s.setReal, [vr["F"]], [float("inf")]), fmi2Error, "inf input")
+expect(status_of(s.setReal, [vr["position"]], [1.0]), fmi2Error, "set an output")
+expect(status_of(s.setReal, [vr["mass.p"]], [1.0]), fmi2Error, "set a state")
+expect(f["fmi2GetReal"](c, None, 2, None), fmi2Error, "GetReal(NULL arrays)")
+expect(f["fmi2SetReal"](c, None, 2, None), fmi2Error, "SetReal(NULL arrays)")
+expect(status_of(s.doStep, 5.0, 0.1), fmi2Error, "doStep at the wrong time")
+expect(status_of(s.doStep, 0.0, -0.1), fmi2Error, "negative step")
+expect(status_of(s.doStep, 0.0, float("nan")), fmi2Error, "NaN step")
+expect(status_of(s.getFMUstate), fmi2Error, "getFMUstate")
+expect(f["fmi2GetRealStatus"](c, 2, None), fmi2Error, "GetRealStatus(NULL)")
+# after all that the instance still simulates, and the NaN did not reach the input
+s.doStep(0.0, 0.1)
+y = s.getReal([vr["position"], vr["F"]])
+assert math.isfinite(y[0]) and y[1] == 10.0, y
+# a step that fails (the mass set to -m makes it unstable and then non-finite quickly) ...
+s.terminate()
+expect(status_of(s.doStep, 0.1, 0.1), fmi2Error, "doStep after terminate")
+s.reset()
+s.setReal([vr["m"]], [1e-300])
+s.enterInitializationMode(); s.exitInitializationMode()
+st = status_of(s.doStep, 0.0, 1e6)
+expect(st in (fmi2Discard, fmi2Error), True, "a failed step")
+expect(status_of(s.doStep, 0.0, 0.1), fmi2Error, "doStep after a failed step")
+s.terminate()
+s.freeInstance()
+
+m = FMU2Model(**kw(FMU2Model))
+m.instantiate(callbacks=cb)
+f = m._functions
+c = m.component
+x = (ctypes.c_double * 2)()
+expect(f["fmi2SetContinuousStates"](c, x, 2), fmi2Error, "set states in Instantiated")
+expect(f["fmi2NewDiscreteStates"](c, None), fmi2Error, "NewDiscreteStates in Instantiated")
+m.setupExperiment(startTime=0.0)
+m.enterInitializationMode(); m.exitInitializationMode()
+expect(f["fmi2NewDiscreteStates"](c, None), fmi2Error, "eventInfo NULL")
+m.newDiscreteStates()
+m.enterContinuousTimeMode()
+expect(f["fmi2GetDerivatives"](c, x, 3), fmi2Error, "wrong number of states")
+expect(f["fmi2GetDerivatives"](c, None, 2), fmi2Error, "NULL derivatives")
+bad = (ctypes.c_double * 2)(float("nan"), 0.0)
+expect(f["fmi2SetContinuousStates"](c, bad, 2), fmi2Error, "NaN state")
+expect(f["fmi2SetTime"](c, float("inf")), fmi2Error, "inf time")
+expect(f["fmi2CompletedIntegratorStep"](c, fmi2True, None, None), fmi2Error, "NULL flags")
+expect(f["fmi2GetDirectionalDerivative"](c, None, 1, None, 1, None, None), fmi2Error,
+       "directional derivative, NULL")
+do_step = m.dll.fmi2DoStep
+do_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int]
+do_step.restype = ctypes.c_int
+expect(do_step(c, 0.0, 0.1, fmi2True), fmi2Error, "DoStep on a Model Exchange instance")
+m.getDerivatives(x, 2)
+assert all(math.isfinite(v) for v in x)
+m.terminate()
+m.freeInstance()
+errors = [msg for st, msg in messages if st == fmi2Error]
+assert len(errors) >= 20, len(errors)
+assert any("unknown value reference" in e for e in errors)
+assert any("not finite" in e for e in errors)
+print("OK", len(errors))
+'''
+
+
+def test_bad_calls_return_errors_without_crashing(fmus, tmp_path):
+    """Through FMPy's low-level API, in a subprocess: a crash fails the test, not pytest."""
+    script = tmp_path / "bad_calls.py"
+    script.write_text(_BAD_CALLS)
+    r = subprocess.run([sys.executable, str(script), str(fmus["msd"])], capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 0, (r.returncode, r.stdout[-3000:], r.stderr[-3000:])
+    assert r.stdout.strip().startswith("OK")
+
+
+def _slave(path, name, cls=None):
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    md = read_model_description(str(path))
+    cls = cls or FMU2Slave
+    kind = md.coSimulation if cls is FMU2Slave else md.modelExchange
+    fmu = cls(guid=md.guid, unzipDirectory=extract(str(path)),
+              modelIdentifier=kind.modelIdentifier, instanceName=name)
+    return md, fmu
+
+
+def test_two_instances_at_once_are_independent(fmus):
+    """Two Co-Simulation instances of one FMU (one loaded library), stepped in turn with
+    different stiffnesses, each match the numpy module's run with its own parameters."""
+    mod = _numpy_module("msd.yaml")
+    md, a = _slave(fmus["msd"], "a")
+    _, b = _slave(fmus["msd"], "b")
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    ks = {"a": 200.0, "b": 800.0}
+    for fmu, k in ((a, ks["a"]), (b, ks["b"])):
+        fmu.instantiate()
+        fmu.setupExperiment(tolerance=1e-8, startTime=0.0)
+        fmu.setReal([vr["k"]], [k])
+        fmu.enterInitializationMode()
+        fmu.exitInitializationMode()
+    t, h = 0.0, 0.01
+    got = {"a": [], "b": []}
+    for _ in range(100):
+        for name, fmu in (("a", a), ("b", b)):
+            fmu.doStep(t, h)
+            got[name].append(fmu.getReal([vr["position"]])[0])
+        t += h
+    times = h * np.arange(1, 101)
+    for name, k in ks.items():
+        ref = mod.simulate((0.0, 1.0), t_eval=times, method="Radau", rtol=1e-11, atol=1e-14,
+                           p={"k": k})
+        assert np.max(np.abs(np.array(got[name]) - ref.y["position"])) < 1e-6 * 0.05 * 50
+    assert abs(got["a"][-1] - got["b"][-1]) > 1e-3
+    for fmu in (a, b):
+        fmu.terminate()
+        fmu.fmi2FreeInstance(fmu.component)
+    a.freeLibrary()
+    b.freeLibrary()
+
+
+def test_directional_derivatives_against_the_module(fmus):
+    """Model Exchange: d(der)/d(states) from the analytic Jacobian equals the numpy module's
+    jacobian at a state away from the start; d(der)/d(input) its rhs differences."""
+    from fmpy.fmi2 import FMU2Model
+
+    mod = _numpy_module("two_tanks.yaml")
+    md, m = _slave(fmus["two_tanks"], "m", FMU2Model)
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    n = mod.N_STATES
+    m.instantiate()
+    m.setupExperiment(startTime=0.0)
+    m.enterInitializationMode()
+    m.exitInitializationMode()
+    m.newDiscreteStates()
+    m.enterContinuousTimeMode()
+    x = np.linspace(0.3, 0.7, n) * 1e-1 + 0.05
+    import ctypes
+
+    m.setContinuousStates((ctypes.c_double * n)(*x), n)
+    m.setTime(3.0)
+    ders = [vr[f"der({s})"] for s in mod.STATE_NAMES]
+    states = [vr[s] for s in mod.STATE_NAMES]
+    J = np.array([m.getDirectionalDerivative(ders, [states[j]], [1.0]) for j in range(n)]).T
+    Jref = mod.jacobian(3.0, x)
+    assert np.allclose(J, Jref, rtol=1e-12, atol=1e-15 * np.max(np.abs(Jref)))
+    assert np.max(np.abs(Jref)) > 0
+    # along a direction: J v
+    v = np.arange(1.0, n + 1)
+    assert np.allclose(m.getDirectionalDerivative(ders, states, list(v)), Jref @ v, rtol=1e-12)
+    # with respect to the input (differences inside the FMU)
+    q = m.getReal([vr["Qin"]])[0]
+    du = m.getDirectionalDerivative(ders, [vr["Qin"]], [1.0])
+    hq = 1e-6 * max(abs(q), 1e-6)
+    fd = (mod.rhs(3.0, x, u={"Qin": lambda t: q + hq})
+          - mod.rhs(3.0, x, u={"Qin": lambda t: q - hq})) / (2 * hq)
+    assert np.allclose(du, fd, rtol=1e-6, atol=1e-9 * np.max(np.abs(fd)))
+    assert np.max(np.abs(fd)) > 0
+    m.terminate()
+    m.freeInstance()

@@ -347,6 +347,11 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
     ctx = _FmuCtx(low)
     fns = {name: _parts(name, fn, printer, ctx) for name, fn in
            (("rhs", low.rhs), ("jac", low.jac), ("outputs", low.outs), ("init", low.init))}
+    syms = ctx.param_syms + ctx.state_syms
+    cnames = [c_name(str(s)) for s in syms]
+    if not all(nm.isidentifier() and nm.isascii() for nm in cnames) or \
+            len(set(cnames)) != len(syms):
+        raise AssertionError("two model identifiers map to one C name")
     n_par = sum(len(pv.symbols) for pv in eq.params)
     nd = len(low.derived)
     assert n_par == spec.np and len(ctx.input_syms_fmu) == spec.nu
