@@ -426,3 +426,93 @@ def test_directional_derivatives_against_the_module(fmus):
     assert np.max(np.abs(fd)) > 0
     m.terminate()
     m.freeInstance()
+
+
+@pytest.mark.slow
+def test_3r2s_circle_scene_in_fmpy(tmp_path, monkeypatch):
+    """The 3R2S circle scene's FMU (its signals followed as the inputs' defaults, the
+    breakpoint a time event): FMPy validates it, and its joint angles in Co-Simulation (bgc's
+    Radau5 inside each communication step) and in Model Exchange (FMPy's CVode) stay within
+    1e-5 rad of bgc's own run of the scene."""
+    from fmpy.validation import validate_fmu
+    import fmpy.sundials
+
+    from bgc.runner import run_scene
+
+    scene = MODELS / "scenes" / "3r2s_circle.yaml"
+    path = _export("3r2s.yaml", tmp_path / "circle.fmu", scene=scene)
+    assert validate_fmu(str(path)) == []
+    res = run_scene(scene)
+    names = ["theta1", "theta2", "theta3", "theta4"]
+    # CVode would stop at its default 500 steps per output interval (the joints are stiff
+    # and oscillatory, hard on BDF): let it take more
+    init = fmpy.sundials.CVodeSolver.__init__
+    monkeypatch.setattr(fmpy.sundials.CVodeSolver, "__init__",
+                        lambda self, *a, **k: init(self, *a, **{**k, "maxNumSteps": 200000}))
+    for fmi_type in ("CoSimulation", "ModelExchange"):
+        r = fmpy.simulate_fmu(str(path), fmi_type=fmi_type, output_interval=0.005,
+                              output=names)
+        r = r[np.r_[np.diff(r["time"]) > 0, True]]
+        assert r["time"][-1] == pytest.approx(6.0)
+        for nm in names:
+            y = np.interp(res.t, r["time"], r[nm])
+            assert np.max(np.abs(y - res.y[nm])) < 1e-5, (fmi_type, nm)
+        # the angles move (the check is not vacuous)
+        assert np.ptp(res.y["theta2"]) > 1e-3
+
+
+def test_cli_export_kinds_and_user_errors(tmp_path):
+    from click.testing import CliRunner
+    from fmpy.validation import validate_fmu
+
+    from bgc.cli import main
+
+    run = CliRunner().invoke
+    out = tmp_path / "me.fmu"
+    r = run(main, ["export", str(MODELS / "msd.yaml"), "--fmu", str(out), "--kind", "me", "-q"])
+    assert r.exit_code == 0, r.output
+    md = fmpy.read_model_description(str(out))
+    assert md.modelExchange is not None and md.coSimulation is None
+    assert validate_fmu(str(out)) == []
+    r = fmpy.simulate_fmu(str(out), stop_time=0.5, output=["position"])
+    assert np.all(np.isfinite(r["position"]))
+    # a model error: one located line, exit 2, no file
+    bad = tmp_path / "bad.fmu"
+    r = run(main, ["export", str(MODELS / "bad" / "derivative_causality.yaml"), "--fmu",
+                   str(bad), "-q"])
+    assert r.exit_code == 2 and "derivative_causality.yaml:" in r.output
+    assert "Traceback" not in r.output and not bad.exists()
+    # a scene for another model
+    r = run(main, ["export", str(MODELS / "msd.yaml"), "--scene",
+                   str(MODELS / "scenes" / "3r2s_circle.yaml"), "--fmu", str(bad), "-q"])
+    assert r.exit_code == 2 and not bad.exists() and "scene is for" in r.output
+    assert list(tmp_path.iterdir()) == [out]
+
+
+def test_model_text_reaches_the_unit_only_escaped(tmp_path):
+    """Descriptions and units with XML and C metacharacters: the XML parses back to the same
+    text, the C sources compile (comments and literals escaped), FMPy simulates the unit."""
+    evil = 'ends */ a comment, "quotes" <tags> & ampersands ??= trigraph \\ \u00fc\u2603'
+    text = (MODELS / "msd.yaml").read_text(encoding="utf-8")
+    text = text.replace("description: mass-spring-damper under a force step",
+                        f"description: {yaml_quote(evil)}")
+    text = text.replace("description: moving mass", f"description: {yaml_quote(evil)}")
+    text = text.replace("unit: kg,", f"unit: {yaml_quote('kg<&>')},")
+    model = tmp_path / "msd.yaml"
+    model.write_text(text, encoding="utf-8")
+    from bgc.fmu import export_fmu
+
+    out = export_fmu(model, tmp_path / "evil.fmu")
+    root = ET.fromstring(_xml(out))
+    assert root.get("description") == evil
+    m = [v for v in root.iter("ScalarVariable") if v.get("name") == "m"][0]
+    assert m.get("description") == evil and m.find("Real").get("unit") == "kg<&>"
+    from fmpy.validation import validate_fmu
+
+    assert validate_fmu(str(out)) == []
+    r = fmpy.simulate_fmu(str(out), fmi_type="CoSimulation", stop_time=0.2)
+    assert np.all(np.isfinite(r["position"]))
+
+
+def yaml_quote(s: str) -> str:
+    return '"' + s.replace("\\", "\\\\").replace('"', '\\"') + '"'
