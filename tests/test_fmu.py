@@ -449,10 +449,21 @@ def test_3r2s_circle_scene_in_fmpy(tmp_path, monkeypatch):
     init = fmpy.sundials.CVodeSolver.__init__
     monkeypatch.setattr(fmpy.sundials.CVodeSolver, "__init__",
                         lambda self, *a, **k: init(self, *a, **{**k, "maxNumSteps": 200000}))
+    flat = [f"p3[{i + 1}]" for i in range(3)] + [f"R4[{i + 1},{j + 1}]" for i in range(3)
+                                                  for j in range(3)]
     for fmi_type in ("CoSimulation", "ModelExchange"):
         r = fmpy.simulate_fmu(str(path), fmi_type=fmi_type, output_interval=0.005,
-                              output=names)
+                              output=names + (flat if fmi_type == "CoSimulation" else []))
         r = r[np.r_[np.diff(r["time"]) > 0, True]]
+        if fmi_type == "CoSimulation":  # vector and matrix outputs, flattened row by row
+            for i in range(3):
+                y = np.interp(res.t, r["time"], r[f"p3[{i + 1}]"])
+                assert np.max(np.abs(y - res.y["p3"][i])) < 1e-6
+                for j in range(3):
+                    y = np.interp(res.t, r["time"], r[f"R4[{i + 1},{j + 1}]"])
+                    # (R4 compounds the errors of three joint angles; a wrong flattening
+                    # order would be off by O(1))
+                    assert np.max(np.abs(y - res.y["R4"][i, j])) < 5e-5
         assert r["time"][-1] == pytest.approx(6.0)
         for nm in names:
             y = np.interp(res.t, r["time"], r[nm])
