@@ -3,6 +3,7 @@ its validation, its simulations against the numpy module's (an independent imple
 the same equations, in Python), bad calls through its low-level API."""
 from __future__ import annotations
 
+import functools
 import subprocess
 import sys
 import textwrap
@@ -29,6 +30,7 @@ def _export(model, out, scene=None, kind="both"):
     return export_fmu(MODELS / model, out, scene_path=scene, kind=kind)
 
 
+@functools.lru_cache(maxsize=None)
 def _numpy_module(model):
     from bgc.compiler import compile_model
     from bgc.parse import parse_file

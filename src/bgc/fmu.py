@@ -12,6 +12,7 @@ expressions; an input nobody has set follows its default signal (:mod:`templates
 """
 from __future__ import annotations
 
+import atexit
 import hashlib
 import io
 import os
@@ -455,6 +456,9 @@ def write_sources(compiled, spec, scene, kind, dest: Path) -> list[str]:
     return sorted(p.name for p in dest.glob("*.c"))
 
 
+_RUNTIME_OBJS: dict = {}
+
+
 def build_binary(src: Path, cfiles: list[str], out: Path) -> None:
     """Compile the sources with the system C compiler into the shared library out."""
     from . import cbuild
@@ -463,17 +467,26 @@ def build_binary(src: Path, cfiles: list[str], out: Path) -> None:
     cc = cbuild.compiler()
     fl = ["-O2", "-std=c99", "-fPIC", "-fvisibility=hidden", "-I", str(src)]
     objdir = Path(tempfile.mkdtemp(prefix="bgc-fmu-obj-"))
+    rt_names = {f.name for f in cbuild.runtime_sources()}
     try:
-        def one(f):
-            o = objdir / (Path(f).stem + ".o")
+        def one(f, dest=objdir):
+            o = dest / (Path(f).stem + ".o")
             r = subprocess.run(cc + fl + ["-c", str(src / f), "-o", str(o)],
                                capture_output=True, text=True)
             if r.returncode != 0:
                 raise RuntimeError(f"the C compiler failed on {f}:\n{r.stderr[-4000:]}")
             return o
 
+        # the runtime's objects do not change from one model to the next: once per process
+        key = (tuple(cc), cbuild.runtime_key())
+        rt = [f for f in cfiles if f in rt_names]
         with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as ex:
-            objs = list(ex.map(one, cfiles))
+            if key not in _RUNTIME_OBJS or not all(p.is_file() for p in _RUNTIME_OBJS[key]):
+                d = Path(tempfile.mkdtemp(prefix="bgc-fmu-rt-"))
+                atexit.register(shutil.rmtree, d, True)
+                _RUNTIME_OBJS[key] = list(ex.map(lambda f: one(f, d), rt))
+            objs = list(ex.map(one, [f for f in cfiles if f not in rt_names]))
+        objs += _RUNTIME_OBJS[key]
         r = subprocess.run(cc + ["-shared", "-fPIC", "-o", str(out)] + [str(o) for o in objs]
                            + ["-lm"], capture_output=True, text=True)
         if r.returncode != 0:
