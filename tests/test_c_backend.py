@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from bgc import backends, cbuild
-from bgc.cache import Cache
+
 from bgc.compiler import compile_file
 from bgc.emit_c import c_comment, c_string_literal
 from bgc.scene import load_module
@@ -109,8 +109,9 @@ def _span(name):
 @pytest.mark.parametrize("name", [_param(n) for n in MODELS])
 @pytest.mark.parametrize("method", ["Rodas4", "Radau"])
 def test_whole_runs_match_numpy(name, method):
-    """C Rodas4 and Radau at rtol 1e-8 against scipy's Radau (numpy module) at rtol 1e-11:
-    every state, at every output time, within 1e-5 of its scale."""
+    """C Rodas4 and Radau at rtol 1e-8 (atol 1e-11) against scipy's Radau (numpy module) at
+    rtol 1e-11: every state, at every output time, within 1e-5 of its scale plus 1e-7 (states
+    that stay near zero, such as stiff joint deflections, are held to the absolute floor)."""
     npm, cm = _pair(name)
     span = _span(name)
     # off zero head: a square-root orifice has an infinite slope there
@@ -120,9 +121,9 @@ def test_whole_runs_match_numpy(name, method):
     res = cm.simulate(span, dt=(span[1] - span[0]) / 50, method=method, rtol=1e-8, atol=1e-11,
                       x0=x0)
     assert res.t.shape == ref.t.shape and np.allclose(res.t, ref.t, rtol=0, atol=1e-12)
-    scale = np.max(np.abs(ref.x), axis=-1, keepdims=True) + 1e-9
-    err = np.max(np.abs(res.x - ref.x) / scale)
-    assert err < 1e-5, (name, method, err)
+    scale = np.max(np.abs(ref.x), axis=-1, keepdims=True)
+    err = np.max(np.abs(res.x - ref.x) / (1e-5 * scale + 1e-7))
+    assert err < 1, (name, method, err)
     assert res.stats["nsteps"] > 0 and res.stats["nfev"] > res.stats["nsteps"]
     assert set(ref.stats) <= set(res.stats)
     for o in ref.y:
@@ -290,3 +291,16 @@ def test_simulate_backend_c_agrees_with_numpy(tmp_path):
     ra, rb = np.load(tmp_path / "c.npz"), np.load(tmp_path / "n.npz")
     assert np.allclose(ra["t"], rb["t"])
     assert np.max(np.abs(ra["position"] - rb["position"])) < 1e-7 * np.max(np.abs(rb["position"]))
+
+
+@needs_cc
+@needs_runtime
+def test_c_rodas4_takes_the_numpy_rodas4_steps():
+    """The C Rodas4 and the numpy module's Rodas4 are two implementations of one method (same
+    tableau, error norm and step control): on the step response they take the same steps and
+    agree far below the tolerance."""
+    npm, cm = _pair("msd")
+    a = cm.simulate((0, 2), dt=0.01, method="Rodas4", rtol=1e-6, atol=1e-9)
+    b = npm.simulate((0, 2), dt=0.01, method="Rodas4", rtol=1e-6, atol=1e-9)
+    assert abs(a.stats["nsteps"] - b.stats["nsteps"]) <= max(2, b.stats["nsteps"] // 50)
+    assert np.max(np.abs(a.x - b.x)) < 1e-9 * np.max(np.abs(b.x))

@@ -45,8 +45,10 @@ import numpy as np
 from .errors import ModelError
 
 METHODS = ("RK45", "DOP853", "Radau", "BDF", "LSODA", "Rodas4")
-ALL_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA", "Rodas4")
-IMPLICIT = ("Radau", "BDF", "LSODA", "Rodas4")
+# the C backend's integrators (the whole step loop in the scene's compiled library)
+C_METHODS = ("C-Rodas4", "C-Radau")
+ALL_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA", "Rodas4") + C_METHODS
+IMPLICIT = ("Radau", "BDF", "LSODA", "Rodas4") + C_METHODS
 # the implicit methods that also run on finite-difference Jacobians (Rodas4 needs the exact one)
 FD_JACOBIAN = ("Radau", "BDF", "LSODA")
 DEFAULT_TOLS = tuple(10.0 ** -k for k in range(3, 11))
@@ -78,6 +80,7 @@ class Setup:
     outputs: tuple
     atol_scale: float
     compile_time: float = 0.0
+    cmodule: object = None  # the C backend's module, for the C methods (made on first use)
 
 
 def prepare(scene_path, t_end=None, atol_scale=None, breakpoints=(), progress=None) -> Setup:
@@ -148,6 +151,19 @@ def solve(setup: Setup, method, rtol, atol, jac_mode="analytic", deadline=math.i
 
     njev counts every Jacobian the solver formed, finite-difference ones included (their rhs
     calls are in nfev)."""
+    if method in C_METHODS:  # one call into C: the budget is its wall-time limit
+        mod = c_module(setup)
+        wall = None if math.isinf(deadline) else max(deadline - time.perf_counter(), 1e-3)
+        try:
+            res = mod.simulate(setup.t_span, t_eval=setup.t_eval, method=method[2:], rtol=rtol,
+                               atol=atol, p=setup.p, breakpoints=setup.breakpoints,
+                               max_step=setup.max_step, max_wall=wall, max_steps=10 ** 7)
+        except mod.SimulationError as exc:
+            if "wall time" in str(exc):
+                raise BudgetExceeded(str(exc)) from None
+            raise
+        stats = {k: int(res.stats[k]) for k in ("nfev", "njev", "nlu", "nsteps")}
+        return res, stats
     mod = setup.module
     with _instrumented(mod, deadline, jac_mode == "dense-fd"):
         res = mod.simulate(setup.t_span, t_eval=setup.t_eval, method=method, rtol=rtol,
@@ -155,6 +171,25 @@ def solve(setup: Setup, method, rtol, atol, jac_mode="analytic", deadline=math.i
                            jac=jac_mode == "analytic", max_step=setup.max_step)
     stats = {k: int(res.stats[k]) for k in ("nfev", "njev", "nlu", "nsteps")}
     return res, stats
+
+
+def c_available() -> bool:
+    """A C compiler and the C runtime: the C methods can run."""
+    from . import cbuild
+
+    return cbuild.available() and bool(cbuild.runtime_sources())
+
+
+def c_module(setup: Setup):
+    """The scene's C-backend module (built once, through the compile cache)."""
+    if setup.cmodule is None:
+        from .runner import scene_module
+
+        backend, mod = scene_module(setup.scene, None, "c")
+        if backend != "c":
+            raise ModelError(None, "the C methods need a C compiler (set CC)")
+        setup.cmodule = mod
+    return setup.cmodule
 
 
 def run_isolated(fn, timeout):
@@ -415,6 +450,9 @@ def study(setup: Setup, methods=METHODS, tols=DEFAULT_TOLS, budget=60.0, repeats
           jac_tols=(1e-4, 1e-6, 1e-8), progress=None) -> Study:
     say = progress or (lambda msg: None)
     _warm_up(setup)
+    if any(m in C_METHODS for m in methods):  # built here, before the runs' forked children
+        say("building the C backend's module for the C methods")
+        c_module(setup)
     stiff, index = is_stiff(setup)
     if ref_methods is None:
         ref_methods = ("Radau", "BDF") if stiff else ("Radau", "DOP853")
@@ -776,6 +814,9 @@ def _progress(quiet):
     return say
 
 
+_DEFAULT_METHODS = ",".join(METHODS + C_METHODS)
+
+
 def register(main_group):
     """Add the `accuracy` command to a click group."""
     import click
@@ -784,7 +825,7 @@ def register(main_group):
     @click.argument("scene", type=click.Path(dir_okay=False))
     @click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
                   help="output folder (default: accuracy_<scene>)")
-    @click.option("--methods", default=",".join(METHODS), show_default=True,
+    @click.option("--methods", default=_DEFAULT_METHODS, show_default=True,
                   help="comma-separated scipy methods")
     @click.option("--tols", default="1e-3:1e-10", show_default=True,
                   help="rtol values: a decade range a:b or a comma list")
@@ -810,6 +851,9 @@ def register(main_group):
         """Work-precision study of SCENE.yaml: error against wall time and rhs calls."""
         say = _progress(quiet)
         ms = parse_methods(methods)
+        if methods == _DEFAULT_METHODS and not c_available():
+            ms = tuple(m for m in ms if m not in C_METHODS)
+            say("no C compiler or C runtime: the C methods are left out")
         tl = parse_tols(tols)
         rms = parse_methods(ref_methods) if ref_methods else None
         if rms is not None and len(rms) != 2:

@@ -124,8 +124,12 @@ def load(name: str, backend: str, key: str | None, compile_fn, cache=None, progr
         import tempfile
 
         d = Path(tempfile.mkdtemp(prefix="bgc-c-"))
-        _build_entry(compiled, backend, None, progress, name)(d)
-        return compiled, load_entry(d, backend, name)
+        try:
+            _build_entry(compiled, backend, None, progress, name)(d)
+            # loaded (the mapping outlives the file): nothing is left behind
+            return compiled, load_entry(d, backend, name)
+        finally:
+            shutil.rmtree(d, ignore_errors=True)
     entry = cache.get_or_build(backend, key,
                                _build_entry(compiled, backend, cache, progress, name))
     return compiled, load_entry(entry, backend, name, trusted=True)

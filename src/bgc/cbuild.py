@@ -127,7 +127,7 @@ def _cc(args: list[str], cwd: Path) -> None:
                            f"{r.stderr[-4000:]}")
 
 
-def _runtime_objects(cache, jobs: int) -> list[Path]:
+def _runtime_objects(cache, jobs: int, tmpdir) -> list[Path]:
     """The runtime's object files, compiled once per (sources, compiler, flags)."""
     fl = list(flags())
     key = runtime_key()
@@ -141,8 +141,9 @@ def _runtime_objects(cache, jobs: int) -> list[Path]:
 
     if cache is not None:
         d = cache.get_or_build("c-runtime", key, build)
-    else:
-        d = Path(tempfile.mkdtemp(prefix="bgc-rt-"))
+    else:  # uncached: built beside the model's objects, removed with them
+        d = Path(tmpdir) / "runtime"
+        d.mkdir()
         build(d)
     return sorted(d.glob("*.o"))
 
@@ -160,7 +161,7 @@ def build_library(srcdir: Path, files: list[str], cache=None, jobs: int | None =
     objdir = Path(tempfile.mkdtemp(prefix="bgc-obj-"))
     try:
         with ThreadPoolExecutor(max_workers=jobs) as ex:
-            rt = ex.submit(_runtime_objects, cache, jobs)
+            rt = ex.submit(_runtime_objects, cache, jobs, objdir)
             objs = list(ex.map(
                 lambda f: (_cc(fl + ["-I", inc, "-c", str(srcdir / f), "-o",
                                      str(objdir / (Path(f).stem + ".o"))], srcdir),

@@ -1,0 +1,228 @@
+"""The C backend against the numpy module, side by side in one run (ratios; absolute times on
+this shared machine are noisy). Writes bench/RESULTS_c.md.
+
+    python bench/bench_c_backend.py [--quick] [--out bench/RESULTS_c.md]
+
+Measures, on the circle scene of the 3R2S (models/scenes/3r2s_circle.yaml, its specialised
+module in both backends):
+  * rhs and Jacobian per call at batch 1 (through the Python wrapper, and inside C: the
+    library's loop over one instance) and per instance at batch 1000;
+  * the circle integration at rtol 1e-6 (scene atol): C Rodas4, C Radau, numpy Radau, with
+    the largest joint-angle error of each against a tight reference (C Radau at rtol 1e-10,
+    itself checked against numpy Radau at rtol 1e-9);
+  * a warm `bgc simulate SCENE --backend c --out r.npz` (cache hit, no plots) end to end
+    against the hand-written Newton-Euler script (tests/reference/mech3r2s.py) at rtol 1e-6;
+  * the symbolic compile (CPU seconds) and the C build (cold, runtime objects included).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = ROOT / "models" / "scenes" / "3r2s_circle.yaml"
+ANGLES = ("theta1", "theta2", "theta3", "theta4")
+
+
+def per_call(fn, n_min=20, t_min=0.3):
+    n, t0 = 0, time.perf_counter()
+    while n < n_min or time.perf_counter() - t0 < t_min:
+        fn()
+        n += 1
+    return (time.perf_counter() - t0) / n
+
+
+def best(fn, rounds=3):
+    out = []
+    for _ in range(rounds):
+        t0 = time.perf_counter()
+        r = fn()
+        out.append(time.perf_counter() - t0)
+    return min(out), r
+
+
+def _has_sparse_lu() -> bool:
+    try:
+        import bgc.sparse_lu  # noqa: F401
+        return True
+    except ImportError:
+        return False
+
+
+def cpu_children():
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--out", default=str(ROOT / "bench" / "RESULTS_c.md"))
+    ap.add_argument("--quick", action="store_true", help="skip the hand-written reference run")
+    args = ap.parse_args()
+    cache_dir = tempfile.mkdtemp(prefix="bgc-bench-cache-")
+    os.environ["BGC_CACHE_DIR"] = cache_dir
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    sys.path.insert(0, str(ROOT / "src"))
+    from bgc import backends, cbuild
+    from bgc.cache import Cache
+    from bgc.runner import _compiled, runtime_params
+    from bgc.scene import load_module, parse_scene
+
+    L = ["# C backend against the numpy module", "",
+         f"`python bench/bench_c_backend.py` on {os.cpu_count()} CPUs (shared machine: compare "
+         "ratios), compiler `" + cbuild.identity().splitlines()[1] + "`, flags "
+         f"`{' '.join(cbuild.flags())}`. C runtime: templates/c/runtime/ "
+         f"({len(cbuild.runtime_sources())} files); LU: "
+         + ("the sparse plan of bgc.sparse_lu where it beats the dense LU"
+            if _has_sparse_lu() else "dense (bgc.sparse_lu absent)") + ".", ""]
+
+    def say(line=""):
+        print(line, flush=True)
+        L.append(line)
+
+    sc = parse_scene(SCENE)
+    # compile: symbolic (CPU) then the C build (cold: an empty cache, runtime objects too)
+    c0 = time.process_time()
+    compiled, _ = _compiled(sc)
+    t_sym = time.process_time() - c0
+    npm = load_module(compiled.source, "circle_np_bench")
+    w0, k0 = time.perf_counter(), cpu_children()
+    _, cm = backends.load("circle_c_bench", "c", "bench" + "0" * 59, lambda: compiled, Cache())
+    t_build, cpu_build = time.perf_counter() - w0, cpu_children() - k0
+    files, _ = backends.c_files(compiled)
+    nlines = sum(t.count("\n") for t in files.values())
+    say("## Compile")
+    say()
+    say("| stage | time |")
+    say("|---|---|")
+    say(f"| symbolic compile of the circle scene's 3R2S ({len(npm.STATE_NAMES)} states, "
+        f"{int(npm.JAC_SPARSITY.sum())} Jacobian entries), CPU | {t_sym:.2f} s |")
+    say(f"| C build, cold ({len(files)} model units, {nlines} lines, + runtime), wall | "
+        f"{t_build:.2f} s (compiler CPU {cpu_build:.1f} s) |")
+    say()
+
+    # rhs and Jacobian
+    p = runtime_params(sc, npm)
+    t = 1.0
+    x = np.asarray(npm.X0, dtype=float)
+    rng = np.random.default_rng(0)
+    X = x[:, None] * (1 + 1e-3 * rng.standard_normal((len(x), 1000)))
+    r_np1 = per_call(lambda: npm.rhs(t, x, p))
+    r_c1 = per_call(lambda: cm.rhs(t, x, p))
+    j_np1 = per_call(lambda: npm.jacobian(t, x, p), n_min=5)
+    j_c1 = per_call(lambda: cm.jacobian(t, x, p))
+    lib = cm._LIB
+    n, nnz = cm.N_STATES, cm._C_NNZ
+    P = cm._P_flat(cm._params(p)[0])
+    T = np.array([t])
+    Xc = np.ascontiguousarray(X.T)
+    DX = np.empty((1000, n))
+    JV = np.empty((1000, nnz))
+    xc = np.ascontiguousarray(x)
+    # inside C: 1000 calls on one instance (strides 0), and 1000 distinct instances
+    r_c_in = per_call(lambda: lib.bgcm_eval_rhs(1000, cm._ptr(T), 0, cm._ptr(xc), 0,
+                                                cm._ptr(P), 0, cm._ptr(DX))) / 1000
+    j_c_in = per_call(lambda: lib.bgcm_eval_jac(1000, cm._ptr(T), 0, cm._ptr(xc), 0,
+                                                cm._ptr(P), 0, cm._ptr(JV))) / 1000
+    r_npB = per_call(lambda: npm.rhs(t, X, p), n_min=5) / 1000
+    r_cB = per_call(lambda: lib.bgcm_eval_rhs(1000, cm._ptr(T), 0, cm._ptr(Xc), n,
+                                              cm._ptr(P), 0, cm._ptr(DX))) / 1000
+    r_cBw = per_call(lambda: cm.rhs(t, X, p), n_min=5) / 1000
+    j_npB = per_call(lambda: npm.jacobian(t, X, p), n_min=3) / 1000
+    j_cB = per_call(lambda: lib.bgcm_eval_jac(1000, cm._ptr(T), 0, cm._ptr(Xc), n,
+                                              cm._ptr(P), 0, cm._ptr(JV))) / 1000
+    assert np.allclose(cm.rhs(t, X, p), npm.rhs(t, X, p), rtol=1e-12, atol=1e-12)
+    say("## rhs and Jacobian")
+    say()
+    say("| | numpy | C | ratio |")
+    say("|---|---|---|---|")
+    say(f"| rhs, batch 1, per call in C (library loop) | {r_np1 * 1e6:.1f} us | "
+        f"{r_c_in * 1e6:.3f} us | {r_np1 / r_c_in:.0f}x |")
+    say(f"| rhs, batch 1, per call through the Python wrapper | {r_np1 * 1e6:.1f} us | "
+        f"{r_c1 * 1e6:.1f} us | {r_np1 / r_c1:.1f}x |")
+    say(f"| rhs, batch 1000, per instance (in C) | {r_npB * 1e6:.3f} us | {r_cB * 1e6:.3f} us "
+        f"| {r_npB / r_cB:.1f}x |")
+    say(f"| rhs, batch 1000, per instance (wrapper) | {r_npB * 1e6:.3f} us | "
+        f"{r_cBw * 1e6:.3f} us | {r_npB / r_cBw:.1f}x |")
+    say(f"| Jacobian, batch 1, per call in C | {j_np1 * 1e6:.0f} us | {j_c_in * 1e6:.2f} us | "
+        f"{j_np1 / j_c_in:.0f}x |")
+    say(f"| Jacobian, batch 1, through the wrapper | {j_np1 * 1e6:.0f} us | {j_c1 * 1e6:.1f} us "
+        f"| {j_np1 / j_c1:.0f}x |")
+    say(f"| Jacobian, batch 1000, per instance | {j_npB * 1e6:.2f} us | {j_cB * 1e6:.2f} us | "
+        f"{j_npB / j_cB:.1f}x |")
+    say()
+
+    # the circle integration
+    kw = dict(dt=sc.dt, p=p, breakpoints=sc.breakpoints, atol=sc.atol)
+    wall_ref, ref = best(lambda: cm.simulate(sc.t_span, method="Radau", rtol=1e-10,
+                                             atol=sc.atol * 1e-4, max_steps=10 ** 7,
+                                             **{k: v for k, v in kw.items() if k != "atol"}), 1)
+    runs = {}
+    for label, mod, meth, rounds in (("C Rodas4", cm, "Rodas4", 3), ("C Radau", cm, "Radau", 3),
+                                     ("numpy Radau", npm, "Radau", 1)):
+        wall, res = best(lambda: mod.simulate(sc.t_span, method=meth, rtol=sc.rtol, **kw), rounds)
+        err = max(float(np.max(np.abs(res.y[a] - ref.y[a]))) for a in ANGLES)
+        runs[label] = (wall, err, res.stats)
+    check = npm.simulate(sc.t_span, method="Radau", rtol=1e-9, atol=sc.atol * 1e-3, **{
+        k: v for k, v in kw.items() if k != "atol"})
+    ref_err = max(float(np.max(np.abs(check.y[a] - ref.y[a]))) for a in ANGLES)
+    base = runs["numpy Radau"][0]
+    say(f"## Circle scene, rtol {sc.rtol:g}, atol {sc.atol:g}")
+    say()
+    say(f"Angle error: the largest joint-angle difference from C Radau at rtol 1e-10 "
+        f"({wall_ref:.2f} s), which agrees with numpy Radau at rtol 1e-9 within {ref_err:.1e} rad.")
+    say()
+    say("| run | wall | speed-up vs numpy Radau | angle error | steps | rhs calls | LU |")
+    say("|---|---|---|---|---|---|---|")
+    for label, (wall, err, st) in runs.items():
+        say(f"| {label} | {wall:.3f} s | {base / wall:.1f}x | {err:.1e} rad | {st['nsteps']} | "
+            f"{st['nfev']} | {st['nlu']} |")
+    say()
+
+    # warm bgc simulate end to end against the hand-written script
+    with tempfile.TemporaryDirectory() as d:
+        cmd = [sys.executable, "-m", "bgc", "simulate", str(SCENE), "--backend", "c", "--out",
+               str(Path(d) / "r.npz"), "-q"]
+        env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+        subprocess.run(cmd, check=True, env=env, capture_output=True)  # fills the cache
+        warm, proc = best(lambda: subprocess.run(cmd, check=True, env=env, capture_output=True,
+                                                 text=True), 3)
+        summary = proc.stdout.strip().splitlines()[-1]
+        say("## Warm `bgc simulate` end to end")
+        say()
+        say(f"`bgc simulate models/scenes/3r2s_circle.yaml --backend c --out r.npz` with the "
+            f"module in the cache (best of 3, interpreter start-up included): {warm:.2f} s.")
+        say(f"Its summary line: `{summary}`")
+        say()
+        if not args.quick:
+            script = ("import sys, numpy as np; sys.path.insert(0, %r); "
+                      "from reference import mech3r2s as ref; "
+                      "out = ref.simulate('circle', t_eval=np.linspace(0, 6, 1201), rtol=1e-6, "
+                      "atol=5e-7); np.savez(%r, **{k: out[k] for k in ('theta1', 'theta2', "
+                      "'theta3', 'theta4')})" % (str(ROOT / "tests"), str(Path(d) / "h.npz")))
+            hand, _ = best(lambda: subprocess.run([sys.executable, "-c", script], check=True,
+                                                  capture_output=True), 1)
+            a, b = np.load(Path(d) / "r.npz"), np.load(Path(d) / "h.npz")
+            diff = max(float(np.max(np.abs(a[k] - b[k]))) for k in ANGLES)
+            say("| | hand-written script (solve_ivp Radau) | bgc simulate --backend c (warm) | "
+                "ratio |")
+            say("|---|---|---|---|")
+            say(f"| circle, rtol 1e-6, end to end | {hand:.2f} s | {warm:.2f} s | "
+                f"{hand / warm:.1f}x |")
+            say()
+            say(f"The two runs' joint angles agree within {diff:.1e} rad.")
+            say()
+    Path(args.out).write_text("\n".join(L) + "\n", encoding="utf-8")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
