@@ -529,3 +529,55 @@ def test_model_text_reaches_the_unit_only_escaped(tmp_path):
 
 def yaml_quote(s: str) -> str:
     return '"' + s.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def test_tunable_parameter_between_communication_steps(fmus):
+    """msd's damping c is tunable (the initial state does not depend on it): changed at
+    t = 1 s between two steps, the run continues as the numpy module's run from the state at
+    1 s with the new value. A fixed parameter is refused after initialisation."""
+    from fmpy.fmi1 import FMICallException
+
+    mod = _numpy_module("msd.yaml")
+    md, s = _slave(fmus["msd"], "tune")
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    var = {v.name: v for v in md.modelVariables}
+    assert var["c"].variability == "tunable"
+    s.instantiate()
+    s.setupExperiment(tolerance=1e-8, startTime=0.0)
+    s.enterInitializationMode()
+    s.exitInitializationMode()
+    s.doStep(0.0, 1.0)
+    s.setReal([vr["c"]], [20.0])
+    s.doStep(1.0, 0.5)
+    got = s.getReal([vr["position"], vr["velocity"]])
+    a = mod.simulate((0.0, 1.0), method="Radau", rtol=1e-11, atol=1e-14, t_eval=[1.0])
+    b = mod.simulate((1.0, 1.5), method="Radau", rtol=1e-11, atol=1e-14, t_eval=[1.5],
+                     p={"c": 20.0}, x0=a.x[:, -1])
+    assert got[0] == pytest.approx(b.y["position"][-1], rel=1e-6, abs=1e-9)
+    assert got[1] == pytest.approx(b.y["velocity"][-1], rel=1e-6, abs=1e-9)
+    s.terminate()
+    s.freeInstance()
+
+
+def test_fixed_parameter_sets_the_initial_state(tmp_path):
+    """pendulum's theta0 gives the initial state: a fixed parameter, set before
+    initialisation it is the state's start, refused after."""
+    from fmpy.fmi1 import FMICallException
+
+    path = _export("pendulum.yaml", tmp_path / "pendulum.fmu")
+    md, s = _slave(path, "fixed")
+    var = {v.name: v for v in md.modelVariables}
+    assert var["theta0"].variability == "fixed"
+    q = [v for v in md.modelVariables if v.name.startswith("gravity.")][0]
+    s.instantiate()
+    s.setupExperiment(startTime=0.0)
+    s.setReal([var["theta0"].valueReference], [0.7])
+    s.enterInitializationMode()
+    assert s.getReal([q.valueReference])[0] == 0.7
+    s.setReal([var["theta0"].valueReference], [0.9])  # still allowed in initialisation mode
+    s.exitInitializationMode()
+    assert s.getReal([q.valueReference])[0] == 0.9
+    with pytest.raises(FMICallException):
+        s.setReal([var["theta0"].valueReference], [1.0])
+    s.terminate()
+    s.freeInstance()
