@@ -489,6 +489,15 @@ def test_cli_export_kinds_and_user_errors(tmp_path):
     assert validate_fmu(str(out)) == []
     r = fmpy.simulate_fmu(str(out), stop_time=0.5, output=["position"])
     assert np.all(np.isfinite(r["position"]))
+    # the library refuses a Co-Simulation instance of a Model Exchange unit
+    from fmpy import extract
+    from fmpy.fmi2 import FMU2Slave
+
+    s = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(out)), modelIdentifier="msd",
+                  instanceName="cs")
+    with pytest.raises(Exception, match="instantiate"):
+        s.instantiate()
+    s.freeLibrary()
     # a model error: one located line, exit 2, no file
     bad = tmp_path / "bad.fmu"
     r = run(main, ["export", str(MODELS / "bad" / "derivative_causality.yaml"), "--fmu",
