@@ -47,7 +47,7 @@ typedef struct {
     int dirty;                 /* dx and y need recomputing */
     int init_dirty;            /* derived parameters and x0 need recomputing (init mode) */
     int eval_failed;
-    double *x, *dx, *p, *y, *jv, *xnew;
+    double *x, *dx, *p, *y, *jv, *xnew, *u;  /* u: the inputs' default values (scratch) */
 } inst_t;
 
 #define MAGIC 0xB6C2F301u
@@ -205,7 +205,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
         REFUSE("fmi2Instantiate: unknown FMU type");
 #undef REFUSE
     inst_t *c = calloc(1, sizeof *c);
-    size_t nd = (size_t)(3 * D->n + D->np_all + D->nout + D->nnz) + 1;
+    size_t nd = (size_t)(3 * D->n + D->np_all + D->nout + D->nnz + D->nu) + 1;
     double *mem = c ? calloc(nd, sizeof(double)) : NULL;
     if (!c || !mem) {
         free(c);
@@ -225,6 +225,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     c->p = c->xnew + D->n;
     c->y = c->p + D->np_all;
     c->jv = c->y + D->nout;
+    c->u = c->jv + D->nnz;
     set_defaults(c);
     c->state = S_INSTANTIATED;
     return c;
@@ -324,7 +325,7 @@ fmi2Status fmi2GetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t
     fmi2Status st = fmi2OK;
     if (c->init_dirty) do_init(c);
     if (need && evaluate(c)) st = fmi2Error;
-    double uu[D->nu > 0 ? D->nu : 1];
+    double *uu = c->u;  /* (no VLAs: the sources build with C compilers without them) */
     if (D->nu) D->input_defaults(t_model(c), c->p, uu);
     for (size_t i = 0; i < nvr; i++) {
         int r = (int)vr[i];
@@ -506,7 +507,7 @@ fmi2Status fmi2GetDirectionalDerivative(fmi2Component comp, const fmi2ValueRefer
     }
     double h = cbrt(2.2e-16) * fmax(1.0, scale) / nrm;
     int fail = 0;
-    double uu[D->nu > 0 ? D->nu : 1];
+    double *uu = c->u;  /* (no VLAs: the sources build with C compilers without them) */
     if (D->nu) D->input_defaults(t, c->p, uu);
     for (int sgn = -1; sgn <= 1 && !fail; sgn += 2) {
         memcpy(xs, c->x, sizeof(double) * (size_t)D->n);
