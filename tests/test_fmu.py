@@ -590,3 +590,44 @@ def test_fixed_parameter_sets_the_initial_state(tmp_path):
         s.setReal([var["theta0"].valueReference], [1.0])
     s.terminate()
     s.freeInstance()
+
+
+@pytest.mark.slow
+def test_bad_calls_under_address_and_undefined_sanitizers(fmus, tmp_path):
+    """The bad-call script against the FMU rebuilt from its sources/ with AddressSanitizer
+    and UBSan: no invalid memory access or undefined behaviour on any of the bad paths."""
+    cc = cbuild.compiler()
+
+    def lib(name):
+        r = subprocess.run(cc + [f"-print-file-name={name}"], capture_output=True, text=True)
+        p = r.stdout.strip()
+        return p if r.returncode == 0 and Path(p).is_absolute() and Path(p).exists() else None
+
+    asan, ubsan = lib("libasan.so"), lib("libubsan.so")
+    if not (asan and ubsan):
+        pytest.skip("the compiler has no sanitizer runtimes")
+    d = tmp_path / "u"
+    with zipfile.ZipFile(fmus["msd"]) as zf:
+        zf.extractall(d)
+    so = next((d / "binaries").rglob("*.so"))
+    srcs = sorted(str(p) for p in (d / "sources").glob("*.c"))
+    r = subprocess.run(cc + ["-std=c99", "-fPIC", "-shared", "-g", "-O1",
+                             "-fsanitize=address,undefined", "-fno-sanitize-recover=undefined",
+                             "-o", str(so)] + srcs + ["-lm"], capture_output=True, text=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot build with sanitizers: {r.stderr[-300:]}")
+    fmu = tmp_path / "msd_san.fmu"
+    with zipfile.ZipFile(fmu, "w") as zf:
+        for p in sorted(d.rglob("*")):
+            if p.is_file():
+                zf.write(p, p.relative_to(d).as_posix())
+    script = tmp_path / "bad_calls.py"
+    script.write_text(_BAD_CALLS)
+    import os
+
+    env = {**os.environ, "LD_PRELOAD": f"{asan} {ubsan}", "ASAN_OPTIONS": "detect_leaks=0"}
+    r = subprocess.run([sys.executable, str(script), str(fmu)], capture_output=True, text=True,
+                       timeout=300, env=env)
+    assert r.returncode == 0, (r.returncode, r.stdout[-2000:], r.stderr[-4000:])
+    assert r.stdout.strip().startswith("OK")
+    assert "runtime error" not in r.stderr and "AddressSanitizer" not in r.stderr
