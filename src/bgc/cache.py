@@ -139,7 +139,7 @@ class Cache:
 def model_files(path) -> list[tuple[str, bytes]] | None:
     """The model file and every file it imports (recursively), as (resolved path, bytes);
     None when they cannot all be read (the compile then reports the error, uncached)."""
-    import yaml
+    import yaml  # noqa: F401 (parse.py imports it anyway)
 
     loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
     out: list[tuple[str, bytes]] = []
@@ -152,7 +152,8 @@ def model_files(path) -> list[tuple[str, bytes]] | None:
         seen.add(rp)
         try:
             data = p.read_bytes()
-            doc = yaml.load(data, Loader=loader)  # noqa: S506 (a safe loader)
+            # a file that never says "imports" imports nothing: no need to parse it
+            doc = yaml.load(data, Loader=loader) if b"imports" in data else None  # noqa: S506
         except (OSError, yaml.YAMLError, UnicodeDecodeError, ValueError, RecursionError):
             return False
         out.append((rp, data))
@@ -172,12 +173,20 @@ def model_files(path) -> list[tuple[str, bytes]] | None:
 
 
 def _tool_versions() -> str:
-    try:
-        from importlib.metadata import version
+    """The installed sympy's version (from its dist-info folder's name: cheap, and sympy is
+    not imported) and Python's."""
+    import importlib.util
 
-        return f"sympy {version('sympy')}; python {sys.version}"
-    except Exception:  # noqa: BLE001
-        return f"sympy ?; python {sys.version}"
+    ver = "?"
+    try:
+        spec = importlib.util.find_spec("sympy")
+        if spec is not None and spec.origin:
+            site = Path(spec.origin).resolve().parent.parent
+            infos = sorted(p.name for p in site.glob("sympy-*.dist-info"))
+            ver = ",".join(infos) or "?"
+    except (ImportError, OSError, ValueError):
+        pass
+    return f"sympy {ver}; python {sys.version}"
 
 
 def _code_digest() -> str:

@@ -30,6 +30,18 @@ def _fail(exc: ModelError):
 
 
 class _Group(click.Group):
+    """Catches user errors; registers `bgc accuracy` (a heavy module) only when asked for."""
+
+    def get_command(self, ctx, name):
+        if name == "accuracy" and "accuracy" not in self.commands:
+            _register_accuracy()
+        return super().get_command(ctx, name)
+
+    def list_commands(self, ctx):
+        if "accuracy" not in self.commands:
+            _register_accuracy()
+        return super().list_commands(ctx)
+
     def invoke(self, ctx):
         try:
             return super().invoke(ctx)
@@ -315,9 +327,6 @@ def _register_accuracy():
     from .accuracy import register
 
     register(main)
-
-
-_register_accuracy()
 
 
 if __name__ == "__main__":  # pragma: no cover
