@@ -101,7 +101,7 @@ def test_parameter_batches_broadcast_like_numpy():
 
 
 def _span(name):
-    return {"van_der_pol": (0.0, 0.5), "3r2s": (0.0, 0.2)}.get(name, (0.0, 1.0))
+    return {"van_der_pol": (0.0, 0.5), "3r2s": (0.0, 0.05)}.get(name, (0.0, 1.0))
 
 
 @needs_cc
@@ -304,3 +304,12 @@ def test_c_rodas4_takes_the_numpy_rodas4_steps():
     b = npm.simulate((0, 2), dt=0.01, method="Rodas4", rtol=1e-6, atol=1e-9)
     assert abs(a.stats["nsteps"] - b.stats["nsteps"]) <= max(2, b.stats["nsteps"] // 50)
     assert np.max(np.abs(a.x - b.x)) < 1e-9 * np.max(np.abs(b.x))
+
+
+def test_c_names_avoid_keywords_and_the_library():
+    from bgc.emit_c import c_name
+
+    for nm in ("double", "sin", "y0", "j1", "NAN", "bgc_x", "restrict", "FP_NAN"):
+        assert c_name(nm) != nm and c_name(nm).isidentifier()
+    for nm in ("m", "k_t", "p_mass", "link1__Ixx", "t"):
+        assert c_name(nm) == nm

@@ -48,7 +48,10 @@ erfc exp exp2 expm1 fabs fdim floor fma fmax fmin fmod frexp hypot ilogb ldexp l
 llround log log10 log1p log2 logb lrint lround modf nan nearbyint nextafter nexttoward pow
 remainder remquo rint round scalbln scalbn sin sinh sqrt tan tanh tgamma trunc j0 j1 jn y0 y1
 yn gamma isfinite isnan isinf signbit fpclassify abs labs div free malloc calloc exit memcpy
-memset""".split())
+memset isnormal isgreater isgreaterequal isless islessequal islessgreater isunordered float_t
+double_t signgam math_errhandling MATH_ERRNO MATH_ERREXCEPT FP_NAN FP_INFINITE FP_ZERO
+FP_NORMAL FP_SUBNORMAL FP_FAST_FMA FP_ILOGB0 FP_ILOGBNAN HUGE_VALF HUGE_VALL M_PI M_E NULL
+EOF size_t""".split())
 
 
 def c_string_literal(text) -> str:
