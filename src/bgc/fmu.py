@@ -245,7 +245,7 @@ def model_description(compiled, spec: FmuSpec, scene=None, kind: str = "both",
         "variableNamingConvention": naming, "numberOfEventIndicators": "0"})
     caps = {"modelIdentifier": spec.model_identifier,
             "needsExecutionTool": "false", "canNotUseMemoryManagementFunctions": "true",
-            "canGetAndSetFMUstate": "false", "canSerializeFMUstate": "false",
+            "canGetAndSetFMUstate": "true", "canSerializeFMUstate": "false",
             "providesDirectionalDerivative": "true"}
     for tag, extra in (("ModelExchange", {"completedIntegratorStepNotNeeded": "true"}),
                        ("CoSimulation", {"canHandleVariableCommunicationStepSize": "true",

@@ -410,14 +410,78 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
                          const fmi2String value[])
 { return no_vars(c, nvr, vr, value, "fmi2SetString"); }
 
-/* ---- FMU state, input and output derivatives: not supported ----------------------------- */
+/* ---- FMU state: a snapshot of the instance (not serialisable) ---------------------------- */
+
+typedef struct {
+    unsigned magic;
+    int state, stop_defined, init_dirty;
+    double t, t_start, t_stop, rtol, seg_end;
+    double *x, *p;
+} snap_t;
+
+#define SNAP_MAGIC 0xB6C25A50u
+#define S_SNAP (S_INIT | S_EVENT | S_CONT | S_STEP_COMPLETE | S_STEP_FAILED | S_TERMINATED | S_ERROR)
 
 fmi2Status fmi2GetFMUstate(fmi2Component comp, fmi2FMUstate *s)
-{ (void)s; inst_t *c = as_inst(comp); return ERR(c, "fmi2GetFMUstate: not supported"); }
+{
+    ENTER(comp, S_SNAP, "fmi2GetFMUstate")
+    if (!s) return ERR(c, "fmi2GetFMUstate: FMUstate is NULL");
+    snap_t *k = (snap_t *)*s;
+    if (k && k->magic != SNAP_MAGIC)
+        return ERR(c, "fmi2GetFMUstate: *FMUstate is not a state of this FMU");
+    if (!k) {
+        k = calloc(1, sizeof *k);
+        double *mem = k ? calloc((size_t)(D->n + D->np_all) + 1, sizeof(double)) : NULL;
+        if (!k || !mem) {
+            free(k);
+            free(mem);
+            return ERR(c, "fmi2GetFMUstate: out of memory");
+        }
+        k->magic = SNAP_MAGIC;
+        k->x = mem;
+        k->p = mem + D->n;
+    }
+    k->state = c->state; k->stop_defined = c->stop_defined; k->init_dirty = c->init_dirty;
+    k->t = c->t; k->t_start = c->t_start; k->t_stop = c->t_stop; k->rtol = c->rtol;
+    k->seg_end = c->seg_end;
+    memcpy(k->x, c->x, sizeof(double) * (size_t)D->n);
+    memcpy(k->p, c->p, sizeof(double) * (size_t)D->np_all);
+    *s = k;
+    return fmi2OK;
+}
+
 fmi2Status fmi2SetFMUstate(fmi2Component comp, fmi2FMUstate s)
-{ (void)s; inst_t *c = as_inst(comp); return ERR(c, "fmi2SetFMUstate: not supported"); }
+{
+    ENTER(comp, S_SNAP, "fmi2SetFMUstate")
+    const snap_t *k = (const snap_t *)s;
+    if (!k || k->magic != SNAP_MAGIC)
+        return ERR(c, "fmi2SetFMUstate: not a state of this FMU");
+    c->state = k->state; c->stop_defined = k->stop_defined; c->init_dirty = k->init_dirty;
+    c->t = k->t; c->t_start = k->t_start; c->t_stop = k->t_stop; c->rtol = k->rtol;
+    c->seg_end = k->seg_end;
+    memcpy(c->x, k->x, sizeof(double) * (size_t)D->n);
+    memcpy(c->p, k->p, sizeof(double) * (size_t)D->np_all);
+    c->dirty = 1;
+    return fmi2OK;
+}
+
 fmi2Status fmi2FreeFMUstate(fmi2Component comp, fmi2FMUstate *s)
-{ (void)s; inst_t *c = as_inst(comp); return ERR(c, "fmi2FreeFMUstate: not supported"); }
+{
+    inst_t *c = as_inst(comp);
+    if (!c) return fmi2Error;
+    if (!s) return ERR(c, "fmi2FreeFMUstate: FMUstate is NULL");
+    snap_t *k = (snap_t *)*s;
+    if (!k) return fmi2OK;
+    if (k->magic != SNAP_MAGIC) return ERR(c, "fmi2FreeFMUstate: not a state of this FMU");
+    k->magic = 0;
+    free(k->x);
+    free(k);
+    *s = NULL;
+    return fmi2OK;
+}
+
+/* ---- serialisation, input and output derivatives: not supported ------------------------- */
+
 fmi2Status fmi2SerializedFMUstateSize(fmi2Component comp, fmi2FMUstate s, size_t *n)
 { (void)s; (void)n; inst_t *c = as_inst(comp); return ERR(c, "fmi2SerializedFMUstateSize: not supported"); }
 fmi2Status fmi2SerializeFMUstate(fmi2Component comp, fmi2FMUstate s, fmi2Byte b[], size_t n)
