@@ -580,6 +580,12 @@ def test_fixed_parameter_sets_the_initial_state(tmp_path):
     var = {v.name: v for v in md.modelVariables}
     assert var["theta0"].variability == "fixed"
     q = [v for v in md.modelVariables if v.name.startswith("gravity.")][0]
+    # ModelStructure/InitialUnknowns: the state's start depends on theta0 alone; the
+    # derivative of the momentum, -m g l sin(q), on m, g, l and (through q) theta0
+    init = {u.variable.name: {d.name for d in u.dependencies} for u in md.initialUnknowns}
+    assert init[q.name] == {"theta0"}
+    p = [v.name for v in md.modelVariables if v.name.startswith("bob.")][0]
+    assert init[f"der({p})"] == {"m", "g", "l", "theta0"}
     s.instantiate()
     s.setupExperiment(startTime=0.0)
     s.setReal([var["theta0"].valueReference], [0.7])

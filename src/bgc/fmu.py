@@ -72,6 +72,7 @@ class FmuSpec:
     input_start: tuple[float, ...]
     state_deps: tuple[tuple[int, ...], ...]  # derivative i -> variable indices (1-based)
     output_deps: tuple[tuple[int, ...], ...]
+    initial_deps: tuple[tuple[int, tuple[int, ...]], ...]  # (index, dependencies), by index
 
 
 def flat_names(name: str, shape: tuple[int, ...]) -> list[str]:
@@ -92,11 +93,13 @@ def _flat_values(v) -> list[float]:
     return [float(v)]
 
 
-def _deps(fn, state_syms, input_syms) -> list[set]:
+def _deps(fn, state_syms, input_syms, extra=None) -> list[set]:
     """For each result of a lowered function, the states and inputs (as ('x', i) / ('u', k))
-    it depends on, through the function's definitions."""
+    it depends on, through the function's definitions; ``extra`` adds symbols of other
+    kinds (symbol -> set), e.g. parameters as ('p', k)."""
     base = {s: {("x", i)} for i, s in enumerate(state_syms)}
     base.update({s: {("u", k)} for k, s in enumerate(input_syms)})
+    base.update(extra or {})
     known: dict = {}
 
     def of(expr):
@@ -111,6 +114,18 @@ def _deps(fn, state_syms, input_syms) -> list[set]:
     for ln in fn.lines:
         known[ln.target] = of(ln.expr)
     return [of(r) for _, r in fn.results]
+
+
+def _param_base(eq, psyms) -> dict:
+    """symbol -> {('p', k)}: the parameters, and the derived parameters through their
+    definitions."""
+    base = {s: {("p", k)} for k, s in enumerate(psyms)}
+    for a in eq.derived:
+        d = set()
+        for s in a.expr.free_symbols:
+            d |= base.get(s, set())
+        base[a.symbol] = d
+    return base
 
 
 def _numeric(expr, values: dict) -> float:
@@ -192,6 +207,27 @@ def build_spec(compiled, scene=None, kind: str = "both") -> FmuSpec:
     out_deps = _deps(low.outs, state_syms, isyms)
     odeps = [tuple(sorted(idx_x[k] if kind_ == "x" else idx_u[k] for kind_, k in d))
              for d in out_deps]
+    # InitialUnknowns: in terms of what is known at initialisation, the parameters and the
+    # inputs (the states are calculated from parameters)
+    pbase = _param_base(eq, psyms)
+    idx_p = [vr_p + k + 1 for k in range(npar)]
+
+    def known(kind_, k):
+        return idx_p[k] if kind_ == "p" else idx_u[k]
+
+    init_x = [{known(*d) for d in ds} for ds in _deps(low.init, state_syms, isyms, pbase)]
+
+    def at_init(ds):
+        out = set()
+        for kind_, k in ds:
+            out |= init_x[k] if kind_ == "x" else {known(kind_, k)}
+        return tuple(sorted(out))
+
+    initial = {idx_x[i]: tuple(sorted(init_x[i])) for i in range(n)}
+    for i, ds in enumerate(_deps(low.rhs, state_syms, isyms, pbase)):
+        initial[n + i + 1] = at_init(ds)
+    for k, ds in enumerate(_deps(low.outs, state_syms, isyms, pbase)):
+        initial[vr_y + k + 1] = at_init(ds)
     variables = []
     for i, s in enumerate(snames):
         variables.append(Var(s, i, "local", "continuous", "calculated"))
@@ -220,7 +256,8 @@ def build_spec(compiled, scene=None, kind: str = "both") -> FmuSpec:
         h.update(str(part).encode("utf-8") + b"\0")
     guid = "{" + str(uuid.uuid5(_GUID_NS, h.hexdigest())) + "}"
     return FmuSpec(ident, guid, tuple(variables), n, npar, nu, nout, tuple(pstart),
-                   tuple(ptun), tuple(istart), tuple(sdeps), tuple(odeps))
+                   tuple(ptun), tuple(istart), tuple(sdeps), tuple(odeps),
+                   tuple(sorted(initial.items())))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -308,11 +345,11 @@ def model_description(compiled, spec: FmuSpec, scene=None, kind: str = "both",
         for i in range(n):
             ET.SubElement(ders, "Unknown", {"index": str(n + i + 1), "dependencies": " ".join(
                 map(str, spec.state_deps[i]))})
-    init = [i + 1 for i in range(n)] + [n + i + 1 for i in range(n)] + idx_y
-    if init:
+    if spec.initial_deps:
         iu = ET.SubElement(ms, "InitialUnknowns")
-        for i in sorted(init):
-            ET.SubElement(iu, "Unknown", {"index": str(i)})
+        for i, deps in spec.initial_deps:
+            ET.SubElement(iu, "Unknown", {"index": str(i),
+                                          "dependencies": " ".join(map(str, deps))})
     ET.indent(root, space="  ")
     buf = io.BytesIO()
     ET.ElementTree(root).write(buf, encoding="UTF-8", xml_declaration=True)
