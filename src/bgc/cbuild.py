@@ -157,7 +157,8 @@ def build_library(srcdir: Path, files: list[str], cache=None, jobs: int | None =
     fl = list(flags())
     inc = str(runtime_sources()[0].parent) if runtime_sources() else str(srcdir)
     if not runtime_sources():
-        raise RuntimeError("the C runtime (templates/c/runtime/*.c) is missing")
+        raise ModelError(None, "the C runtime (templates/c/runtime/*.c) is not installed: "
+                               "use the numpy backend")
     objdir = Path(tempfile.mkdtemp(prefix="bgc-obj-"))
     try:
         with ThreadPoolExecutor(max_workers=jobs) as ex:

@@ -73,6 +73,10 @@ def scene_module(scene: Scene, progress=None, backend: str = "numpy", use_cache:
             say(f"no C compiler ({' '.join(cbuild.compiler())!r} cannot run; set CC): "
                 "using the numpy backend")
             backend = "numpy"
+        elif not cbuild.runtime_sources():
+            say("the C runtime (templates/c/runtime/*.c) is not installed: using the numpy "
+                "backend")
+            backend = "numpy"
     store = cache_mod.Cache() if use_cache else None
     key = cache_mod.key(backend, scene.model_path, scene.file) if store is not None else None
 
