@@ -246,6 +246,13 @@ fmi2Status fmi2SetDebugLogging(fmi2Component comp, fmi2Boolean loggingOn, size_t
     inst_t *c = as_inst(comp);
     if (!c) return fmi2Error;
     if (nCategories > 0 && !categories) return ERR(c, "fmi2SetDebugLogging: categories is NULL");
+    for (size_t i = 0; i < nCategories; i++) {
+        const char *cat = categories[i];
+        if (!cat || (strcmp(cat, "logStatusError") && strcmp(cat, "logStatusDiscard") &&
+                     strcmp(cat, "logAll")))
+            return ERR(c, "fmi2SetDebugLogging: unknown log category (see LogCategories in "
+                          "modelDescription.xml)");
+    }
     c->logging = loggingOn;
     return fmi2OK;
 }
