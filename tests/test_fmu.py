@@ -705,3 +705,25 @@ def test_fmu_state_rolls_a_step_back(fmus):
     s.freeFMUstate(saved)
     s.terminate()
     s.freeInstance()
+
+
+def test_scene_breakpoint_is_a_time_event(tmp_path):
+    """motor_load_motion: the load torque steps at the scene's breakpoint t = 1 s. The FMU
+    announces it as a time event in Model Exchange (FMPy stops there and records the event)
+    and restarts its integrator there in Co-Simulation; both follow bgc's run of the scene."""
+    from bgc.runner import run_scene
+
+    scene = MODELS / "scenes" / "motor_load_motion.yaml"
+    path = _export("motor_thermal.yaml", tmp_path / "mlm.fmu", scene=scene)
+    res = run_scene(scene)
+    for fmi_type in ("ModelExchange", "CoSimulation"):
+        r = fmpy.simulate_fmu(str(path), fmi_type=fmi_type, output_interval=0.05,
+                              record_events=True, output=list(res.y))
+        if fmi_type == "ModelExchange":
+            assert np.count_nonzero(np.isclose(r["time"], 1.0, rtol=0, atol=1e-12)) >= 2
+        r = r[np.r_[np.diff(r["time"]) > 0, True]]
+        for name, yr in res.y.items():
+            y = np.interp(res.t, r["time"], r[name])
+            scale = np.max(np.abs(yr))
+            # the scene's rtol 1e-6, with room for the global error
+            assert np.max(np.abs(y - yr)) <= 50e-6 * scale, (fmi_type, name)
