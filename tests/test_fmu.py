@@ -112,6 +112,15 @@ def test_sources_are_in_the_unit_and_rebuild(tmp_path, fmus):
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert out.stat().st_size > 0
+    # the shipped library exports the 44 functions of FMI 2.0 (ME + CS) and nothing else
+    import shutil
+
+    if shutil.which("nm"):
+        so = next((tmp_path / "binaries").rglob("*.so"))
+        r = subprocess.run(["nm", "-D", "--defined-only", str(so)], capture_output=True,
+                           text=True)
+        syms = {ln.split()[-1] for ln in r.stdout.splitlines() if " T " in ln}
+        assert len(syms) == 44 and all(s.startswith("fmi2") for s in syms), sorted(syms)
 
 
 # ---------------------------------------------------------------------------------------------
