@@ -613,6 +613,27 @@ def cache_clear_cmd():
     click.echo(f"{c.path}: removed {n} entries")
 
 
+@main.command("export")
+@click.argument("model", type=click.Path(dir_okay=False))
+@click.option("--scene", type=click.Path(dir_okay=False),
+              help="export the scene's specialised model (its signals, parameters, solver)")
+@click.option("--fmu", "fmu_out", required=True, type=click.Path(dir_okay=False),
+              help="the FMU to write (FMI 2.0)")
+@click.option("--kind", type=click.Choice(("me", "cs", "both")), default="both",
+              show_default=True, help="Model Exchange, Co-Simulation or both")
+@click.option("-q", "--quiet", is_flag=True)
+def export_cmd(model, scene, fmu_out, kind, quiet):
+    """Export MODEL.yaml (or SCENE's specialised model) as an FMI 2.0 FMU."""
+    from .cbuild import CompilerMissing
+    from .fmu import export_fmu
+
+    prog = _Progress(quiet)
+    try:
+        export_fmu(model, fmu_out, scene_path=scene, kind=kind, progress=prog)
+    except CompilerMissing as exc:
+        _fail(exc)
+
+
 def _register_accuracy():
     """`bgc accuracy` lives in a heavy module: registered only when asked for (warm runs of
     other commands never import it)."""

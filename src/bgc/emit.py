@@ -101,21 +101,6 @@ class BgcPrinter(NumPyPrinter):
         # far cheaper than sorting every sum for display)
         super().__init__({"fully_qualified_modules": True, "strict": True, "order": "none",
                           "allow_unknown_functions": False})
-        self._memo: dict = {}
-
-    def doprint(self, expr, assign_to=None):
-        # The same expression (an effort or flow of the causal order) is printed once per
-        # module, not once per function that uses it; the imports it needs were registered
-        # the first time.
-        if assign_to is not None:
-            return super().doprint(expr, assign_to)
-        try:
-            return self._memo[expr]
-        except KeyError:
-            out = self._memo[expr] = super().doprint(expr)
-            return out
-        except TypeError:  # unhashable
-            return super().doprint(expr)
 
     def _module_format(self, fqn, register=True):
         if register:
