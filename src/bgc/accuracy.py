@@ -121,7 +121,7 @@ def prepare(scene_path, t_end=None, atol_scale=None, breakpoints=(), progress=No
     return Setup(Path(scene.file).stem, scene, mod, values(scene) or None, (t0, t1),
                  t_eval, tuple(sorted({float(b) for b in (*scene.breakpoints, *breakpoints)
                                        if t0 < b < t1})), scene.max_step,
-                 outs, float(atol_scale), ct, compiled, compiled.source)
+                 outs, float(atol_scale), ct, compiled=compiled, source=compiled.source)
 
 
 @contextlib.contextmanager

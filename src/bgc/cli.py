@@ -67,6 +67,29 @@ class _Group(click.Group):
             _register_accuracy()
         return super().list_commands(ctx)
 
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True,
+             **extra):
+        """A usage error is one line too (click prints three): ``error: ...``, exit 2."""
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, False, **extra)
+        try:
+            rv = super().main(args, prog_name, complete_var, False, **extra)
+        except click.UsageError as exc:
+            from .emit import oneline
+
+            hint = f" (see '{exc.ctx.command_path} --help')" if exc.ctx is not None else ""
+            click.echo(f"error: {oneline(exc.format_message(), 400)}{hint}", err=True)
+            sys.exit(exc.exit_code)
+        except click.ClickException as exc:
+            from .emit import oneline
+
+            click.echo(f"error: {oneline(exc.format_message(), 400)}", err=True)
+            sys.exit(exc.exit_code)
+        except click.Abort:
+            click.echo("error: aborted", err=True)
+            sys.exit(1)
+        sys.exit(rv if isinstance(rv, int) else 0)
+
     def invoke(self, ctx):
         try:
             return super().invoke(ctx)
@@ -211,6 +234,9 @@ def compile_cmd(model, output, scene, target, no_cache, quiet, strict_causality)
     if output is None:
         output = _default_output(Path(model), c.model.name)
     ins = _model_inputs(model, scene, sc.model_path if scene else None)
+    from .runner import check_module_start
+
+    check_module_start(c)  # finite at X0 with the defaults, or a located error: nothing written
     write_atomic(output, c.source, ins, "-o")
     prog(f"wrote {output}: {len(c.equations.states)} states, "
          f"{len(c.equations.jacobian)} Jacobian entries")

@@ -1321,24 +1321,31 @@ def forward_mode(kept: list[Assignment], seeds: dict, finals: list, prefix: str 
 
 
 def _check_names(bg: BondGraph, ctx: _Ctx, state_vars) -> None:
-    """Generated identifiers must not collide (e.g. a parameter named like a bond variable)."""
+    """Generated identifiers must not collide (e.g. a parameter named like a bond variable):
+    the error is placed at the user's name (a parameter or input is what can be renamed)."""
+    pcoord = {fp.id: fp.coord for fp in bg.params}
+    icoord = {i.name: i.coord for i in getattr(bg.model, "inputs", ())}
     seen: dict[str, str] = {}
-    pairs = []
+    pairs = []  # (identifier, who, coord of the declaration or None)
     for pv in ctx.params.values():
-        pairs += [(str(s), f"parameter {pv.id!r}") for s in pv.symbols]
+        pairs += [(str(s), f"parameter {pv.id!r}", pcoord.get(pv.id)) for s in pv.symbols]
     for k in ctx.derived:
-        pairs.append((k, "derived parameter"))
+        pairs.append((k, "derived parameter", pcoord.get(k)))
     for sv in state_vars:
-        pairs.append((str(sv.symbol), f"state {sv.name!r}"))
+        pairs.append((str(sv.symbol), f"state {sv.name!r}", None))
     for b in bg.bonds:
-        pairs += [(str(s), f"bond {b.id!r}") for s in flat(ctx.e[b.id]) + flat(ctx.f[b.id])]
+        pairs += [(str(s), f"bond {b.id!r}", None) for s in flat(ctx.e[b.id]) + flat(ctx.f[b.id])]
     for iv in ctx.inputs.values():
-        pairs += [(str(s), f"input {iv.name!r}") for s in iv.symbols]
-    for ident, who in pairs:
+        pairs += [(str(s), f"input {iv.name!r}", icoord.get(iv.name)) for s in iv.symbols]
+    where: dict[str, object] = {}
+    for ident, who, coord in pairs:
         if ident in seen and seen[ident] != who:
-            raise ModelError(bg.model.coord, f"name clash in generated code: {who} and "
-                                             f"{seen[ident]} both become {ident!r}; rename one")
+            at = where.get(ident) or coord or bg.model.coord  # the parameter, if one
+            raise ModelError(at, f"name clash in generated code: {who} and "
+                                 f"{seen[ident]} both become {ident!r}; rename one")
         seen[ident] = who
+        if coord is not None:
+            where[ident] = coord
 
 
 # ---------------------------------------------------------------------------------------------

@@ -43,6 +43,8 @@ _IDENT = re.compile(r"[A-Za-z][A-Za-z0-9_]*")  # always used with fullmatch
 RESERVED = frozenset({
     # the expression language and bgc's words
     "t", "x", "p", "u", "e", "f", "q", "pi", "y", "numpy", "scipy", "math",
+    # the array namespace of the generated functions (array API: numpy, CuPy, ...)
+    "xp",
     # the generated module: its imports, its public functions, and the locals of the functions
     # that bind model names (_unpack, _inputs, initial_state, rhs, jacobian, outputs)
     "np", "rhs", "jacobian", "outputs", "simulate", "initial_state", "dx", "J", "P", "x0"}

@@ -45,12 +45,18 @@ def _components(name, arr):
     return out
 
 
+def _plain(text) -> str:
+    """Text from a model or scene shown as it is written: matplotlib would read ``$...$`` as
+    mathtext (and fail on a malformed formula), so every dollar sign is escaped."""
+    return str(text).replace("$", r"\$")
+
+
 def _label(labels, k, default):
-    return labels[k] if k < len(labels) else default
+    return _plain(labels[k] if k < len(labels) else default)
 
 
 def _with_unit(label, unit):
-    return f"{label} [{unit}]" if unit else label
+    return f"{_plain(label)} [{_plain(unit)}]" if unit else _plain(label)
 
 
 def plot_time(t, y, names, path, title="", labels=(), units=None):
@@ -65,7 +71,7 @@ def plot_time(t, y, names, path, title="", labels=(), units=None):
         if len(comps) > 1:
             ax.legend(loc="best", fontsize=7, ncol=min(len(comps), 3))
     axes[-1, 0].set_xlabel("t [s]")
-    fig.suptitle(title or ", ".join(names))
+    fig.suptitle(_plain(title or ", ".join(names)))
     fig.tight_layout()
     fig.savefig(path, format="png")
     plt.close(fig)
@@ -112,7 +118,7 @@ def plot_path3d(t, y, names, path, title="", labels=(), units=None):
     top.set_xlabel(_with_unit("X0", u))
     top.set_ylabel(_with_unit("Y0", u))
     top.set_title("seen from above (dots: start)")
-    fig.suptitle(title or "path")
+    fig.suptitle(_plain(title or "path"))
     fig.tight_layout()
     fig.savefig(path, format="png")
     plt.close(fig)
@@ -135,9 +141,9 @@ def plot_loci(t, y, names, path, title="", labels=(), units=None):
         ax.set_xlabel("X0")
         ax.set_ylabel("Y0")
         ax.set_zlabel("Z0")
-        ax.set_title(f"unit vector {cols[c]} (column {c + 1} of {name})")
+        ax.set_title(_plain(f"unit vector {cols[c]} (column {c + 1} of {name})"))
         ax.legend(fontsize=7)
-    fig.suptitle(title or f"loci of the unit vectors of {name}")
+    fig.suptitle(_plain(title or f"loci of the unit vectors of {name}"))
     fig.tight_layout()
     fig.savefig(path, format="png")
     plt.close(fig)

@@ -250,6 +250,24 @@ def check_start(c, mod, scene, p=None) -> None:
         pass
 
 
+def check_module_start(c) -> None:
+    """The compiled module's initial state and right-hand side at t = 0 with its default
+    parameters are finite, or one located error naming the law that is not (a zero inertia or
+    capacitance, a root of a negative parameter, ...): `bgc compile` writes no module that
+    fails on its first call. (Loads the module from memory, as `bgc simulate` does.)"""
+    with np.errstate(all="ignore"):
+        mod = load_module(c.source, f"{c.model.name}_start_check")
+        x0 = np.asarray(mod.X0, dtype=float)
+        dx = mod.rhs(0.0, x0)
+        what, values = ("initial state", x0) if not np.isfinite(x0).all() else ("rhs", dx)
+        if np.isfinite(values).all() and np.isreal(values).all():
+            return
+        err = mod._nonfinite("compile", what, 0.0, x0, values, (mod.N_STATES,), {})
+        found = nonfinite_culprit(c, mod, err, None)
+    coord, why = (found[0] or c.model.coord, found[1]) if found else (c.model.coord, "")
+    raise ModelError(coord, f"not finite with the default parameters: {err}{why}")
+
+
 def nonfinite_culprit(c, mod, exc, p=None):
     """(coord, text) naming the element whose law made the NonFiniteError ``exc``, and a
     remedy where one is known; None if it cannot be told (the module's message stands)."""
