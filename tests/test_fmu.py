@@ -87,6 +87,9 @@ def test_model_description_against_the_module(fmus):
     assert index  # (indices resolved by FMPy's own reader)
     units = {u.name for u in md.unitDefinitions}
     assert {u for u in mod.PARAM_UNITS.values() if u} <= units
+    for name, unit in getattr(mod, "OUTPUT_UNITS", {}).items():  # outputs {expr, unit}
+        if unit and name in byname:
+            assert byname[name].unit == unit and unit in units
 
 
 def test_export_is_deterministic_and_the_guid_follows_the_model(tmp_path, fmus):

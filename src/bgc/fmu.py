@@ -185,9 +185,11 @@ def build_spec(compiled, scene=None, kind: str = "both") -> FmuSpec:
         iunits += [unit] * len(names)
         istart += [_numeric(d, values) for d in iv.default]
         isyms += list(iv.symbols)
-    onames = []
+    onames, ounits = [], []
+    out_unit = {o.name: o.unit for o in compiled.model.body.outputs}  # {expr, unit} outputs
     for name, shape, vals in eq.outputs:
         onames += flat_names(name, tuple(shape))
+        ounits += [out_unit.get(name, "")] * len(flat_names(name, tuple(shape)))
     snames = [sv.name for sv in eq.states]
     nu, npar, nout = len(inames), len(pnames), len(onames)
     vr_p, vr_u, vr_y = 2 * n, 2 * n + npar, 2 * n + npar + nu
@@ -240,7 +242,8 @@ def build_spec(compiled, scene=None, kind: str = "both") -> FmuSpec:
     for k, nm in enumerate(inames):
         variables.append(Var(nm, vr_u + k, "input", "continuous", None, istart[k], iunits[k]))
     for k, nm in enumerate(onames):
-        variables.append(Var(nm, vr_y + k, "output", "continuous", "calculated"))
+        variables.append(Var(nm, vr_y + k, "output", "continuous", "calculated",
+                             unit=ounits[k]))
     seen: dict = {}
     for v in variables:
         if v.name in seen:

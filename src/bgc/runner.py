@@ -264,7 +264,12 @@ def check_module_start(c) -> None:
             return
         err = mod._nonfinite("compile", what, 0.0, x0, values, (mod.N_STATES,), {})
         found = nonfinite_culprit(c, mod, err, None)
-    coord, why = (found[0] or c.model.coord, found[1]) if found else (c.model.coord, "")
+    owner = None  # the element that owns the first state that is not finite
+    if isinstance(err.index, int) and err.index < len(mod.STATE_OWNERS):
+        owner = next((el.coord for el in c.graph.elements
+                      if el.id == mod.STATE_OWNERS[err.index]), None)
+    fallback = owner or c.model.coord
+    coord, why = (found[0] or fallback, found[1]) if found else (fallback, "")
     raise ModelError(coord, f"not finite with the default parameters: {err}{why}")
 
 
