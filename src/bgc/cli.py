@@ -185,7 +185,7 @@ def main():
 
 
 @main.command("compile")
-@click.argument("model", type=click.Path(dir_okay=False))
+@click.argument("model", type=click.Path())  # bgc.safeio refuses folders, FIFOs, devices (located)
 @click.option("-o", "--output", type=click.Path(), help="module to write "
               "(default: generated/<name>.py beside the models folder, or ./<name>.py; with "
               "--scene: ./<name>_<scene>.py)")
@@ -250,7 +250,7 @@ def _default_output(model: Path, name: str) -> Path:
 
 
 @main.command("check")
-@click.argument("model", type=click.Path(dir_okay=False))
+@click.argument("model", type=click.Path())  # bgc.safeio refuses folders, FIFOs, devices (located)
 @click.option("--strict-causality", is_flag=True,
               help="refuse derivative causality (every storage element independent) instead of "
                    "eliminating the dependent storage elements")
@@ -310,7 +310,7 @@ def check_cmd(model, strict_causality):
 
 
 @main.command("graph")
-@click.argument("model", type=click.Path(dir_okay=False))
+@click.argument("model", type=click.Path())  # bgc.safeio refuses folders, FIFOs, devices (located)
 @click.option("-o", "--output", required=True, type=click.Path(),
               help="FILE.dot, FILE.svg or FILE.png")
 def graph_cmd(model, output):
@@ -337,7 +337,7 @@ def graph_cmd(model, output):
 
 
 @main.command("simulate")
-@click.argument("scene", type=click.Path(dir_okay=False))
+@click.argument("scene", type=click.Path())  # (as MODEL: bgc.safeio)
 @click.option("--out", type=click.Path(), help="results .npz (t and outputs)")
 @click.option("--plot", "plot_dir", type=click.Path(), help="write PNG plots here")
 @click.option("--method", type=click.Choice(SOLVER_METHODS), default=None,
@@ -398,7 +398,7 @@ def simulate_cmd(scene, out, plot_dir, method, rtol, atol, max_wall, backend, no
 
 
 @main.command("explain")
-@click.argument("scene", type=click.Path(dir_okay=False))
+@click.argument("scene", type=click.Path())  # (as MODEL: bgc.safeio)
 @click.option("--rounds", type=click.IntRange(1, 100), default=7, show_default=True,
               help="interleaved timing rounds of the rhs (the median is shown)")
 @click.option("-q", "--quiet", is_flag=True)
@@ -463,7 +463,7 @@ def _load_target(path, prog):
 
 @main.command("linearize", epilog="Example: bgc linearize models/quarter_car.yaml --at "
               "equilibrium --out lin/ --bode zr:body_height   (docs/api.md)")
-@click.argument("target", metavar="SCENE_OR_MODEL", type=click.Path(dir_okay=False))
+@click.argument("target", metavar="SCENE_OR_MODEL", type=click.Path())
 @click.option("--at", "at", default="equilibrium", show_default=True,
               help="'equilibrium' (inputs held at their t0 values), or a TIME: the state a "
                    "run from the initial state reaches then")
@@ -553,7 +553,7 @@ def linearize_cmd(target, at, out, bode, quiet):
 
 
 @main.command("equations")
-@click.argument("model", type=click.Path(dir_okay=False))
+@click.argument("model", type=click.Path())  # bgc.safeio refuses folders, FIFOs, devices (located)
 @click.option("--latex", is_flag=True, help="LaTeX (an aligned block) instead of plain text")
 @click.option("--explicit", is_flag=True,
               help="substitute the causal assignments: dx/dt in states, parameters, inputs only")
@@ -640,7 +640,7 @@ def cache_clear_cmd():
 
 
 @main.command("export")
-@click.argument("model", type=click.Path(dir_okay=False))
+@click.argument("model", type=click.Path())  # bgc.safeio refuses folders, FIFOs, devices (located)
 @click.option("--scene", type=click.Path(dir_okay=False),
               help="export the scene's specialised model (its signals, parameters, solver)")
 @click.option("--fmu", "fmu_out", required=True, type=click.Path(dir_okay=False),
