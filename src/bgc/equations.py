@@ -1159,6 +1159,23 @@ def _clean(d):
     return d
 
 
+def prune(results: list, assigns: list[Assignment], also=None) -> list[Assignment]:
+    """The assignments (in their order) that ``results`` depend on, directly or through each
+    other; ``also(a)`` names further symbols an assignment needs (beyond its expression's)."""
+    need: set = set()
+    for r in results:
+        need |= r.free_symbols
+    keep = []
+    for a in reversed(assigns):
+        if a.symbol in need:
+            keep.append(a)
+            need |= a.expr.free_symbols
+            if also is not None:
+                need.update(also(a))
+    keep.reverse()
+    return keep
+
+
 def _jacobian(kept: list[Assignment], state_vars, derivatives, nloops=()):
     """Forward-mode Jacobian d(derivatives)/dx along the causal assignments."""
     return forward_mode(kept, {sv.symbol: j for j, sv in enumerate(state_vars)},
@@ -1179,18 +1196,8 @@ def forward_mode(kept: list[Assignment], seeds: dict, finals: list, prefix: str 
     D: dict[sp.Symbol, dict[int, object]] = {s: {j: sp.Integer(1)} for s, j in seeds.items()}
     jac_assign: list[Assignment] = []
     counter = itertools.count()
-    need: set = set()
-    for e in finals:
-        need |= e.free_symbols
-    used = []
-    for a in reversed(kept):
-        if a.symbol in need:
-            used.append(a)
-            need |= a.expr.free_symbols
-            if isinstance(a.expr, NewtonSolve):  # the loop's own assignments feed it
-                for s in nloops[int(a.expr.args[0])].rest:
-                    need.add(s)
-    used.reverse()
+    used = prune(finals, kept, lambda a: (  # a Newton loop's own assignments feed it
+        nloops[int(a.expr.args[0])].rest if isinstance(a.expr, NewtonSolve) else ()))
 
     bridge = fastsym.Bridge() if fastsym.available() else None
 

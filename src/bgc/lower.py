@@ -15,7 +15,7 @@ import networkx as nx
 import sympy as sp
 
 from . import fastsym
-from .equations import Assignment, Equations, schedule
+from .equations import Assignment, Equations, prune, schedule
 
 
 @dataclass(frozen=True)
@@ -52,23 +52,10 @@ class Lowered:
         return len(self.eq.states)
 
 
-def _prune(results: list, assigns: list[Assignment]) -> list[Assignment]:
-    need = set()
-    for r in results:
-        need |= r.free_symbols
-    keep = []
-    for a in reversed(assigns):
-        if a.symbol in need:
-            keep.append(a)
-            need |= a.expr.free_symbols
-    keep.reverse()
-    return keep
-
-
 def lower_function(eq: Equations, results: list, assigns: list[Assignment], keys: list,
                    cse: bool = True) -> Function:
     """Prune, CSE and schedule one generated function's body."""
-    assigns = _prune(results, assigns)
+    assigns = prune(results, assigns)
     exprs = [a.expr for a in assigns] + list(results)
     if cse and exprs:
         names = (sp.Symbol(f"_c{i}", real=True) for i in itertools.count())

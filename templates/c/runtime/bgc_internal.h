@@ -78,6 +78,9 @@ int bgc_initial_step(bgc_ctx *c, double t, double t_end, const double *y, const 
 /* after an accepted step to t_new: write output rows for times in (t_old, t_new] */
 void bgc_outputs(bgc_ctx *c, double t_new, const double *y_new, bgc_interp_fn f, void *data);
 int bgc_out_of_time(bgc_ctx *c, double t);  /* wall-time check; fills st when exceeded */
+/* before a step attempt of size h_abs at t: the step can still shrink, max_steps and the wall
+ * time are kept (else the status, st filled); counts the attempt */
+int bgc_attempt(bgc_ctx *c, double t, double h_abs);
 int bgc_fail(bgc_ctx *c, int status, double t, const char *fmt, ...);
 double bgc_min_step(double t);
 

@@ -100,23 +100,12 @@ int bgc_radau5_segment(bgc_ctx *c, double a, double b, double *y)
     jac_current = 1;
     int first = 1;
     while (t < b) {
-        double min_step = bgc_min_step(t);
         if (h_abs > c->max_step) h_abs = c->max_step;
         int rejected = 0;
         double h, t_new, err_norm = 0.0, theta = 0.0;
         int niter = 0;
         for (;;) {
-            if (h_abs < min_step) {
-                status = bgc_step_too_small(c, t);
-                goto done;
-            }
-            if (c->opt->max_steps > 0 && st->nsteps >= c->opt->max_steps) {
-                status = bgc_fail(c, BGC_ERR_MAX_STEPS, t, "Radau5 stopped at t = %.17g: "
-                                  "max_steps = %ld step attempts", t, c->opt->max_steps);
-                goto done;
-            }
-            if ((status = bgc_out_of_time(c, t))) goto done;
-            st->nsteps++;
+            if ((status = bgc_attempt(c, t, h_abs))) goto done;
             t_new = t + h_abs;
             if (t_new > b) t_new = b;
             h = t_new - t;

@@ -85,17 +85,7 @@ int bgc_rodas4_segment(bgc_ctx *c, double a, double b, double *y)
         int rejected = 0;
         double err_norm, t_new, h;
         for (;;) {
-            if (h_abs < min_step) {
-                status = bgc_step_too_small(c, t);
-                goto done;
-            }
-            if (c->opt->max_steps > 0 && st->nsteps >= c->opt->max_steps) {
-                status = bgc_fail(c, BGC_ERR_MAX_STEPS, t, "Rodas4 stopped at t = %.17g: "
-                                  "max_steps = %ld step attempts", t, c->opt->max_steps);
-                goto done;
-            }
-            if ((status = bgc_out_of_time(c, t))) goto done;
-            st->nsteps++;
+            if ((status = bgc_attempt(c, t, h_abs))) goto done;
             t_new = t + h_abs;
             if (t_new > b) t_new = b;
             h = t_new - t;
