@@ -190,8 +190,11 @@ try:
     main(sys.argv[1:])
 except SystemExit as e:
     code = e.code
-print(json.dumps(sorted(m for m in ("sympy", "matplotlib", "jinja2", "networkx")
-                        if m in sys.modules)))
+heavy = ["sympy", "matplotlib", "jinja2", "networkx", "dask", "xarray", "zarr", "bgc.sweep",
+         "bgc.accuracy"]
+if "c" in sys.argv:  # the C backend's run needs neither scipy nor what it brings
+    heavy += ["scipy", "numpy.ma", "concurrent.futures"]
+print(json.dumps(sorted(m for m in heavy if m in sys.modules)))
 """
 
 
@@ -211,3 +214,41 @@ def test_warm_simulate_imports_only_what_it_needs(tmp_path, backend):
     assert warm.returncode == 0, warm.stderr
     assert "cache hit" in warm.stderr
     assert json.loads(warm.stdout.strip().splitlines()[-1]) == []
+
+
+def test_warm_c_run_starts_no_compiler(tmp_path):
+    """The compiler's identity (part of every C cache key) is kept in the cache under the
+    executable's path, size and times: a warm run starts no compiler, and a changed compiler
+    (here: its script rewritten) is asked again."""
+    from bgc import cbuild
+
+    real = shutil.which("cc") or shutil.which("gcc")
+    if real is None or not (cbuild.available() and cbuild.runtime_sources()):
+        pytest.skip("no C compiler or C runtime")
+    log = tmp_path / "calls.log"
+    fake = tmp_path / "bin" / "mycc"
+    fake.parent.mkdir()
+
+    def write_fake(tag):
+        fake.write_text(f'#!/bin/sh\necho "$@" >> {log}\n'
+                        f'if [ "$1" = "--version" ]; then echo "mycc {tag}"; exit 0; fi\n'
+                        f'exec {real} "$@"\n')
+        fake.chmod(0o755)
+
+    write_fake("1")
+    cdir = tmp_path / "cache"
+    args = ["simulate", str(SCENE), "--backend", "c", "--out", str(tmp_path / "r.npz")]
+    env = {"CC": str(fake)}
+    assert _bgc(*args, cache_dir=cdir, extra_env=env).returncode == 0
+    calls = log.read_text().splitlines()
+    assert calls.count("--version") == 1 and len(calls) > 1  # asked once, then compiled
+    log.write_text("")
+    warm = _bgc(*args, cache_dir=cdir, extra_env=env)
+    assert warm.returncode == 0 and "cache hit" in warm.stderr
+    assert log.read_text() == ""  # nothing started
+    write_fake("2 (upgraded)")  # same path, new contents: size and times change
+    os.utime(fake, ns=(1, 1))   # even with an old mtime, the size/ctime differ
+    again = _bgc(*args, cache_dir=cdir, extra_env=env)
+    assert again.returncode == 0, again.stderr
+    assert "--version" in log.read_text().splitlines()
+    assert "cache hit" not in again.stderr  # a new identity is a new key: rebuilt

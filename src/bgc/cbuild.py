@@ -14,8 +14,6 @@ import os
 import shlex
 import shutil
 import subprocess
-import tempfile
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from .errors import ModelError
@@ -37,8 +35,7 @@ def compiler() -> list[str]:
     return shlex.split(cc)
 
 
-@functools.lru_cache(maxsize=None)
-def _identity(cc: tuple[str, ...]) -> str:
+def _run_version(cc: tuple[str, ...]) -> str:
     try:
         out = subprocess.run(list(cc) + ["--version"], capture_output=True, text=True,
                              timeout=30)
@@ -49,6 +46,41 @@ def _identity(cc: tuple[str, ...]) -> str:
         raise CompilerMissing(f"no C compiler: `{' '.join(cc)} --version` failed; set CC, or "
                               "use the numpy backend")
     return out.stdout.strip()
+
+
+def _stamp(cc: tuple[str, ...]) -> str | None:
+    """The compiler executable's resolved path, size, change time and inode (ccache's
+    "mtime" check): while they hold, its `--version` text is the one kept in the cache, and a
+    warm run starts no compiler. None when the command is not a file on PATH."""
+    exe = shutil.which(cc[0]) if cc else None
+    if exe is None:
+        return None
+    try:
+        real = os.path.realpath(exe)
+        st = os.stat(real)
+    except OSError:
+        return None
+    return "\0".join([*cc, real, str(st.st_size), str(st.st_mtime_ns), str(st.st_ctime_ns),
+                      str(st.st_ino)])
+
+
+@functools.lru_cache(maxsize=None)
+def _identity(cc: tuple[str, ...]) -> str:
+    stamp = _stamp(cc)
+    if stamp is not None:
+        try:
+            from .cache import Cache
+
+            key = "cc-" + hashlib.sha256(stamp.encode()).hexdigest()[:32]
+            d = Cache().get_or_build("c-runtime", key, lambda tmp: (tmp / "identity").write_text(
+                _run_version(cc), encoding="utf-8"))
+            text = (d / "identity").read_text(encoding="utf-8")
+            if text:
+                return text
+        except (OSError, UnicodeError, ModelError) as exc:
+            if isinstance(exc, CompilerMissing):
+                raise
+    return _run_version(cc)
 
 
 def identity() -> str:
@@ -83,6 +115,8 @@ def _openmp(cc: tuple[str, ...]) -> bool:
 
 
 def _probe_openmp(cc: tuple[str, ...]) -> bool:
+    import tempfile
+
     with tempfile.TemporaryDirectory(prefix="bgc-omp-") as d:
         src = Path(d) / "probe.c"
         src.write_text("#include <omp.h>\nint f(void) { return omp_get_max_threads(); }\n")
@@ -133,6 +167,8 @@ def _runtime_objects(cache, jobs: int, tmpdir) -> list[Path]:
     key = runtime_key()
 
     def build(tmp: Path):
+        from concurrent.futures import ThreadPoolExecutor
+
         inc = runtime_sources()[0].parent if runtime_sources() else tmp
         srcs = runtime_sources()
         with ThreadPoolExecutor(max_workers=jobs) as ex:
@@ -159,6 +195,9 @@ def build_library(srcdir: Path, files: list[str], cache=None, jobs: int | None =
     if not runtime_sources():
         raise ModelError(None, "the C runtime (templates/c/runtime/*.c) is not installed: "
                                "use the numpy backend")
+    import tempfile
+    from concurrent.futures import ThreadPoolExecutor
+
     objdir = Path(tempfile.mkdtemp(prefix="bgc-obj-"))
     try:
         with ThreadPoolExecutor(max_workers=jobs) as ex:

@@ -55,16 +55,18 @@ def _internal(exc: BaseException):
 
 
 class _Group(click.Group):
-    """Catches user errors; registers `bgc accuracy` (a heavy module) only when asked for."""
+    """Catches user errors; registers the commands that live in heavy modules (`bgc accuracy`,
+    `bgc sweep`) only when asked for, so a warm `bgc simulate` never imports them."""
 
     def get_command(self, ctx, name):
-        if name == "accuracy" and "accuracy" not in self.commands:
-            _register_accuracy()
+        if name in _LAZY and name not in self.commands:
+            _LAZY[name]()
         return super().get_command(ctx, name)
 
     def list_commands(self, ctx):
-        if "accuracy" not in self.commands:
-            _register_accuracy()
+        for name, register in _LAZY.items():
+            if name not in self.commands:
+                register()
         return super().list_commands(ctx)
 
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True,
@@ -680,6 +682,7 @@ _EXAMPLES = {
     "linearize": "bgc linearize models/quarter_car.yaml --out lin/ --bode zr:body_height",
     "equations": "bgc equations models/msd.yaml --latex",
     "examples": "bgc examples my_models/",
+    "sweep": "bgc sweep models/scenes/msd_sweep.yaml --out sweep.zarr --workers 2",
 }
 main.epilog = "\b\nExample:\n  bgc simulate models/scenes/msd_step.yaml --plot figs/\n\n" + _DOCS
 for _name, _cmd in main.commands.items():
@@ -688,12 +691,15 @@ for _name, _cmd in main.commands.items():
 
 
 def _register_sweep():
+    """`bgc sweep` (Dask, xarray, Zarr) is registered only when asked for, like accuracy."""
     from .sweep import register
 
     register(main)
+    if "sweep" in _EXAMPLES:
+        main.commands["sweep"].epilog = f"\b\nExample:\n  {_EXAMPLES['sweep']}\n\n{_DOCS}"
 
 
-_register_sweep()
+_LAZY = {"accuracy": _register_accuracy, "sweep": _register_sweep}
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -106,7 +106,8 @@ def model_inputs(model_path) -> list[Path]:
         out.append(p)
         try:  # read as the parser reads (regular files within the size limit only)
             text = read_text_bounded(p, None, "model file", LIMITS.model_bytes)
-            doc = yaml.load(text, Loader=_LOADER)
+            # a file that never says "imports" imports nothing: no need to load it
+            doc = yaml.load(text, Loader=_LOADER) if "imports" in text else None
         except Exception:  # noqa: BLE001 - best effort: parse_file has already checked it
             continue
         imports = doc.get("imports") if isinstance(doc, dict) else None
