@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import ast
 import functools
+import hashlib
 import re
 
 from .paths import templates_dir
@@ -70,10 +71,24 @@ def _top_names(node) -> tuple[str, set]:
     return kind, set()
 
 
+#: sha256 digests of the texts that passed check_skeleton in this process: rendering checks a
+#: module and loading it checks it again; the second check of the same text is a lookup
+#: (parsing the 3R2S module takes 0.4 s). In memory only, never persisted.
+_PASSED: set[tuple[str, bytes]] = set()
+
+
 def check_skeleton(text: str, backend: str = _TEMPLATES) -> None:
     """Parse the generated module and check its top-level statements: a docstring, the
     imports the printer may ask for, the model part's own definitions (each name once at most,
     except JAC_SPARSITY's pattern assignment) and then, statement for statement, the runtime."""
+    digest = (backend, hashlib.sha256(text.encode("utf-8", "surrogatepass")).digest())
+    if digest in _PASSED:
+        return
+    _check_skeleton(text, backend)
+    _PASSED.add(digest)
+
+
+def _check_skeleton(text: str, backend: str) -> None:
     runtime = runtime_source(backend)
     body = text.rstrip("\n")  # (a C wrapper continues after the module: see check_wrapper)
     if not body.endswith("\n\n\n" + runtime):  # the runtime, verbatim, at the end

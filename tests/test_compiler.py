@@ -1,0 +1,54 @@
+"""The driver (bgc.compiler): the collector pause around a compile, and the skeleton check's
+in-process memo (a module checked when rendered is not parsed again when loaded)."""
+from __future__ import annotations
+
+import gc
+from pathlib import Path
+
+import pytest
+
+from bgc import skeleton
+from bgc.compiler import compile_model, gc_paused
+from bgc.parse import parse_file
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_gc_paused_restores_the_collector_state():
+    assert gc.isenabled()
+    with gc_paused():
+        assert not gc.isenabled()
+    assert gc.isenabled()
+    with pytest.raises(ZeroDivisionError):
+        with gc_paused():
+            1 / 0
+    assert gc.isenabled()
+    gc.disable()  # a caller that turned it off keeps it off
+    try:
+        with gc_paused():
+            pass
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
+
+
+def test_compile_leaves_the_collector_on_and_matches_the_golden():
+    c = compile_model(parse_file(ROOT / "models" / "msd.yaml"))
+    assert gc.isenabled()
+    assert c.source == (ROOT / "generated" / "msd.py").read_text(encoding="utf-8")
+
+
+def test_skeleton_memo_remembers_passes_only(monkeypatch):
+    src = (ROOT / "generated" / "msd.py").read_text(encoding="utf-8")
+    calls = []
+    real = skeleton._check_skeleton
+    monkeypatch.setattr(skeleton, "_check_skeleton", lambda t, b: (calls.append(1), real(t, b)))
+    monkeypatch.setattr(skeleton, "_PASSED", set())
+    skeleton.check_skeleton(src)
+    skeleton.check_skeleton(src)
+    assert len(calls) == 1  # the second check of the same text is a lookup
+    bad = src + "\nprint('spliced')\n"  # a foreign statement after the runtime
+    for _ in range(2):  # a refusal is never remembered as a pass
+        with pytest.raises(skeleton.SkeletonError):
+            skeleton.check_skeleton(bad)
+    assert len(calls) == 3
