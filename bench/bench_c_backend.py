@@ -62,6 +62,30 @@ def cpu_children():
     return r.ru_utime + r.ru_stime
 
 
+_SYMBOLIC = r"""
+import json, sys, time
+t0 = time.process_time()
+import bgc.compiler, bgc.runner, bgc.scene  # sympy, networkx, symengine, jinja2 with them
+t1 = time.process_time()
+sc = bgc.scene.parse_scene(sys.argv[1])
+bgc.runner._compiled(sc)
+print(json.dumps([t1 - t0, time.process_time() - t1]))
+"""
+
+
+def symbolic_cpu(rounds: int) -> tuple[float, float]:
+    """(imports, compile) CPU seconds of the circle scene's symbolic compile, each in a fresh
+    interpreter (no warm sympy cache), the best of ``rounds``."""
+    import json
+
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    runs = [json.loads(subprocess.run([sys.executable, "-c", _SYMBOLIC, str(SCENE)], check=True,
+                                      env=env, capture_output=True, text=True).stdout)
+            for _ in range(rounds)]
+    return min(r[0] for r in runs), min(r[1] for r in runs)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default=str(ROOT / "bench" / "RESULTS_c.md"))
@@ -89,10 +113,10 @@ def main():
         L.append(line)
 
     sc = parse_scene(SCENE)
-    # compile: symbolic (CPU) then the C build (cold: an empty cache, runtime objects too)
-    c0 = time.process_time()
+    # compile: symbolic (CPU, in a fresh interpreter: the libraries' import apart, best of 3)
+    # then the C build (cold: an empty cache, runtime objects too)
+    t_imp, t_sym = symbolic_cpu(3)
     compiled, _ = _compiled(sc)
-    t_sym = time.process_time() - c0
     npm = load_module(compiled.source, "circle_np_bench")
     w0, k0 = time.perf_counter(), cpu_children()
     _, cm = backends.load("circle_c_bench", "c", "bench" + "0" * 59, lambda: compiled, Cache())
@@ -104,7 +128,9 @@ def main():
     say("| stage | time |")
     say("|---|---|")
     say(f"| symbolic compile of the circle scene's 3R2S ({len(npm.STATE_NAMES)} states, "
-        f"{int(npm.JAC_SPARSITY.sum())} Jacobian entries), CPU | {t_sym:.2f} s |")
+        f"{int(npm.JAC_SPARSITY.sum())} Jacobian entries), CPU, fresh interpreter | "
+        f"{t_sym:.2f} s (+ {t_imp:.2f} s importing sympy, networkx, symengine, jinja2: "
+        f"{t_imp + t_sym:.2f} s in all) |")
     say(f"| C build, cold ({len(files)} model units, {nlines} lines, + runtime), wall | "
         f"{t_build:.2f} s (compiler CPU {cpu_build:.1f} s) |")
     say()
@@ -187,19 +213,44 @@ def main():
             f"{st['nfev']} | {st['nlu']} |")
     say()
 
+    # a batch of circle instances over threads (OpenMP): every instance its own step size
+    ncpu = os.cpu_count() or 1
+    nb = 4 * ncpu
+    x0 = np.asarray(cm.initial_state(p) if p else cm.X0, dtype=float)
+    rng = np.random.default_rng(1)
+    XB = x0[:, None] * (1 + 1e-6 * rng.standard_normal((len(x0), nb)))  # nearby starts
+    say(f"## A batch of {nb} circle instances (C Radau, rtol {sc.rtol:g}), over threads")
+    say()
+    if not cbuild.flags().count("-fopenmp"):
+        say("The compiler has no OpenMP: instances run one after another.")
+    say("| threads | wall | per instance | speed-up vs 1 thread |")
+    say("|---|---|---|---|")
+    one = None
+    for th in sorted({1, 2, ncpu}):
+        if th > ncpu:
+            continue
+        wall, _ = best(lambda: cm.simulate(sc.t_span, method="Radau", rtol=sc.rtol, x0=XB,
+                                           nthreads=th, **kw), 3)
+        one = one or wall
+        say(f"| {th} | {wall:.3f} s | {wall / nb * 1e3:.1f} ms | {one / wall:.2f}x |")
+    say()
+
     # warm bgc simulate end to end against the hand-written script
     with tempfile.TemporaryDirectory() as d:
         cmd = [sys.executable, "-m", "bgc", "simulate", str(SCENE), "--backend", "c", "--out",
                str(Path(d) / "r.npz"), "-q"]
         env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+        # as on a user's machine: Python keeps the byte code of bgc's modules (a run with
+        # PYTHONDONTWRITEBYTECODE, as here by default, recompiles them at every start)
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
         subprocess.run(cmd, check=True, env=env, capture_output=True)  # fills the cache
         warm, proc = best(lambda: subprocess.run(cmd, check=True, env=env, capture_output=True,
-                                                 text=True), 3)
+                                                 text=True), 5)
         summary = proc.stdout.strip().splitlines()[-1]
         say("## Warm `bgc simulate` end to end")
         say()
         say(f"`bgc simulate models/scenes/3r2s_circle.yaml --backend c --out r.npz` with the "
-            f"module in the cache (best of 3, interpreter start-up included): {warm:.2f} s.")
+            f"module in the cache (best of 5, interpreter start-up included, byte code kept): {warm:.2f} s.")
         say(f"Its summary line: `{summary}`")
         say()
         if not args.quick:
@@ -209,7 +260,7 @@ def main():
                       "atol=5e-7); np.savez(%r, **{k: out[k] for k in ('theta1', 'theta2', "
                       "'theta3', 'theta4')})" % (str(ROOT / "tests"), str(Path(d) / "h.npz")))
             hand, _ = best(lambda: subprocess.run([sys.executable, "-c", script], check=True,
-                                                  capture_output=True), 1)
+                                                  env=env, capture_output=True), 2)
             a, b = np.load(Path(d) / "r.npz"), np.load(Path(d) / "h.npz")
             diff = max(float(np.max(np.abs(a[k] - b[k]))) for k in ANGLES)
             say("| | hand-written script (solve_ivp Radau) | bgc simulate --backend c (warm) | "
