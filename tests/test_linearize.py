@@ -200,3 +200,17 @@ def test_api_linearize_gives_modes_and_statespace():
     assert lin.inputs == ("zr",) and lin.states[2] == "spring.q"
     if lin.statespace is not None:
         np.testing.assert_allclose(lin.statespace.A, lin.A)
+
+
+def test_bode_plot_shows_dollar_signs_as_written(tmp_path):
+    """Labels and units come from the model: a '$' is text, not mathtext (a malformed
+    formula such as '$\\frac' made matplotlib fail while saving)."""
+    from bgc.linear import bode_plot
+
+    A = np.array([[-1.0]])
+    B = np.array([[1.0]])
+    C = np.array([[1.0]])
+    D = np.array([[0.0]])
+    path = tmp_path / "bode.png"
+    bode_plot(path, (A, B, C, D), 0, 0, "u$\\frac", "y$", in_unit="$\\frac{", out_unit="m$")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

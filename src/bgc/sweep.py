@@ -739,7 +739,7 @@ def open_results(out):
 def plot_sweep(prep: Prepared, ds, out_dir) -> list:
     """PNGs: each chosen output's final value (or max/min) against each swept quantity, or a
     fan of its trajectories (stat: fan). Failed instances are left out."""
-    from .plots import _mpl
+    from .plots import _mpl, _plain
 
     plt = _mpl()
     out_dir = Path(out_dir)
@@ -751,13 +751,13 @@ def plot_sweep(prep: Prepared, ds, out_dir) -> list:
 
     def ylab(o, comp):
         u = spec.plot_units.get(o)
-        return f"{comp} [{u}]" if u else f"{comp} [units not given: sweep plot units]"
+        return _plain(f"{comp} [{u}]" if u else f"{comp} [units not given: sweep plot units]")
 
     def xlab(label):
         pid = prep.params.get(label)
         u = prep.param_units.get(pid, "") if pid else ""
-        return f"{label} [{u}]" if u else (f"{label} [as the state]" if pid is None
-                                          else f"{label} [-]")
+        return _plain(f"{label} [{u}]" if u else (f"{label} [as the state]" if pid is None
+                                                  else f"{label} [-]"))
 
     for o in outs:
         arr = ds[o].values  # (S, *shape, T)
@@ -772,7 +772,7 @@ def plot_sweep(prep: Prepared, ds, out_dir) -> list:
                             color=f"C{j}", label=nm if s == np.nonzero(ok)[0][0] else None)
             ax.set_xlabel("time [s]")
             ax.set_ylabel(ylab(o, o))
-            ax.set_title(f"{prep.scene_name}: {o}, {int(ok.sum())} instances")
+            ax.set_title(_plain(f"{prep.scene_name}: {o}, {int(ok.sum())} instances"))
             ax.legend(fontsize=8)
         else:
             labels = list(prep.values)
@@ -792,8 +792,8 @@ def plot_sweep(prep: Prepared, ds, out_dir) -> list:
                 ax.set_ylabel(ylab(o, f"{spec.plot_stat} {o}"))
                 if len(names) > 1:
                     ax.legend(fontsize=7)
-            fig.suptitle(f"{prep.scene_name}: {spec.plot_stat} {o} against the swept values"
-                         + (" (red: failed instances)" if (~ok).any() else ""))
+            fig.suptitle(_plain(f"{prep.scene_name}: {spec.plot_stat} {o} against the swept "
+                                "values" + (" (red: failed instances)" if (~ok).any() else "")))
         fig.tight_layout()
         path = out_dir / f"{prep.scene_name}_sweep_{o}.png"
         fig.savefig(path)
