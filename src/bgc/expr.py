@@ -561,7 +561,7 @@ class _Builder:
                     self._spend(node, sa[0] * sa[1] * sb[1])
                     self._spend(node, sb[1] * _tree_size(a, LIMITS.built_ops)
                                 + sa[0] * _tree_size(b, LIMITS.built_ops))
-                    return a * b
+                    return _matmul(a, b)
                 if isinstance(op, ast.MatMult):
                     raise self.err(node, "@ needs two matrices")
                 return a * b
@@ -747,3 +747,14 @@ def _funcs() -> dict[str, Callable]:
 
 def _fmt(shape: tuple[int, ...]) -> str:
     return "scalar" if not shape else "x".join(map(str, shape))
+
+
+def _matmul(a, b):
+    """The matrix product as sums of products, entry by entry: the same canonical sympy
+    expressions as ``a * b``, without the domain-matrix machinery that made the 3R2S's
+    rotation products a fifth of its equation derivation."""
+    n, k = a.shape
+    m = b.shape[1]
+    return sp.ImmutableMatrix(n, m, [sp.Add(*[a[i, q] * b[q, j] for q in range(k)])
+                                     for i in range(n) for j in range(m)])
+
