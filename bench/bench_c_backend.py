@@ -155,16 +155,16 @@ def main():
     xc = np.ascontiguousarray(x)
     # inside C: 1000 calls on one instance (strides 0), and 1000 distinct instances
     r_c_in = per_call(lambda: lib.bgcm_eval_rhs(1000, cm._ptr(T), 0, cm._ptr(xc), 0,
-                                                cm._ptr(P), 0, cm._ptr(DX))) / 1000
+                                                cm._ptr(P), 0, cm._ptr(DX), None)) / 1000
     j_c_in = per_call(lambda: lib.bgcm_eval_jac(1000, cm._ptr(T), 0, cm._ptr(xc), 0,
-                                                cm._ptr(P), 0, cm._ptr(JV))) / 1000
+                                                cm._ptr(P), 0, cm._ptr(JV), None)) / 1000
     r_npB = per_call(lambda: npm.rhs(t, X, p), n_min=5) / 1000
     r_cB = per_call(lambda: lib.bgcm_eval_rhs(1000, cm._ptr(T), 0, cm._ptr(Xc), n,
-                                              cm._ptr(P), 0, cm._ptr(DX))) / 1000
+                                              cm._ptr(P), 0, cm._ptr(DX), None)) / 1000
     r_cBw = per_call(lambda: cm.rhs(t, X, p), n_min=5) / 1000
     j_npB = per_call(lambda: npm.jacobian(t, X, p), n_min=3) / 1000
     j_cB = per_call(lambda: lib.bgcm_eval_jac(1000, cm._ptr(T), 0, cm._ptr(Xc), n,
-                                              cm._ptr(P), 0, cm._ptr(JV))) / 1000
+                                              cm._ptr(P), 0, cm._ptr(JV), None)) / 1000
     assert np.allclose(cm.rhs(t, X, p), npm.rhs(t, X, p), rtol=1e-12, atol=1e-12)
     say("## rhs and Jacobian")
     say()

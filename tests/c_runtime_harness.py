@@ -38,7 +38,8 @@ class LuPlan(C.Structure):
 class Model(C.Structure):
     _fields_ = [("n", C.c_int), ("np", C.c_int), ("nnz", C.c_int), ("jac_row", INTP),
                 ("jac_col", INTP), ("rhs", RHS), ("jac", RHS), ("has_time_inputs", C.c_int),
-                ("lu", C.POINTER(LuPlan))]
+                ("lu", C.POINTER(LuPlan)), ("nws", C.c_int), ("rhs_ws", C.c_void_p),
+                ("jac_ws", C.c_void_p)]
 
 
 class Options(C.Structure):

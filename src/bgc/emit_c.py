@@ -168,6 +168,15 @@ class CPrinter(C99CodePrinter):
         a = self._print(expr.args[0])
         return f"((double)(({a}) > 0) - (double)(({a}) < 0))"
 
+    def _print_LinSolveEntry(self, expr):
+        # component i of a numeric solve's result (a local array, or the scratch array)
+        return f"{self._print(expr.args[0])}[{int(expr.args[1])}]"
+
+    def _print_LinSolve(self, expr):  # printed as its own line by _parts, never inline
+        raise ValueError("internal: a numeric linear solve inside an expression")
+
+    _print_NewtonSolve = _print_LinSolve
+
     def _print_Min(self, expr):
         return self._minmax(expr, "fmin")
 
@@ -192,6 +201,16 @@ class CLine:
     comment: str = ""
     out: int = -1  # result slot, or -1
     export: int = -1  # scratch slot the value is stored to for later parts, or -1
+    # numeric solves: kind "linsolve" (x = A^-1 b: a = A's entries row-major, b = b's),
+    # "newton" (code: the loop function's call arguments; ws: its warm start's offset in the
+    # instance workspace) or "alias" (another solve's result under a second name); size: the
+    # result's length; fail: the failure code the part returns
+    kind: str = ""
+    size: int = 0
+    a: tuple = ()
+    b: tuple = ()
+    ws: int = 0
+    fail: int = 0
 
 
 @dataclass(frozen=True)
@@ -202,6 +221,9 @@ class Part:
     states: tuple[tuple[str, int], ...]  # (C name, index into x)
     imports: tuple[tuple[str, int], ...]  # (C name, scratch slot)
     lines: tuple[CLine, ...]
+    vimports: tuple[tuple[str, int], ...] = ()  # solve results: (C name, first scratch slot)
+    fallible: bool = False  # holds a numeric solve: returns int, takes the workspace
+    newton: bool = False  # calls a Newton loop's function
 
 
 @dataclass(frozen=True)
@@ -215,8 +237,19 @@ class CFunction:
 
 def _parts(name: str, fn, printer: CPrinter, ctx: "_Ctx", limit: int = PART_LINES
            ) -> CFunction:
+    from .equations import LinSolve, NewtonSolve
+
     items = [(ln.target, ln.expr, ln.comment, -1) for ln in fn.lines]
     items += [(None, r, "", k) for k, (_, r) in enumerate(fn.results)]
+    # the results of numeric solves are arrays: their lengths
+    vsize: dict = {}
+    for tgt, e, _, _ in items:
+        if isinstance(e, LinSolve):
+            vsize[tgt] = int(e.args[0])
+        elif isinstance(e, NewtonSolve):
+            vsize[tgt] = len(ctx.newton[int(e.args[0])].tear)
+        elif isinstance(e, sp.Symbol) and e in vsize:
+            vsize[tgt] = vsize[e]
     defined_in: dict = {}  # symbol -> part index
     chunks = [items[i:i + limit] for i in range(0, len(items), limit)] or [[]]
     for ci, chunk in enumerate(chunks):
@@ -224,7 +257,7 @@ def _parts(name: str, fn, printer: CPrinter, ctx: "_Ctx", limit: int = PART_LINE
             if tgt is not None:
                 defined_in[tgt] = ci
     frees = [[e.free_symbols for _, e, _, _ in chunk] for chunk in chunks]
-    # which definitions a later part needs: those get a scratch slot
+    # which definitions a later part needs: those get a scratch slot (a solve: one per entry)
     slots: dict = {}
     for ci, chunk in enumerate(chunks):
         for fs in frees[ci]:
@@ -232,7 +265,10 @@ def _parts(name: str, fn, printer: CPrinter, ctx: "_Ctx", limit: int = PART_LINE
                 if s in defined_in and defined_in[s] < ci and s not in slots:
                     slots[s] = None
     order = sorted(slots, key=lambda s: (defined_in[s], str(s)))
-    slots = {s: k for k, s in enumerate(order)}
+    slots, nslot = {}, 0
+    for s in order:
+        slots[s] = nslot
+        nslot += vsize.get(s, 1)
     parts = []
     uses_t = False
     for ci, chunk in enumerate(chunks):
@@ -247,16 +283,46 @@ def _parts(name: str, fn, printer: CPrinter, ctx: "_Ctx", limit: int = PART_LINE
         ins = tuple((c_name(str(s)), printer.doprint(ctx.input_default[s])) for s in inputs)
         states = tuple((c_name(str(s)), k) for k, s in enumerate(ctx.state_syms) if s in used)
         imports = tuple((c_name(str(s)), slots[s]) for s in order
-                        if s in used and defined_in[s] < ci)
+                        if s in used and defined_in[s] < ci and s not in vsize)
+        vimports = tuple((c_name(str(s)), slots[s]) for s in order
+                         if s in used and defined_in[s] < ci and s in vsize)
         lines = []
+        fallible = newton = False
         for tgt, e, why, k in chunk:
+            if tgt is not None and tgt in vsize:
+                lines.append(_solve_line(tgt, e, why, slots.get(tgt, -1), vsize[tgt], printer,
+                                         ctx))
+                fallible = True
+                newton = newton or isinstance(e, NewtonSolve)
+                continue
             code = printer.doprint(e)
             if tgt is None:
                 lines.append(CLine("", code, "", k))
             else:
                 lines.append(CLine(c_name(str(tgt)), code, why, -1, slots.get(tgt, -1)))
-        parts.append(Part(f"bgcm_{name}_{ci}", params, ins, states, imports, tuple(lines)))
-    return CFunction(name, tuple(parts), len(slots), len(fn.results), uses_t)
+        parts.append(Part(f"bgcm_{name}_{ci}", params, ins, states, imports, tuple(lines),
+                          vimports, fallible, newton))
+    return CFunction(name, tuple(parts), nslot, len(fn.results), uses_t)
+
+
+def _solve_line(tgt, e, why, export, n, printer, ctx) -> CLine:
+    """The C line of a numeric solve's result (an array of n values)."""
+    from .equations import LinSolve, NewtonSolve
+
+    target = c_name(str(tgt))
+    if isinstance(e, LinSolve):
+        a = tuple(printer.doprint(v) for v in e.args[1:1 + n * n])
+        b = tuple(printer.doprint(v) for v in e.args[1 + n * n:])
+        return CLine(target, "", why, -1, export, "linsolve", n, a, b, 0,
+                     ctx.fail_code(ctx.linsolve_message(e)))
+    if isinstance(e, NewtonSolve):
+        k = int(e.args[0])
+        args = ", ".join(printer.doprint(v) for v in e.args[1:])
+        return CLine(target, f"bgcm_newton_{k}({args}{', ' if args else ''}"
+                             f"bgc_ws ? bgc_ws + {ctx.newton_ws[k]} : NULL, {target})",
+                     why, -1, export, "newton", n, (), (), ctx.newton_ws[k],
+                     ctx.fail_code(ctx.newton_message(k)))
+    return CLine(target, c_name(str(e)), why, -1, export, "alias", n)
 
 
 class _Ctx:
@@ -267,6 +333,61 @@ class _Ctx:
         self.state_syms = [sv.symbol for sv in eq.states]
         self.input_syms = [s for iv in eq.inputs for s in iv.symbols]
         self.input_default = {s: d for iv in eq.inputs for s, d in zip(iv.symbols, iv.default)}
+        # numeric solves: Newton loops (their warm starts' offsets in the instance
+        # workspace) and the failure codes the model functions return (1-based, the index
+        # of their message in fail_messages)
+        self.newton = tuple(getattr(eq, "newton", ()))
+        self.newton_ws, off = [], 0
+        for nl in self.newton:
+            self.newton_ws.append(off)
+            off += len(nl.tear)
+        self.nws = off
+        self.fail_messages: list[str] = []
+        self._eq = eq
+        self._lin_msgs = None
+
+    def fail_code(self, message: str) -> int:
+        if message not in self.fail_messages:
+            self.fail_messages.append(message)
+        return self.fail_messages.index(message) + 1
+
+    def newton_message(self, k: int) -> str:
+        # exactly the numpy module's message (templates/numpy/module.py.j2)
+        return self.newton[k].where + " did not converge (Newton, 50 iterations)"
+
+    def linsolve_message(self, e) -> str:
+        """What a singular numeric solve says: derivative causality's system (named by its
+        unknowns and the elements it runs through), the same system's solves for the
+        Jacobian, or a Newton loop's Jacobian at its solution."""
+        from .equations import LinSolve, LinSolveEntry
+
+        if self._lin_msgs is None:
+            eq = self._eq
+            tears: dict = {}
+            for a in eq.assignments:
+                if isinstance(a.expr, LinSolveEntry):
+                    tears.setdefault(a.expr.args[0], []).append(str(a.symbol).lstrip("_"))
+            self._lin_msgs = {}
+            for a in eq.assignments:
+                if not isinstance(a.expr, LinSolve):
+                    continue
+                n = int(a.expr.args[0])
+                names = ", ".join(tears.get(a.symbol, ()))
+                through = ""
+                for note in eq.loops:
+                    if f"({names})" in note and ", through " in note:
+                        through = " through " + note.split(", through ", 1)[1]
+                        break
+                self._lin_msgs[tuple(a.expr.args[1:1 + n * n])] = (
+                    f"derivative causality: the linear system in {n} unknown(s) ({names})"
+                    f"{through} is singular")
+        n = int(e.args[0])
+        msg = self._lin_msgs.get(tuple(e.args[1:1 + n * n]))
+        if msg is not None:
+            return msg
+        loops = "; ".join(nl.where for nl in self.newton)
+        return ("the Jacobian through a nonlinear algebraic loop: the loop's linear system "
+                f"(I - dg/dz) is singular at its solution ({loops})")
 
 
 @dataclass(frozen=True)
@@ -283,21 +404,23 @@ class CUnsupported(ModelError):
     """The model needs something the C printer does not write yet (see :func:`unsupported`)."""
 
 
-def unsupported(eq) -> None:
-    """What the C backend cannot print yet is one clear error, never wrong code: table
-    inputs (interpolated data), numeric linear solves (derivative causality with more than a
-    few dependent elements) and Newton loops (nonlinear algebraic loops). The numpy backend
-    runs them all."""
+def has_solves(eq) -> bool:
+    """Does the model solve equations numerically (numeric linear solves of derivative
+    causality, Newton loops of nonlinear algebraic loops)?"""
     from .equations import LinSolve, LinSolveEntry, NewtonSolve
 
+    kinds = (LinSolve, LinSolveEntry, NewtonSolve)
+    return bool(getattr(eq, "newton", ())) or any(
+        isinstance(a.expr, kinds) for a in eq.assignments + eq.jac_assignments)
+
+
+def unsupported(eq) -> None:
+    """What the C backend cannot print yet is one clear error, never wrong code: table
+    inputs (interpolated data). The numpy backend runs them. (Numeric linear solves and
+    Newton loops are printed: a dense LU per instance, a Newton function per loop.)"""
     what = []
     if any(getattr(iv, "table", None) is not None for iv in eq.inputs):
         what.append("table inputs")
-    if getattr(eq, "newton", ()):
-        what.append("nonlinear algebraic loops (Newton)")
-    kinds = (LinSolve, LinSolveEntry, NewtonSolve)
-    if any(isinstance(a.expr, kinds) for a in eq.assignments + eq.jac_assignments):
-        what.append("numeric linear solves")
     if what:
         raise CUnsupported(None, f"model {eq.name!r}: the C backend does not support "
                                f"{' and '.join(what)} yet; use the numpy backend "
@@ -328,11 +451,14 @@ def render_c(low: Lowered, *, source: str, source_hash: str, description: str = 
     files = []
     for k, unit in enumerate(units):
         files.append((f"model_part{k}.c", env.get_template("c/part.c.j2").render(
-            parts=unit, unit=k, **common)))
+            parts=unit, unit=k, newton=_newton_protos(ctx), **common)))
+    if ctx.newton:
+        files.append(("model_newton.c", env.get_template("c/newton.c.j2").render(
+            loops=_newton_loops(ctx, printer), **common)))
     olens = [len(vals) for _, _, vals in eq.outputs]
     lu_plan = _lu_plan(len(eq.states), low.jac_keys)
     main = env.get_template("c/model.c.j2").render(
-        lu_plan=lu_plan,
+        lu_plan=lu_plan, nws=ctx.nws, fail_messages=ctx.fail_messages,
         fns=fns, n=len(eq.states), np=len(ctx.param_syms), jac_keys=low.jac_keys,
         states=[sv.name for sv in eq.states], outputs=[o[0] for o in eq.outputs],
         nout=sum(olens), all_parts=all_parts,
@@ -345,6 +471,30 @@ def render_c(low: Lowered, *, source: str, source_hash: str, description: str = 
     # the digest is compiled into the library: the wrapper refuses a library of other sources
     files = [(f, t.replace("@BGC_DIGEST@", digest)) for f, t in files]
     return CSources(tuple(files), digest)
+
+
+def _newton_protos(ctx) -> list[str]:
+    """The prototypes of the Newton loops' functions (model_newton.c)."""
+    out = []
+    for k, nl in enumerate(ctx.newton):
+        args = "".join(f"double {c_name(str(a))}, " for a in nl.args)
+        out.append(f"int bgcm_newton_{k}({args}double *restrict bgc_warm, "
+                   "double *restrict bgc_z)")
+    return out
+
+
+def _newton_loops(ctx, printer) -> list[dict]:
+    """The Newton loops as the template prints them: one C function each."""
+    protos = _newton_protos(ctx)
+    loops = []
+    for k, nl in enumerate(ctx.newton):
+        loops.append({
+            "proto": protos[k], "n": len(nl.tear), "where": nl.where,
+            "tear": [c_name(str(t)) for t in nl.tear],
+            "body": [(c_name(str(sym)), printer.doprint(e)) for sym, e in nl.body],
+            "residual": [printer.doprint(e) for e in nl.residual],
+            "jac": [printer.doprint(e) for e in nl.jac]})
+    return loops
 
 
 def _lu_plan(n: int, keys) -> str:
@@ -375,7 +525,7 @@ def render_wrapper(low: Lowered, numpy_source: str, csrc: CSources, lib_name: st
     olens = [len(vals) for _, _, vals in eq.outputs]
     text = _env().get_template("c/wrapper.py.j2").render(
         numpy_source=numpy_source.rstrip("\n"), mark=WRAPPER_MARK.rstrip("\n"),
-        lib_name=lib_name, digest=csrc.digest,
+        lib_name=lib_name, digest=csrc.digest, nws=_Ctx(low).nws,
         np=len(_Ctx(low).param_syms),
         nnz=len(low.jac_keys), nout=sum(olens), binding=binding_source())
     check_wrapper(text)

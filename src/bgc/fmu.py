@@ -379,11 +379,14 @@ class _FmuCtx:
 def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> dict[str, str]:
     """The FMU's generated C files (name -> text): bgc_fmu_model.c, the parts and the
     configuration header."""
-    from .emit_c import CPrinter, _env, _parts, c_name
+    from .emit_c import CPrinter, _env, _parts, c_name, has_solves
     from .paths import templates_dir
 
     low = compiled.lowered
     eq = compiled.equations
+    if has_solves(eq):  # the FMU's model functions keep no per-instance workspace yet
+        raise ModelError(None, f"model {eq.name!r}: the FMU export does not support numeric "
+                               "linear solves or nonlinear algebraic loops (Newton) yet")
     printer = CPrinter()
     ctx = _FmuCtx(low)
     fns = {name: _parts(name, fn, printer, ctx) for name, fn in

@@ -137,7 +137,7 @@ def binding_source() -> str:
 
 
 #: names the C part of a wrapper binds at top level (before the binding)
-_C_TOP = {"C_LIBRARY", "C_DIGEST", "_C_NP", "_C_NNZ", "_C_NOUT"}
+_C_TOP = {"C_LIBRARY", "C_DIGEST", "_C_NP", "_C_NNZ", "_C_NOUT", "_C_NWS"}
 
 
 def check_wrapper(text: str) -> None:

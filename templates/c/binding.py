@@ -21,13 +21,14 @@ JAC_SPARSITY: np.ndarray
 _PARAM_NDIM: dict
 C_LIBRARY: str
 C_DIGEST: str
-_C_NP = _C_NNZ = _C_NOUT = 0
+_C_NP = _C_NNZ = _C_NOUT = _C_NWS = 0
 rhs = jacobian = outputs = initial_state = simulate = _params = _batched = None
 _output_times = _error = SimResult = SimulationError = None
 
 # ==== bgc C binding: copied below this line ====
 import ctypes as _ct
 import os as _os
+import threading as _threading
 
 _np_rhs, _np_jacobian, _np_outputs, _np_initial_state, _np_simulate = (
     rhs, jacobian, outputs, initial_state, simulate)
@@ -49,21 +50,24 @@ def _bind(path):
     if lib.bgcm_digest().decode("ascii") != C_DIGEST:
         raise ImportError(f"{path}: the library was built from other C sources than this "
                           "module's (rebuild it with `bgc compile --target c`)")
-    ev = [_ct.c_int, _DP, _ct.c_int, _DP, _ct.c_int, _DP, _ct.c_int, _DP]
+    ev = [_ct.c_int, _DP, _ct.c_int, _DP, _ct.c_int, _DP, _ct.c_int, _DP, _DP]
     for fn in ("bgcm_eval_rhs", "bgcm_eval_jac", "bgcm_eval_outputs"):
-        getattr(lib, fn).argtypes, getattr(lib, fn).restype = ev, None
-    lib.bgcm_eval_init.argtypes, lib.bgcm_eval_init.restype = [_ct.c_int, _DP, _ct.c_int, _DP], None
+        getattr(lib, fn).argtypes, getattr(lib, fn).restype = ev, _ct.c_int
+    lib.bgcm_eval_init.argtypes = [_ct.c_int, _DP, _ct.c_int, _DP, _DP]
+    lib.bgcm_eval_init.restype = _ct.c_int
     lib.bgcm_info.argtypes = [_ct.POINTER(_ct.c_int)]
     lib.bgcm_state_name.restype = _ct.c_char_p
+    lib.bgcm_fail_message.argtypes, lib.bgcm_fail_message.restype = [_ct.c_int], _ct.c_char_p
     lib.bgcm_simulate.restype = _ct.c_int
     lib.bgcm_simulate.argtypes = [
         _ct.c_int, _ct.c_double, _DP, _ct.c_int, _ct.c_double, _ct.c_double, _ct.c_long,
         _ct.c_double, _DP, _ct.c_int, _DP, _ct.c_int, _ct.c_int, _DP, _DP, _ct.c_double,
         _ct.c_double, _DP, _DP, _ct.c_char_p, _ct.c_int]
-    info = (_ct.c_int * 5)()
+    info = (_ct.c_int * 6)()
     lib.bgcm_info(info)
-    if tuple(info[:4]) != (N_STATES, _C_NP, _C_NNZ, _C_NOUT):
-        raise ImportError(f"{path}: the library's sizes {tuple(info[:4])} are not the module's")
+    sizes = (info[0], info[1], info[2], info[3], info[5])
+    if sizes != (N_STATES, _C_NP, _C_NNZ, _C_NOUT, _C_NWS):
+        raise ImportError(f"{path}: the library's sizes {sizes} are not the module's")
     _LIB = lib
     return lib
 
@@ -77,6 +81,37 @@ def _lib():
 
 def _ptr(a):
     return a.ctypes.data
+
+
+_WARM = _threading.local()  # per thread: batch size -> the Newton loops' warm starts
+
+
+def _warm(nb):
+    """The warm starts (nb, _C_NWS) of the model's Newton loops for a call on nb instances:
+    the last solutions of this thread's previous call on as many instances (the library
+    updates them), zero at first; None (no address) for a model without Newton loops."""
+    if not _C_NWS:
+        return None
+    d = getattr(_WARM, "d", None)
+    if d is None:
+        d = _WARM.d = {}
+    w = d.get(nb)
+    if w is None:
+        w = d[nb] = np.zeros((nb, _C_NWS))
+    return _ptr(w)
+
+
+def _check(rc):
+    """A model function's failure (a numeric solve: a Newton loop that did not converge, a
+    singular linear system) as the numpy module raises it: a SimulationError with its
+    located message."""
+    if rc:
+        raise SimulationError(_fail_message(rc))
+
+
+def _fail_message(code):
+    return _lib().bgcm_fail_message(int(code)).decode("utf-8", "replace") or \
+        f"model failure (code {code})"
 
 
 def _c_array(a, shape):
@@ -112,7 +147,8 @@ def _instances(t, x, p, extra=()):
 
 
 def _P_flat(pv):
-    return np.array([float(v) for v in pv], dtype=float).reshape(max(_C_NP, 1))
+    flat = np.array([float(v) for v in pv], dtype=float)
+    return flat if flat.size else np.zeros(1)  # no parameters: an address all the same
 
 
 def _p_flat_cached(p):
@@ -143,12 +179,12 @@ def rhs(t, x, p=None, u=None):
         if P is not None:  # one instance: the fast path
             x = np.ascontiguousarray(x)
             dx = np.empty(N_STATES)
-            _lib().bgcm_eval_rhs(1, _ptr(np.array([float(t)])), 0, _ptr(x), 0, _ptr(P), 0,
-                                 _ptr(dx))
+            _check(_lib().bgcm_eval_rhs(1, _ptr(np.array([float(t)])), 0, _ptr(x), 0, _ptr(P),
+                                        0, _ptr(dx), _warm(1)))
             return dx
     B, nb, T, st, X, sx, P, sp = _instances(t, x, p)
     DX = np.empty((nb, N_STATES))
-    _lib().bgcm_eval_rhs(nb, _ptr(T), st, _ptr(X), sx, _ptr(P), sp, _ptr(DX))
+    _check(_lib().bgcm_eval_rhs(nb, _ptr(T), st, _ptr(X), sx, _ptr(P), sp, _ptr(DX), _warm(nb)))
     return np.moveaxis(DX, 0, 1).reshape((N_STATES,) + B) if B else DX[0]
 
 
@@ -158,7 +194,7 @@ def jacobian(t, x, p=None, u=None):
         return _np_jacobian(t, x, p, u)
     B, nb, T, st, X, sx, P, sp = _instances(t, x, p)
     JV = np.empty((nb, max(_C_NNZ, 1)))
-    _lib().bgcm_eval_jac(nb, _ptr(T), st, _ptr(X), sx, _ptr(P), sp, _ptr(JV))
+    _check(_lib().bgcm_eval_jac(nb, _ptr(T), st, _ptr(X), sx, _ptr(P), sp, _ptr(JV), _warm(nb)))
     J = np.zeros((N_STATES, N_STATES, nb))
     J[_JAC_ROWS, _JAC_COLS] = JV[:, :_C_NNZ].T
     return J.reshape((N_STATES, N_STATES) + B)
@@ -170,7 +206,8 @@ def outputs(t, x, p=None, u=None):
         return _np_outputs(t, x, p, u)
     B, nb, T, st, X, sx, P, sp = _instances(t, x, p)
     Y = np.empty((nb, max(_C_NOUT, 1)))
-    _lib().bgcm_eval_outputs(nb, _ptr(T), st, _ptr(X), sx, _ptr(P), sp, _ptr(Y))
+    _check(_lib().bgcm_eval_outputs(nb, _ptr(T), st, _ptr(X), sx, _ptr(P), sp, _ptr(Y),
+                                    _warm(nb)))
     out, k = {}, 0
     for name, size in zip(OUTPUT_NAMES, _OUT_SIZES):
         out[name] = np.moveaxis(Y[:, k:k + size], 0, 1).reshape(OUTPUT_SHAPES[name] + B)
@@ -182,7 +219,7 @@ def initial_state(p=None):
     """The initial state x0 (n, *batch) from the parameters, computed in C."""
     B, nb, T, st, X, sx, P, sp = _instances(0.0, np.zeros(N_STATES), p)
     X0 = np.empty((nb, N_STATES))
-    _lib().bgcm_eval_init(nb, _ptr(P), sp, _ptr(X0))
+    _check(_lib().bgcm_eval_init(nb, _ptr(P), sp, _ptr(X0), _warm(nb)))
     return np.moveaxis(X0, 0, 1).reshape((N_STATES,) + B)
 
 
@@ -258,11 +295,14 @@ def _c_message(method, S, failed, raw, batch):
     status, t, bad, where = int(S[k, 6]), float(S[k, 7]), int(S[k, 8]), int(S[k, 9])
     inst = ""
     if batch:
-        inst = f" (batch instance {np.unravel_index(k, batch)}, {failed.size} of {S.shape[0]} failed)"
+        inst = (f" (batch instance {tuple(int(i) for i in np.unravel_index(k, batch))}, "
+                f"{failed.size} of {S.shape[0]} failed)")
     if status == 1 and 0 <= bad < N_STATES:
         what = "right-hand side" if where == 0 else "Jacobian row"
         return (f"{method} failed at t = {t:.6g}: non-finite value in the {what} of state "
                 f"{STATE_NAMES[bad]!r}{inst}")
+    if status == 6 and where == 2 and bad > 0:  # a numeric solve failed: located first
+        return f"{_fail_message(bad)} ({method}, at t = {t:.6g}){inst}"
     detail = raw.decode("utf-8", "replace") or _C_STATUS.get(status, f"status {status}")
     return f"{method} failed at t = {t:.6g}: {detail}{inst}"
 

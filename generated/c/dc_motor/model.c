@@ -17,6 +17,8 @@
 #define BGCM_NP 7
 #define BGCM_NNZ 4
 #define BGCM_NOUT 5
+/* doubles of per-instance workspace: the warm starts of the Newton loops */
+#define BGCM_NWS 0
 
 /* the parts (model_part*.c) */
 void bgcm_rhs_0(double t, const double *restrict bgc_x, const double *restrict bgc_p,
@@ -27,6 +29,11 @@ void bgcm_outputs_0(double t, const double *restrict bgc_x, const double *restri
     double *restrict bgc_w, double *restrict bgc_out);
 void bgcm_init_0(double t, const double *restrict bgc_x, const double *restrict bgc_p,
     double *restrict bgc_w, double *restrict bgc_out);
+
+/* what each failure code of the model functions means (code k: entry k - 1) */
+static const char *const bgcm_fail_messages[1] = {
+    "",
+};
 
 /* the Jacobian's sparsity pattern: entry e is d(dx[row[e]])/d(x[col[e]]) */
 static const int bgcm_jac_row[4] = {
@@ -47,48 +54,70 @@ static const char *const bgcm_output_names[5] = {
     "power_in",
 };
 
-static int bgcm_rhs(double t, const double *bgc_x, const double *bgc_p, double *bgc_dx)
+/* the model functions: 0, or a failure code; bgc_ws is the instance's workspace or NULL */
+static int bgcm_rhs_ws(double t, const double *bgc_x, const double *bgc_p, double *bgc_dx,
+                       double *bgc_ws)
 {
     double bgc_w[1];
     bgcm_rhs_0(t, bgc_x, bgc_p, bgc_w, bgc_dx);
+    (void)bgc_ws;
     return 0;
 }
 
-static int bgcm_jac(double t, const double *bgc_x, const double *bgc_p, double *bgc_jv)
+static int bgcm_jac_ws(double t, const double *bgc_x, const double *bgc_p, double *bgc_jv,
+                       double *bgc_ws)
 {
     double bgc_w[1];
     bgcm_jac_0(t, bgc_x, bgc_p, bgc_w, bgc_jv);
+    (void)bgc_ws;
     return 0;
 }
 
-static int bgcm_outputs(double t, const double *bgc_x, const double *bgc_p, double *bgc_y)
+static int bgcm_outputs(double t, const double *bgc_x, const double *bgc_p, double *bgc_y,
+                        double *bgc_ws)
 {
     double bgc_w[1];
     bgcm_outputs_0(t, bgc_x, bgc_p, bgc_w, bgc_y);
+    (void)bgc_ws;
     return 0;
 }
 
-static int bgcm_init(const double *bgc_p, double *bgc_x0)
+static int bgcm_init(const double *bgc_p, double *bgc_x0, double *bgc_ws)
 {
     double bgc_w[1];
     bgcm_init_0(0.0, NULL, bgc_p, bgc_w, bgc_x0);
+    (void)bgc_ws;
     return 0;
 }
 
+static int bgcm_rhs(double t, const double *x, const double *p, double *dx)
+{
+    return bgcm_rhs_ws(t, x, p, dx, NULL);
+}
+static int bgcm_jac(double t, const double *x, const double *p, double *jv)
+{
+    return bgcm_jac_ws(t, x, p, jv, NULL);
+}
 static const bgc_model bgcm_model = {
     .n = BGCM_N, .np = BGCM_NP, .nnz = BGCM_NNZ, .jac_row = bgcm_jac_row,
     .jac_col = bgcm_jac_col, .rhs = bgcm_rhs, .jac = bgcm_jac, .has_time_inputs = 0,
     .lu = NULL,
+    .nws = BGCM_NWS, .rhs_ws = bgcm_rhs_ws, .jac_ws = bgcm_jac_ws,
 };
 
 /* ---- entry points for the wrapper (plain arrays, no structs) ---------------------------- */
 
-const char *bgcm_digest(void) { return "1e7fabf27a16a61603c26d630a3cf12a"; }
+const char *bgcm_digest(void) { return "96cfde98b15aabf1f54093a81ebe48f7"; }
 
 void bgcm_info(int *out)
 {
     out[0] = BGCM_N; out[1] = BGCM_NP; out[2] = BGCM_NNZ; out[3] = BGCM_NOUT;
-    out[4] = bgc_have_openmp();
+    out[4] = bgc_have_openmp(); out[5] = BGCM_NWS;
+}
+
+const char *bgcm_fail_message(int code)
+{
+    return code >= 1 && code <= 0 ? bgcm_fail_messages[code - 1] : "";
 }
 
 const char *bgcm_state_name(int i) { return i >= 0 && i < BGCM_N ? bgcm_state_names[i] : ""; }
@@ -103,31 +132,54 @@ void bgcm_jac_pattern(int *rows, int *cols)
     for (int e = 0; e < BGCM_NNZ; e++) { rows[e] = bgcm_jac_row[e]; cols[e] = bgcm_jac_col[e]; }
 }
 
-/* nb instances; the strides st, sx, sp are 0 (one value shared by all) or 1, n, np */
-void bgcm_eval_rhs(int nb, const double *T, int st, const double *X, int sx, const double *P,
-                   int sp, double *DX)
+/* nb instances; the strides st, sx, sp are 0 (one value shared by all) or 1, n, np. W: nb x
+ * BGCM_NWS warm starts of the instances (kept between calls by the caller), or NULL (cold
+ * starts). Returns 0, or the failure code of the first instance that failed. */
+#define BGCM_WS(k) (W && BGCM_NWS ? W + (size_t)(k) * BGCM_NWS : NULL)
+int bgcm_eval_rhs(int nb, const double *T, int st, const double *X, int sx, const double *P,
+                  int sp, double *DX, double *W)
 {
-    for (int k = 0; k < nb; k++)
-        bgcm_rhs(T[k * st], X + (size_t)k * sx, P + (size_t)k * sp, DX + (size_t)k * BGCM_N);
+    int rc = 0;
+    for (int k = 0; k < nb; k++) {
+        int r = bgcm_rhs_ws(T[k * st], X + (size_t)k * sx, P + (size_t)k * sp,
+                            DX + (size_t)k * BGCM_N, BGCM_WS(k));
+        if (r && !rc) rc = r;
+    }
+    return rc;
 }
 
-void bgcm_eval_jac(int nb, const double *T, int st, const double *X, int sx, const double *P,
-                   int sp, double *JV)
+int bgcm_eval_jac(int nb, const double *T, int st, const double *X, int sx, const double *P,
+                  int sp, double *JV, double *W)
 {
-    for (int k = 0; k < nb; k++)
-        bgcm_jac(T[k * st], X + (size_t)k * sx, P + (size_t)k * sp, JV + (size_t)k * BGCM_NNZ);
+    int rc = 0;
+    for (int k = 0; k < nb; k++) {
+        int r = bgcm_jac_ws(T[k * st], X + (size_t)k * sx, P + (size_t)k * sp,
+                            JV + (size_t)k * BGCM_NNZ, BGCM_WS(k));
+        if (r && !rc) rc = r;
+    }
+    return rc;
 }
 
-void bgcm_eval_outputs(int nb, const double *T, int st, const double *X, int sx,
-                       const double *P, int sp, double *Y)
+int bgcm_eval_outputs(int nb, const double *T, int st, const double *X, int sx,
+                      const double *P, int sp, double *Y, double *W)
 {
-    for (int k = 0; k < nb; k++)
-        bgcm_outputs(T[k * st], X + (size_t)k * sx, P + (size_t)k * sp, Y + (size_t)k * BGCM_NOUT);
+    int rc = 0;
+    for (int k = 0; k < nb; k++) {
+        int r = bgcm_outputs(T[k * st], X + (size_t)k * sx, P + (size_t)k * sp,
+                             Y + (size_t)k * BGCM_NOUT, BGCM_WS(k));
+        if (r && !rc) rc = r;
+    }
+    return rc;
 }
 
-void bgcm_eval_init(int nb, const double *P, int sp, double *X0)
+int bgcm_eval_init(int nb, const double *P, int sp, double *X0, double *W)
 {
-    for (int k = 0; k < nb; k++) bgcm_init(P + (size_t)k * sp, X0 + (size_t)k * BGCM_N);
+    int rc = 0;
+    for (int k = 0; k < nb; k++) {
+        int r = bgcm_init(P + (size_t)k * sp, X0 + (size_t)k * BGCM_N, BGCM_WS(k));
+        if (r && !rc) rc = r;
+    }
+    return rc;
 }
 
 /* Integrate nb instances (P: nb x np, X0: nb x n) onto the output times; Y: nb x n_out x n.

@@ -59,6 +59,7 @@ typedef struct {
     /* the last non-finite rhs value of a trial stage (it rejected the step): reported if the
      * step then shrinks below its minimum; pend_index < 0: none since the last accepted step */
     int pend_index; double pend_t, pend_v;
+    double *ws;         /* the model's per-instance workspace (m->nws doubles), or NULL */
 } bgc_ctx;
 
 /* rhs at the one-sided time; counts; 0, BGC_REJECT (x not finite), BGC_ERR_NONFINITE or

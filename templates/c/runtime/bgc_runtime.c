@@ -59,9 +59,12 @@ static int call_rhs(bgc_ctx *c, double t, const double *x, double *dx, int trial
         if (!isfinite(x[i])) return BGC_REJECT;
     double tm = t < c->lo ? c->lo : (t > c->hi ? c->hi : t);
     c->st->nfev++;
-    if (c->m->rhs(tm, x, c->p, dx))
-        return bgc_fail(c, BGC_ERR_MODEL, t, "%s: the model's right-hand side failed at t = %.17g",
-                        method_name(c->opt->method), t);
+    int r = c->m->rhs_ws ? c->m->rhs_ws(tm, x, c->p, dx, c->ws) : c->m->rhs(tm, x, c->p, dx);
+    if (r) {
+        c->st->bad_index = r; c->st->bad_where = 2;
+        return bgc_fail(c, BGC_ERR_MODEL, t, "%s: the model's right-hand side failed (code %d) "
+                        "at t = %.17g", method_name(c->opt->method), r, t);
+    }
     for (int i = 0; i < n; i++)
         if (!isfinite(dx[i])) {
             if (!trial) return nonfinite_rhs(c, i, dx[i], t);
@@ -85,9 +88,12 @@ int bgc_call_jac(bgc_ctx *c, double t, const double *x, double *jv)
 {
     double tm = t < c->lo ? c->lo : (t > c->hi ? c->hi : t);
     c->st->njev++;
-    if (c->m->jac(tm, x, c->p, jv))
-        return bgc_fail(c, BGC_ERR_MODEL, t, "%s: the model's Jacobian failed at t = %.17g",
-                        method_name(c->opt->method), t);
+    int r = c->m->jac_ws ? c->m->jac_ws(tm, x, c->p, jv, c->ws) : c->m->jac(tm, x, c->p, jv);
+    if (r) {
+        c->st->bad_index = r; c->st->bad_where = 2;
+        return bgc_fail(c, BGC_ERR_MODEL, t, "%s: the model's Jacobian failed (code %d) at "
+                        "t = %.17g", method_name(c->opt->method), r, t);
+    }
     for (int e = 0; e < c->m->nnz; e++)
         if (!isfinite(jv[e])) {
             c->st->bad_index = c->m->jac_row[e];
@@ -239,8 +245,9 @@ int bgc_integrate_ex(const bgc_model *m, const double *p, double t0, double t1,
     /* breakpoints strictly inside the span, sorted, unique */
     double *cuts = malloc(((size_t)opt->n_breaks + 2) * sizeof(double));
     double *y = malloc(((size_t)n + 1) * sizeof(double));
-    if (!cuts || !y) {
-        free(cuts); free(y);
+    c.ws = m->nws > 0 ? calloc((size_t)m->nws, sizeof(double)) : NULL;
+    if (!cuts || !y || (m->nws > 0 && !c.ws)) {
+        free(cuts); free(y); free(c.ws);
         return bgc_fail(&c, BGC_ERR_ARGS, t0, "bgc_integrate: out of memory");
     }
     int nc = 0;
@@ -269,7 +276,7 @@ int bgc_integrate_ex(const bgc_model *m, const double *p, double t0, double t1,
         status = opt->method == BGC_RADAU5 ? bgc_radau5_segment(&c, a, b, y)
                                           : bgc_rodas4_segment(&c, a, b, y);
     }
-    free(cuts); free(y);
+    free(cuts); free(y); free(c.ws);
     if (status == BGC_REJECT)  /* not expected: accepted states are finite */
         status = bgc_fail(&c, BGC_ERR_STEP_TOO_SMALL, ext->t_last, "%s failed at t = %.17g: "
                           "the state is not finite", method_name(opt->method), ext->t_last);

@@ -9,7 +9,7 @@
 #define BGC_RUNTIME_H
 
 /* bumped whenever the runtime's behaviour or ABI changes (compile caches may key on it) */
-#define BGC_RUNTIME_VERSION 1
+#define BGC_RUNTIME_VERSION 2
 
 #ifdef __cplusplus
 extern "C" {
@@ -18,6 +18,9 @@ extern "C" {
 typedef int (*bgc_rhs_fn)(double t, const double *x, const double *p, double *dx);
 /* Jacobian values on the sparsity pattern (nnz entries, the model's pattern order) */
 typedef int (*bgc_jac_fn)(double t, const double *x, const double *p, double *jv);
+/* rhs or Jacobian values of a model that keeps per-instance state between calls (the warm
+ * starts of its Newton loops) in ws: nws doubles, zero at the start of a run */
+typedef int (*bgc_ws_fn)(double t, const double *x, const double *p, double *out, double *ws);
 
 /* A sparse LU plan for the iteration matrices c*I - J (c real or complex), made once at code
  * generation time by bgc.sparse_lu: a symmetric permutation with a fill-reducing order, the
@@ -45,6 +48,12 @@ typedef struct {
     int has_time_inputs;            /* rhs depends on t explicitly (Rodas needs df/dt) */
     /* optional sparse LU plan made at code-generation time (NULL = dense LU) */
     const struct bgc_lu_plan *lu;
+    /* optional: a model with per-instance state (nws > 0) gives rhs_ws and jac_ws, which a
+     * run calls instead of rhs and jac with its own workspace (so batches on several threads
+     * never share one). A nonzero return is a model failure code: st->bad_index receives it
+     * and st->bad_where is 2. */
+    int nws;
+    bgc_ws_fn rhs_ws, jac_ws;
 } bgc_model;
 
 enum { BGC_RODAS4 = 0, BGC_RADAU5 = 1 };
@@ -61,7 +70,7 @@ typedef struct {
 typedef struct {
     long nsteps, naccept, nreject, nfev, njev, nlu; int status;
     double t_fail; int bad_index;   /* first non-finite component (state index) or -1 */
-    int bad_where;                  /* 0 rhs, 1 jacobian */
+    int bad_where;                  /* 0 rhs, 1 jacobian; 2 model failure (bad_index: its code) */
     char message[256];
 } bgc_stats;
 
@@ -95,6 +104,9 @@ void bgc_radau5_constants(double *out);
 /* dense LU with partial pivoting, row-major a (n x n) in place; 0, or k+1 when pivot k is 0 */
 int bgc_dense_lu(int n, double *a, int *piv);
 void bgc_dense_solve(int n, const double *lu, const int *piv, double *b);
+/* x = A^-1 b in place (a destroyed, b becomes x), partial pivoting; 0, or k+1 when pivot k
+ * is exactly zero */
+int bgc_dense_linsolve(int n, double *a, double *b);
 /* plan-ordered sparse LU without pivoting on the L+U value array a (nnz_lu, permuted order,
  * filled by the caller or by bgc_sparse_assemble); 0, or k+1 when pivot k is too small
  * relative to its row (|u_kk| <= 1e-10 * max|a_k.| before elimination) or not finite */

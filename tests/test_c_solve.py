@@ -1,0 +1,226 @@
+"""The C backend's numeric solves against the numpy module: derivative causality's numeric
+linear solves (the mass-matrix form, a dense LU per instance in C, np.linalg.solve in numpy)
+and nonlinear algebraic loops (a Newton function per loop in C, _newton_k in numpy).
+
+The models are the rigid pendulum chains compiled with symbolic_max=0 (every linear system of
+derivative causality solved numerically, not symbolically), and models/algebraic_loop.yaml
+with its series resistor made cubic (a nonlinear loop: Newton). References: the numpy module
+(other printer, numpy's LAPACK solve and batched Newton; its runs use its own Python step
+loop), scipy's brentq on the circuit's one-unknown equation, and the closed forms of a
+singular system and of a non-convergent loop.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bgc import backends, cbuild
+from bgc.compiler import compile_model
+from bgc.errors import ModelError
+from bgc.parse import parse_text
+from bgc.scene import load_module
+
+ROOT = Path(__file__).resolve().parents[1]
+pytestmark = [
+    pytest.mark.skipif(not cbuild.available(), reason="no C compiler (CI installs one)"),
+    pytest.mark.skipif(not cbuild.runtime_sources(), reason="the C runtime is missing"),
+]
+
+# the resistive loop of models/algebraic_loop.yaml with R1 cubic: Newton in the generated code
+CUBIC = 'series_R: {type: R, effort: "R1 * f + 1.0e5 * f**3"}'
+NOT_CONVERGING = 'series_R: {type: R, effort: "R1 / f"}'  # no root near the warm start
+GEAR = """\
+bgc: 1
+name: gear_pair
+parameters: {J1: 0.5, J2: 0.2, n: 3.0, c1: 0.1, c2: 0.05, k: 4.0, T0: 1.0}
+elements:
+  drive: {type: Se, effort: "T0 * sin(t)"}
+  w1: {type: "1"}
+  I1: {type: I, inertia: "J1", initial: "J1 * 2.0"}
+  R1: {type: R, resistance: "c1"}
+  K:  {type: C, stiffness: "k", initial: "0.1"}
+  gear: {type: TF, ratio: "n"}
+  w2: {type: "1"}
+  I2: {type: I, inertia: "J2"}
+  R2: {type: R, resistance: "c2"}
+bonds: [[drive, w1], [w1, I1], [w1, R1], [w1, K], [w1, gear], [gear, w2], [w2, I2], [w2, R2]]
+"""
+
+_built: dict = {}
+
+
+def _text(name):
+    if name == "gear":
+        return GEAR, "gear.yaml"
+    if name.startswith("loop"):
+        text = (ROOT / "models" / "algebraic_loop.yaml").read_text()
+        law = CUBIC if name == "loop_cubic" else NOT_CONVERGING
+        text = text.replace('series_R: {type: R, resistance: "R1"}', law)
+        assert law in text
+        return text, "algebraic_loop.yaml"
+    return (ROOT / "models" / f"{name}.yaml").read_text(), f"{name}.yaml"
+
+
+def _pair(name):
+    """(compiled, numpy module, C module), every linear system solved numerically."""
+    if name not in _built:
+        text, fname = _text(name)
+        c = compile_model(parse_text(text, fname), symbolic_max=0)
+        npm = load_module(c.source, f"solve_{name}_np")
+        _, cm = backends.load(f"solve_{name}_c", "c", None, lambda: c, None)
+        _built[name] = (c, npm, cm)
+    return _built[name]
+
+
+def _close(a, b, rel=1e-12):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    scale = np.maximum(np.abs(a), np.abs(b))
+    floor = rel * 1e-3 * max(float(np.max(np.abs(b))), 1e-300)
+    return bool(np.all(np.abs(a - b) <= rel * scale + floor))
+
+
+SOLVES = ["double_pendulum_rigid", "three_rod_rigid", "gear"]
+ALL = SOLVES + ["loop_cubic"]
+
+
+def test_the_models_hit_the_numeric_solves():
+    """The cases under test really solve numerically (else the tests below prove nothing)."""
+    for name in SOLVES:
+        c, _, _ = _pair(name)
+        assert "_bgc_linsolve(" in c.source and not c.equations.newton, name
+    c, _, _ = _pair("loop_cubic")
+    assert len(c.equations.newton) == 1 and "def _newton_0" in c.source
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_rhs_jacobian_outputs_match_numpy(name):
+    _, npm, cm = _pair(name)
+    rng = np.random.default_rng(5)
+    x0 = np.asarray(npm.X0, float)
+    for k in range(5):
+        x = x0 * (1 + 0.3 * rng.standard_normal(x0.shape)) + 0.2 * rng.standard_normal(x0.shape)
+        t = float(rng.uniform(0, 2))
+        assert _close(cm.rhs(t, x), npm.rhs(t, x)), (name, k)
+        assert _close(cm.jacobian(t, x), npm.jacobian(t, x)), (name, k)
+        yc, yn = cm.outputs(t, x), npm.outputs(t, x)
+        for o in yn:
+            assert _close(yc[o], yn[o]), (name, o)
+    # a batch of states at once (one call, one instance after the other in C)
+    X = x0[:, None] * (1 + 0.2 * rng.standard_normal((len(x0), 7)))
+    assert _close(cm.rhs(0.5, X), npm.rhs(0.5, X))
+    assert _close(cm.jacobian(0.5, X), npm.jacobian(0.5, X))
+
+
+def test_newton_loop_against_brentq():
+    """The node voltage of the cubic loop from C against scipy's brentq on the circuit's
+    one-unknown equation (an answer from outside bgc)."""
+    from scipy.optimize import brentq
+
+    _, _, cm = _pair("loop_cubic")
+    V, R1, R2, R3, C1 = 10.0, 1000.0, 2000.0, 500.0, 1e-3
+    for q in (0.0, 0.004, -0.01):
+        vc = q / C1
+
+        def res(f):
+            en = V - (R1 * f + 1e5 * f ** 3)
+            return f - (en / R2 + (en - vc) / R3)
+        f = brentq(res, -1, 1, xtol=1e-16)
+        en = V - (R1 * f + 1e5 * f ** 3)
+        y = cm.outputs(0.0, np.array([q]))
+        assert abs(float(y["v_node"]) - en) <= 1e-10 * abs(en)
+        assert abs(float(cm.rhs(0.0, np.array([q]))[0]) - (en - vc) / R3) <= 1e-12
+
+
+def _span(name):
+    return {"double_pendulum_rigid": 3.0, "three_rod_rigid": 2.0}.get(name, 4.0)
+
+
+@pytest.mark.parametrize("method", ["Radau", "Rodas4"])
+@pytest.mark.parametrize("name", ALL)
+def test_whole_runs_match_numpy(name, method):
+    """The step loop in C (Radau IIA 5 or Rodas4, the model's solves inside) against the
+    numpy module's own Python step loop (Radau: the numpy Rodas4 needs ~100x the steps of
+    the C one on the gear's time-dependent drive, which makes it too slow for a test), both
+    at rtol 1e-10."""
+    _, npm, cm = _pair(name)
+    T = _span(name)
+    t_eval = np.linspace(0, T, 21)
+    kw = dict(t_eval=t_eval, rtol=1e-10, atol=1e-12)
+    _, xc, yc = cm.simulate((0, T), method=method, **kw)
+    _, xn, _ = npm.simulate((0, T), method="Radau", **kw)
+    scale = np.max(np.abs(xn), axis=1, keepdims=True) + 1e-3
+    assert np.all(np.abs(xc - xn) <= 1e-6 * scale), np.max(np.abs(xc - xn) / scale)
+    assert all(np.all(np.isfinite(v)) for v in yc.values())
+
+
+def test_batches_equal_single_runs():
+    """A parameter batch integrates each instance with its own steps and its own Newton warm
+    start (the instance's workspace, never shared between threads): every instance equals
+    its single run exactly, with one thread or two."""
+    for name, p in (("loop_cubic", {"V0": np.array([5.0, 10.0, -8.0])}),
+                    ("double_pendulum_rigid", {"c1": np.array([0.0, 0.05, 0.3])})):
+        _, _, cm = _pair(name)
+        key, vals = next(iter(p.items()))
+        kw = dict(t_eval=np.linspace(0, 1.5, 7), rtol=1e-8, atol=1e-10)
+        for method in ("Radau", "Rodas4"):
+            singles = [cm.simulate((0, 1.5), method=method, p={key: float(v)}, **kw)[1]
+                       for v in vals]
+            for threads in (1, 2):
+                _, xb, _ = cm.simulate((0, 1.5), method=method, p=p, nthreads=threads, **kw)
+                for k in range(len(vals)):
+                    np.testing.assert_array_equal(xb[:, k], singles[k])
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")
+def test_newton_failure_is_the_located_error():
+    """A loop without a root near its start: the numpy module and the C module raise the same
+    SimulationError, located at the loop (file:line:col, its elements); a C run says it too,
+    with the method and the time."""
+    c, npm, cm = _pair("loop_bad")
+    x = np.array([0.0])
+    with pytest.raises(npm.SimulationError) as en:
+        npm.rhs(0.0, x)
+    with pytest.raises(cm.SimulationError) as ec:
+        cm.rhs(0.0, x)
+    msg = str(ec.value)
+    assert msg == str(en.value)
+    assert msg.startswith("algebraic_loop.yaml:") and "series_R" in msg
+    assert "did not converge (Newton, 50 iterations)" in msg
+    with pytest.raises(cm.SimulationError):
+        cm.jacobian(0.0, x)
+    for method in ("Radau", "Rodas4"):
+        with pytest.raises(cm.SimulationError) as er:
+            cm.simulate((0, 1), method=method)
+        assert str(er.value).startswith(msg) and f"({method}, at t = 0)" in str(er.value)
+
+
+def test_singular_linear_solve_is_an_error_not_garbage():
+    """J1 + n^2 J2 = 0 (a negative inertia: the gear's mass matrix is exactly singular):
+    numpy's solve refuses it; the C module raises a SimulationError naming the system and
+    its elements, from rhs, jacobian and a run, never a number."""
+    _, npm, cm = _pair("gear")
+    p = {"n": 2.0, "J1": 1.0, "J2": -0.25}
+    x = np.asarray(npm.X0, float)
+    with pytest.raises(np.linalg.LinAlgError):
+        npm.rhs(0.0, x, p)
+    for call in (lambda: cm.rhs(0.0, x, p), lambda: cm.jacobian(0.0, x, p),
+                 lambda: cm.simulate((0, 1), method="Radau", p=p)):
+        with pytest.raises(cm.SimulationError) as e:
+            call()
+        msg = str(e.value)
+        assert "linear system in 1 unknown(s) (dx_p_I1)" in msg and "is singular" in msg
+        assert "TF 'gear'" in msg
+    # one singular instance in a batch: that instance fails, located, and says which
+    pb = {"n": 2.0, "J1": 1.0, "J2": np.array([0.2, -0.25])}
+    with pytest.raises(cm.SimulationError, match=r"batch instance \(1,\)"):
+        cm.simulate((0, 1), method="Rodas4", p=pb)
+
+
+def test_fmu_export_refuses_numeric_solves():
+    from bgc.fmu import render_sources
+
+    c, _, _ = _pair("gear")
+    with pytest.raises(ModelError, match="FMU export does not support numeric"):
+        render_sources(c, None)
