@@ -7,7 +7,12 @@ compliant model's error is its modelling error (~1/k) plus the integration error
 model has only the latter. Times are wall-clock seconds of `simulate` in this one run (best
 of 3), side by side.
 
-    .venv/bin/python bench/bench_rigid.py [--T 5]
+`--backends` instead times the numpy and the C backend side by side on the scene
+models/scenes/double_pendulum_swing.yaml (10 s, rtol 1e-8): as written (derivative
+causality's 2x2 system solved symbolically) and compiled with symbolic_max=0 (the mass-matrix
+form: a numeric linear solve in every rhs and Jacobian call, an LU per instance in C).
+
+    .venv/bin/python bench/bench_rigid.py [--T 5] [--backends]
 """
 from __future__ import annotations
 
@@ -51,10 +56,56 @@ def run(m, n, T, t_eval, reps=3, **kw):
     return angles(m, x, n), best, x
 
 
+def best_of(f, reps=3):
+    best = np.inf
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        out = f()
+        best = min(best, time.perf_counter() - t0)
+    return best, out
+
+
+def backends_table(reps=3):
+    """numpy vs C backend on the double pendulum swing scene, side by side in this run."""
+    from bgc import backends
+    from bgc.compiler import compile_file
+    from bgc.runner import runtime_params, scene_module
+    from bgc.scene import initial_state, parse_scene
+
+    scene = parse_scene(ROOT / "models" / "scenes" / "double_pendulum_swing.yaml")
+    mods = {b: scene_module(scene, None, b, use_cache=False)[1] for b in ("numpy", "c")}
+    c0 = compile_file(ROOT / "models" / "double_pendulum_rigid.yaml", symbolic_max=0)
+    num = {"numpy": load_module(c0.source, "dp_lu_np"),
+           "c": backends.load("dp_lu_c", "c", None, lambda: c0, None)[1]}
+    print(f"double_pendulum_swing, {scene.t_span[1] - scene.t_span[0]:g} s, dt {scene.dt}, "
+          f"rtol {scene.rtol:g}, atol {scene.atol:g}; best of {reps}")
+    print("| model | method | numpy [s] | C [s] | numpy / C | max |x_C - x_numpy| |")
+    print("|---|---|---|---|---|---|")
+    for label, ms in (("scene (symbolic 2x2 solve)", mods),
+                      ("symbolic_max=0 (numeric LU solve)", num)):
+        for method in (scene.method, "Radau", "Rodas4"):
+            t, xs = {}, {}
+            for b, m in ms.items():
+                p = runtime_params(scene, m) if ms is mods else {"c1": 0.02, "c2": 0.02}
+                x0 = initial_state(scene, m, p) if ms is mods else None
+                t[b], r = best_of(lambda: m.simulate(scene.t_span, dt=scene.dt, method=method,
+                                                     rtol=scene.rtol, atol=scene.atol, p=p,
+                                                     x0=x0), reps)
+                xs[b] = r.x
+            d = float(np.max(np.abs(xs["c"] - xs["numpy"])))
+            print(f"| {label} | {method} | {t['numpy']:.3f} | {t['c']:.4f} | "
+                  f"{t['numpy'] / t['c']:.1f} | {d:.1e} |")
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--T", type=float, default=5.0)
+    ap.add_argument("--backends", action="store_true",
+                    help="numpy vs C backend on the double pendulum swing scene")
     args = ap.parse_args()
+    if args.backends:
+        backends_table()
+        return
     T = args.T
     t_eval = np.linspace(0, T, 101)
     print(f"| model | joints | k [N/m] | method | rtol | states | time [s] | max angle error [rad] |")
