@@ -177,3 +177,63 @@ def test_a_fifo_is_refused_without_blocking(tmp_path):
     os.mkfifo(tmp_path / "road.csv")
     e = _err(tmp_path, "{table: road.csv}")
     assert "not a regular file" in e.message and e.coord.line == 5
+
+
+# ---------------------------------------------------------------------------------------------
+# The C backend: the data as arrays in the library, the runtime's bgc_table_eval
+
+def _c_ready():
+    from bgc import cbuild
+
+    return cbuild.available() and bool(cbuild.runtime_sources())
+
+
+@pytest.mark.skipif(not _c_ready(), reason="no C compiler or C runtime")
+def test_c_backend_tables_against_independent_formulas_and_numpy(tmp_path):
+    """The C module's table inputs (linear, pchip, previous; held outside) against the same
+    independent formulas as the numpy module above, and its runs (the step loop in C, the
+    knots of linear and previous tables as breakpoints) against the numpy module's."""
+    from scipy.interpolate import PchipInterpolator
+
+    from bgc.runner import scene_module
+
+    csv = _csv(tmp_path, KNOTS)
+    tk, vk = np.array(KNOTS).T
+    tq = np.linspace(-0.3, 1.6, 97)
+    tc = np.clip(tq, tk[0], tk[-1])
+    for interp in ("linear", "pchip", "previous"):
+        sc = parse_scene(_scene(tmp_path, f"{{table: {csv}, columns: [time, height], "
+                                          f"interp: {interp}}}", name=f"c_{interp}.yaml"))
+        backend, cm = scene_module(sc, None, "c", use_cache=False)
+        _, npm = scene_module(sc, None, "numpy", use_cache=False)
+        assert backend == "c" and cm.C_LIBRARY
+        if interp == "linear":
+            i = np.clip(np.searchsorted(tk, tc) - 1, 0, len(tk) - 2)
+            want = vk[i] + (vk[i + 1] - vk[i]) * (tc - tk[i]) / (tk[i + 1] - tk[i])
+        elif interp == "pchip":
+            want = PchipInterpolator(tk, vk)(tc)
+        else:
+            want = np.array([vk[np.nonzero(tk <= s)[0][-1]] for s in tc])
+        np.testing.assert_allclose(_road(cm, tq), want, atol=1e-15, err_msg=interp)
+        for method in ("Radau", "Rodas4"):
+            kw = dict(dt=0.05, method=method, rtol=1e-9, atol=1e-12)
+            xc, xn = cm.simulate((0, 2), **kw).x, npm.simulate((0, 2), **kw).x
+            scale = np.max(np.abs(xn), axis=1, keepdims=True)
+            assert np.max(np.abs(xc - xn) / scale) < 1e-5, (interp, method)
+
+
+@pytest.mark.skipif(not _c_ready(), reason="no C compiler or C runtime")
+def test_c_backend_extrapolate_error(tmp_path):
+    """Outside the knots with extrapolate: error the C module raises the numpy module's
+    ValueError naming the input, from outputs and from a run (with the time)."""
+    from bgc.runner import scene_module
+
+    csv = _csv(tmp_path, KNOTS)
+    sc = parse_scene(_scene(tmp_path, f"{{table: {csv}, columns: [time, height], "
+                                      "extrapolate: error}"))
+    _, cm = scene_module(sc, None, "c", use_cache=False)
+    assert abs(_road(cm, [0.3])[0] - (0.01 + 0.03 * 0.1 / 0.25)) < 1e-15
+    with pytest.raises(ValueError, match=r"input 'zr': t .*outside its table \[0, 1.3\]"):
+        _road(cm, [1.5])
+    with pytest.raises(ValueError, match=r"outside its table \[0, 1.3\].*at t = 1.3"):
+        cm.simulate((0, 2), dt=0.01, method="Radau")

@@ -222,7 +222,8 @@ class Part:
     imports: tuple[tuple[str, int], ...]  # (C name, scratch slot)
     lines: tuple[CLine, ...]
     vimports: tuple[tuple[str, int], ...] = ()  # solve results: (C name, first scratch slot)
-    fallible: bool = False  # holds a numeric solve: returns int, takes the workspace
+    tables: tuple[tuple[str, int, int], ...] = ()  # table inputs: (C name, table, fail code)
+    fallible: bool = False  # holds a numeric solve or a table that may fail: returns int
     newton: bool = False  # calls a Newton loop's function
 
 
@@ -273,12 +274,15 @@ def _parts(name: str, fn, printer: CPrinter, ctx: "_Ctx", limit: int = PART_LINE
     uses_t = False
     for ci, chunk in enumerate(chunks):
         used = set().union(*frees[ci]) if frees[ci] else set()
-        # inputs used (directly); their defaults bring t and parameters
-        inputs = [s for s in ctx.input_syms if s in used]
+        # inputs used (directly); their defaults bring t and parameters; a table input is
+        # its table's function of t
+        inputs = [s for s in ctx.input_syms if s in used and s not in ctx.table_of]
+        tabs = tuple((c_name(str(s)), ctx.table_of[s], ctx.table_fail(ctx.table_of[s]))
+                     for s in ctx.input_syms if s in used and s in ctx.table_of)
         need_p = set(used)
         for s in inputs:
             need_p |= ctx.input_default[s].free_symbols
-        uses_t = uses_t or T in need_p
+        uses_t = uses_t or T in need_p or bool(tabs)
         params = tuple((c_name(str(s)), k) for k, s in enumerate(ctx.param_syms) if s in need_p)
         ins = tuple((c_name(str(s)), printer.doprint(ctx.input_default[s])) for s in inputs)
         states = tuple((c_name(str(s)), k) for k, s in enumerate(ctx.state_syms) if s in used)
@@ -287,7 +291,7 @@ def _parts(name: str, fn, printer: CPrinter, ctx: "_Ctx", limit: int = PART_LINE
         vimports = tuple((c_name(str(s)), slots[s]) for s in order
                          if s in used and defined_in[s] < ci and s in vsize)
         lines = []
-        fallible = newton = False
+        fallible, newton = any(f for _, _, f in tabs), False
         for tgt, e, why, k in chunk:
             if tgt is not None and tgt in vsize:
                 lines.append(_solve_line(tgt, e, why, slots.get(tgt, -1), vsize[tgt], printer,
@@ -301,7 +305,7 @@ def _parts(name: str, fn, printer: CPrinter, ctx: "_Ctx", limit: int = PART_LINE
             else:
                 lines.append(CLine(c_name(str(tgt)), code, why, -1, slots.get(tgt, -1)))
         parts.append(Part(f"bgcm_{name}_{ci}", params, ins, states, imports, tuple(lines),
-                          vimports, fallible, newton))
+                          vimports, tabs, fallible, newton))
     return CFunction(name, tuple(parts), nslot, len(fn.results), uses_t)
 
 
@@ -345,6 +349,24 @@ class _Ctx:
         self.fail_messages: list[str] = []
         self._eq = eq
         self._lin_msgs = None
+        # table inputs: input symbol -> table index; the tables (bgc.tables.Table, input name)
+        self.tables = [(iv.table, iv.name) for iv in eq.inputs
+                       if getattr(iv, "table", None) is not None]
+        self.table_of = {}
+        k = 0
+        for iv in eq.inputs:
+            if getattr(iv, "table", None) is not None:
+                for s in iv.symbols:
+                    self.table_of[s] = k
+                k += 1
+
+    def table_fail(self, k: int) -> int:
+        """The failure code of table k outside its knots (extrapolate: error), else 0."""
+        tb, name = self.tables[k]
+        if tb.extrapolate != "error":
+            return 0
+        return self.fail_code(f"input {name!r}: t is outside its table [{tb.t[0]:g}, "
+                              f"{tb.t[-1]:g}] (extrapolate: error)")
 
     def fail_code(self, message: str) -> int:
         if message not in self.fail_messages:
@@ -415,12 +437,11 @@ def has_solves(eq) -> bool:
 
 
 def unsupported(eq) -> None:
-    """What the C backend cannot print yet is one clear error, never wrong code: table
-    inputs (interpolated data). The numpy backend runs them. (Numeric linear solves and
-    Newton loops are printed: a dense LU per instance, a Newton function per loop.)"""
-    what = []
-    if any(getattr(iv, "table", None) is not None for iv in eq.inputs):
-        what.append("table inputs")
+    """What the C backend cannot print is one clear error, never wrong code. Today it prints
+    everything bgc generates: numeric linear solves (a dense LU per instance), Newton loops (a
+    C function per loop) and table inputs (the data as arrays, the numpy module's
+    interpolation); the check stays for what may come."""
+    what: list[str] = []
     if what:
         raise CUnsupported(None, f"model {eq.name!r}: the C backend does not support "
                                f"{' and '.join(what)} yet; use the numpy backend "
@@ -451,7 +472,11 @@ def render_c(low: Lowered, *, source: str, source_hash: str, description: str = 
     files = []
     for k, unit in enumerate(units):
         files.append((f"model_part{k}.c", env.get_template("c/part.c.j2").render(
-            parts=unit, unit=k, newton=_newton_protos(ctx), **common)))
+            parts=unit, unit=k, newton=_newton_protos(ctx), ntables=len(ctx.tables),
+            **common)))
+    if ctx.tables:
+        files.append(("model_tables.c", env.get_template("c/tables.c.j2").render(
+            tables=_tables(ctx), **common)))
     if ctx.newton:
         files.append(("model_newton.c", env.get_template("c/newton.c.j2").render(
             loops=_newton_loops(ctx, printer), **common)))
@@ -459,6 +484,8 @@ def render_c(low: Lowered, *, source: str, source_hash: str, description: str = 
     lu_plan = _lu_plan(len(eq.states), low.jac_keys)
     main = env.get_template("c/model.c.j2").render(
         lu_plan=lu_plan, nws=ctx.nws, fail_messages=ctx.fail_messages,
+        value_errors=[ctx.table_fail(k) for k in range(len(ctx.tables))
+                      if ctx.table_fail(k)],
         fns=fns, n=len(eq.states), np=len(ctx.param_syms), jac_keys=low.jac_keys,
         states=[sv.name for sv in eq.states], outputs=[o[0] for o in eq.outputs],
         nout=sum(olens), all_parts=all_parts,
@@ -471,6 +498,16 @@ def render_c(low: Lowered, *, source: str, source_hash: str, description: str = 
     # the digest is compiled into the library: the wrapper refuses a library of other sources
     files = [(f, t.replace("@BGC_DIGEST@", digest)) for f, t in files]
     return CSources(tuple(files), digest)
+
+
+def _tables(ctx) -> list[dict]:
+    """The table inputs as the template prints them: numbers only (float literals)."""
+    out = []
+    for tb, name in ctx.tables:
+        out.append({"name": name, "n": len(tb.t), "t": [repr(float(v)) for v in tb.t],
+                    "v": [repr(float(v)) for v in tb.v], "interp": tb.interp,
+                    "error": tb.extrapolate == "error"})
+    return out
 
 
 def _newton_protos(ctx) -> list[str]:

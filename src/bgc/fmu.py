@@ -374,6 +374,8 @@ class _FmuCtx:
         self.state_syms = [sv.symbol for sv in eq.states]
         self.input_syms = []
         self.input_default = {}
+        self.table_of = {}  # inputs are values in the parameter vector, tables included
+        self.newton = ()  # refused before (render_sources)
 
 
 def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> dict[str, str]:

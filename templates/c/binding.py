@@ -18,6 +18,8 @@ STATE_NAMES: tuple
 OUTPUT_NAMES: tuple
 OUTPUT_SHAPES: dict
 JAC_SPARSITY: np.ndarray
+TABLE_BREAKPOINTS: dict
+TABLE_MAX_STEP: dict
 _PARAM_NDIM: dict
 C_LIBRARY: str
 C_DIGEST: str
@@ -58,6 +60,8 @@ def _bind(path):
     lib.bgcm_info.argtypes = [_ct.POINTER(_ct.c_int)]
     lib.bgcm_state_name.restype = _ct.c_char_p
     lib.bgcm_fail_message.argtypes, lib.bgcm_fail_message.restype = [_ct.c_int], _ct.c_char_p
+    lib.bgcm_fail_is_value_error.argtypes = [_ct.c_int]
+    lib.bgcm_fail_is_value_error.restype = _ct.c_int
     lib.bgcm_simulate.restype = _ct.c_int
     lib.bgcm_simulate.argtypes = [
         _ct.c_int, _ct.c_double, _DP, _ct.c_int, _ct.c_double, _ct.c_double, _ct.c_long,
@@ -102,11 +106,12 @@ def _warm(nb):
 
 
 def _check(rc):
-    """A model function's failure (a numeric solve: a Newton loop that did not converge, a
-    singular linear system) as the numpy module raises it: a SimulationError with its
-    located message."""
+    """A model function's failure as the numpy module raises it: a SimulationError with its
+    located message for a numeric solve (a Newton loop that did not converge, a singular
+    linear system), a ValueError for a table input outside its knots (extrapolate: error)."""
     if rc:
-        raise SimulationError(_fail_message(rc))
+        raise (ValueError if _lib().bgcm_fail_is_value_error(int(rc)) else SimulationError)(
+            _fail_message(rc))
 
 
 def _fail_message(code):
@@ -264,6 +269,11 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
     else:
         raise ValueError(f"atol: give a scalar or one value per state ({N_STATES}) for the C "
                          "integrators")
+    # as the numpy module's simulate: the knots of a table input that is not smooth there
+    # (linear, previous) are breakpoints; no step may skip a smooth (pchip) table's knots
+    breakpoints = tuple(breakpoints) + tuple(
+        k for knots in TABLE_BREAKPOINTS.values() for k in knots)
+    max_step = min([max_step] + list(TABLE_MAX_STEP.values()))
     bps = np.array(sorted({float(b) for b in breakpoints if t0 < float(b) < t1}) or [0.0])
     nbps = len(bps) if any(t0 < float(b) < t1 for b in breakpoints) else 0
     Y = np.empty((nb, len(times), N_STATES))
@@ -279,6 +289,10 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
              "nsteps": int(S[:, 1].sum()), "nrejected": int(S[:, 2].sum()), "nstiff": 0}
     failed = np.nonzero(S[:, 6])[0]
     if failed.size:
+        k = int(failed[0])
+        if int(S[k, 6]) == 6 and int(S[k, 9]) == 2 and \
+                _lib().bgcm_fail_is_value_error(int(S[k, 8])):  # a table input, as numpy says
+            raise ValueError(_c_message(method, S, failed, msg.value, batch))
         raise _error(SimulationError, _c_message(method, S, failed, msg.value, batch),
                      float(S[failed[0], 7]), stats)
     X = Y.transpose(2, 0, 1).reshape((N_STATES,) + batch + (len(times),))

@@ -107,7 +107,7 @@ static const bgc_model bgcm_model = {
 
 /* ---- entry points for the wrapper (plain arrays, no structs) ---------------------------- */
 
-const char *bgcm_digest(void) { return "96cfde98b15aabf1f54093a81ebe48f7"; }
+const char *bgcm_digest(void) { return "11e9f67f7d1977bf9cbb0b376d07f9dd"; }
 
 void bgcm_info(int *out)
 {
@@ -118,6 +118,14 @@ void bgcm_info(int *out)
 const char *bgcm_fail_message(int code)
 {
     return code >= 1 && code <= 0 ? bgcm_fail_messages[code - 1] : "";
+}
+
+/* 1 when failure code is the numpy module's ValueError (a table input outside its knots with
+ * extrapolate: error), 0 for its SimulationError */
+int bgcm_fail_is_value_error(int code)
+{
+    (void)code;
+    return 0;
 }
 
 const char *bgcm_state_name(int i) { return i >= 0 && i < BGCM_N ? bgcm_state_names[i] : ""; }

@@ -105,7 +105,7 @@ static const bgc_model bgcm_model = {
 
 /* ---- entry points for the wrapper (plain arrays, no structs) ---------------------------- */
 
-const char *bgcm_digest(void) { return "325653dd198b9a1157ad8b43099786e5"; }
+const char *bgcm_digest(void) { return "b5fd1538c699a84c994fdea9244293e6"; }
 
 void bgcm_info(int *out)
 {
@@ -116,6 +116,14 @@ void bgcm_info(int *out)
 const char *bgcm_fail_message(int code)
 {
     return code >= 1 && code <= 0 ? bgcm_fail_messages[code - 1] : "";
+}
+
+/* 1 when failure code is the numpy module's ValueError (a table input outside its knots with
+ * extrapolate: error), 0 for its SimulationError */
+int bgcm_fail_is_value_error(int code)
+{
+    (void)code;
+    return 0;
 }
 
 const char *bgcm_state_name(int i) { return i >= 0 && i < BGCM_N ? bgcm_state_names[i] : ""; }

@@ -112,6 +112,12 @@ int bgc_dense_linsolve(int n, double *a, double *b);
  * relative to its row (|u_kk| <= 1e-10 * max|a_k.| before elimination) or not finite */
 int bgc_sparse_lu(const struct bgc_lu_plan *pl, double *a);
 void bgc_sparse_solve(const struct bgc_lu_plan *pl, const double *a, double *b, double *w);
+/* ---- table inputs -------------------------------------------------------------------------- */
+enum { BGC_TABLE_LINEAR = 0, BGC_TABLE_PCHIP = 1, BGC_TABLE_PREVIOUS = 2 };
+/* the value at t of the table (tk strictly increasing, n >= 2) into v: 0, or 1 when t is
+ * outside [tk[0], tk[n-1]] and error is set (else the end value is held) */
+int bgc_table_eval(const double *tk, const double *vk, int n, int interp, int error, double t,
+                   double *v);
 /* The complex LU routines and the integrators' linear solver are declared in
  * bgc_internal.h: this header stays free of <complex.h> (whose macro I would clash with
  * generated code). */
