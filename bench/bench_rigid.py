@@ -79,7 +79,8 @@ def backends_table(reps=3):
            "c": backends.load("dp_lu_c", "c", None, lambda: c0, None)[1]}
     print(f"double_pendulum_swing, {scene.t_span[1] - scene.t_span[0]:g} s, dt {scene.dt}, "
           f"rtol {scene.rtol:g}, atol {scene.atol:g}; best of {reps}")
-    print("| model | method | numpy [s] | C [s] | numpy / C | max |x_C - x_numpy| |")
+    print("| model | method | numpy [s] | C [s] | numpy / C "
+          "| max abs(x_C - x_numpy) |")
     print("|---|---|---|---|---|---|")
     for label, ms in (("scene (symbolic 2x2 solve)", mods),
                       ("symbolic_max=0 (numeric LU solve)", num)):

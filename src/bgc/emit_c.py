@@ -455,7 +455,7 @@ def render_c(low: Lowered, *, source: str, source_hash: str, description: str = 
     unsupported(eq)
     printer = CPrinter()
     ctx = _Ctx(low)
-    fns = {name: _parts(name, fn, printer, ctx) for name, fn in
+    fns = {name: _parts(name, fn, printer, ctx, PART_LINES) for name, fn in
            (("rhs", low.rhs), ("jac", low.jac), ("outputs", low.outs), ("init", low.init))}
     names = [c_name(str(s)) for s in ctx.param_syms + ctx.state_syms + ctx.input_syms]
     names += [c_name(str(a.symbol)) for a in eq.assignments + eq.jac_assignments]

@@ -189,7 +189,8 @@ def rhs(t, x, p=None, u=None):
             return dx
     B, nb, T, st, X, sx, P, sp = _instances(t, x, p)
     DX = np.empty((nb, N_STATES))
-    _check(_lib().bgcm_eval_rhs(nb, _ptr(T), st, _ptr(X), sx, _ptr(P), sp, _ptr(DX), _warm(nb)))
+    _check(_lib().bgcm_eval_rhs(nb, _ptr(T), st, _ptr(X), sx, _ptr(P), sp, _ptr(DX),
+                                _warm(nb)))
     return np.moveaxis(DX, 0, 1).reshape((N_STATES,) + B) if B else DX[0]
 
 
