@@ -211,6 +211,8 @@ class CLine:
     b: tuple = ()
     ws: int = 0
     fail: int = 0
+    lu: str = ""  # linsolve: the LU (a local of the part) it solves with
+    factor: bool = False  # linsolve: this line factors A into lu (the first with this A)
 
 
 @dataclass(frozen=True)
@@ -292,10 +294,11 @@ def _parts(name: str, fn, printer: CPrinter, ctx: "_Ctx", limit: int = PART_LINE
                          if s in used and defined_in[s] < ci and s in vsize)
         lines = []
         fallible, newton = any(f for _, _, f in tabs), False
+        lus: dict = {}  # A's entries -> the part's LU of it (one factorisation per matrix)
         for tgt, e, why, k in chunk:
             if tgt is not None and tgt in vsize:
                 lines.append(_solve_line(tgt, e, why, slots.get(tgt, -1), vsize[tgt], printer,
-                                         ctx))
+                                         ctx, lus))
                 fallible = True
                 newton = newton or isinstance(e, NewtonSolve)
                 continue
@@ -309,16 +312,21 @@ def _parts(name: str, fn, printer: CPrinter, ctx: "_Ctx", limit: int = PART_LINE
     return CFunction(name, tuple(parts), nslot, len(fn.results), uses_t)
 
 
-def _solve_line(tgt, e, why, export, n, printer, ctx) -> CLine:
-    """The C line of a numeric solve's result (an array of n values)."""
+def _solve_line(tgt, e, why, export, n, printer, ctx, lus: dict) -> CLine:
+    """The C line of a numeric solve's result (an array of n values). Solves with the same
+    matrix in one part (the Jacobian's columns through a solve: d(A^-1 b) = A^-1 (db - dA x))
+    share one LU."""
     from .equations import LinSolve, NewtonSolve
 
     target = c_name(str(tgt))
     if isinstance(e, LinSolve):
         a = tuple(printer.doprint(v) for v in e.args[1:1 + n * n])
         b = tuple(printer.doprint(v) for v in e.args[1 + n * n:])
-        return CLine(target, "", why, -1, export, "linsolve", n, a, b, 0,
-                     ctx.fail_code(ctx.linsolve_message(e)))
+        factor = a not in lus
+        if factor:
+            lus[a] = f"bgc_lu{len(lus)}"
+        return CLine(target, "", why, -1, export, "linsolve", n, a if factor else (), b, 0,
+                     ctx.fail_code(ctx.linsolve_message(e)), lus[a], factor)
     if isinstance(e, NewtonSolve):
         k = int(e.args[0])
         args = ", ".join(printer.doprint(v) for v in e.args[1:])

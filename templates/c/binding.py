@@ -101,6 +101,8 @@ def _warm(nb):
         d = _WARM.d = {}
     w = d.get(nb)
     if w is None:
+        if len(d) >= 8:  # a few batch sizes are kept, not every one ever seen
+            d.pop(next(iter(d)))
         w = d[nb] = np.zeros((nb, _C_NWS))
     return _ptr(w)
 
