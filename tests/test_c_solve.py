@@ -279,3 +279,20 @@ def test_solves_across_parts(name, monkeypatch):
     xc = cm.simulate((0, 1), method="Radau", **kw).x
     xn = npm.simulate((0, 1), method="Radau", **kw).x
     assert np.max(np.abs(xc - xn)) <= 1e-6 * (np.max(np.abs(xn)) + 1e-3)
+
+
+def test_fmu_export_refuses_table_inputs(tmp_path):
+    """An FMU input that follows its default would follow the table's placeholder (0), not
+    the data: the export says it cannot, instead of writing that."""
+    from bgc.compiler import compile_file
+    from bgc.fmu import render_sources
+
+    text = (ROOT / "models" / "quarter_car.yaml").read_text()
+    old = 'zr: {default: "0", shape: [], unit: m}'
+    assert old in text
+    (tmp_path / "qc.yaml").write_text(
+        text.replace(old, "zr: {table: road.csv, columns: [time, height], unit: m}"))
+    (tmp_path / "road.csv").write_text("time,height\n0,0\n0.5,0.02\n1,0\n")
+    c = compile_file(tmp_path / "qc.yaml")
+    with pytest.raises(ModelError, match="does not support table inputs yet .input 'zr'"):
+        render_sources(c, None)
