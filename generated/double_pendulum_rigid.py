@@ -113,6 +113,7 @@ _PARAM_NDIM = {
     'rod2.vy0': 0,
 }
 INPUT_NAMES = ('tau', )
+RHS_USES_T = True  # rhs reads t (a law in t, or an input): Rodas4 takes df/dt
 OUTPUT_NAMES = ('th1', 'w1', 'v1', 'th2', 'w2', 'v2', 'p1', 'F1', )
 OUTPUT_SHAPES = {
     'th1': (),
@@ -1687,7 +1688,7 @@ def _jacobian_options(method, jac, at, shape, p, u, stats):
             raise ValueError("Rodas4 needs the analytic Jacobian (jac=True): a Rosenbrock "
                              "method's order rests on the exact Jacobian")
         return {"jac": _flat_jacobian(at, shape, p, u, True, method, stats),
-                "time_dependent": bool(INPUT_NAMES)}
+                "time_dependent": bool(INPUT_NAMES) or RHS_USES_T}
     if jac:
         return {"jac": _flat_jacobian(at, shape, p, u, method != "LSODA", method, stats)}
     if method == "LSODA":

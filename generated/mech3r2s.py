@@ -425,6 +425,7 @@ _PARAM_NDIM = {
     'gamma_R': 0,
 }
 INPUT_NAMES = ('vd', )
+RHS_USES_T = True  # rhs reads t (a law in t, or an input): Rodas4 takes df/dt
 OUTPUT_NAMES = ('theta1', 'theta2', 'theta3', 'theta4', 'p3', 'p3_desired', 'p3_projected', 'R4', 'energy', 'P_drive', 'P_diss', 'work_drive', 'dissipated', 'joint_gap', )
 OUTPUT_SHAPES = {
     'theta1': (),
@@ -10403,7 +10404,7 @@ def _jacobian_options(method, jac, at, shape, p, u, stats):
             raise ValueError("Rodas4 needs the analytic Jacobian (jac=True): a Rosenbrock "
                              "method's order rests on the exact Jacobian")
         return {"jac": _flat_jacobian(at, shape, p, u, True, method, stats),
-                "time_dependent": bool(INPUT_NAMES)}
+                "time_dependent": bool(INPUT_NAMES) or RHS_USES_T}
     if jac:
         return {"jac": _flat_jacobian(at, shape, p, u, method != "LSODA", method, stats)}
     if method == "LSODA":

@@ -131,6 +131,7 @@ _PARAM_NDIM = {
     'R_ha': 0,
 }
 INPUT_NAMES = ('V', 'TL', )
+RHS_USES_T = True  # rhs reads t (a law in t, or an input): Rodas4 takes df/dt
 OUTPUT_NAMES = ('current', 'motor_speed', 'load_speed', 'load_angle', 'shaft_torque', 'power_in', 'copper_loss', 'copper_energy', 'winding_temp', 'housing_temp', )
 OUTPUT_SHAPES = {
     'current': (),
@@ -775,7 +776,7 @@ def _jacobian_options(method, jac, at, shape, p, u, stats):
             raise ValueError("Rodas4 needs the analytic Jacobian (jac=True): a Rosenbrock "
                              "method's order rests on the exact Jacobian")
         return {"jac": _flat_jacobian(at, shape, p, u, True, method, stats),
-                "time_dependent": bool(INPUT_NAMES)}
+                "time_dependent": bool(INPUT_NAMES) or RHS_USES_T}
     if jac:
         return {"jac": _flat_jacobian(at, shape, p, u, method != "LSODA", method, stats)}
     if method == "LSODA":

@@ -65,6 +65,7 @@ _PARAM_NDIM = {
     'D': 2,
 }
 INPUT_NAMES = ()
+RHS_USES_T = False  # rhs reads t (a law in t, or an input): Rodas4 takes df/dt
 OUTPUT_NAMES = ('position', 'velocity', 'spring_force', )
 OUTPUT_SHAPES = {
     'position': (3,),
@@ -621,7 +622,7 @@ def _jacobian_options(method, jac, at, shape, p, u, stats):
             raise ValueError("Rodas4 needs the analytic Jacobian (jac=True): a Rosenbrock "
                              "method's order rests on the exact Jacobian")
         return {"jac": _flat_jacobian(at, shape, p, u, True, method, stats),
-                "time_dependent": bool(INPUT_NAMES)}
+                "time_dependent": bool(INPUT_NAMES) or RHS_USES_T}
     if jac:
         return {"jac": _flat_jacobian(at, shape, p, u, method != "LSODA", method, stats)}
     if method == "LSODA":

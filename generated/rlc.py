@@ -62,6 +62,7 @@ _PARAM_NDIM = {
     'V0': 0,
 }
 INPUT_NAMES = ('Vs', )
+RHS_USES_T = True  # rhs reads t (a law in t, or an input): Rodas4 takes df/dt
 OUTPUT_NAMES = ('charge', 'current', 'v_C', 'stored_energy', 'energy_in', 'energy_R', )
 OUTPUT_SHAPES = {
     'charge': (),
@@ -522,7 +523,7 @@ def _jacobian_options(method, jac, at, shape, p, u, stats):
             raise ValueError("Rodas4 needs the analytic Jacobian (jac=True): a Rosenbrock "
                              "method's order rests on the exact Jacobian")
         return {"jac": _flat_jacobian(at, shape, p, u, True, method, stats),
-                "time_dependent": bool(INPUT_NAMES)}
+                "time_dependent": bool(INPUT_NAMES) or RHS_USES_T}
     if jac:
         return {"jac": _flat_jacobian(at, shape, p, u, method != "LSODA", method, stats)}
     if method == "LSODA":

@@ -74,6 +74,7 @@ _PARAM_NDIM = {
     'F0': 0,
 }
 INPUT_NAMES = ('F', )
+RHS_USES_T = True  # rhs reads t (a law in t, or an input): Rodas4 takes df/dt
 OUTPUT_NAMES = ('x1', 'x2', 'vel1', 'vel2', 'link_force', )
 OUTPUT_SHAPES = {
     'x1': (),
@@ -556,7 +557,7 @@ def _jacobian_options(method, jac, at, shape, p, u, stats):
             raise ValueError("Rodas4 needs the analytic Jacobian (jac=True): a Rosenbrock "
                              "method's order rests on the exact Jacobian")
         return {"jac": _flat_jacobian(at, shape, p, u, True, method, stats),
-                "time_dependent": bool(INPUT_NAMES)}
+                "time_dependent": bool(INPUT_NAMES) or RHS_USES_T}
     if jac:
         return {"jac": _flat_jacobian(at, shape, p, u, method != "LSODA", method, stats)}
     if method == "LSODA":

@@ -78,6 +78,7 @@ _PARAM_NDIM = {
     'Q0': 0,
 }
 INPUT_NAMES = ('Qin', )
+RHS_USES_T = True  # rhs reads t (a law in t, or an input): Rodas4 takes df/dt
 OUTPUT_NAMES = ('h1', 'h2', 'vol1', 'vol2', 'flow12', 'outflow', 'volume_in', 'volume_out', )
 OUTPUT_SHAPES = {
     'h1': (),
@@ -597,7 +598,7 @@ def _jacobian_options(method, jac, at, shape, p, u, stats):
             raise ValueError("Rodas4 needs the analytic Jacobian (jac=True): a Rosenbrock "
                              "method's order rests on the exact Jacobian")
         return {"jac": _flat_jacobian(at, shape, p, u, True, method, stats),
-                "time_dependent": bool(INPUT_NAMES)}
+                "time_dependent": bool(INPUT_NAMES) or RHS_USES_T}
     if jac:
         return {"jac": _flat_jacobian(at, shape, p, u, method != "LSODA", method, stats)}
     if method == "LSODA":

@@ -7,6 +7,8 @@ max_step = h and tolerances it always meets) so that the error is the method's a
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
@@ -157,3 +159,57 @@ def test_error_control_tracks_rtol(msd):
 def test_needs_the_analytic_jacobian(msd):
     with pytest.raises(ValueError, match="analytic Jacobian"):
         msd.simulate((0.0, 1.0), method="Rodas4", jac=False)
+
+
+FORCED = """\
+bgc: 1
+name: forced_msd
+parameters: {m: 1.0, k: 9.0, c: 0.4, F0: 10.0, w: 3.0}
+elements:
+  drive: {type: Se, effort: "F0 * sin(w * t)"}
+  v: {type: "1"}
+  mass: {type: I, inertia: "m"}
+  spring: {type: C, stiffness: "k"}
+  damper: {type: R, resistance: "c"}
+bonds: [[drive, v], [v, mass], [v, spring], [v, damper]]
+"""
+
+
+def test_a_law_in_t_without_inputs_takes_the_time_derivative(tmp_path):
+    """A law that names t (no input declared): the module says its rhs reads t, and Rodas4
+    takes df/dt, so it keeps its order and its step count: against the hand-written ODE
+    m x'' + c x' + k x = F0 sin(w t) (DOP853 at rtol 1e-13). Before RHS_USES_T the term was
+    skipped for such models (taken from INPUT_NAMES alone): the order fell below 3."""
+    from bgc.compiler import compile_model
+    from bgc.parse import parse_file
+    from bgc.scene import load_module
+
+    path = tmp_path / "forced.yaml"
+    path.write_text(FORCED)
+    mod = load_module(compile_model(parse_file(path)).source, "forced_msd_rodas")
+    assert mod.INPUT_NAMES == () and mod.RHS_USES_T is True
+    m, k, c, F0, w = 1.0, 9.0, 0.4, 10.0, 3.0
+
+    def hand(t, y):  # states: p = m v, q = x
+        p, q = y
+        return [F0 * np.sin(w * t) - k * q - c * p / m, p / m]
+
+    order = [mod.STATE_NAMES.index(s) for s in ("mass.p", "spring.q")]
+    ref = solve_ivp(hand, (0.0, 2.0), [0.0, 0.0], method="DOP853", rtol=1e-13, atol=1e-15)
+    errors = []
+    for n in (20, 40, 80, 160):
+        h = 2.0 / n
+        r = solve_ivp(lambda t, y: mod.rhs(t, y), (0.0, 2.0), np.zeros(2),
+                      method=mod._rodas_class(), jac=lambda t, y: mod.jacobian(t, y),
+                      first_step=h, max_step=h, rtol=1e3, atol=1e3, time_dependent=True)
+        errors.append(np.max(np.abs(r.y[order, -1] - ref.y[:, -1])))
+    assert np.all(observed_orders(errors) > 3.5), observed_orders(errors)
+    run = mod.simulate((0.0, 2.0), method="Rodas4", rtol=1e-8, atol=1e-10)
+    np.testing.assert_allclose(run.x[order, -1], ref.y[:, -1], atol=1e-6)
+    mod.RHS_USES_T = False  # as before: the term skipped, the error control pays for it
+    blind = mod.simulate((0.0, 2.0), method="Rodas4", rtol=1e-8, atol=1e-10)
+    assert run.stats["nsteps"] * 3 < blind.stats["nsteps"], (run.stats, blind.stats)
+    plain = load_module(compile_model(parse_file(
+        Path(__file__).resolve().parents[1] / "models" / "pendulum.yaml")).source,
+        "pendulum_rodas_t")
+    assert plain.RHS_USES_T is False  # autonomous and input-free: no df/dt

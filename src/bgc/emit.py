@@ -301,7 +301,11 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
     ounits = output_units or {}
     outputs = [{"name": name, "shape": shp, "size": len(vals), "unit": ounits.get(name, "")}
                for name, shp, vals in eq.outputs]
+    # does the rhs read t itself? (inputs are signals of t; a law may name t directly)
+    rhs_uses_t = bool(eq.inputs) or any(T in ln.expr.free_symbols for ln in low.rhs.lines) \
+        or any(T in r.free_symbols for _, r in low.rhs.results)
     text = tpl.render(
+        rhs_uses_t=rhs_uses_t,
         name=eq.name, version=__version__, source=source, source_hash=source_hash,
         description=description, notes=list(header_notes) + list(eq.loops),
         states=eq.states, params=params, derived=derived, inputs=inputs,

@@ -16,6 +16,7 @@ N_STATES: int
 STATE_NAMES: tuple
 STATE_OWNERS: tuple
 INPUT_NAMES: tuple
+RHS_USES_T: bool
 _PARAM_NDIM: dict
 JAC_SPARSITY: np.ndarray
 INPUT_NAMES: tuple
@@ -269,7 +270,7 @@ def _jacobian_options(method, jac, at, shape, p, u, stats):
             raise ValueError("Rodas4 needs the analytic Jacobian (jac=True): a Rosenbrock "
                              "method's order rests on the exact Jacobian")
         return {"jac": _flat_jacobian(at, shape, p, u, True, method, stats),
-                "time_dependent": bool(INPUT_NAMES)}
+                "time_dependent": bool(INPUT_NAMES) or RHS_USES_T}
     if jac:
         return {"jac": _flat_jacobian(at, shape, p, u, method != "LSODA", method, stats)}
     if method == "LSODA":
