@@ -238,6 +238,22 @@ def test_a_process_without_the_library_builds_it_from_the_shipped_sources(tmp_pa
     assert len(list((cache / "c").glob("*/*"))) == 1
 
 
+def test_a_model_the_c_printer_refuses_is_swept_with_numpy(tmp_path):
+    # table inputs are not printed in C (emit_c.unsupported): the sweep says so, runs numpy
+    _need("c")
+    src = MODELS / "scenes" / "quarter_car_bump.yaml"
+    text = src.read_text().replace("../quarter_car.yaml", str(MODELS / "quarter_car.yaml"))
+    # the table beside the scene (table files are relative to the scene)
+    (tmp_path / "road_bump.csv").write_bytes((MODELS / "scenes" / "road_bump.csv").read_bytes())
+    p = tmp_path / "qc.yaml"
+    p.write_text(text.split("plots:")[0] + "sweep:\n  parameters:\n"
+                                           "    c_s: {values: [800.0, 1200.0]}\n")
+    said = []
+    prep = sweep.prepare(p, said.append, backend="c")
+    assert prep.backend == "numpy" and not prep.c_files
+    assert any("table inputs" in m and "using the numpy backend" in m for m in said), said
+
+
 def test_the_scene_solver_backend_chooses_unless_the_command_does(tmp_path):
     _need("c")
     p = _scene(tmp_path, "sweep:\n  parameters:\n    m: {values: [1.0, 2.0]}\n")
