@@ -3,6 +3,7 @@ local Dask cluster (two worker processes): samples equal single runs, failures a
 interrupted sweeps resume, stores of another sweep are refused."""
 from __future__ import annotations
 
+import dataclasses
 import math
 import textwrap
 from pathlib import Path
@@ -16,7 +17,7 @@ pytest.importorskip("distributed")
 pytest.importorskip("xarray")
 pytest.importorskip("zarr")
 
-from bgc import sweep  # noqa: E402
+from bgc import cbuild, sweep  # noqa: E402
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
 MSD = MODELS / "msd.yaml"
@@ -164,6 +165,157 @@ def test_a_scene_value_of_a_swept_parameter_stays_a_parameter(tmp_path):
     assert "m" in mod.PARAM_DEFAULTS and "k" not in mod.PARAM_DEFAULTS  # k folded, m free
 
 
+def _step(t, m, k):
+    """The closed-form position of the scene's step response (c = 4 N s/m, F0 = 10 N from
+    0.5 s, underdamped)."""
+    tau, wn = np.clip(t - 0.5, 0, None), math.sqrt(k / m)
+    z = 4.0 / (2 * math.sqrt(k * m))
+    wd = wn * math.sqrt(1 - z * z)
+    return 10.0 / k * (1 - np.exp(-z * wn * tau) * (np.cos(wd * tau)
+                                                    + z * wn / wd * np.sin(wd * tau)))
+
+
+def _need(backend):
+    if backend == "c" and not cbuild.available():
+        pytest.skip("no C compiler")
+
+
+# ---------------------------------------------------------------------------------------------
+# the backend
+
+
+def test_without_a_compiler_the_sweep_says_so_and_runs_numpy(tmp_path, monkeypatch):
+    p = _scene(tmp_path, "sweep:\n  parameters:\n    m: {values: [1.0, 2.0]}\n")
+    with_c = sweep.prepare(p) if cbuild.available() else None
+    monkeypatch.setenv("CC", "/nonexistent/cc")
+    for asked in (None, "c"):
+        said = []
+        prep = sweep.prepare(p, said.append, backend=asked)
+        assert prep.backend == "numpy" and prep.c_files == {} and not prep.c_wrapper
+        assert any("no C compiler" in m and "/nonexistent/cc" in m
+                   and "using the numpy backend" in m for m in said), said
+    # it runs (in this process): the closed-form step response (k = 200 N/m)
+    res = sweep.run_chunk(prep, 0, 2)
+    assert (res["status"] == 0).all()
+    t = np.linspace(0.0, 2.0, 101)
+    for j, m in enumerate((1.0, 2.0)):
+        assert np.max(np.abs(res["y"]["position"][j] - _step(t, m, 200.0))) < 1e-5 * 10 / 200
+    if with_c is not None:
+        assert with_c.backend == "c"
+        # the results depend on the backend: a store of one is refused for the other
+        out = tmp_path / "r.zarr"
+        sweep.open_or_create(with_c, out, 2)
+        with pytest.raises(sweep.SweepMismatch):
+            sweep.open_or_create(prep, out, 2)
+        assert sweep.open_results(out).attrs["backend"] == "c"
+
+
+def test_a_process_without_the_library_builds_it_from_the_shipped_sources(tmp_path,
+                                                                         monkeypatch):
+    """What a worker on another machine does: an empty compile cache, the texts only."""
+    import pickle
+
+    from bgc.skeleton import SkeletonError
+
+    _need("c")
+    p = _scene(tmp_path, "sweep:\n  parameters:\n    m: {values: [1.0, 2.0]}\n")
+    prep = pickle.loads(pickle.dumps(sweep.prepare(p)))  # as Dask ships it
+    here = sweep.run_chunk(prep, 0, 2)
+    cache = tmp_path / "other-cache"
+    monkeypatch.setenv("BGC_CACHE_DIR", str(cache))
+    monkeypatch.setattr(sweep, "_MODULES", {})
+    there = sweep.run_chunk(prep, 0, 2)
+    assert len(list((cache / "c").glob("*/*/libmodel.so"))) == 1  # built there, kept
+    for o in here["y"]:
+        assert np.array_equal(here["y"][o], there["y"][o])
+    # a wrapper that is not the template's is refused before anything is built or run
+    monkeypatch.setattr(sweep, "_MODULES", {})
+    bad = dataclasses.replace(prep, c_wrapper=prep.c_wrapper.replace(
+        "def _autobind():", "import os\ndef _autobind():"))
+    assert bad.c_wrapper != prep.c_wrapper
+    with pytest.raises(SkeletonError):
+        sweep.load(bad)
+    assert len(list((cache / "c").glob("*/*"))) == 1
+
+
+def test_a_model_the_c_printer_refuses_is_swept_with_numpy(tmp_path):
+    # table inputs are not printed in C (emit_c.unsupported): the sweep says so, runs numpy
+    _need("c")
+    src = MODELS / "scenes" / "quarter_car_bump.yaml"
+    text = src.read_text().replace("../quarter_car.yaml", str(MODELS / "quarter_car.yaml"))
+    # the table beside the scene (table files are relative to the scene)
+    (tmp_path / "road_bump.csv").write_bytes((MODELS / "scenes" / "road_bump.csv").read_bytes())
+    p = tmp_path / "qc.yaml"
+    p.write_text(text.split("plots:")[0] + "sweep:\n  parameters:\n"
+                                           "    c_s: {values: [800.0, 1200.0]}\n")
+    said = []
+    prep = sweep.prepare(p, said.append, backend="c")
+    assert prep.backend == "numpy" and not prep.c_files
+    assert any("table inputs" in m and "using the numpy backend" in m for m in said), said
+
+
+def test_the_scene_solver_backend_chooses_unless_the_command_does(tmp_path):
+    _need("c")
+    p = _scene(tmp_path, "sweep:\n  parameters:\n    m: {values: [1.0, 2.0]}\n")
+    p.write_text(p.read_text().replace("dt: 0.02}", "dt: 0.02, backend: numpy}"))
+    said = []
+    prep = sweep.prepare(p, said.append)
+    assert prep.backend == "numpy" and not any("numpy backend" in m for m in said)
+    assert sweep.prepare(p, backend="c").backend == "c"
+    assert sweep.solver_backend(p) == "numpy"
+
+
+def test_c_tasks_share_the_cores_of_their_host(client):
+    import os
+
+    slots = sweep.host_slots(client)
+    assert sum(slots.values()) == 2  # the fixture's two one-thread workers
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    got = client.submit(sweep.task_threads, slots, pure=False).result()
+    assert got == max(1, cpus // 2)
+    # a host the client did not see: one thread; outside a worker: the C default (None)
+    assert client.submit(sweep.task_threads, {}, pure=False).result() == 1
+    assert sweep.task_threads(slots) is None
+
+
+@pytest.mark.slow
+def test_c_sweep_samples_equal_single_c_runs(tmp_path, client):
+    """Each C sample is the same run as the scene alone with the C backend (each instance of a
+    C batch takes its own steps), to the last bit; it agrees with the numpy backend's run
+    within the tolerance and with the closed-form step response."""
+    from bgc.runner import run_scene
+
+    _need("c")
+    mk = [(1.0, 100.0), (2.5, 400.0), (0.7, 250.0)]
+    p = _scene(tmp_path, "sweep:\n  combine: zip\n  parameters:\n"
+                         f"    m: {{values: {[m for m, _ in mk]}}}\n"
+                         f"    k: {{values: {[k for _, k in mk]}}}\n")
+    prep = sweep.prepare(p)
+    assert prep.backend == "c" and "model.c" in prep.c_files
+    out = tmp_path / "r.zarr"
+    rep = sweep.run_sweep(prep, out, client, chunk=2, quiet=True)
+    assert (rep.chunks, rep.computed, rep.failed) == (2, 2, 0)
+    ds = sweep.open_results(out).load()
+    assert ds.attrs["backend"] == "c"
+    nsteps = []
+    for s, (m, k) in enumerate(mk):
+        # the scene alone, m and k kept as run-time parameters (free) as the sweep keeps them
+        alone = _scene(tmp_path, "", name=f"alone{s}",
+                       params=f"parameters: {{m: {m!r}, k: {k!r}}}", extra="free: [m, k]")
+        ref = run_scene(alone, backend="c")
+        ref_np = run_scene(alone, backend="numpy")
+        assert (ref.backend, ref_np.backend) == ("c", "numpy")
+        nsteps.append(ref.stats["nsteps"])
+        for o in ("position", "velocity"):
+            assert np.array_equal(ds[o].values[s], ref.y[o]), (s, o)
+            b = ref_np.y[o]
+            assert np.max(np.abs(ds[o].values[s] - b)) <= 1e-5 * np.max(np.abs(b)), (s, o)
+        x = _step(ds["time"].values, m, k)
+        assert np.max(np.abs(ds["position"].values[s] - x)) < 1e-5 * 10.0 / k
+    # a chunk's statistics are its instances' together: their own step counts, summed
+    assert list(ds["nsteps"].values) == [nsteps[0] + nsteps[1]] * 2 + [nsteps[2]]
+
+
 # ---------------------------------------------------------------------------------------------
 # on a real local cluster
 
@@ -185,11 +337,14 @@ def _alone(tmp_path, m, k, tag):
 
 
 @pytest.mark.slow
-def test_sweep_samples_equal_single_runs_and_failures_are_recorded(tmp_path, client):
+@pytest.mark.parametrize("backend", ["c", "numpy"])
+def test_sweep_samples_equal_single_runs_and_failures_are_recorded(tmp_path, client, backend):
     # m = 0 divides by zero: that instance fails; the rest of its batch still finishes
     p = _scene(tmp_path, "sweep:\n  parameters:\n    m: {values: [1.0, 0.0, 2.5]}\n"
                          "    k: {values: [100.0, 400.0]}\n")
-    prep = sweep.prepare(p)
+    _need(backend)
+    prep = sweep.prepare(p, backend=backend)
+    assert prep.backend == backend
     out = tmp_path / "r.zarr"
     rep = sweep.run_sweep(prep, out, client, chunk=4, quiet=True)
     assert (rep.chunks, rep.computed, rep.skipped) == (2, 2, 0)
@@ -226,10 +381,13 @@ class _Stop(Exception):
 
 
 @pytest.mark.slow
-def test_an_interrupted_sweep_resumes_with_the_missing_chunks_only(tmp_path, client):
+@pytest.mark.parametrize("backend", ["c", "numpy"])
+def test_an_interrupted_sweep_resumes_with_the_missing_chunks_only(tmp_path, client, backend):
     p = _scene(tmp_path, "sweep:\n  parameters:\n    m: {linspace: [1, 2, 4]}\n"
                          "    k: {values: [100.0, 200.0]}\n")
-    prep = sweep.prepare(p)
+    _need(backend)
+    prep = sweep.prepare(p, backend=backend)
+    assert prep.backend == backend
     out = tmp_path / "r.zarr"
     seen = []
 
@@ -251,8 +409,13 @@ def test_an_interrupted_sweep_resumes_with_the_missing_chunks_only(tmp_path, cli
     assert ds["chunk_done"].values.all() and (ds["status"].values == 0).all()
     for k in seen:  # the finished chunks were not rewritten
         assert np.array_equal(ds["chunk_wall"].values[2 * k:2 * k + 2], walls[2 * k:2 * k + 2])
+    assert ds.attrs["backend"] == backend
     # a third run has nothing to do
     assert sweep.run_sweep(prep, out, client, chunk=2, quiet=True).computed == 0
+    if cbuild.available():  # the same sweep on the other backend: other results, refused
+        other = sweep.prepare(p, backend="numpy" if backend == "c" else "c")
+        with pytest.raises(sweep.SweepMismatch, match="another sweep"):
+            sweep.run_sweep(other, out, client, chunk=2, quiet=True)
     # another sweep (or chunking) into the same store is refused, with --restart it starts over
     with pytest.raises(sweep.SweepMismatch, match="another sweep"):
         sweep.run_sweep(prep, out, client, chunk=3, quiet=True)
@@ -282,9 +445,9 @@ def test_cli_on_a_running_scheduler_with_initial_states_and_plots(tmp_path, clie
     out, figs = tmp_path / "r.zarr", tmp_path / "figs"
     addr = client.scheduler.address
     res = CliRunner().invoke(main, ["sweep", str(p), "--out", str(out), "--scheduler", addr,
-                                    "--chunk", "3", "--plot", str(figs)])
+                                    "--chunk", "3", "--plot", str(figs), "--backend", "numpy"])
     assert res.exit_code == 0, res.output
-    assert "4 instances, 2 chunks (2 computed" in res.output
+    assert "4 instances, 2 chunks (2 computed" in res.output and "numpy backend" in res.output
     ds = sweep.open_results(out).load()
     assert list(ds["x0_spring.q"].values) == [0.0, 0.05, 0.0, 0.05]
     np.testing.assert_allclose(ds["position"].values[:, 0], ds["x0_spring.q"].values)

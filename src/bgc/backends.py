@@ -66,9 +66,18 @@ def _build_entry(compiled, backend, cache, progress, name):
             write_atomic(tmp / MODULE_FILE, compiled.source)
             _code_file(tmp, compiled.source, name)
             return
-        from . import cbuild
-
         files, wrapper = c_files(compiled)
+        c_entry_builder(files, wrapper, name, cache, progress)(tmp)
+    return build
+
+
+def c_entry_builder(files: dict, wrapper: str, name: str, cache=None, progress=None):
+    """build(tmp): write the C sources (file name -> text) and the wrapper into tmp and build
+    the library there with the system compiler (a compile-cache entry for ``load_entry``)."""
+    def build(tmp: Path):
+        from . import cbuild
+        from .compiler import write_atomic
+
         for fname, text in files.items():
             write_atomic(tmp / fname, text)
         (progress or (lambda m: None))(f"building the C library ({len(files)} model units)")
@@ -76,6 +85,52 @@ def _build_entry(compiled, backend, cache, progress, name):
         write_atomic(tmp / MODULE_FILE, wrapper)
         _code_file(tmp, wrapper, name)
     return build
+
+
+def c_key(files: dict, wrapper: str) -> str:
+    """The compile-cache key of a C entry made from these texts (as `bgc sweep` ships them):
+    the texts, the C runtime's sources, the compiler's identity and flags, bgc's and Python's
+    versions (the entry keeps the wrapper's compiled code). Raises CompilerMissing without a
+    compiler."""
+    import hashlib
+    import sys
+
+    from . import __version__, cbuild
+
+    h = hashlib.sha256(f"bgc {__version__}\0python {sys.version}\0c-texts\0".encode())
+    for fname in sorted(files):
+        h.update(fname.encode() + b"\0" + files[fname].encode() + b"\0")
+    h.update(b"wrapper\0" + wrapper.encode() + b"\0")
+    h.update(cbuild.runtime_key().encode())  # runtime sources, compiler identity and flags
+    return h.hexdigest()
+
+
+def load_c(files: dict, wrapper: str, name: str, key: str | None = None, progress=None):
+    """The C wrapper module of shipped texts (C sources by file name, wrapper text), its
+    library built through the compile cache: a process that finds the entry loads it, one
+    that does not builds it (the system compiler) and keeps it for the next. The wrapper text
+    is checked before anything of it is kept or run. An unusable cache (unsafe, unwritable):
+    built in a temporary folder instead. Raises CompilerMissing without a compiler."""
+    import tempfile
+
+    from .cache import Cache, UnsafeCache
+    from .skeleton import check_wrapper
+
+    check_wrapper(wrapper)
+    key = key or c_key(files, wrapper)
+    try:
+        store = Cache()
+        entry = store.get_or_build("c", key, c_entry_builder(files, wrapper, name, store,
+                                                             progress))
+        return load_entry(entry, "c", name, trusted=True)
+    except (UnsafeCache, PermissionError) as exc:
+        (progress or (lambda m: None))(f"compile cache not used ({exc})")
+    d = Path(tempfile.mkdtemp(prefix="bgc-c-"))
+    try:
+        c_entry_builder(files, wrapper, name, None, progress)(d)
+        return load_entry(d, "c", name)  # loaded (the mapping outlives the file)
+    finally:
+        shutil.rmtree(d, ignore_errors=True)
 
 
 def load_entry(entry: Path, backend: str, name: str, trusted: bool = False):

@@ -22,11 +22,19 @@ rows (sampled jointly: a Latin hypercube over all of them). ``cross`` takes ever
 of the axes (the first listed varies slowest), ``zip`` pairs them row by row (equal lengths).
 
 The engine (:func:`run_sweep`) cuts the samples into chunks; each chunk is one Dask task that
-loads the module from its source text (no module is pickled), integrates the chunk's instances
-in one vectorised ``simulate`` call, and returns its arrays; the client writes each chunk into
+loads the module from its text (no module is pickled), integrates the chunk's instances in one
+``simulate`` call, and returns its arrays; the client writes each chunk into
 a pre-created Zarr store (a region write) and then marks it done. Rerunning with the same
 store computes only the chunks not marked done; the store's attributes hold a hash of
 everything the results depend on, and a store made for another sweep is refused.
+
+Backends (:func:`choose_backend`): the C backend when a C compiler is available and the C
+printer accepts the model, else numpy; ``bgc sweep --backend`` or the scene's ``solver:
+{backend: ...}`` choose. For C the tasks receive the C sources and the wrapper's text; each
+worker process gets the library from the compile cache (on the client's machine it was built
+there by :func:`prepare`; elsewhere the worker builds it once from the texts) and loads it
+once. A C batch integrates every instance with its own step size (a sample equals the same run
+alone); a numpy batch shares its steps (one error norm over the batch).
 """
 from __future__ import annotations
 
@@ -318,10 +326,11 @@ def samples(spec: SweepSpec) -> dict:
 
 @dataclass
 class Prepared:
-    """What every task needs, all plain data: the module's source text and the call."""
+    """What every task needs, all plain data: the module's text (for C, the C sources and the
+    wrapper's text, from which a worker builds the library) and the call."""
 
     scene_name: str
-    backend: str  # "numpy" (the module's source text); a C backend would ship its library
+    backend: str  # "numpy" (source) or "c" (c_files and c_wrapper; source kept for reference)
     source: str
     modname: str
     t_span: tuple
@@ -340,15 +349,24 @@ class Prepared:
     param_units: dict
     spec: SweepSpec = None
     max_wall: float | None = None
+    c_files: dict = field(default_factory=dict)  # C file name -> text
+    c_wrapper: str = ""  # the C wrapper module's text
+    c_key: str = ""  # their compile-cache key on the client's machine (backends.c_key)
 
     @property
     def n(self) -> int:
         return len(next(iter(self.values.values())))
 
     def digest(self, chunk: int) -> str:
-        """A hash of everything the results depend on (module, call, samples, chunking)."""
+        """A hash of everything the results depend on (backend, module and C texts, call,
+        samples, chunking)."""
         h = hashlib.sha256()
+        h.update(self.backend.encode() + b"\0")
         h.update(self.source.encode())
+        if self.backend == "c":
+            for name in sorted(self.c_files):
+                h.update(b"\0" + name.encode() + b"\0" + self.c_files[name].encode())
+            h.update(b"\0" + self.c_wrapper.encode())
         h.update(json.dumps([self.t_span, self.dt, self.method, self.rtol, self.atol,
                              repr(self.max_step), self.breakpoints, _jsonable(self.base_p),
                              sorted(self.params.items()), sorted(self.states.items()),
@@ -363,8 +381,51 @@ def _jsonable(d):
     return {k: np.asarray(v).tolist() for k, v in (d or {}).items()}
 
 
-def prepare(scene_path, progress=None) -> Prepared:
-    """Parse the scene and its sweep, compile the module (swept parameters kept free)."""
+def solver_backend(path) -> str | None:
+    """The backend the scene's ``solver:`` names, None when it names none (the scene parser
+    has already checked the value)."""
+    from .parse import _Reader
+
+    path = str(path)
+    r = _Reader(path, Path(path).read_text(encoding="utf-8"))
+    top = r.mapping(r.compose(), "the scene")
+    if "solver" not in top:
+        return None
+    sm = r.mapping(top["solver"][1], "solver")
+    return r.string(sm["backend"][1], "backend") if "backend" in sm else None
+
+
+def choose_backend(compiled, backend=None, progress=None):
+    """(backend, C files, wrapper text, cache key) for a compiled sweep module: "c" when asked
+    for or by default, if a C compiler is there and the C printer accepts the model (else
+    the reason is said and numpy it is); "numpy" when asked for."""
+    say = progress or (lambda msg: None)
+    if backend == "numpy":
+        return "numpy", {}, "", ""
+    from . import backends, cbuild
+    from .emit_c import CUnsupported
+
+    if not cbuild.available():
+        say(f"no C compiler ({' '.join(cbuild.compiler())!r} cannot run; set CC): using the "
+            "numpy backend")
+        return "numpy", {}, "", ""
+    if not cbuild.runtime_sources():
+        say("the C runtime (templates/c/runtime/*.c) is not installed: using the numpy backend")
+        return "numpy", {}, "", ""
+    try:
+        files, wrapper = backends.c_files(compiled)
+    except CUnsupported as exc:
+        say(f"{exc.message}: using the numpy backend")
+        return "numpy", {}, "", ""
+    return "c", files, wrapper, backends.c_key(files, wrapper)
+
+
+def prepare(scene_path, progress=None, backend: str | None = None) -> Prepared:
+    """Parse the scene and its sweep, compile the module (swept parameters kept free).
+
+    backend: "c", "numpy", or None for the scene's ``solver: {backend: ...}`` if it names
+    one, else C where it can run (see :func:`choose_backend`). For C the library is built here
+    into the compile cache, so that workers on this machine only load it."""
     from .graph import build_graph
     from .expr import Expr
     from .runner import compile_scene, runtime_params
@@ -412,13 +473,19 @@ def prepare(scene_path, progress=None) -> Prepared:
         if o not in outs:
             raise ModelError(spec.plot_coord, f"sweep plot units: no output {o!r}")
     dt = scene.dt or (scene.t_span[1] - scene.t_span[0]) / 1000
-    return Prepared(scene.name, "numpy", c.source, f"{c.model.name}_{scene.name}_sweep",
+    if backend is None:
+        backend = solver_backend(scene_path)
+    backend, files, wrapper, ckey = choose_backend(c, backend, progress)
+    prep = Prepared(scene.name, backend, c.source, f"{c.model.name}_{scene.name}_sweep",
                     tuple(scene.t_span), dt, scene.method, scene.rtol, scene.atol,
                     scene.max_step, tuple(scene.breakpoints),
                     runtime_params(scene2, mod) or {},
                     {e.label: e.name for e in spec.entries if e.kind == "param"}, states,
                     samples(spec), outs, {o: tuple(mod.OUTPUT_SHAPES[o]) for o in outs},
-                    dict(mod.PARAM_UNITS), spec)
+                    dict(mod.PARAM_UNITS), spec, c_files=files, c_wrapper=wrapper, c_key=ckey)
+    if backend == "c":
+        load(prep, progress)  # built once here: the workers on this machine find it cached
+    return prep
 
 
 # ---------------------------------------------------------------------------------------------
@@ -428,22 +495,77 @@ def prepare(scene_path, progress=None) -> Prepared:
 _MODULES: dict = {}
 
 
-def load(prep: Prepared):
-    """The module in this process, compiled once from its source text (cached by hash)."""
-    key = hashlib.sha256(prep.source.encode()).hexdigest()
+def _module_key(prep: Prepared) -> str:
+    h = hashlib.sha256(prep.backend.encode() + b"\0")
+    if prep.backend == "c":
+        for name in sorted(prep.c_files):
+            h.update(name.encode() + b"\0" + prep.c_files[name].encode() + b"\0")
+        h.update(prep.c_wrapper.encode())
+    else:
+        h.update(prep.source.encode())
+    return h.hexdigest()
+
+
+def load(prep: Prepared, progress=None):
+    """The module in this process, loaded once (memoised by a hash of its texts): numpy from
+    its source text; C through the compile cache (backends.load_c: the entry the client built,
+    or built here from the shipped sources when this machine has none)."""
+    key = _module_key(prep)
     mod = _MODULES.get(key)
     if mod is None:
-        if prep.backend != "numpy":  # pragma: no cover - a C backend plugs in here
-            raise NotImplementedError(f"backend {prep.backend!r}")
-        from .scene import load_module
+        name = f"{prep.modname}_{key[:8]}"
+        if prep.backend == "numpy":
+            from .scene import load_module
 
-        mod = load_module(prep.source, f"{prep.modname}_{key[:8]}")
+            mod = load_module(prep.source, name)
+        elif prep.backend == "c":
+            from .backends import c_key, load_c
+
+            # the key of this machine's compiler (on the client's machine: prep.c_key)
+            with np.errstate(all="ignore"):
+                mod = load_c(prep.c_files, prep.c_wrapper, name,
+                             c_key(prep.c_files, prep.c_wrapper), progress)
+        else:
+            raise ModelError(None, f"sweep: unknown backend {prep.backend!r}")
         _MODULES[key] = mod
     return mod
 
 
-def _call(mod, prep: Prepared, idx: np.ndarray):
-    """One vectorised simulate over the instances idx; (y dict with the batch first, stats)."""
+def task_threads(slots: dict | None) -> int | None:
+    """Threads for one C simulate call in this task: this machine's CPUs shared evenly among
+    the task slots (workers x threads per worker) the cluster has on this host, at least one
+    (so with as many workers as cores, or more, every task runs one thread and the workers
+    never oversubscribe the cores). slots: host -> task slots, from the client when the sweep
+    started; a host it does not know (a worker that joined later) gets 1 thread. None outside a
+    Dask worker (the C default: every CPU)."""
+    import os
+
+    try:
+        from distributed import get_worker
+        from distributed.comm import get_address_host
+
+        host = get_address_host(get_worker().address)
+    except (ImportError, ValueError):
+        return None
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cpus = os.cpu_count() or 1
+    n = (slots or {}).get(host)
+    return max(1, cpus // n) if n else 1
+
+
+def host_slots(client) -> dict:
+    """host -> task slots (sum of the threads of the workers there) of the client's cluster."""
+    out: dict = {}
+    for w in client.scheduler_info().get("workers", {}).values():
+        out[w.get("host")] = out.get(w.get("host"), 0) + int(w.get("nthreads") or 1)
+    return out
+
+
+def _call(mod, prep: Prepared, idx: np.ndarray, nthreads: int | None = None):
+    """One vectorised simulate over the instances idx; (y dict with the batch first, stats).
+    nthreads: the C integrator's threads (None: every CPU); unused by numpy."""
     p = dict(prep.base_p)
     for label, pid in prep.params.items():
         p[pid] = prep.values[label][idx]
@@ -457,7 +579,8 @@ def _call(mod, prep: Prepared, idx: np.ndarray):
         p = p or None
     t, _, y = res = mod.simulate(prep.t_span, dt=prep.dt, method=prep.method, rtol=prep.rtol,
                                  atol=prep.atol, p=p, x0=x0, breakpoints=prep.breakpoints,
-                                 max_step=prep.max_step, max_wall=prep.max_wall)
+                                 max_step=prep.max_step, max_wall=prep.max_wall,
+                                 **({"nthreads": nthreads} if prep.backend == "c" else {}))
     out = {}
     for o in prep.outputs:
         a = np.asarray(y[o], dtype=float)
@@ -471,11 +594,13 @@ def _call(mod, prep: Prepared, idx: np.ndarray):
     return t, out, res.stats
 
 
-def run_chunk(prep: Prepared, a: int, b: int) -> dict:
+def run_chunk(prep: Prepared, a: int, b: int, slots: dict | None = None) -> dict:
     """Instances a..b-1 as one batch; when the batch fails, each instance alone, so that one
-    diverging instance is recorded (NaNs and its message) while the others finish."""
+    diverging instance is recorded (NaNs and its message) while the others finish. slots:
+    host -> task slots of the cluster (see :func:`task_threads`)."""
     t0 = time.perf_counter()
     mod = load(prep)
+    nth = task_threads(slots) if prep.backend == "c" else None
     idx = np.arange(a, b)
     nt = int(round(abs(prep.t_span[1] - prep.t_span[0]) / prep.dt)) + 1
     ys = {o: np.full((b - a,) + prep.output_shapes[o] + (nt,), np.nan) for o in prep.outputs}
@@ -486,7 +611,7 @@ def run_chunk(prep: Prepared, a: int, b: int) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         try:
-            _, out, st = _call(mod, prep, idx)
+            _, out, st = _call(mod, prep, idx, nth)
             for o in out:
                 ys[o][...] = out[o]
             for k in STATS:
@@ -495,7 +620,7 @@ def run_chunk(prep: Prepared, a: int, b: int) -> dict:
             batch[:] = 1
             for j, i in enumerate(idx):
                 try:
-                    _, out, st = _call(mod, prep, np.array([i]))
+                    _, out, st = _call(mod, prep, np.array([i]), nth)
                     for o in out:
                         ys[o][j] = out[o][0]
                     for k in STATS:
@@ -549,6 +674,7 @@ def _skeleton(prep: Prepared, chunk: int, digest: str):
     ds["batch"].attrs["meaning"] = ("instances integrated together (their solver statistics "
                                     "are the batch's)")
     ds.attrs.update({"bgc_sweep_hash": digest, "scene": prep.scene_name, "chunk": chunk,
+                     "backend": prep.backend,
                      "method": prep.method, "rtol": prep.rtol, "atol": prep.atol,
                      "swept": json.dumps(list(prep.values))})
     return ds
@@ -694,8 +820,9 @@ def run_sweep(prep: Prepared, out, client, chunk: int = 16, restart: bool = Fals
     if todo:
         fprep = client.scatter(prep, broadcast=True, hash=False)
         run = uuid.uuid4().hex[:8]  # fresh keys: never those of an earlier, cancelled run
-        futures = {client.submit(run_chunk, fprep, *spans[k], key=f"bgc-sweep-{k}-{run}",
-                                 pure=False): k for k in todo}
+        slots = host_slots(client) if prep.backend == "c" else None
+        futures = {client.submit(run_chunk, fprep, *spans[k], slots,
+                                 key=f"bgc-sweep-{k}-{run}", pure=False): k for k in todo}
         try:
             for fut in as_completed(futures):
                 k = futures[fut]
@@ -825,8 +952,13 @@ def register(main_group):
     @click.option("--restart", is_flag=True, help="discard a store made for another sweep")
     @click.option("--max-wall", type=click.FloatRange(min=0.0, min_open=True), default=None,
                   help="seconds per simulate call before it is stopped (recorded as failed)")
+    @click.option("--backend", type=click.Choice(("c", "numpy")), default=None,
+                  help="c (the C step loop: each instance its own step size) or numpy; "
+                       "default: the scene's solver backend, else c where a C compiler is "
+                       "available and the model is one the C backend prints, else numpy")
     @click.option("-q", "--quiet", is_flag=True)
-    def sweep_cmd(scene, out, scheduler, workers, chunk, plot_dir, restart, max_wall, quiet):
+    def sweep_cmd(scene, out, scheduler, workers, chunk, plot_dir, restart, max_wall, backend,
+                  quiet):
         """Run SCENE's sweep: batched simulations on Dask, results in a Zarr store."""
         t0 = time.perf_counter()
 
@@ -835,9 +967,9 @@ def register(main_group):
                 click.echo(f"[{time.perf_counter() - t0:6.2f} s] {msg}", err=True)
 
         say(f"compiling {scene}")
-        prep = prepare(scene, say)
+        prep = prepare(scene, say, backend)
         prep.max_wall = max_wall
-        say(f"{prep.n} instances in chunks of {chunk}; starting "
+        say(f"{prep.n} instances in chunks of {chunk} ({prep.backend} backend); starting "
             + ("a local cluster" if scheduler in ("", "local") else f"client of {scheduler}"))
         client = client_for(scheduler, workers)
         try:
@@ -848,7 +980,8 @@ def register(main_group):
             for f in plot_sweep(prep, open_results(out), plot_dir):
                 say(f"wrote {f}")
         click.echo(f"{prep.scene_name}: {rep.n} instances, {rep.chunks} chunks ({rep.computed} "
-                   f"computed, {rep.skipped} already done), {rep.failed} failed; "
+                   f"computed, {rep.skipped} already done), {rep.failed} failed "
+                   f"({prep.backend} backend); "
                    f"{rep.wall:.1f} s; results in {rep.out}")
 
     return sweep_cmd
