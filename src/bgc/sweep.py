@@ -367,6 +367,8 @@ class Prepared:
             for name in sorted(self.c_files):
                 h.update(b"\0" + name.encode() + b"\0" + self.c_files[name].encode())
             h.update(b"\0" + self.c_wrapper.encode())
+            # the client's cache key: the C runtime's sources, the compiler and its flags
+            h.update(b"\0" + str(self.c_key).encode())
         h.update(json.dumps([self.t_span, self.dt, self.method, self.rtol, self.atol,
                              repr(self.max_step), self.breakpoints, _jsonable(self.base_p),
                              sorted(self.params.items()), sorted(self.states.items()),
