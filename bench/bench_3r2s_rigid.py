@@ -17,7 +17,7 @@ coupling's C || R names the multibond); eliminating it needs joint coordinates (
 joint as a scalar relative rate with a 3x1 MTF along the axis, and the distal link's rotational
 inertia in derivative causality through that axis), which this study did not do.
 
-    .venv/bin/python bench/bench_3r2s_rigid.py
+    .venv/bin/python bench/bench_3r2s_rigid.py [--c]
 """
 from __future__ import annotations
 
@@ -57,6 +57,12 @@ def rigid_translational(text: str) -> str:
 
 
 def main():
+    import argparse
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--c", action="store_true",
+                    help="also run both models on the C backend (numeric solves in C)")
+    args = ap.parse_args()
     scene = parse_scene(ROOT / "models" / "scenes" / "3r2s_circle.yaml")
     text = (ROOT / "models" / "3r2s.yaml").read_text()
     models = {"all compliant (paper)": apply_scene(parse_file(ROOT / "models" / "3r2s.yaml"),
@@ -69,29 +75,35 @@ def main():
     for label, m in models.items():
         t0 = time.perf_counter()
         c = compile_model(m)
-        mods[label] = (load_module(c.source, c.model.name + "_bench"), c,
-                       time.perf_counter() - t0)
-    for label in models:
-        mod, c, tc = mods[label]
+        mods[(label, "numpy")] = (load_module(c.source, c.model.name + "_bench"), c,
+                                  time.perf_counter() - t0)
+        if args.c:
+            from bgc import backends
+
+            t1 = time.perf_counter()
+            _, cm = backends.load(c.model.name + "_bench_c", "c", None, lambda c=c: c, None)
+            mods[(label, "c")] = (cm, c, time.perf_counter() - t1)
+    for (label, backend), (mod, c, tc) in mods.items():
         for rtol, atol in ((scene.rtol, scene.atol), (1e-8, 1e-9)):
             t0 = time.perf_counter()
             r = mod.simulate(scene.t_span, dt=scene.dt, method=scene.method, rtol=rtol,
                              atol=atol, breakpoints=scene.breakpoints)
-            res[(label, rtol)] = (r, tc, time.perf_counter() - t0, len(mod.STATE_NAMES))
-    ref_key = ("all compliant (paper)", 1e-8)
+            res[(label, backend, rtol)] = (r, tc, time.perf_counter() - t0,
+                                           len(mod.STATE_NAMES))
+    ref_key = ("all compliant (paper)", "numpy", 1e-8)
     base = res[ref_key][0]
-    print(f"circle scene, {scene.method}; differences from the all-compliant model at rtol "
-          "1e-8 (atol 1e-9)\n")
-    print("| model | states | rtol | compile [s] | simulate [s] | rhs calls | max angle diff "
-          "[rad] | max P3 diff [m] |")
-    print("|---|---|---|---|---|---|---|---|")
-    for (label, rtol), (r, tc, ts, ns) in res.items():
+    print(f"circle scene, {scene.method}; differences from the all-compliant model (numpy) at "
+          "rtol 1e-8 (atol 1e-9); compile: symbolic for numpy, the C build for c\n")
+    print("| model | backend | states | rtol | compile [s] | simulate [s] | rhs calls | "
+          "max angle diff [rad] | max P3 diff [m] |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for (label, backend, rtol), (r, tc, ts, ns) in res.items():
         da = max(np.abs(r.y[f"theta{i}"] - base.y[f"theta{i}"]).max() for i in range(1, 5))
         dp = np.abs(r.y["p3"] - base.y["p3"]).max()
-        print(f"| {label} | {ns} | {rtol:g} | {tc:.1f} | {ts:.2f} | {r.stats['nfev']} | "
-              f"{da:.2e} | {dp:.2e} |")
+        print(f"| {label} | {backend} | {ns} | {rtol:g} | {tc:.1f} | {ts:.2f} | "
+              f"{r.stats['nfev']} | {da:.2e} | {dp:.2e} |")
     print()
-    print("notes:", *mods["rigid J1..J4"][1].equations.loops, sep="\n  ")
+    print("notes:", *mods[("rigid J1..J4", "numpy")][1].equations.loops, sep="\n  ")
 
 
 if __name__ == "__main__":
