@@ -31,22 +31,7 @@ pytestmark = [
 # the resistive loop of models/algebraic_loop.yaml with R1 cubic: Newton in the generated code
 CUBIC = 'series_R: {type: R, effort: "R1 * f + 1.0e5 * f**3"}'
 NOT_CONVERGING = 'series_R: {type: R, effort: "R1 / f"}'  # no root near the warm start
-GEAR = """\
-bgc: 1
-name: gear_pair
-parameters: {J1: 0.5, J2: 0.2, n: 3.0, c1: 0.1, c2: 0.05, k: 4.0, T0: 1.0}
-elements:
-  drive: {type: Se, effort: "T0 * sin(t)"}
-  w1: {type: "1"}
-  I1: {type: I, inertia: "J1", initial: "J1 * 2.0"}
-  R1: {type: R, resistance: "c1"}
-  K:  {type: C, stiffness: "k", initial: "0.1"}
-  gear: {type: TF, ratio: "n"}
-  w2: {type: "1"}
-  I2: {type: I, inertia: "J2"}
-  R2: {type: R, resistance: "c2"}
-bonds: [[drive, w1], [w1, I1], [w1, R1], [w1, K], [w1, gear], [gear, w2], [w2, I2], [w2, R2]]
-"""
+from test_derivative_causality import GEAR  # noqa: E402  (the rigid gear pair, J1 + n^2 J2)
 
 _built: dict = {}
 

@@ -58,42 +58,15 @@ void bgc_dense_solve(int n, const double *lu, const int *piv, double *b)
 }
 
 /* x = A^-1 b for the model's numeric linear solves (derivative causality, Newton loops):
- * Gaussian elimination with partial pivoting on [A | b], a (n x n, row-major) and b
- * overwritten, b by x. 0, or k+1 when pivot k is exactly zero (singular; b is then garbage).
+ * bgc_dense_lu (partial pivoting) above, then its solve; a (n x n, row-major) and b
+ * overwritten, b by x. 0, or k+1 when pivot k is exactly zero (singular; b is then left as it was).
  * No allocation: safe to call from many threads on their own arrays. */
 int bgc_dense_linsolve(int n, double *a, double *b)
 {
-    for (int k = 0; k < n; k++) {
-        int p = k;
-        double best = fabs(a[(size_t)k * n + k]);
-        for (int i = k + 1; i < n; i++) {
-            double v = fabs(a[(size_t)i * n + k]);
-            if (v > best) { best = v; p = i; }
-        }
-        if (!(best > 0.0)) return k + 1;
-        if (p != k) {
-            double *rk = a + (size_t)k * n, *rp = a + (size_t)p * n;
-            for (int j = k; j < n; j++) { double t = rk[j]; rk[j] = rp[j]; rp[j] = t; }
-            double t = b[k]; b[k] = b[p]; b[p] = t;
-        }
-        const double *rk = a + (size_t)k * n;
-        double inv = 1.0 / rk[k];
-        for (int i = k + 1; i < n; i++) {
-            double *ri = a + (size_t)i * n;
-            double l = ri[k] * inv;
-            if (l != 0.0) {
-                for (int j = k + 1; j < n; j++) ri[j] -= l * rk[j];
-                b[i] -= l * b[k];
-            }
-        }
-    }
-    for (int i = n - 1; i >= 0; i--) {
-        const double *ri = a + (size_t)i * n;
-        double s = b[i];
-        for (int j = i + 1; j < n; j++) s -= ri[j] * b[j];
-        b[i] = s / ri[i];
-    }
-    return 0;
+    int piv[n > 0 ? n : 1];  /* the systems are small (a limit of the model format): stack */
+    int info = bgc_dense_lu(n, a, piv);
+    if (!info) bgc_dense_solve(n, a, piv, b);
+    return info;
 }
 
 static double cabs1(double complex z) { return fabs(creal(z)) + fabs(cimag(z)); }
