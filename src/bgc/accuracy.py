@@ -476,6 +476,20 @@ def parse_methods(text, allowed=ALL_METHODS) -> tuple:
     return ms
 
 
+def _study_head(setup: Setup, ref_methods, ref_rtol):
+    """(stiff, stiffness index, reference methods, reference atol, the study's first progress
+    line), the same
+    whether the runs go one after another or on Dask."""
+    stiff, index = is_stiff(setup)
+    if ref_methods is None:
+        ref_methods = ("Radau", "BDF") if stiff else ("Radau", "DOP853")
+    head = (f"{setup.name}: {setup.module.N_STATES} states, t = {setup.t_span[0]:g}..."
+            f"{setup.t_span[1]:g} s, {len(setup.t_eval)} output points; stiffness index "
+            f"{index:.3g} ({'stiff' if stiff else 'not stiff'}); atol = rtol x "
+            f"{setup.atol_scale:g}")
+    return stiff, index, ref_methods, ref_rtol * setup.atol_scale, head
+
+
 def study(setup: Setup, methods=METHODS, tols=DEFAULT_TOLS, budget=60.0, repeats=3,
           ref_rtol=1e-12, ref_methods=None, ref_budget=900.0, jac_methods=("Radau", "BDF"),
           jac_tols=(1e-4, 1e-6, 1e-8), progress=None, client=None) -> Study:
@@ -488,13 +502,8 @@ def study(setup: Setup, methods=METHODS, tols=DEFAULT_TOLS, budget=60.0, repeats
     if any(m in C_METHODS for m in methods):  # built here, before the runs' forked children
         say("building the C backend's module for the C methods")
         c_module(setup)
-    stiff, index = is_stiff(setup)
-    if ref_methods is None:
-        ref_methods = ("Radau", "BDF") if stiff else ("Radau", "DOP853")
-    ref_atol = ref_rtol * setup.atol_scale
-    say(f"{setup.name}: {setup.module.N_STATES} states, t = {setup.t_span[0]:g}..."
-        f"{setup.t_span[1]:g} s, {len(setup.t_eval)} output points; stiffness index "
-        f"{index:.3g} ({'stiff' if stiff else 'not stiff'}); atol = rtol x {setup.atol_scale:g}")
+    stiff, index, ref_methods, ref_atol, head = _study_head(setup, ref_methods, ref_rtol)
+    say(head)
     refs = []
     check_note = ""
     for i, m in enumerate(ref_methods):
@@ -618,14 +627,8 @@ def _study_on(client, setup, methods, tols, budget, repeats, ref_rtol, ref_metho
     # a fresh key (hash=False): a key shared with an earlier study's data could be released
     # by that study's futures going away while this one still needs it
     fbare = client.scatter(bare, broadcast=True, hash=False)
-    stiff, index = is_stiff(setup)
-    if ref_methods is None:
-        ref_methods = ("Radau", "BDF") if stiff else ("Radau", "DOP853")
-    ref_atol = ref_rtol * setup.atol_scale
-    say(f"{setup.name}: {setup.module.N_STATES} states, t = {setup.t_span[0]:g}..."
-        f"{setup.t_span[1]:g} s, {len(setup.t_eval)} output points; stiffness index "
-        f"{index:.3g} ({'stiff' if stiff else 'not stiff'}); atol = rtol x {setup.atol_scale:g}"
-        f"; on {len(client.scheduler_info()['workers'])} Dask workers")
+    stiff, index, ref_methods, ref_atol, head = _study_head(setup, ref_methods, ref_rtol)
+    say(f"{head}; on {len(client.scheduler_info()['workers'])} Dask workers")
 
     def ref_of(val, fallback_ok):
         if isinstance(val, tuple) and val and val[0] == "error":

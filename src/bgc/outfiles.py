@@ -167,14 +167,19 @@ def check_output(path, inputs: Inputs | None = None, what: str = "output") -> Pa
     return p
 
 
-def prepare_folder(folder, what: str = "output folder") -> Path:
-    """Create ``folder`` (and its parents) if missing; an error if it cannot be."""
+def _folder_path(folder, what: str) -> tuple[str, Path]:
+    """(the path's text, the Path) of a folder argument: an error if empty or holding NUL."""
     text = os.fspath(folder)
     if text == "":
         raise OutputError(what, "", "the path is empty")
     if "\0" in text:
         raise OutputError(what, text, "the path contains a NUL character")
-    p = Path(text)
+    return text, Path(text)
+
+
+def prepare_folder(folder, what: str = "output folder") -> Path:
+    """Create ``folder`` (and its parents) if missing; an error if it cannot be."""
+    text, p = _folder_path(folder, what)
     try:
         p.mkdir(parents=True, exist_ok=True)
     except FileExistsError:
@@ -191,12 +196,7 @@ def prepare_folder(folder, what: str = "output folder") -> Path:
 def check_folder(folder, what: str = "output folder") -> Path:
     """The checks of :func:`prepare_folder` without creating anything: ``folder`` is a folder,
     or the nearest part of it that exists is a folder bgc may create entries in."""
-    text = os.fspath(folder)
-    if text == "":
-        raise OutputError(what, "", "the path is empty")
-    if "\0" in text:
-        raise OutputError(what, text, "the path contains a NUL character")
-    p = Path(text)
+    text, p = _folder_path(folder, what)
     probe = p
     while True:
         try:
