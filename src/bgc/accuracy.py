@@ -478,8 +478,7 @@ def parse_methods(text, allowed=ALL_METHODS) -> tuple:
 
 def _study_head(setup: Setup, ref_methods, ref_rtol):
     """(stiff, stiffness index, reference methods, reference atol, the study's first progress
-    line), the same
-    whether the runs go one after another or on Dask."""
+    line), the same whether the runs go one after another or on Dask."""
     stiff, index = is_stiff(setup)
     if ref_methods is None:
         ref_methods = ("Radau", "BDF") if stiff else ("Radau", "DOP853")
