@@ -53,9 +53,10 @@ def test_miss_then_hit_gives_the_same_results(tmp_path):
     assert len(_entries(cdir)) == 2
     info = _bgc("cache", "info", cache_dir=cdir)
     assert info.returncode == 0 and "numpy 2" in info.stdout and str(cdir) in info.stdout
+    assert "run 2" in info.stdout  # each scene's run record (bgc.record)
     clr = _bgc("cache", "clear", cache_dir=cdir)
-    assert clr.returncode == 0 and "removed 2" in clr.stdout
-    assert _entries(cdir) == []
+    assert clr.returncode == 0 and "removed 4" in clr.stdout  # 2 modules, 2 records
+    assert _entries(cdir) == [] and not list((cdir / "run").glob("*/*"))
 
 
 def _model_with_import(d: Path, gain: str):
@@ -77,6 +78,33 @@ def test_key_changes_with_an_imported_file_and_nothing_else(tmp_path):
     assert cache_mod.key("numpy", main, scene_path=SCENE) != k2
     files = [Path(p).name for p, _ in cache_mod.model_files(main)]
     assert files == ["main.yaml", "part.yaml"]
+
+
+def test_key_follows_the_tables_a_model_or_scene_reads(tmp_path):
+    """A table input (CSV) is compiled into the module: its bytes are part of the key, for a
+    table named by the scene or by the model (they were not, and a changed table replayed the
+    old module)."""
+    work = tmp_path / "models"
+    shutil.copytree(ROOT / "models", work)
+    scene = work / "scenes" / "quarter_car_bump.yaml"
+    model = work / "quarter_car.yaml"
+    k1 = cache_mod.key("numpy", model, scene)
+    names = [Path(p).name for p, _ in cache_mod.model_files(model, scene)]
+    assert names == ["quarter_car.yaml", "road_bump.csv"]
+    csv = work / "scenes" / "road_bump.csv"
+    csv.write_text(csv.read_text() + "# a comment\n")
+    k2 = cache_mod.key("numpy", model, scene)
+    assert k2 != k1
+    # a table named by the model itself
+    (work / "m").mkdir()
+    (work / "m" / "road.csv").write_text("t,v\n0,0\n1,1\n")
+    m = work / "m" / "with_table.yaml"
+    m.write_text("bgc: 1\nname: t\ninputs:\n  zr: {table: road.csv, columns: [t, v]}\n")
+    k3 = cache_mod.key("numpy", m)
+    (work / "m" / "road.csv").write_text("t,v\n0,0\n1,2\n")
+    assert cache_mod.key("numpy", m) != k3
+    csv.unlink()  # an unreadable table: no key (the compile reports the error, uncached)
+    assert cache_mod.key("numpy", model, scene) is None
 
 
 def test_editing_an_imported_file_recompiles(tmp_path):

@@ -8,6 +8,7 @@ module without importing sympy or the compiler; on a miss it compiles (the calle
 from __future__ import annotations
 
 import shutil
+import sys
 from pathlib import Path
 
 BACKENDS = ("numpy", "c")
@@ -137,8 +138,6 @@ def load_entry(entry: Path, backend: str, name: str, trusted: bool = False):
     """Import the module of a cache entry (or a folder holding module.py). ``trusted``: the
     entry is in a checked cache directory and was checked when written; its compiled code
     (module.code) is used as it is."""
-    from .scene import load_module
-
     entry = Path(entry)
     text = (entry / MODULE_FILE).read_text(encoding="utf-8")
     code = None
@@ -152,11 +151,63 @@ def load_entry(entry: Path, backend: str, name: str, trusted: bool = False):
     if backend == "numpy":
         return load_module(text, name, code=code)
     from .cbuild import LIB_NAME
-    from .skeleton import check_wrapper
 
-    mod = load_module(text, name, check=check_wrapper, code=code)
+    check = None
+    if code is None:  # compiled code comes from a checked entry; text is checked first
+        from .skeleton import check_wrapper as check
+    mod = load_module(text, name, check=check, code=code)
     mod._bind(Path(entry) / LIB_NAME)
     return mod
+
+
+def load_module(source: str, name: str, check=None, code=None):
+    """Import generated source as a module, from memory: nothing is written to disk. The code
+    is compiled under a recognisable file name (``<bgc NAME>``) registered with ``linecache``,
+    so tracebacks and ``inspect`` still show the generated lines."""
+    if code is None:  # code: compiled from checked text (a trusted cache entry)
+        if check is None:
+            from .skeleton import check_skeleton as check
+        check(source)  # never execute a module whose top level is not the template's
+    modname = f"bgc_generated_{name}"
+    filename = f"<bgc {name}>"
+    loader = _SourceLoader(modname, filename, source, code)
+    import importlib.util
+    import linecache
+
+    spec = importlib.util.spec_from_loader(modname, loader, origin=filename)
+    mod = importlib.util.module_from_spec(spec)
+    mod.__file__ = filename
+    linecache.cache[filename] = (len(source), None, source.splitlines(True), filename)
+    sys.modules[modname] = mod
+    try:
+        loader.exec_module(mod)
+    except BaseException:
+        sys.modules.pop(modname, None)
+        raise
+    return mod
+
+
+class _SourceLoader:
+    """A loader for generated source held in memory (``get_source`` serves tracebacks,
+    ``get_data`` the module's own text). It has importlib.abc.Loader's methods without
+    subclassing it: importing importlib.abc costs a warm run 8 ms (importlib.resources)."""
+
+    def __init__(self, modname: str, filename: str, source: str, code=None):
+        self.modname, self.filename, self.source, self.code = modname, filename, source, code
+
+    def create_module(self, spec):
+        return None
+
+    def exec_module(self, module):
+        code = self.code if self.code is not None else compile(self.source, self.filename,
+                                                                 "exec")
+        exec(code, module.__dict__)
+
+    def get_source(self, fullname):
+        return self.source
+
+    def get_data(self, path):
+        return self.source.encode("utf-8")
 
 
 def load(name: str, backend: str, key: str | None, compile_fn, cache=None, progress=None):
@@ -172,8 +223,6 @@ def load(name: str, backend: str, key: str | None, compile_fn, cache=None, progr
             return None, load_entry(entry, backend, name, trusted=True)
     compiled = compile_fn()
     if backend == "numpy" and (cache is None or key is None):
-        from .scene import load_module
-
         return compiled, load_module(compiled.source, name)
     if cache is None or key is None:
         import tempfile

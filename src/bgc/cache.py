@@ -1,6 +1,7 @@
 """The compile cache: generated modules (and built C libraries) keyed by what shapes them.
 
-Key: a sha256 of the model file's bytes and every file it imports, the scene file's bytes
+Key: a sha256 of the model file's bytes, every file it imports and every table (CSV) the
+model or scene reads, the scene file's bytes
 (its plan: signals, effects, folded parameters, outputs), bgc's version, the installed sympy's
 version, bgc's own templates and sources, the target, and for C the compiler's identity
 (``cc --version``) and flags. Computing the key reads files only: no sympy, no parsing beyond
@@ -14,18 +15,17 @@ that build the same entry at once, one rename wins and the other's copy is dropp
 """
 from __future__ import annotations
 
-import hashlib
 import os
-import shutil
 import stat
 import sys
-import tempfile
 from pathlib import Path
 
 from . import __version__
 from .errors import ModelError
 
-TARGETS = ("numpy", "c", "c-runtime")
+#: Entry kinds: generated modules, built C libraries, the C runtime's objects and compiler
+#: facts, and run records (bgc.record: files, not folders).
+TARGETS = ("numpy", "c", "c-runtime", "run")
 
 
 class UnsafeCache(ModelError):
@@ -88,6 +88,9 @@ class Cache:
         d = self.get(target, key)
         if d is not None:
             return d
+        import shutil
+        import tempfile
+
         self._ensure()
         parent = self.entry(target, key).parent
         parent.mkdir(parents=True, mode=0o700, exist_ok=True)
@@ -115,9 +118,14 @@ class Cache:
         for t in TARGETS:
             n = 0
             for d in (self.path / t).glob("*/*"):
-                if d.is_dir() and not d.name.startswith("."):
+                if d.name.startswith("."):
+                    continue
+                if d.is_dir():
                     n += 1
                     out["bytes"] += sum(f.stat().st_size for f in d.rglob("*") if f.is_file())
+                elif t == "run" and d.is_file():  # a run record is one file
+                    n += 1
+                    out["bytes"] += d.stat().st_size
             out["entries"][t] = n
         return out
 
@@ -126,6 +134,8 @@ class Cache:
         if not self.path.exists():
             return 0
         self._ensure()
+        import shutil
+
         n = sum(self.info()["entries"].values())
         for t in TARGETS:
             if (self.path / t).is_dir():
@@ -136,14 +146,51 @@ class Cache:
 # ---------------------------------------------------------------------------------------------
 # Keys
 
-def model_files(path) -> list[tuple[str, bytes]] | None:
-    """The model file and every file it imports (recursively), as (resolved path, bytes);
-    None when they cannot all be read (the compile then reports the error, uncached)."""
+def _table_refs(doc) -> list[str]:
+    """Every ``table: FILE`` value in a loaded YAML document (inputs given as data), found
+    without recursion; a superset of what the parser reads is harmless in a key."""
+    out, todo = [], [doc]
+    while todo:
+        node = todo.pop()
+        if isinstance(node, dict):
+            if isinstance(node.get("table"), str):
+                out.append(node["table"])
+            todo.extend(node.values())
+        elif isinstance(node, list):
+            todo.extend(node)
+    return out
+
+
+def model_files(path, scene_path=None) -> list[tuple[str, bytes]] | None:
+    """The model file, every file it imports (recursively) and every table file (CSV) the
+    model, its imports and the scene name, as (resolved path, bytes): what a compile reads
+    (the scene itself apart). None when they cannot all be read (the compile then reports the
+    error, uncached)."""
     import yaml  # noqa: F401 (parse.py imports it anyway)
 
     loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
     out: list[tuple[str, bytes]] = []
     seen: set[str] = set()
+
+    def load(data: bytes, word: bytes, doc):
+        # a file that never says "imports" (or "table") has none: no need to parse it
+        if doc is None and word in data:
+            doc = yaml.load(data, Loader=loader)  # noqa: S506 (CSafeLoader or SafeLoader)
+        return doc
+
+    def tables(p: Path, data: bytes, doc) -> bool:
+        doc = load(data, b"table", doc)
+        for rel in _table_refs(doc):
+            tp = p.parent / rel
+            rt = str(tp.resolve())
+            if rt in seen:
+                continue
+            seen.add(rt)
+            try:
+                out.append((rt, tp.read_bytes()))
+            except OSError:
+                return False
+        return True
 
     def visit(p: Path) -> bool:
         rp = str(p.resolve())
@@ -152,11 +199,12 @@ def model_files(path) -> list[tuple[str, bytes]] | None:
         seen.add(rp)
         try:
             data = p.read_bytes()
-            # a file that never says "imports" imports nothing: no need to parse it
-            doc = yaml.load(data, Loader=loader) if b"imports" in data else None  # noqa: S506
+            doc = load(data, b"imports", None)
+            out.append((rp, data))
+            if not tables(p, data, doc):
+                return False
         except (OSError, yaml.YAMLError, UnicodeDecodeError, ValueError, RecursionError):
             return False
-        out.append((rp, data))
         imports = doc.get("imports") if isinstance(doc, dict) else None
         if imports is None:
             return True
@@ -169,7 +217,16 @@ def model_files(path) -> list[tuple[str, bytes]] | None:
                 return False
         return True
 
-    return out if visit(Path(path)) else None
+    if not visit(Path(path)):
+        return None
+    if scene_path is not None:
+        sp = Path(scene_path)
+        try:
+            if not tables(sp, sp.read_bytes(), None):
+                return None
+        except (OSError, yaml.YAMLError, UnicodeDecodeError, ValueError, RecursionError):
+            return None
+    return out
 
 
 def _tool_versions() -> str:
@@ -191,6 +248,8 @@ def _tool_versions() -> str:
 
 def _code_digest() -> str:
     """bgc's own sources and templates (a change in either may change the output)."""
+    import hashlib
+
     from .paths import templates_dir
 
     h = hashlib.sha256()
@@ -205,21 +264,31 @@ def _code_digest() -> str:
 
 def key(target: str, model_path, scene_path=None, extra: str = "") -> str | None:
     """The cache key of a compile, or None when the inputs cannot be read."""
-    files = model_files(model_path)
+    return key_inputs(target, model_path, scene_path, extra)[0]
+
+
+def key_inputs(target: str, model_path, scene_path=None, extra: str = ""):
+    """(key or None, the (path, bytes) it digested, the scene's bytes or None): a run record
+    (bgc.record) keeps the digests of exactly the bytes the key was made of."""
+    import hashlib
+
+    files = model_files(model_path, scene_path)
     if files is None:
-        return None
+        return None, [], None
     h = hashlib.sha256()
     h.update(f"bgc {__version__}\0{_tool_versions()}\0{target}\0{extra}\0".encode())
     h.update(_code_digest().encode())
-    for name, data in files:
+    for name, data in files:  # models, imports and tables (by file name: keys do not move)
         h.update(b"model\0" + Path(name).name.encode() + b"\0" + data + b"\0")
+    scene = None
     if scene_path is not None:
         try:
-            h.update(b"scene\0" + Path(scene_path).read_bytes())
+            scene = Path(scene_path).read_bytes()
         except OSError:
-            return None
+            return None, [], None
+        h.update(b"scene\0" + scene)
     if target == "c":
         from . import cbuild
 
         h.update(("\0" + cbuild.identity() + "\0" + " ".join(cbuild.flags())).encode())
-    return h.hexdigest()
+    return h.hexdigest(), files, scene

@@ -9,11 +9,9 @@ compiler's identity and the flags.
 from __future__ import annotations
 
 import functools
-import hashlib
 import os
 import shlex
 import shutil
-import subprocess
 from pathlib import Path
 
 from .errors import ModelError
@@ -36,6 +34,8 @@ def compiler() -> list[str]:
 
 
 def _run_version(cc: tuple[str, ...]) -> str:
+    import subprocess
+
     try:
         out = subprocess.run(list(cc) + ["--version"], capture_output=True, text=True,
                              timeout=30)
@@ -66,6 +66,8 @@ def _stamp(cc: tuple[str, ...]) -> str | None:
 
 @functools.lru_cache(maxsize=None)
 def _identity(cc: tuple[str, ...]) -> str:
+    import hashlib
+
     stamp = _stamp(cc)
     if stamp is not None:
         try:
@@ -101,6 +103,8 @@ def available() -> bool:
 def _openmp(cc: tuple[str, ...]) -> bool:
     """Does the compiler build OpenMP code? Probed once per compiler; the answer is kept in
     the compile cache (when there is a safe one), so a warm run starts no compiler."""
+    import hashlib
+
     ident = hashlib.sha256(_identity(cc).encode() + b"\0" + " ".join(cc).encode()).hexdigest()
     try:
         from .cache import Cache
@@ -115,6 +119,7 @@ def _openmp(cc: tuple[str, ...]) -> bool:
 
 
 def _probe_openmp(cc: tuple[str, ...]) -> bool:
+    import subprocess
     import tempfile
 
     with tempfile.TemporaryDirectory(prefix="bgc-omp-") as d:
@@ -147,6 +152,8 @@ def runtime_headers() -> list[Path]:
 
 
 def runtime_key() -> str:
+    import hashlib
+
     h = hashlib.sha256()
     for f in runtime_sources() + runtime_headers():
         h.update(f.name.encode() + b"\0" + f.read_bytes() + b"\0")
@@ -155,6 +162,8 @@ def runtime_key() -> str:
 
 
 def _cc(args: list[str], cwd: Path) -> None:
+    import subprocess
+
     r = subprocess.run(compiler() + args, cwd=cwd, capture_output=True, text=True)
     if r.returncode != 0:
         raise RuntimeError(f"the C compiler failed ({' '.join(compiler() + args)}):\n"

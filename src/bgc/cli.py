@@ -391,6 +391,10 @@ def simulate_cmd(scene, out, plot_dir, method, rtol, atol, max_wall, backend, no
     if plot_dir is not None:
         for p in write_plots(res.scene, res.t, res.y, plot_dir, ins, figures):
             prog(f"wrote {p}")
+    if not no_cache:  # a later run of the same scene and options replays it (bgc.record)
+        from .record import keep, options_text
+
+        keep(scene, options_text(method, rtol, atol, max_wall, backend, strict_causality), res)
     st = res.stats
     click.echo(f"{res.scene.name}: t = {res.t[0]:g}..{res.t[-1]:g} s, {len(res.t)} points, "
                f"{res.method} rtol={res.rtol:g} atol={res.atol:g} ({res.backend} backend): "

@@ -22,10 +22,7 @@ from __future__ import annotations
 
 import os
 import stat
-import tempfile
 from pathlib import Path
-
-import yaml
 
 from .errors import ModelError
 
@@ -82,7 +79,6 @@ class Inputs:
         return self.ids.get((st.st_dev, st.st_ino))
 
 
-_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
 def model_inputs(model_path) -> list[Path]:
@@ -107,7 +103,11 @@ def model_inputs(model_path) -> list[Path]:
         try:  # read as the parser reads (regular files within the size limit only)
             text = read_text_bounded(p, None, "model file", LIMITS.model_bytes)
             # a file that never says "imports" imports nothing: no need to load it
-            doc = yaml.load(text, Loader=_LOADER) if "imports" in text else None
+            doc = None
+            if "imports" in text:
+                import yaml
+
+                doc = yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
         except Exception:  # noqa: BLE001 - best effort: parse_file has already checked it
             continue
         imports = doc.get("imports") if isinstance(doc, dict) else None
@@ -229,6 +229,8 @@ def write_output(path, data, inputs: Inputs | None = None, what: str = "output")
     parent = p.parent
     if str(parent) not in ("", "."):
         prepare_folder(parent, what + " folder")
+    import tempfile
+
     tmp = None
     try:
         try:

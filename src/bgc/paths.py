@@ -1,7 +1,6 @@
 """Where bgc's templates live (a leaf module: importing it imports nothing heavy)."""
 from __future__ import annotations
 
-from importlib import resources
 from pathlib import Path
 
 
@@ -11,4 +10,6 @@ def templates_dir() -> Path:
     repo_templates = here.parent.parent / "templates"
     if (repo_templates / "numpy" / "module.py.j2").is_file():
         return repo_templates
+    from importlib import resources  # (costs a warm run 8 ms: only when installed)
+
     return Path(str(resources.files("bgc.templates")))

@@ -26,6 +26,12 @@ class SceneResult:
     run_time: float
     backend: str = "numpy"
     atol: float = 1e-9
+    #: (backend, key, [(path, bytes) the key digested], scene bytes) of the module's
+    #: compile-cache entry; None when it did not go through the cache
+    cache_entry: tuple | None = None
+    module_name: str = ""
+    #: the module's simulate arguments as the scene resolved them (a run record replays them)
+    run_args: dict | None = None
 
 
 def compile_scene(scene: Scene, progress=None, specialise: bool = True,
@@ -69,6 +75,13 @@ def scene_module(scene: Scene, progress=None, backend: str = "numpy", use_cache:
     """The scene's specialised module for a backend, through the compile cache: a warm run
     imports neither sympy nor the compiler. Without a C compiler, backend "c" says so and
     falls back to numpy. Returns (backend used, module)."""
+    backend, mod, _ = _scene_module(scene, progress, backend, use_cache, strict_causality)
+    return backend, mod
+
+
+def _scene_module(scene: Scene, progress=None, backend: str = "numpy", use_cache: bool = True,
+                  strict_causality: bool = False):
+    """scene_module's (backend, module, cache entry as in SceneResult.cache_entry, or None)."""
     from . import backends, cache as cache_mod
 
     say = progress or (lambda msg: None)
@@ -84,14 +97,14 @@ def scene_module(scene: Scene, progress=None, backend: str = "numpy", use_cache:
                 "backend")
             backend = "numpy"
     store = cache_mod.Cache() if use_cache else None
-    key = (cache_mod.key(backend, scene.model_path, scene.file,
-                         extra="strict" if strict_causality else "")
-           if store is not None else None)
+    key, files, scene_bytes = (cache_mod.key_inputs(backend, scene.model_path, scene.file,
+                                                    extra="strict" if strict_causality else "")
+                               if store is not None else (None, [], None))
 
     def compile_fn():
         c, _ = _compiled(scene, progress, strict_causality)
         return c
-    name = f"{Path(scene.model_path).stem}_{scene.name}"
+    name = scene_module_name(scene)
     with np.errstate(all="ignore"):  # X0 is computed on import: no numpy warnings
         try:
             _, mod = backends.load(name, backend, key, compile_fn, store, progress)
@@ -99,12 +112,16 @@ def scene_module(scene: Scene, progress=None, backend: str = "numpy", use_cache:
             if backend != "c" or type(exc).__name__ != "CUnsupported":
                 raise
             say(f"{exc.message}: using the numpy backend")
-            return scene_module(scene, progress, "numpy", use_cache, strict_causality)
+            return _scene_module(scene, progress, "numpy", use_cache, strict_causality)
     check_against(scene, mod)
     from .plots import check_plots
 
     check_plots(scene, mod.OUTPUT_SHAPES)  # a plot that cannot be drawn: before any run
-    return backend, mod
+    return backend, mod, None if key is None else (backend, key, files, scene_bytes)
+
+
+def scene_module_name(scene: Scene) -> str:
+    return f"{Path(scene.model_path).stem}_{scene.name}"
 
 
 def _compiled(scene: Scene, progress=None, strict_causality: bool = False):
@@ -122,8 +139,8 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
     say = progress or (lambda msg: None)
     scene = path if isinstance(path, Scene) else parse_scene(path)
     t0 = time.perf_counter()
-    backend, mod = scene_module(scene, progress, backend or scene.backend, use_cache,
-                                strict_causality)
+    backend, mod, entry = _scene_module(scene, progress, backend or scene.backend, use_cache,
+                                        strict_causality)
     t1 = time.perf_counter()
     method = method or scene.method
     rtol = rtol or scene.rtol
@@ -144,7 +161,11 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
     t2 = time.perf_counter()
     t, x, y = res
     return SceneResult(scene, mod, t, x, y, res.stats, method, rtol, t1 - t0, t2 - t1,
-                       backend, atol)
+                       backend, atol, entry,
+                       scene_module_name(scene),
+                       dict(t_span=scene.t_span, dt=dt, method=method, rtol=rtol, atol=atol,
+                            p=p, breakpoints=scene.breakpoints, x0=x0,
+                            max_step=scene.max_step, max_wall=max_wall))
 
 
 # ---------------------------------------------------------------------------------------------

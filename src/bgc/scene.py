@@ -7,9 +7,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import importlib.abc
-import importlib.util
-import linecache
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,6 +14,7 @@ from pathlib import Path
 import yaml
 
 from . import tables as _tables
+from .backends import load_module  # noqa: F401 (bgc.scene.load_module: its old home)
 from .errors import Coord, ModelError
 from .expr import Expr
 from .limits import LIMITS
@@ -377,50 +375,6 @@ def free_values(scene: Scene) -> dict:
     return {k: v for k, v in param_values(scene).items() if k in scene.free}
 
 
-def load_module(source: str, name: str, check=None, code=None):
-    """Import generated source as a module, from memory: nothing is written to disk. The code
-    is compiled under a recognisable file name (``<bgc NAME>``) registered with ``linecache``,
-    so tracebacks and ``inspect`` still show the generated lines."""
-    if code is None:  # code: compiled from checked text (a trusted cache entry)
-        if check is None:
-            from .skeleton import check_skeleton as check
-        check(source)  # never execute a module whose top level is not the template's
-    modname = f"bgc_generated_{name}"
-    filename = f"<bgc {name}>"
-    loader = _SourceLoader(modname, filename, source, code)
-    spec = importlib.util.spec_from_loader(modname, loader, origin=filename)
-    mod = importlib.util.module_from_spec(spec)
-    mod.__file__ = filename
-    linecache.cache[filename] = (len(source), None, source.splitlines(True), filename)
-    sys.modules[modname] = mod
-    try:
-        loader.exec_module(mod)
-    except BaseException:
-        sys.modules.pop(modname, None)
-        raise
-    return mod
-
-
-class _SourceLoader(importlib.abc.Loader):
-    """A loader for generated source held in memory (``get_source`` serves tracebacks,
-    ``get_data`` the module's own text)."""
-
-    def __init__(self, modname: str, filename: str, source: str, code=None):
-        self.modname, self.filename, self.source, self.code = modname, filename, source, code
-
-    def create_module(self, spec):
-        return None
-
-    def exec_module(self, module):
-        code = self.code if self.code is not None else compile(self.source, self.filename,
-                                                                 "exec")
-        exec(code, module.__dict__)
-
-    def get_source(self, fullname):
-        return self.source
-
-    def get_data(self, path):
-        return self.source.encode("utf-8")
 
 
 def scene_model(scene: Scene) -> Model:
