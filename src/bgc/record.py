@@ -215,7 +215,11 @@ def keep(scene_path, options: str, result) -> bool:
            "scene_digest": digest(scene_bytes), "inputs": [p for p, _ in files],
            "backend": backend, "key": mkey, "name": result.module_name, "compiler": comp,
            "scene_name": result.scene.name, "run": result.run_args}
-    return save(Cache(), record_key(scene_path, scene_bytes, options), rec)
+    try:  # a record is an optimisation: a file of bgc's that vanished meanwhile skips it
+        key = record_key(scene_path, scene_bytes, options)
+    except OSError:
+        return False
+    return save(Cache(), key, rec)
 
 
 # ---------------------------------------------------------------------------------------------
