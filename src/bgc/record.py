@@ -252,7 +252,7 @@ def _parse(argv: list[str]) -> dict | None:
         else:
             opts["scene"] = a
         i += 1
-    if not opts["scene"] or not opts.get("out") and "out" in opts:
+    if not opts["scene"] or ("out" in opts and not opts["out"]):  # "--out=": the full way
         return None
     try:
         for k in ("rtol", "atol", "max_wall"):
