@@ -79,9 +79,10 @@ int bgc_initial_step(bgc_ctx *c, double t, double t_end, const double *y, const 
 /* after an accepted step to t_new: write output rows for times in (t_old, t_new] */
 void bgc_outputs(bgc_ctx *c, double t_new, const double *y_new, bgc_interp_fn f, void *data);
 int bgc_out_of_time(bgc_ctx *c, double t);  /* wall-time check; fills st when exceeded */
-/* before a step attempt of size h_abs at t: the step can still shrink, max_steps and the wall
- * time are kept (else the status, st filled); counts the attempt */
-int bgc_attempt(bgc_ctx *c, double t, double h_abs);
+/* before a step attempt of size *h_abs at t: the step can still shrink, max_steps and the
+ * wall time are kept (else the status, st filled); counts the attempt, and sets *t_new to the
+ * step's end (b at the latest) and *h_abs to the size it really spans */
+int bgc_attempt(bgc_ctx *c, double t, double b, double *h_abs, double *t_new);
 int bgc_fail(bgc_ctx *c, int status, double t, const char *fmt, ...);
 double bgc_min_step(double t);
 

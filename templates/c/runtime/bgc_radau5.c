@@ -116,11 +116,8 @@ int bgc_radau5_segment(bgc_ctx *c, double a, double b, double *y)
         double h, t_new, err_norm = 0.0, theta = 0.0;
         int niter = 0;
         for (;;) {
-            if ((status = bgc_attempt(c, t, h_abs))) goto done;
-            t_new = t + h_abs;
-            if (t_new > b) t_new = b;
-            h = t_new - t;
-            h_abs = h;
+            if ((status = bgc_attempt(c, t, b, &h_abs, &t_new))) goto done;
+            h = h_abs;
             if (!have_lu || h != h_lu) {
                 st->nlu += 2;
                 int s1 = bgc_linsys_factor(&ls, GAM / h, jv);

@@ -85,11 +85,8 @@ int bgc_rodas4_segment(bgc_ctx *c, double a, double b, double *y)
         int rejected = 0;
         double err_norm, t_new, h;
         for (;;) {
-            if ((status = bgc_attempt(c, t, h_abs))) goto done;
-            t_new = t + h_abs;
-            if (t_new > b) t_new = b;
-            h = t_new - t;
-            h_abs = h;
+            if ((status = bgc_attempt(c, t, b, &h_abs, &t_new))) goto done;
+            h = h_abs;
             st->nlu++;
             err_norm = INFINITY;
             if (bgc_linsys_factor(&ls, 1.0 / (h * GAMMA), jv) == 0) {

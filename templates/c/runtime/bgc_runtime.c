@@ -171,15 +171,19 @@ int bgc_out_of_time(bgc_ctx *c, double t)
     return 0;
 }
 
-int bgc_attempt(bgc_ctx *c, double t, double h_abs)
+int bgc_attempt(bgc_ctx *c, double t, double b, double *h_abs, double *t_new)
 {
-    if (h_abs < bgc_min_step(t)) return bgc_step_too_small(c, t);
+    if (*h_abs < bgc_min_step(t)) return bgc_step_too_small(c, t);
     if (c->opt->max_steps > 0 && c->st->nsteps >= c->opt->max_steps)
         return bgc_fail(c, BGC_ERR_MAX_STEPS, t, "%s stopped at t = %.17g: max_steps = %ld "
                         "step attempts", method_name(c->opt->method), t, c->opt->max_steps);
     int status = bgc_out_of_time(c, t);
-    if (!status) c->st->nsteps++;
-    return status;
+    if (status) return status;
+    c->st->nsteps++;
+    *t_new = t + *h_abs;  /* the step ends at b at the latest, and is what it really spans */
+    if (*t_new > b) *t_new = b;
+    *h_abs = *t_new - t;
+    return 0;
 }
 
 static int cmp_double(const void *a, const void *b)
