@@ -6,7 +6,6 @@ import io
 import math
 import os
 import sys
-import time
 import traceback
 from pathlib import Path
 
@@ -15,17 +14,8 @@ import numpy as np
 
 from . import __version__
 from .errors import ModelError, SimulationFailed
+from .launch import Progress as _Progress  # the replay (bgc.record) prints the same lines
 from .scene import METHODS as SOLVER_METHODS
-
-
-class _Progress:
-    def __init__(self, quiet: bool):
-        self.quiet = quiet
-        self.t0 = time.perf_counter()
-
-    def __call__(self, msg: str) -> None:
-        if not self.quiet:
-            click.echo(f"[{time.perf_counter() - self.t0:6.2f} s] {msg}", err=True)
 
 
 #: Exit statuses (README, "Errors"): 0 ok; 1 the simulation failed (numerically, or was
@@ -395,12 +385,10 @@ def simulate_cmd(scene, out, plot_dir, method, rtol, atol, max_wall, backend, no
         from .record import keep, options_text
 
         keep(scene, options_text(method, rtol, atol, max_wall, backend, strict_causality), res)
-    st = res.stats
-    click.echo(f"{res.scene.name}: t = {res.t[0]:g}..{res.t[-1]:g} s, {len(res.t)} points, "
-               f"{res.method} rtol={res.rtol:g} atol={res.atol:g} ({res.backend} backend): "
-               f"{st['nfev']} rhs calls, {st['njev']} Jacobians, "
-               f"{st.get('nlu', 0)} LU; compile {res.compile_time:.2f} s, "
-               f"integrate {res.run_time:.2f} s")
+    from .record import summary_line
+
+    click.echo(summary_line(res.scene.name, res.t, res.method, res.rtol, res.atol, res.backend,
+                            res.stats, res.compile_time, res.run_time))
 
 
 @main.command("explain")

@@ -3,6 +3,19 @@ before click, PyYAML or bgc's parser is imported; everything else is bgc.cli."""
 from __future__ import annotations
 
 import sys
+import time
+
+
+class Progress:
+    """Progress lines on stderr, ``[  1.23 s] message``, unless quiet (every command's)."""
+
+    def __init__(self, quiet: bool, t0: float | None = None):
+        self.quiet = quiet
+        self.t0 = time.perf_counter() if t0 is None else t0
+
+    def __call__(self, msg: str) -> None:
+        if not self.quiet:
+            print(f"[{time.perf_counter() - self.t0:6.2f} s] {msg}", file=sys.stderr, flush=True)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -28,6 +28,7 @@ import os
 import stat
 import sys
 import time
+from pathlib import Path
 
 from . import __version__
 
@@ -142,8 +143,6 @@ def save(store, key: str, record: dict) -> bool:
         top = store._ensure()
         parent = os.path.join(str(top), TARGET, key[:2])
         os.makedirs(parent, mode=0o700, exist_ok=True)
-        from pathlib import Path
-
         for sub in (Path(top) / TARGET, Path(parent)):
             _check(sub)
         tmp = os.path.join(parent, f".{key[:16]}.{os.getpid()}.{os.urandom(6).hex()}.tmp")
@@ -167,7 +166,6 @@ def save(store, key: str, record: dict) -> bool:
 def load(store, key: str) -> dict | None:
     """The record under key, or None (none, unreadable, not the user's, writable by others)."""
     from .cache import UnsafeCache, _check
-    from pathlib import Path
 
     p = _path(store, key)
     try:
@@ -220,6 +218,21 @@ def keep(scene_path, options: str, result) -> bool:
     except OSError:
         return False
     return save(Cache(), key, rec)
+
+
+# ---------------------------------------------------------------------------------------------
+# What `bgc simulate` prints, the full way and a replay alike
+
+def simulating_line(name: str, method: str, backend: str, rtol: float, atol: float) -> str:
+    return f"simulating {name} with {method} ({backend}), rtol {rtol:g}, atol {atol:g}"
+
+
+def summary_line(name: str, t, method: str, rtol: float, atol: float, backend: str,
+                 stats: dict, compile_time: float, run_time: float) -> str:
+    return (f"{name}: t = {t[0]:g}..{t[-1]:g} s, {len(t)} points, {method} rtol={rtol:g} "
+            f"atol={atol:g} ({backend} backend): {stats['nfev']} rhs calls, "
+            f"{stats['njev']} Jacobians, {stats.get('nlu', 0)} LU; compile {compile_time:.2f} s, "
+            f"integrate {run_time:.2f} s")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -303,8 +316,7 @@ def replay(argv: list[str]) -> int | None:
             # The run calls no BLAS (scipy is not imported): numpy's OpenBLAS need not start
             # its threads, which spin for a while after numpy's import and take a core from
             # a busy machine. A value the user set is kept.
-            for var in ("OPENBLAS_NUM_THREADS",):
-                os.environ.setdefault(var, "1")
+            os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
         import numpy  # noqa: F401 (not counted as the module's load time)
 
         return _run(rec, opts, store, entry, scene, t0 + time.perf_counter() - t_np)
@@ -318,20 +330,15 @@ def replay(argv: list[str]) -> int | None:
         raise
 
 
-def _say(quiet: bool, t0: float):
-    def say(msg: str) -> None:
-        if not quiet:
-            print(f"[{time.perf_counter() - t0:6.2f} s] {msg}", file=sys.stderr, flush=True)
-    return say
-
-
 def _run(rec: dict, opts: dict, store, entry, scene: str, t0: float) -> int | None:
     import numpy as np
 
     from .backends import load_entry
     from .outfiles import Inputs, check_output, write_output
 
-    say = _say(bool(opts.get("quiet")), t0)
+    from .launch import Progress
+
+    say = Progress(bool(opts.get("quiet")), t0)
     out = opts.get("out")
     ins = Inputs([scene, *rec["inputs"]])
     if out:
@@ -342,8 +349,7 @@ def _run(rec: dict, opts: dict, store, entry, scene: str, t0: float) -> int | No
         mod = load_entry(entry, backend, rec["name"], trusted=True)
     t1 = time.perf_counter()
     method, rtol, atol = run["method"], run["rtol"], run["atol"]
-    say(f"simulating {rec['scene_name']} with {method} ({backend}), rtol {rtol:g}, "
-        f"atol {atol:g}")
+    say(simulating_line(rec["scene_name"], method, backend, rtol, atol))
     x0 = run["x0"]
     p = run["p"]
     try:
@@ -362,12 +368,8 @@ def _run(rec: dict, opts: dict, store, entry, scene: str, t0: float) -> int | No
         np.savez_compressed(buf, t=t, **y)
         write_output(out, buf.getvalue(), ins, "--out")
         say(f"wrote {out}")
-    st = res.stats
-    print(f"{rec['scene_name']}: t = {t[0]:g}..{t[-1]:g} s, {len(t)} points, "
-          f"{method} rtol={rtol:g} atol={atol:g} ({backend} backend): "
-          f"{st['nfev']} rhs calls, {st['njev']} Jacobians, "
-          f"{st.get('nlu', 0)} LU; compile {t1 - t0:.2f} s, integrate {t2 - t1:.2f} s",
-          flush=True)
+    print(summary_line(rec["scene_name"], t, method, rtol, atol, backend, res.stats, t1 - t0,
+                       t2 - t1), flush=True)
     return 0
 
 

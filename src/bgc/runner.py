@@ -145,7 +145,9 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
     method = method or scene.method
     rtol = rtol or scene.rtol
     atol = scene.atol if atol is None else atol
-    say(f"simulating {scene.name} with {method} ({backend}), rtol {rtol:g}, atol {atol:g}")
+    from .record import simulating_line
+
+    say(simulating_line(scene.name, method, backend, rtol, atol))
     dt = scene.dt or (scene.t_span[1] - scene.t_span[0]) / 1000
     p = runtime_params(scene, mod)
     x0 = initial_state(scene, mod, p)  # the scene's initial: values, or equilibrium
