@@ -36,7 +36,7 @@ def per_call(fn, n_min=20, t_min=0.5):
 
 def compile_stages(path):
     """Compile with a progress hook that timestamps every stage."""
-    from bgc.compiler import compile_file
+    from bgc.run.driver import compile_file
 
     marks = []
     t0 = time.perf_counter()
@@ -77,8 +77,9 @@ def where_time_goes(prof):
 
 
 def main():
-    from bgc.runner import compile_scene
-    from bgc.scene import load_module, parse_scene
+    from bgc.backends.load import load_module
+    from bgc.format.scene import parse_scene
+    from bgc.run.runner import compile_scene
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--scenes", nargs="*", default=["circle", "figure8", "gearshift"])

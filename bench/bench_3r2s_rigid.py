@@ -35,9 +35,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "src"))
 
-from bgc.compiler import compile_model  # noqa: E402
-from bgc.parse import parse_file, parse_text  # noqa: E402
-from bgc.scene import apply_scene, load_module, parse_scene  # noqa: E402
+from bgc.backends.load import load_module  # noqa: E402
+from bgc.format.parse import parse_file, parse_text  # noqa: E402
+from bgc.format.scene import apply_scene, parse_scene
+from bgc.run.driver import compile_model  # noqa: E402
 
 
 def rigid_translational(text: str) -> str:
@@ -78,7 +79,7 @@ def main():
         mods[(label, "numpy")] = (load_module(c.source, c.model.name + "_bench"), c,
                                   time.perf_counter() - t0)
         if args.c:
-            from bgc import backends
+            from bgc.backends import load as backends
 
             t1 = time.perf_counter()
             _, cm = backends.load(c.model.name + "_bench_c", "c", None, lambda c=c: c, None)

@@ -51,7 +51,7 @@ def best(fn, rounds=3):
 
 def _has_sparse_lu() -> bool:
     try:
-        import bgc.sparse_lu  # noqa: F401
+        import bgc.lower.sparse_lu  # noqa: F401
         return True
     except ImportError:
         return False
@@ -65,10 +65,10 @@ def cpu_children():
 _SYMBOLIC = r"""
 import json, sys, time
 t0 = time.process_time()
-import bgc.compiler, bgc.runner, bgc.scene  # sympy, networkx, symengine, jinja2 with them
+import bgc.run.driver, bgc.run.runner, bgc.format.scene  # sympy, networkx, symengine, jinja2 with them
 t1 = time.process_time()
-sc = bgc.scene.parse_scene(sys.argv[1])
-bgc.runner._compiled(sc)
+sc = bgc.format.scene.parse_scene(sys.argv[1])
+bgc.run.runner._compiled(sc)
 print(json.dumps([t1 - t0, time.process_time() - t1]))
 """
 
@@ -95,18 +95,20 @@ def main():
     os.environ["BGC_CACHE_DIR"] = cache_dir
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     sys.path.insert(0, str(ROOT / "src"))
-    from bgc import backends, cbuild
-    from bgc.cache import Cache
-    from bgc.runner import _compiled, runtime_params
-    from bgc.scene import load_module, parse_scene
+    from bgc.backends import load as backends
+    from bgc.backends.c import build as cbuild
+    from bgc.backends.load import load_module
+    from bgc.format.scene import parse_scene
+    from bgc.run.cache import Cache
+    from bgc.run.runner import _compiled, runtime_params
 
     L = ["# C backend against the numpy module", "",
          f"`python bench/bench_c_backend.py` on {os.cpu_count()} CPUs (shared machine: compare "
          "ratios), compiler `" + cbuild.identity().splitlines()[1] + "`, flags "
          f"`{' '.join(cbuild.flags())}`. C runtime: templates/c/runtime/ "
          f"({len(cbuild.runtime_sources())} files); LU: "
-         + ("the sparse plan of bgc.sparse_lu where it beats the dense LU"
-            if _has_sparse_lu() else "dense (bgc.sparse_lu absent)") + ".", ""]
+         + ("the sparse plan of bgc.lower.sparse_lu where it beats the dense LU"
+            if _has_sparse_lu() else "dense (bgc.lower.sparse_lu absent)") + ".", ""]
 
     def say(line=""):
         print(line, flush=True)
@@ -249,7 +251,7 @@ def main():
         summary = proc.stdout.strip().splitlines()[-1]
         # the same run the full way (straight into click: the scene parsed, the cache key
         # computed, the module loaded from the cache), without the run record's replay
-        full_cmd = [sys.executable, "-c", "import sys; from bgc.cli import main; "
+        full_cmd = [sys.executable, "-c", "import sys; from bgc.cli.commands import main; "
                     "main(sys.argv[1:])", *cmd[3:]]
         full, _ = best(lambda: subprocess.run(full_cmd, check=True, env=env,
                                               capture_output=True), 7)
@@ -257,7 +259,7 @@ def main():
         say()
         say(f"`bgc simulate models/scenes/3r2s_circle.yaml --backend c --out r.npz` with the "
             f"module in the cache (best of 7, interpreter start-up included, byte code kept): "
-            f"{warm:.3f} s, replaying its run record (bgc.record: no click, PyYAML or parser); "
+            f"{warm:.3f} s, replaying its run record (bgc.run.record: no click, PyYAML or parser); "
             f"the full way with the module from the cache: {full:.3f} s.")
         say(f"Its summary line: `{summary}`")
         say()

@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 import c_runtime_harness as H  # noqa: E402
 
-from bgc.sparse_lu import flops, make_plan  # noqa: E402
+from bgc.lower.sparse_lu import flops, make_plan  # noqa: E402
 
 
 def build(tmp: Path) -> H.Lib:

@@ -30,8 +30,8 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from bgc.compiler import compile_model  # noqa: E402
-from bgc.parse import parse_file  # noqa: E402
+from bgc.format.parse import parse_file  # noqa: E402
+from bgc.run.driver import compile_model  # noqa: E402
 
 
 def mass_chain(n: int) -> dict:
@@ -85,8 +85,8 @@ def cpu_compile(path: Path, repeats: int) -> tuple[float, int]:
 _FRESH = r"""
 import json, sys, time
 t0 = time.process_time()
-from bgc.compiler import compile_model
-from bgc.parse import parse_file
+from bgc.run.driver import compile_model
+from bgc.format.parse import parse_file
 t1 = time.process_time()
 c = compile_model(parse_file(sys.argv[1]))
 print(json.dumps([t1 - t0, time.process_time() - t1, len(c.equations.states)]))

@@ -1,5 +1,5 @@
 """What the linearisation's B, C, D cost at compile time: each model compiled with and
-without them (the latter by stubbing bgc.emit.linear_parts with empty parts), interleaved,
+without them (the latter by stubbing bgc.backends.numpy.printer.linear_parts with empty parts), interleaved,
 median of a few rounds; one run, one machine, ratios side by side.
 
     python bench/bench_linear_parts.py [ROUNDS]
@@ -14,9 +14,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-import bgc.emit as emit  # noqa: E402
-from bgc.compiler import compile_file  # noqa: E402
-from bgc.equations import LinearParts, linear_parts  # noqa: E402
+import bgc.backends.numpy.printer as emit  # noqa: E402
+from bgc.core.equations import LinearParts, linear_parts  # noqa: E402
+from bgc.run.driver import compile_file  # noqa: E402
 
 
 def main() -> None:

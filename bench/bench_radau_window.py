@@ -30,11 +30,11 @@ SCENES = ("3r2s_circle", "3r2s_figure8", "3r2s_gearshift", "quarter_car_bump", "
 
 
 def _module(scene: Path):
-    """(module, the run's simulate arguments) from the scene's run record (bgc.record),
+    """(module, the run's simulate arguments) from the scene's run record (bgc.run.record),
     written by a `bgc simulate` just before."""
-    from bgc import record
-    from bgc.backends import load_entry
-    from bgc.cache import Cache
+    from bgc.backends.load import load_entry
+    from bgc.run import record
+    from bgc.run.cache import Cache
 
     opts = record.options_text("Radau", None, None, None, "c", False)
     rec = record.load(Cache(), record.record_key(str(scene), scene.read_bytes(), opts))

@@ -32,10 +32,11 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "src"))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from bgc.compiler import compile_model  # noqa: E402
-from bgc.parse import parse_text  # noqa: E402
-from bgc.scene import load_module  # noqa: E402
 from planar_chain import NAMES, chain_yaml  # noqa: E402
+
+from bgc.backends.load import load_module  # noqa: E402
+from bgc.format.parse import parse_text  # noqa: E402
+from bgc.run.driver import compile_model  # noqa: E402
 
 
 def build(text, name):
@@ -67,10 +68,10 @@ def best_of(f, reps=3):
 
 def backends_table(reps=3):
     """numpy vs C backend on the double pendulum swing scene, side by side in this run."""
-    from bgc import backends
-    from bgc.compiler import compile_file
-    from bgc.runner import runtime_params, scene_module
-    from bgc.scene import initial_state, parse_scene
+    from bgc.backends import load as backends
+    from bgc.format.scene import initial_state, parse_scene
+    from bgc.run.driver import compile_file
+    from bgc.run.runner import runtime_params, scene_module
 
     scene = parse_scene(ROOT / "models" / "scenes" / "double_pendulum_swing.yaml")
     mods = {b: scene_module(scene, None, b, use_cache=False)[1] for b in ("numpy", "c")}

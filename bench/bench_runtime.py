@@ -23,8 +23,8 @@ ROOT = Path(__file__).resolve().parents[1]
 def legacy_simulate(mod, t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None,
                     u=None, dt=None, breakpoints=(), jac=True, max_step=np.inf):
     """The generated simulate() before the step loop (bgc 2e125ca): solve_ivp per segment."""
-    from scipy.integrate import solve_ivp
     import scipy.sparse as sps
+    from scipy.integrate import solve_ivp
 
     n = mod.N_STATES
     _pv, bshape = mod._params(p)
@@ -126,8 +126,8 @@ def report(title, res):
 
 
 def main():
-    from bgc.runner import compile_scene
-    from bgc.scene import free_values, parse_scene
+    from bgc.format.scene import free_values, parse_scene
+    from bgc.run.runner import compile_scene
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--scene", default=str(ROOT / "models" / "scenes" / "3r2s_circle.yaml"))

@@ -47,7 +47,7 @@ def _warm_up():
 
 
 def main(argv=None):
-    from bgc.runner import explain_scene
+    from bgc.run.runner import explain_scene
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--scenes", nargs="*", help="scene file stems (default: all)")

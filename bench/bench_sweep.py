@@ -12,7 +12,7 @@ Measured, in this order, in one process:
   `--serial` instances spread over the sweep, one after another: instances per second;
 * batch: one vectorised `simulate` call over `--chunk` instances in this process (what one
   Dask task does), so the gain of batching shows apart from the gain of workers;
-* sweep: the whole sweep through `bgc.sweep.run_sweep` on a new local Dask cluster of
+* sweep: the whole sweep through `bgc.studies.sweep.run_sweep` on a new local Dask cluster of
   `--workers` processes (one thread each), chunks of `--chunk`, into a Zarr store: instances
   per second with the cluster already started (its start-up is reported apart), the workers
   compiling their module from its source text within the measured time.
@@ -49,7 +49,7 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from bgc import sweep  # noqa: E402
+from bgc.studies import sweep  # noqa: E402
 
 SCENE = ROOT / "models" / "scenes" / "3r2s_circle_sweep.yaml"
 
@@ -240,14 +240,14 @@ def _warm():
     """Run on each worker: the imports a task needs (bgc's sweep, numpy, scipy)."""
     import scipy.linalg  # noqa: F401
 
-    import bgc.sweep  # noqa: F401
+    import bgc.studies.sweep  # noqa: F401
 
 
 def accuracy_walls(workers) -> str:
     """Wall time of one work-precision study of the pendulum (4 methods x 6 tolerances, the
     two references), run one after another here and as Dask tasks on `workers` processes."""
-    from bgc.accuracy import prepare as acc_prepare
-    from bgc.accuracy import study
+    from bgc.studies.accuracy import prepare as acc_prepare
+    from bgc.studies.accuracy import study
 
     setup = acc_prepare(ROOT / "models" / "scenes" / "pendulum_swing.yaml", t_end=10.0)
     kw = dict(methods=("RK45", "DOP853", "Radau", "BDF"), tols=tuple(10.0 ** -k for k in

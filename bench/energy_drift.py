@@ -39,8 +39,8 @@ METHODS = ("RK45", "DOP853", "Radau", "BDF", "LSODA", "Rodas4")
 
 
 def load_pendulum():
-    from bgc.compiler import compile_file
-    from bgc.scene import load_module
+    from bgc.backends.load import load_module
+    from bgc.run.driver import compile_file
 
     c = compile_file(ROOT / "models" / "pendulum.yaml")
     return load_module(c.source, "pendulum_bench")
@@ -139,7 +139,7 @@ def main(argv=None):
 
 
 def plot(results, args, T, path):
-    from bgc.plots import _mpl
+    from bgc.run.plots import _mpl
 
     plt = _mpl()
     fig, ax = plt.subplots(figsize=(8, 5))

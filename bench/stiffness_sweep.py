@@ -85,8 +85,8 @@ def sweep_values(text):
 
 class Setup:
     def __init__(self, scene_path, t_end):
-        from bgc.runner import compile_scene
-        from bgc.scene import free_values, parse_scene
+        from bgc.format.scene import free_values, parse_scene
+        from bgc.run.runner import compile_scene
 
         self.scene = parse_scene(scene_path)
         t0 = time.perf_counter()
@@ -321,7 +321,7 @@ def extra_heads(args):
 
 
 def plot(setup, args, rows, path):
-    from bgc.plots import _mpl
+    from bgc.run.plots import _mpl
 
     plt = _mpl()
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(13, 6.8))

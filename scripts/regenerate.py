@@ -12,7 +12,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "src"))
 
-from bgc.compiler import compile_file, write_atomic  # noqa: E402
+from bgc.base.outfiles import write_output  # noqa: E402
+from bgc.run.driver import compile_file  # noqa: E402
 
 #: models whose generated C sources are golden files too (small: the C printer's reference)
 C_GOLDEN = ("msd", "dc_motor")
@@ -22,15 +23,15 @@ def main() -> None:
     for model in sorted((ROOT / "models").glob("*.yaml")):
         c = compile_file(model)
         out = ROOT / "generated" / f"{c.model.name}.py"
-        write_atomic(out, c.source)
+        write_output(out, c.source)
         print(f"{model.relative_to(ROOT)} -> {out.relative_to(ROOT)} "
               f"({len(c.equations.states)} states)")
         if model.stem in C_GOLDEN:
-            from bgc.backends import c_files
+            from bgc.backends.load import c_files
 
             files, _ = c_files(c)
             for name, text in files.items():
-                write_atomic(ROOT / "generated" / "c" / c.model.name / name, text)
+                write_output(ROOT / "generated" / "c" / c.model.name / name, text)
             print(f"  C sources -> generated/c/{c.model.name}/ ({', '.join(sorted(files))})")
 
 

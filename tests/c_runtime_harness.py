@@ -122,7 +122,7 @@ def ptr(a, t=C.c_double):
 
 
 def plan_struct(plan):
-    """A ctypes LuPlan over a bgc.sparse_lu.LuPlan (keeps the arrays alive on the struct)."""
+    """A ctypes LuPlan over a bgc.lower.sparse_lu.LuPlan (keeps the arrays alive on the struct)."""
     arrs = [np.ascontiguousarray(getattr(plan, f), dtype=np.int32)
             for f in ("perm", "row_ptr", "col_idx", "diag_pos", "jac_pos", "elim_tgt")]
     s = LuPlan(plan.n, plan.nnz_lu, plan.jac_pos.size, *(ptr(a, C.c_int) for a in arrs[:5]),

@@ -21,8 +21,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from reference import mech3r2s as ref  # noqa: E402
 
-from bgc.runner import compile_scene  # noqa: E402
-from bgc.scene import param_values, parse_scene  # noqa: E402
+from bgc.format.scene import param_values, parse_scene  # noqa: E402
+from bgc.run.runner import compile_scene  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ("circle", "figure8", "gearshift")

@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from bgc import accuracy as A
-from bgc.errors import ModelError
+from bgc.base.errors import ModelError
+from bgc.cli.accuracy import register as register_accuracy
+from bgc.studies import accuracy as A
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "models" / "scenes" / "msd_step.yaml"
@@ -204,7 +205,7 @@ def test_param_sweep_on_the_spring(setup):
 
 def test_cli_command(tmp_path):
     group = click.Group()
-    A.register(group)
+    register_accuracy(group)
     out = tmp_path / "acc"
     r = CliRunner().invoke(group, ["accuracy", str(SCENE), "--out", str(out), "--methods",
                                    "RK45,Radau", "--tols", "1e-3:1e-5", "--repeats", "1",
@@ -218,6 +219,6 @@ def test_cli_command(tmp_path):
 
 def test_cli_user_errors_are_model_errors(tmp_path):
     group = click.Group()
-    A.register(group)
+    register_accuracy(group)
     r = CliRunner().invoke(group, ["accuracy", str(SCENE), "--methods", "Euler"])
     assert isinstance(r.exception, ModelError)

@@ -8,6 +8,7 @@ import pytest
 
 xps = pytest.importorskip("array_api_strict")
 from array_api_strict._array_object import Array as StrictArray  # noqa: E402
+
 pytest.importorskip("array_api_compat")
 
 

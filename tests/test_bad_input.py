@@ -18,8 +18,8 @@ from pathlib import Path
 
 import pytest
 
-from bgc.compiler import compile_file
-from bgc.errors import ModelError
+from bgc.base.errors import ModelError
+from bgc.run.driver import compile_file
 
 ROOT = Path(__file__).resolve().parents[1]
 BAD = ROOT / "tests" / "bad"
@@ -184,7 +184,7 @@ def _run(args: list[str]) -> subprocess.CompletedProcess:
     env = dict(os.environ)
     src = str(ROOT / "src")
     env["PYTHONPATH"] = src + os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else src
-    return subprocess.run([sys.executable, "-m", "bgc.cli", *args], cwd=ROOT, env=env,
+    return subprocess.run([sys.executable, "-m", "bgc.cli.commands", *args], cwd=ROOT, env=env,
                           text=True, capture_output=True, timeout=300, stdin=subprocess.DEVNULL)
 
 

@@ -17,11 +17,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bgc import backends, cbuild
-
-from bgc.compiler import compile_file
-from bgc.emit_c import c_comment, c_string_literal
-from bgc.scene import load_module
+from bgc.backends import load as backends
+from bgc.backends.c import build as cbuild
+from bgc.backends.c.printer import c_comment, c_string_literal
+from bgc.backends.load import load_module
+from bgc.run.driver import compile_file
 
 ROOT = Path(__file__).resolve().parents[1]
 MODELS = sorted(p.stem for p in (ROOT / "models").glob("*.yaml"))
@@ -307,7 +307,7 @@ def test_c_rodas4_takes_the_numpy_rodas4_steps():
 
 
 def test_c_names_avoid_keywords_and_the_library():
-    from bgc.emit_c import c_name
+    from bgc.backends.c.printer import c_name
 
     for nm in ("double", "sin", "y0", "j1", "NAN", "bgc_x", "restrict", "FP_NAN"):
         assert c_name(nm) != nm and c_name(nm).isidentifier()

@@ -17,7 +17,7 @@ from scipy.integrate import solve_ivp
 sys.path.insert(0, str(Path(__file__).parent))
 import c_runtime_harness as H  # noqa: E402
 
-from bgc.sparse_lu import make_plan, plan_c  # noqa: E402
+from bgc.lower.sparse_lu import make_plan, plan_c  # noqa: E402
 
 METHODS = ("Rodas4", "Radau5")
 ORDER = {"Rodas4": 4, "Radau5": 5}
@@ -314,7 +314,7 @@ def random_pattern(rng, n, density):
 
 @pytest.mark.parametrize("n,density", [(1, 0.0), (5, 0.5), (30, 0.1), (60, 0.03)])
 def test_sparse_lu_matches_numpy(lib, n, density):
-    """Along a plan from bgc.sparse_lu, c I - J (real and complex c) for random patterns and
+    """Along a plan from bgc.lower.sparse_lu, c I - J (real and complex c) for random patterns and
     values solves random systems as numpy.linalg.solve does, to 1e-12."""
     rng = np.random.default_rng(n)
     rows, cols = random_pattern(rng, n, density)
@@ -437,7 +437,7 @@ def test_plan_structure_properties():
     ordering without fill: L+U holds exactly the pattern and the diagonal and each row
     elimination touches one entry; a full pattern gains nothing from the plan, a long chain
     does."""
-    from bgc.sparse_lu import prefer_sparse
+    from bgc.lower.sparse_lu import prefer_sparse
 
     n = 40
     rng = np.random.default_rng(1)

@@ -16,11 +16,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bgc import backends, cbuild
-from bgc.compiler import compile_model
-from bgc.errors import ModelError
-from bgc.parse import parse_text
-from bgc.scene import load_module
+from bgc.backends import load as backends
+from bgc.backends.c import build as cbuild
+from bgc.backends.load import load_module
+from bgc.base.errors import ModelError
+from bgc.format.parse import parse_text
+from bgc.run.driver import compile_model
 
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = [
@@ -204,7 +205,7 @@ def test_singular_linear_solve_is_an_error_not_garbage():
 
 
 def test_fmu_export_refuses_numeric_solves():
-    from bgc.fmu import render_sources
+    from bgc.backends.fmu.export import render_sources
 
     c, _, _ = _pair("gear")
     with pytest.raises(ModelError, match="FMU export does not support numeric"):
@@ -243,7 +244,7 @@ def test_solves_across_parts(name, monkeypatch):
     """Bodies cut into parts of 3 lines: a solve's result crosses from its part to later ones
     through the scratch array (one slot per entry); rhs, Jacobian and a run still match the
     numpy module."""
-    from bgc import emit_c
+    from bgc.backends.c import printer as emit_c
 
     monkeypatch.setattr(emit_c, "PART_LINES", 3)
     text, fname = _text(name)
@@ -269,8 +270,8 @@ def test_solves_across_parts(name, monkeypatch):
 def test_fmu_export_refuses_table_inputs(tmp_path):
     """An FMU input that follows its default would follow the table's placeholder (0), not
     the data: the export says it cannot, instead of writing that."""
-    from bgc.compiler import compile_file
-    from bgc.fmu import render_sources
+    from bgc.backends.fmu.export import render_sources
+    from bgc.run.driver import compile_file
 
     text = (ROOT / "models" / "quarter_car.yaml").read_text()
     old = 'zr: {default: "0", shape: [], unit: m}'

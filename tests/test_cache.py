@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bgc import cache as cache_mod
-from bgc.cache import Cache, UnsafeCache
-from bgc.errors import ModelError
+from bgc.base.errors import ModelError
+from bgc.run import cache as cache_mod
+from bgc.run.cache import Cache, UnsafeCache
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "models" / "scenes" / "msd_step.yaml"
@@ -53,7 +53,7 @@ def test_miss_then_hit_gives_the_same_results(tmp_path):
     assert len(_entries(cdir)) == 2
     info = _bgc("cache", "info", cache_dir=cdir)
     assert info.returncode == 0 and "numpy 2" in info.stdout and str(cdir) in info.stdout
-    assert "run 2" in info.stdout  # each scene's run record (bgc.record)
+    assert "run 2" in info.stdout  # each scene's run record (bgc.run.record)
     clr = _bgc("cache", "clear", cache_dir=cdir)
     assert clr.returncode == 0 and "removed 4" in clr.stdout  # 2 modules, 2 records
     assert _entries(cdir) == [] and not list((cdir / "run").glob("*/*"))
@@ -213,13 +213,13 @@ def test_cache_root_honours_the_environment(monkeypatch, tmp_path):
 
 _WARM = r"""
 import sys, json
-from bgc.cli import main
+from bgc.cli.commands import main
 try:
     main(sys.argv[1:])
 except SystemExit as e:
     code = e.code
-heavy = ["sympy", "matplotlib", "jinja2", "networkx", "dask", "xarray", "zarr", "bgc.sweep",
-         "bgc.accuracy"]
+heavy = ["sympy", "matplotlib", "jinja2", "networkx", "dask", "xarray", "zarr", "bgc.studies.sweep",
+         "bgc.studies.accuracy"]
 if "c" in sys.argv:  # the C backend's run needs neither scipy nor what it brings
     heavy += ["scipy", "numpy.ma", "concurrent.futures"]
 print(json.dumps(sorted(m for m in heavy if m in sys.modules)))
@@ -228,7 +228,7 @@ print(json.dumps(sorted(m for m in heavy if m in sys.modules)))
 
 @pytest.mark.parametrize("backend", ["numpy", "c"])
 def test_warm_simulate_imports_only_what_it_needs(tmp_path, backend):
-    from bgc import cbuild
+    from bgc.backends.c import build as cbuild
 
     if backend == "c" and not (cbuild.available() and cbuild.runtime_sources()):
         pytest.skip("no C compiler or C runtime")
@@ -248,7 +248,7 @@ def test_warm_c_run_starts_no_compiler(tmp_path):
     """The compiler's identity (part of every C cache key) is kept in the cache under the
     executable's path, size and times: a warm run starts no compiler, and a changed compiler
     (here: its script rewritten) is asked again."""
-    from bgc import cbuild
+    from bgc.backends.c import build as cbuild
 
     real = shutil.which("cc") or shutil.which("gcc")
     if real is None or not (cbuild.available() and cbuild.runtime_sources()):

@@ -3,10 +3,10 @@ from __future__ import annotations
 
 import pytest
 
-from bgc.causality import assign_causality
-from bgc.errors import ModelError
-from bgc.graph import build_graph
-from bgc.parse import parse_text
+from bgc.base.errors import ModelError
+from bgc.core.causality import assign_causality
+from bgc.core.graph import build_graph
+from bgc.format.parse import parse_text
 
 
 def caus(text):
@@ -117,7 +117,7 @@ bonds: [[E1, j], [E2, j], [j, r]]
 def test_3r2s_is_all_integral():
     from pathlib import Path
 
-    bg = build_graph(__import__("bgc.parse", fromlist=["parse_file"]).parse_file(
+    bg = build_graph(__import__("bgc.format.parse", fromlist=["parse_file"]).parse_file(
         Path(__file__).resolve().parents[1] / "models" / "3r2s.yaml"))
     c = assign_causality(bg)
     assert not c.derivative and not c.arbitrary and not c.open_bonds

@@ -117,9 +117,9 @@ def test_exit_statuses_follow_the_readme_table(tmp_path):
     r = bgc("compile", model, "-o", model)
     assert r.returncode == 2 and "is an input of this run" in r.stderr
     assert model.read_bytes() == before
-    boom = ("import sys, bgc.cli, bgc.graph\n"
-            "bgc.graph.build_graph = lambda *a: {}['planted']\n"
-            "sys.argv = ['bgc', 'check', sys.argv[1]]\nbgc.cli.main()\n")
+    boom = ("import sys, bgc.cli.commands, bgc.core.graph\n"
+            "bgc.core.graph.build_graph = lambda *a: {}['planted']\n"
+            "sys.argv = ['bgc', 'check', sys.argv[1]]\nbgc.cli.commands.main()\n")
     r = subprocess.run([sys.executable, "-c", boom, str(model)], capture_output=True,
                        text=True, env={**os.environ, "BGC_DEBUG": "0"})
     assert r.returncode == 3 and "Traceback" not in r.stderr

@@ -1,4 +1,4 @@
-"""The driver (bgc.compiler): the collector pause around a compile, and the skeleton check's
+"""The driver (bgc.run.driver): the collector pause around a compile, and the skeleton check's
 in-process memo (a module checked when rendered is not parsed again when loaded)."""
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from bgc import skeleton
-from bgc.compiler import compile_model, gc_paused
-from bgc.parse import parse_file
+from bgc.backends import skeleton
+from bgc.format.parse import parse_file
+from bgc.run.driver import compile_model, gc_paused
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -16,10 +16,10 @@ import pytest
 import sympy as sp
 from scipy.integrate import solve_ivp
 
-from bgc.compiler import compile_model
-from bgc.errors import ModelError
-from bgc.parse import parse_text
-from bgc.scene import load_module
+from bgc.backends.load import load_module
+from bgc.base.errors import ModelError
+from bgc.format.parse import parse_text
+from bgc.run.driver import compile_model
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
@@ -573,7 +573,7 @@ def test_strict_error_names_the_instance_path(chains):
 def test_scene_on_a_rigid_model_specialises():
     """A scene that folds parameters and slices outputs works on a model with derivative
     causality: the rigid double pendulum's swing against the Lagrangian equations."""
-    from bgc.runner import run_scene
+    from bgc.run.runner import run_scene
 
     res = run_scene(ROOT / "models" / "scenes" / "double_pendulum_swing.yaml")
     assert "c1" not in res.module.PARAM_DEFAULTS  # folded

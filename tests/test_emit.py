@@ -1,4 +1,4 @@
-"""The expression printer of the generated code (``bgc.emit.BgcPrinter``).
+"""The expression printer of the generated code (``bgc.backends.numpy.printer.BgcPrinter``).
 
 It prints cheap forms (``b*b`` for ``b**2``, ``1/b``, ``np.sqrt``), which bind differently from
 the powers they replace; the printed text must still mean the expression. Each case is checked
@@ -15,7 +15,7 @@ import sympy as sp
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from bgc.emit import BgcPrinter
+from bgc.backends.numpy.printer import BgcPrinter
 
 X, Y, Z = sp.symbols("x y z", real=True)
 POINT = {X: 1.7, Y: 0.6, Z: 2.3}

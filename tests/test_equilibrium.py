@@ -98,7 +98,7 @@ def _qc_scene(tmp_path, initial: str):
 
 
 def test_scene_initial_equilibrium_stays_put(tmp_path):
-    from bgc.runner import run_scene
+    from bgc.run.runner import run_scene
 
     r = run_scene(_qc_scene(tmp_path, "equilibrium"))
     np.testing.assert_allclose(r.y["suspension_travel"], -QC["m_s"] * QC["g"] / QC["k_s"],
@@ -107,7 +107,7 @@ def test_scene_initial_equilibrium_stays_put(tmp_path):
 
 
 def test_scene_initial_values_by_state_and_element(tmp_path):
-    from bgc.runner import run_scene
+    from bgc.run.runner import run_scene
 
     r = run_scene(_qc_scene(tmp_path, "{spring.q: -0.1, tyre: -0.02, sprung.p: 25.0}"))
     assert r.y["suspension_travel"][0] == -0.1 and r.y["wheel_height"][0] == -0.02
@@ -120,8 +120,8 @@ def test_scene_initial_values_by_state_and_element(tmp_path):
     ("somewhere", "write 'equilibrium'"),
 ])
 def test_scene_initial_errors_are_located(tmp_path, initial, message):
-    from bgc.errors import ModelError
-    from bgc.runner import run_scene
+    from bgc.base.errors import ModelError
+    from bgc.run.runner import run_scene
 
     with pytest.raises(ModelError) as ei:
         run_scene(_qc_scene(tmp_path, initial))

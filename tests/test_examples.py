@@ -24,7 +24,6 @@ import yaml
 from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 
-
 # Solver tolerances for the comparisons, and the agreement demanded of the results: with
 # rtol=1e-8 Radau's global error on these models is ~1e-8 of the signal's size (checked with
 # hand-written ODEs), so 1e-6 of the signal's size leaves a wide margin.

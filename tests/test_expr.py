@@ -1,4 +1,4 @@
-"""The expression whitelist (bgc.expr): untrusted text is parsed, checked, never evaluated."""
+"""The expression whitelist (bgc.format.expr): untrusted text is parsed, checked, never evaluated."""
 from __future__ import annotations
 
 import builtins
@@ -9,8 +9,8 @@ import sympy as sp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bgc import expr as E
-from bgc.errors import Coord, ModelError
+from bgc.base.errors import Coord, ModelError
+from bgc.format import expr as E
 
 AT = Coord("m.yaml", 7, 10)
 

@@ -1,4 +1,4 @@
-"""symengine (bgc.fastsym) differentiates and eliminates common subexpressions; sympy's own
+"""symengine (bgc.core.fastsym) differentiates and eliminates common subexpressions; sympy's own
 diff and cse are the independent answer. Every example model compiled both ways must give the
 same rhs and Jacobian at random points, and the bridge must keep sympy symbols' identity."""
 from __future__ import annotations
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import sympy as sp
 
-from bgc import fastsym
-from bgc.compiler import compile_file
-from bgc.scene import load_module
+from bgc.backends.load import load_module
+from bgc.core import fastsym
+from bgc.run.driver import compile_file
 
 ROOT = Path(__file__).resolve().parent.parent
 MODELS = sorted(p.name for p in (ROOT / "models").glob("*.yaml"))

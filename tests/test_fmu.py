@@ -16,7 +16,7 @@ import pytest
 
 fmpy = pytest.importorskip("fmpy")
 
-from bgc import cbuild  # noqa: E402
+from bgc.backends.c import build as cbuild  # noqa: E402
 
 pytestmark = pytest.mark.skipif(not cbuild.available(), reason="no C compiler")
 
@@ -25,16 +25,16 @@ MODELS = ROOT / "models"
 
 
 def _export(model, out, scene=None, kind="both"):
-    from bgc.fmu import export_fmu
+    from bgc.run.fmu import export_fmu
 
     return export_fmu(MODELS / model, out, scene_path=scene, kind=kind)
 
 
 @functools.lru_cache(maxsize=None)
 def _numpy_module(model):
-    from bgc.compiler import compile_model
-    from bgc.parse import parse_file
-    from bgc.scene import load_module
+    from bgc.backends.load import load_module
+    from bgc.format.parse import parse_file
+    from bgc.run.driver import compile_model
 
     c = compile_model(parse_file(MODELS / model))
     return load_module(c.source, f"fmutest_{c.model.name}")
@@ -452,10 +452,10 @@ def test_3r2s_circle_scene_in_fmpy(tmp_path, monkeypatch):
     breakpoint a time event): FMPy validates it, and its joint angles in Co-Simulation (bgc's
     Radau5 inside each communication step) and in Model Exchange (FMPy's CVode) stay within
     1e-5 rad of bgc's own run of the scene."""
-    from fmpy.validation import validate_fmu
     import fmpy.sundials
+    from fmpy.validation import validate_fmu
 
-    from bgc.runner import run_scene
+    from bgc.run.runner import run_scene
 
     scene = MODELS / "scenes" / "3r2s_circle.yaml"
     path = _export("3r2s.yaml", tmp_path / "circle.fmu", scene=scene)
@@ -494,7 +494,7 @@ def test_cli_export_kinds_and_user_errors(tmp_path):
     from click.testing import CliRunner
     from fmpy.validation import validate_fmu
 
-    from bgc.cli import main
+    from bgc.cli.commands import main
 
     run = CliRunner().invoke
     out = tmp_path / "me.fmu"
@@ -538,7 +538,7 @@ def test_model_text_reaches_the_unit_only_escaped(tmp_path):
     text = text.replace("unit: kg,", f"unit: {yaml_quote('kg<&>')},")
     model = tmp_path / "msd.yaml"
     model.write_text(text, encoding="utf-8")
-    from bgc.fmu import export_fmu
+    from bgc.run.fmu import export_fmu
 
     out = export_fmu(model, tmp_path / "evil.fmu")
     root = ET.fromstring(_xml(out))
@@ -679,7 +679,7 @@ def test_every_example_model_exports_validates_and_simulates(tmp_path, model):
     # the outputs: the numpy module's outputs of the FMU's own states (so the check does not
     # depend on how much an output amplifies the integration error: van_der_pol's dv_dt
     # divides by C = 1e-6), flattened as FMI names them
-    from bgc.fmu import flat_names
+    from bgc.backends.fmu.export import flat_names
 
     X = np.array([r[s] for s in mod.STATE_NAMES])
     ys = mod.outputs(r["time"], X)
@@ -723,7 +723,7 @@ def test_scene_breakpoint_is_a_time_event(tmp_path):
     """motor_load_motion: the load torque steps at the scene's breakpoint t = 1 s. The FMU
     announces it as a time event in Model Exchange (FMPy stops there and records the event)
     and restarts its integrator there in Co-Simulation; both follow bgc's run of the scene."""
-    from bgc.runner import run_scene
+    from bgc.run.runner import run_scene
 
     scene = MODELS / "scenes" / "motor_load_motion.yaml"
     path = _export("motor_thermal.yaml", tmp_path / "mlm.fmu", scene=scene)

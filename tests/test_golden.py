@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from bgc.compiler import compile_file
+from bgc.run.driver import compile_file
 
 ROOT = Path(__file__).resolve().parents[1]
 MODELS = sorted((ROOT / "models").glob("*.yaml"))

@@ -18,13 +18,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bgc import parse as parse_mod
-from bgc.compiler import compile_file, compile_model
-from bgc.errors import Coord, ModelError
-from bgc.limits import LIMITS
-from bgc.parse import RESERVED, parse_file, parse_text
-from bgc.safeio import read_text_bounded
-from bgc.scene import parse_scene
+from bgc.base.errors import Coord, ModelError
+from bgc.base.limits import LIMITS
+from bgc.base.safeio import read_text_bounded
+from bgc.format import parse as parse_mod
+from bgc.format import reader as reader_mod
+from bgc.format.parse import RESERVED, parse_file, parse_text
+from bgc.format.scene import parse_scene
+from bgc.run.driver import compile_file, compile_model
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -203,7 +204,7 @@ def _tree(fanout: int, levels: int) -> str:
 
 
 def test_instantiated_elements_are_limited():
-    from bgc.graph import build_graph
+    from bgc.core.graph import build_graph
 
     model = parse_text(_tree(16, 7), "tree.yaml")  # 16**6 leaves: refused on the way
     err = refused(build_graph, model)
@@ -212,7 +213,7 @@ def test_instantiated_elements_are_limited():
 
 
 def test_instances_per_level_are_limited():
-    from bgc.graph import build_graph
+    from bgc.core.graph import build_graph
 
     n = LIMITS.instances_per_level + 1
     text = ("bgc: 1\nname: wide\ncomponents:\n  L0:\n    ports: {a: x}\n"
@@ -331,7 +332,7 @@ def test_module_locals_cannot_be_parameters(name):
 
 @pytest.mark.parametrize("name", ["k\n", "k\r", "k "])
 def test_names_match_in_full(name):
-    from bgc.parse import check_name
+    from bgc.format.parse import check_name
 
     with pytest.raises(ModelError, match="invalid parameter name"):
         check_name(name, Coord("m.yaml", 1, 1), "parameter")
@@ -372,7 +373,7 @@ bonds:
 
 
 def _module(text: str, name: str = "m.yaml"):
-    from bgc.scene import load_module
+    from bgc.backends.load import load_module
 
     c = compile_model(parse_text(text, name))
     return load_module(c.source, c.model.name)
@@ -436,7 +437,7 @@ def test_a_user_bond_name_equal_to_an_automatic_one_is_located():
 
 def test_check_does_not_warn_of_a_loop_it_solved():
     env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
-    res = subprocess.run([sys.executable, "-m", "bgc.cli", "check", "models/algebraic_loop.yaml"],
+    res = subprocess.run([sys.executable, "-m", "bgc.cli.commands", "check", "models/algebraic_loop.yaml"],
                          cwd=ROOT, env=env, text=True, capture_output=True, timeout=300)
     assert res.returncode == 0, res.stderr
     assert "linear algebraic loop solved through" in res.stdout
@@ -457,7 +458,7 @@ def test_articles(law, msg):
 @pytest.mark.parametrize("value", ["inf", "nan", "1e-20"])
 def test_cli_rtol_is_checked(value, tmp_path):
     env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
-    res = subprocess.run([sys.executable, "-m", "bgc.cli", "simulate",
+    res = subprocess.run([sys.executable, "-m", "bgc.cli.commands", "simulate",
                           str(ROOT / "models" / "scenes" / "msd_step.yaml"), "--rtol", value],
                          cwd=tmp_path, env=env, text=True, capture_output=True, timeout=300)
     assert res.returncode == 2, res.stderr
@@ -481,7 +482,7 @@ def _nodes(node, out):
     return out
 
 
-@pytest.mark.skipif(parse_mod._FastLoader is None, reason="PyYAML without libyaml")
+@pytest.mark.skipif(reader_mod._FastLoader is None, reason="PyYAML without libyaml")
 def test_fast_and_pure_python_composers_agree():
     import yaml
 
@@ -490,10 +491,10 @@ def test_fast_and_pure_python_composers_agree():
     for f in files:
         try:
             text = f.read_text(encoding="utf-8")
-            slow = yaml.compose(text, Loader=parse_mod._Loader)
+            slow = yaml.compose(text, Loader=reader_mod._Loader)
         except Exception:  # noqa: BLE001 - bad files: test_bad_input checks their messages
             continue
-        loader = parse_mod._FastLoader(text)
+        loader = reader_mod._FastLoader(text)
         try:
             fast = loader.get_single_node()
         except yaml.YAMLError:  # libyaml refuses what PyYAML reads (hostile text in the fuzz

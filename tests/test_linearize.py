@@ -189,9 +189,9 @@ def test_cli_linearize_a_scene_at_a_time(bgc_cli, tmp_path):
 
 
 def test_api_linearize_gives_modes_and_statespace():
-    import bgc
-
     from pathlib import Path
+
+    import bgc
 
     lin = bgc.linearize(Path(__file__).resolve().parents[1] / "models" / "quarter_car.yaml")
     want = np.linalg.eigvals(_qc_A(**QC))

@@ -1,4 +1,4 @@
-"""Outputs never destroy anything: bgc's one checked writer (bgc.outfiles) and every command's
+"""Outputs never destroy anything: bgc's one checked writer (bgc.base.outfiles) and every command's
 outputs through it; numerical failures as one located line; exit statuses; no temporaries.
 
 Each malformed invocation is paired with the message it must give. The writer's rules are
@@ -15,7 +15,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bgc.outfiles import Inputs, OutputError, check_output, model_inputs, write_output
+from bgc.base.outfiles import (
+    Inputs,
+    OutputError,
+    check_output,
+    model_inputs,
+    write_output,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 HERE = Path(__file__).resolve().parent / "outputs_safety"
@@ -254,8 +260,8 @@ def test_orifice_at_equal_levels_names_the_orifice_and_the_remedy(tmp_path):
 
 @pytest.fixture(scope="module")
 def orifice():
-    from bgc.runner import compile_scene
-    from bgc.scene import parse_scene
+    from bgc.format.scene import parse_scene
+    from bgc.run.runner import compile_scene
 
     return compile_scene(parse_scene(HERE / "orifice_equal.yaml"))
 
@@ -264,7 +270,7 @@ def orifice():
 def test_orifice_stops_every_method(orifice, method):
     """Every method stops at t = 0 on the orifice's infinite slope (the explicit ones in their
     stiffness check, LSODA in its Jacobian check at t0), and the diagnosis names the orifice."""
-    from bgc.runner import nonfinite_culprit
+    from bgc.run.runner import nonfinite_culprit
 
     c, mod = orifice
     with pytest.raises(mod.NonFiniteError) as exc:
@@ -304,8 +310,8 @@ def test_log_of_zero_in_the_rhs_at_t0(tmp_path):
 def test_nan_parameter_is_named():
     """A parameter override of NaN (through the module API) makes the rhs NaN at t0: the
     module names the state whose equation reads it, bgc's diagnosis the parameter."""
-    from bgc.runner import compile_scene, nonfinite_culprit
-    from bgc.scene import parse_scene
+    from bgc.format.scene import parse_scene
+    from bgc.run.runner import compile_scene, nonfinite_culprit
 
     c, mod = compile_scene(parse_scene(MSD_SCENE))
     p = {"c": np.nan}
@@ -435,10 +441,10 @@ def test_plot_of_the_wrong_shape_is_located(tmp_path):
     assert listing(tmp_path) == []
 
 
-_BOOM = ("import sys, bgc.parse, bgc.cli\n"
+_BOOM = ("import sys, bgc.format.parse, bgc.cli.commands\n"
          "def boom(*a, **k):\n    raise ZeroDivisionError('planted bug')\n"
-         "bgc.parse.parse_file = boom\n"
-         "sys.argv = ['bgc', 'check', sys.argv[1]]\nbgc.cli.main()\n")
+         "bgc.format.parse.parse_file = boom\n"
+         "sys.argv = ['bgc', 'check', sys.argv[1]]\nbgc.cli.commands.main()\n")
 
 
 def test_internal_error_is_one_line_exit_3():

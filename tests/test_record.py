@@ -1,4 +1,4 @@
-"""Run records (bgc.record): a warm `bgc simulate` replays the run the full way recorded.
+"""Run records (bgc.run.record): a warm `bgc simulate` replays the run the full way recorded.
 
 Checked here: a replay gives the full way's results bit for bit (numpy and C); a replay
 imports neither click, PyYAML nor bgc's parser; every input the run read (model, imported
@@ -18,18 +18,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bgc import record
-from bgc.cache import Cache
+from bgc.run import record
+from bgc.run.cache import Cache
 
 ROOT = Path(__file__).resolve().parents[1]
 MSD = ROOT / "models" / "scenes" / "msd_step.yaml"
 
 
 def _bgc(*args, cache_dir, extra_env=None, via_cli=False):
-    """`bgc ARGS` as the console script runs it (bgc.launch), or straight into click."""
+    """`bgc ARGS` as the console script runs it (bgc.cli.launch), or straight into click."""
     env = {**os.environ, "BGC_CACHE_DIR": str(cache_dir), **(extra_env or {})}
     cmd = [sys.executable, "-m", "bgc"] if not via_cli else [
-        sys.executable, "-c", "import sys; from bgc.cli import main; main(sys.argv[1:])"]
+        sys.executable, "-c", "import sys; from bgc.cli.commands import main; main(sys.argv[1:])"]
     return subprocess.run(cmd + [str(a) for a in args], capture_output=True, text=True,
                           env=env, timeout=600)
 
@@ -51,7 +51,7 @@ def _summary(proc) -> str:
 
 
 def _c_ok() -> bool:
-    from bgc import cbuild
+    from bgc.backends.c import build as cbuild
 
     return cbuild.available() and bool(cbuild.runtime_sources())
 
@@ -91,7 +91,7 @@ try:
     runpy.run_module("bgc", run_name="__main__")
 except SystemExit as e:
     pass
-heavy = ["click", "yaml", "bgc.cli", "bgc.parse", "bgc.scene", "bgc.runner", "sympy",
+heavy = ["click", "yaml", "bgc.cli.commands", "bgc.format.parse", "bgc.format.scene", "bgc.run.runner", "sympy",
          "matplotlib", "jinja2", "networkx", "scipy", "dask", "numpy.ma"]
 print(json.dumps(sorted(m for m in heavy if m in sys.modules)))
 """

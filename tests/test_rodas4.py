@@ -180,9 +180,9 @@ def test_a_law_in_t_without_inputs_takes_the_time_derivative(tmp_path):
     takes df/dt, so it keeps its order and its step count: against the hand-written ODE
     m x'' + c x' + k x = F0 sin(w t) (DOP853 at rtol 1e-13). Before RHS_USES_T the term was
     skipped for such models (taken from INPUT_NAMES alone): the order fell below 3."""
-    from bgc.compiler import compile_model
-    from bgc.parse import parse_file
-    from bgc.scene import load_module
+    from bgc.backends.load import load_module
+    from bgc.format.parse import parse_file
+    from bgc.run.driver import compile_model
 
     path = tmp_path / "forced.yaml"
     path.write_text(FORCED)

@@ -16,11 +16,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bgc.compiler import compile_model
-from bgc.errors import Coord, ModelError
-from bgc.parse import parse_file
-from bgc.runner import compile_scene, explain_scene, operation_counts
-from bgc.scene import load_module, parse_scene, plan_for, scene_model
+from bgc.backends.load import load_module
+from bgc.base.errors import Coord, ModelError
+from bgc.core.specialize import plan_for
+from bgc.format.parse import parse_file
+from bgc.format.scene import parse_scene, scene_model
+from bgc.run.driver import compile_model
+from bgc.run.runner import compile_scene, explain_scene, operation_counts
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "models" / "scenes"
@@ -280,7 +282,7 @@ def test_junction_left_with_one_bond_is_a_zero_source(tmp_path):
     with the loop, so no current flows and the capacitor keeps its charge: the full model with
     G = 0 says the same, and the leak-free closed form q = C V (1 - exp(-t / (R C))) does not."""
     model = parse_file(HERE / "rc_leak.yaml")
-    from bgc.specialize import Plan
+    from bgc.core.specialize import Plan
 
     c = compile_model(model, None, Plan(frozenset({"leak"}), scene="t"))
     assert "0-junction p left with one bond: a zero flow source (Sf)" in c.notes
@@ -498,7 +500,7 @@ def test_3r2s_toggle_equals_full_model_with_zeroed_parameters(circle, effect):
 
 
 def full_mod_params(model):
-    from bgc.graph import build_graph
+    from bgc.core.graph import build_graph
 
     return build_graph(model).params
 

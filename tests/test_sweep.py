@@ -11,13 +11,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bgc.errors import ModelError
+from bgc.base.errors import ModelError
 
 pytest.importorskip("distributed")
 pytest.importorskip("xarray")
 pytest.importorskip("zarr")
 
-from bgc import cbuild, sweep  # noqa: E402
+from bgc.backends.c import build as cbuild
+from bgc.studies import sweep  # noqa: E402
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
 MSD = MODELS / "msd.yaml"
@@ -215,7 +216,7 @@ def test_a_process_without_the_library_builds_it_from_the_shipped_sources(tmp_pa
     """What a worker on another machine does: an empty compile cache, the texts only."""
     import pickle
 
-    from bgc.skeleton import SkeletonError
+    from bgc.backends.skeleton import SkeletonError
 
     _need("c")
     p = _scene(tmp_path, "sweep:\n  parameters:\n    m: {values: [1.0, 2.0]}\n")
@@ -294,7 +295,7 @@ def test_c_sweep_samples_equal_single_c_runs(tmp_path, client):
     """Each C sample is the same run as the scene alone with the C backend (each instance of a
     C batch takes its own steps), to the last bit; it agrees with the numpy backend's run
     within the tolerance and with the closed-form step response."""
-    from bgc.runner import run_scene
+    from bgc.run.runner import run_scene
 
     _need("c")
     mk = [(1.0, 100.0), (2.5, 400.0), (0.7, 250.0)]
@@ -341,7 +342,7 @@ def client():
 
 def _alone(tmp_path, m, k, tag):
     """The same scene with the sample's values, run alone by bgc simulate's runner."""
-    from bgc.runner import run_scene
+    from bgc.run.runner import run_scene
 
     p = _scene(tmp_path, "", name=f"alone_{tag}", params=f"parameters: {{m: {m!r}, k: {k!r}}}")
     return run_scene(p)
@@ -443,7 +444,7 @@ def test_cli_on_a_running_scheduler_with_initial_states_and_plots(tmp_path, clie
                                                                    monkeypatch):
     from click.testing import CliRunner
 
-    from bgc.cli import main
+    from bgc.cli.commands import main
 
     p = _scene(tmp_path, textwrap.dedent("""\
         sweep:

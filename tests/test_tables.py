@@ -9,9 +9,9 @@ import os
 import numpy as np
 import pytest
 
-from bgc.errors import ModelError
-from bgc.runner import compile_scene, run_scene
-from bgc.scene import parse_scene
+from bgc.base.errors import ModelError
+from bgc.format.scene import parse_scene
+from bgc.run.runner import compile_scene, run_scene
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 QC = os.path.join(ROOT, "models", "quarter_car.yaml")
@@ -103,8 +103,8 @@ def test_extrapolate_error_raises_outside_the_table(tmp_path):
 
 
 def test_model_level_table_input(tmp_path):
-    from bgc.compiler import compile_file
-    from bgc.scene import load_module
+    from bgc.backends.load import load_module
+    from bgc.run.driver import compile_file
 
     text = open(QC).read().replace('zr: {default: "0", shape: [], unit: m}',
                                    "zr: {table: road.csv, columns: [time, height], unit: m}")
@@ -154,14 +154,14 @@ def test_errors_are_located(tmp_path):
 
 
 def test_size_is_capped_before_reading(tmp_path, monkeypatch):
-    import bgc.tables
+    import bgc.format.tables
 
     _csv(tmp_path, KNOTS)
-    monkeypatch.setattr(bgc.tables, "MAX_BYTES", 20)
+    monkeypatch.setattr(bgc.format.tables, "MAX_BYTES", 20)
     e = _err(tmp_path, "{table: road.csv}")
     assert "limit of 20 bytes" in e.message and e.coord.line == 5
-    monkeypatch.setattr(bgc.tables, "MAX_BYTES", 10_000)
-    monkeypatch.setattr(bgc.tables, "MAX_ROWS", 4)
+    monkeypatch.setattr(bgc.format.tables, "MAX_BYTES", 10_000)
+    monkeypatch.setattr(bgc.format.tables, "MAX_ROWS", 4)
     e = _err(tmp_path, "{table: road.csv}")
     assert "more than 4 rows" in e.message and e.coord.line == 6  # header, then row 5
 
@@ -183,7 +183,7 @@ def test_a_fifo_is_refused_without_blocking(tmp_path):
 # The C backend: the data as arrays in the library, the runtime's bgc_table_eval
 
 def _c_ready():
-    from bgc import cbuild
+    from bgc.backends.c import build as cbuild
 
     return cbuild.available() and bool(cbuild.runtime_sources())
 
@@ -195,7 +195,7 @@ def test_c_backend_tables_against_independent_formulas_and_numpy(tmp_path):
     knots of linear and previous tables as breakpoints) against the numpy module's."""
     from scipy.interpolate import PchipInterpolator
 
-    from bgc.runner import scene_module
+    from bgc.run.runner import scene_module
 
     csv = _csv(tmp_path, KNOTS)
     tk, vk = np.array(KNOTS).T
@@ -226,7 +226,7 @@ def test_c_backend_tables_against_independent_formulas_and_numpy(tmp_path):
 def test_c_backend_extrapolate_error(tmp_path):
     """Outside the knots with extrapolate: error the C module raises the numpy module's
     ValueError naming the input, from outputs and from a run (with the time)."""
-    from bgc.runner import scene_module
+    from bgc.run.runner import scene_module
 
     csv = _csv(tmp_path, KNOTS)
     sc = parse_scene(_scene(tmp_path, f"{{table: {csv}, columns: [time, height], "

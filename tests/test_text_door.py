@@ -18,9 +18,15 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bgc.compiler import compile_file
-from bgc.emit import SkeletonError, check_skeleton, docstring, lit, oneline
-from bgc.scene import load_module
+from bgc.backends.load import load_module
+from bgc.backends.numpy.printer import (
+    SkeletonError,
+    check_skeleton,
+    docstring,
+    lit,
+    oneline,
+)
+from bgc.run.driver import compile_file
 
 ROOT = Path(__file__).resolve().parent.parent
 

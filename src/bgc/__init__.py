@@ -1,7 +1,6 @@
 """bgc: a bond-graph-to-code compiler.
 
-parse (YAML -> Model) -> graph (flat bond graph) -> causality (SCAP) -> equations (sympy)
--> emit (a standalone numpy module). From Python (docs/api.md)::
+From Python (docs/api.md)::
 
     import bgc
     model = bgc.compile("models/msd.yaml")      # the loaded module, from memory
@@ -9,10 +8,44 @@ parse (YAML -> Model) -> graph (flat bond graph) -> causality (SCAP) -> equation
 
 ``bgc.compile``, ``bgc.check``, ``bgc.equations`` and ``bgc.linearize`` are imported on first
 use, so ``import bgc`` stays light; every user error is a ``bgc.BgcError`` with ``.coord``.
-"""
-__version__ = "0.1.0"
 
-from .errors import Coord, ModelError  # noqa: E402  (light: no third-party imports)
+The package is a house with floors (docs/architecture.md). Each layer is a subpackage that
+imports only from the layers below it, never from one above, and no two modules import each
+other; ``tests/test_layers.py`` reads every import (inside functions too) and holds that rule
+against :data:`LAYERS`, the one place the order is written:
+
+``base``
+    errors and locations, limits, paths, the bounded reader, the checked writer, the store.
+    Below everything because every stage reports errors and reads or writes files.
+``format``
+    what a user writes: the expression parser, the model and scene readers, tables. It knows
+    YAML and text, nothing of bond graphs' meaning.
+``core``
+    the analysis of the model: the flat bond graph, causality (SCAP), the state equations and
+    their derivatives, specialisation to a scene, the graph's drawing. Backend-neutral sympy.
+``lower``
+    lowering to one IR (bgc.lower.ir): pruned, CSE'd, scheduled functions that every printer
+    reads, and the sparse LU plans.
+``backends``
+    one sibling folder per target (numpy, c, fmu), each a printer of the IR plus what that
+    target needs to build and load; the loader of built modules.
+``run``
+    the compile driver (one function compiles a scene for a backend through the cache), the
+    cache keys, running scenes, run records, plots.
+``studies``
+    what runs many simulations: work-precision studies, parameter sweeps.
+``api``
+    the public Python face: ``bgc.api``, ``bgc.linear``, ``bgc.fused``.
+``cli``
+    the ``bgc`` command.
+"""
+from bgc.base import __version__  # noqa: F401
+from bgc.base.errors import Coord, ModelError  # (light: no third-party imports)
+
+#: The layers, bottom first: a module may import from its own layer (without a cycle) and from
+#: the layers before it. Top-level modules (bgc.api, bgc.linear, bgc.fused) form the "api"
+#: layer; this package's own __init__ and __main__ stand above all.
+LAYERS = ("base", "format", "core", "lower", "backends", "run", "studies", "api", "cli")
 
 BgcError = ModelError
 _API = ("compile", "check", "equations", "linearize", "CompiledModel", "CheckResult",
@@ -21,12 +54,8 @@ __all__ = ["BgcError", "Coord", "ModelError", "__version__", *_API]
 
 
 def __getattr__(name):
-    if name == "equations":  # the submodule, callable as the API function (see its end)
-        import importlib
-
-        return importlib.import_module(__name__ + ".equations")
     if name in _API:
-        from . import api
+        from bgc import api
 
         return getattr(api, name)
     raise AttributeError(f"module 'bgc' has no attribute {name!r}")

@@ -1,3 +1,3 @@
-from .launch import main
+from bgc.cli.launch import main
 
 main()

@@ -4,7 +4,7 @@ linearise it. Documented, with examples, in docs/api.md.
 Every function takes a model as a path (``str`` or ``pathlib.Path``) or as YAML text: a
 string is text when it contains a line break or starts with ``bgc:``. Nothing is written to
 disk: the generated module is loaded from memory. Every mistake in a model or scene raises
-:class:`bgc.BgcError` (``bgc.errors.ModelError``) with ``.coord`` (file, line, column) and
+:class:`bgc.BgcError` (``bgc.base.errors.ModelError``) with ``.coord`` (file, line, column) and
 ``.message``.
 """
 from __future__ import annotations
@@ -13,7 +13,7 @@ import html
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import Coord, ModelError
+from bgc.base.errors import Coord, ModelError
 
 BgcError = ModelError
 TARGETS = ("numpy",)
@@ -25,7 +25,7 @@ def _is_text(src) -> bool:
 
 def _model(src):
     """Parse a model given as a path or as YAML text."""
-    from .parse import parse_file, parse_text
+    from bgc.format.parse import parse_file, parse_text
 
     if _is_text(src):
         return parse_text(src, "<string>")
@@ -37,13 +37,14 @@ def _model(src):
 
 
 def _through_cache(path, scene, target, name, build):
-    """(compiled or None, module) through the compile cache (bgc.cache and bgc.backends,
+    """(compiled or None, module) through the compile cache (bgc.run.cache and bgc.backends.load,
     when this bgc has them: ``backends.load`` reads a hit without compiling), else
     (compiled, module) compiled now and loaded from memory."""
-    from .scene import load_module
+    from bgc.backends.load import load_module
 
     try:
-        from . import backends, cache
+        from bgc.backends import load as backends
+        from bgc.run import cache
     except ImportError:
         backends = cache = None
     if backends is not None and hasattr(backends, "load") and hasattr(cache, "key"):
@@ -58,10 +59,10 @@ def _through_cache(path, scene, target, name, build):
 def compile(path_or_text, scene=None, target: str = "numpy") -> "CompiledModel":  # noqa: A001
     """Compile a model (path or YAML text), optionally specialised to a scene file, and return
     the loaded module wrapped in a :class:`CompiledModel` (attributes go to the module)."""
-    from .compiler import compile_model
+    from bgc.run.driver import compile_model
 
     try:
-        from .backends import BACKENDS as targets
+        from bgc.backends.load import BACKENDS as targets
     except ImportError:
         targets = TARGETS
     if target not in targets:
@@ -70,8 +71,9 @@ def compile(path_or_text, scene=None, target: str = "numpy") -> "CompiledModel":
     if path is not None and not Path(path).is_file():
         raise ModelError(Coord(str(path), 1, 1), "model file does not exist")
     if scene is not None:
-        from .graph import build_graph
-        from .scene import apply_scene, check_outputs, parse_scene, plan_for
+        from bgc.core.graph import build_graph
+        from bgc.core.specialize import plan_for
+        from bgc.format.scene import apply_scene, check_outputs, parse_scene
 
         sc = parse_scene(scene)
         if _is_text(path_or_text) or Path(sc.model_path).resolve() != Path(
@@ -119,8 +121,8 @@ class CompiledModel:
         """(bond graph, causality) for the drawing (rebuilt after a cache hit: cheap)."""
         if self.compiled is not None:
             return self.compiled.graph, self.compiled.causality
-        from .causality import assign_causality
-        from .graph import build_graph
+        from bgc.core.causality import assign_causality
+        from bgc.core.graph import build_graph
 
         bg = build_graph(_model(self.origin))
         return bg, assign_causality(bg, allow_derivative=True)
@@ -155,7 +157,7 @@ class CompiledModel:
 
 def _svg(graph, caus):
     """The bond graph as SVG text, or None without Graphviz."""
-    from .draw import render_image, to_dot
+    from bgc.core.draw import render_image, to_dot
 
     try:
         return render_image(to_dot(graph, caus), "svg").decode("utf-8")
@@ -200,7 +202,7 @@ class CheckResult:
                 ("causality", "all integral" if self.all_integral else
                  "derivative: " + ", ".join(self.derivative))]
         rows += [("warning", w) for w in self.warnings] + [("error", d) for d in self.diagnostics]
-        from .draw import render_image
+        from bgc.core.draw import render_image
 
         try:
             svg = render_image(self.dot, "svg").decode("utf-8")
@@ -212,10 +214,10 @@ class CheckResult:
 def check(path_or_text) -> CheckResult:
     """Causality per bond, causal forms, states, loops and warnings of a model, as data.
     Derivative causality is reported in ``diagnostics`` (not raised); other errors raise."""
-    from .causality import assign_causality, derivative_message
-    from .draw import to_dot
-    from .equations import derive
-    from .graph import build_graph
+    from bgc.core.causality import assign_causality, derivative_message
+    from bgc.core.draw import to_dot
+    from bgc.core.equations import derive
+    from bgc.core.graph import build_graph
 
     m = _model(path_or_text)
     bg = build_graph(m)
@@ -281,9 +283,9 @@ def equations(path_or_text) -> StateEquations:
     """The state equations of a model as sympy objects (and LaTeX: ``.latex()``)."""
     import sympy as sp
 
-    from .causality import assign_causality
-    from .equations import T, derive
-    from .graph import build_graph
+    from bgc.core.causality import assign_causality
+    from bgc.core.equations import T, derive
+    from bgc.core.graph import build_graph
 
     bg = build_graph(_model(path_or_text))
     eqs = derive(bg, assign_causality(bg))
@@ -321,7 +323,7 @@ class Linearization:
 def linearize(model, at="equilibrium", p=None, u=None) -> Linearization:
     """Linearise a model (path, text or a :class:`CompiledModel`) at its equilibrium (inputs
     held at their values at t = 0) or at a time ``at`` reached by a run from x0."""
-    from .linear import modes, to_statespace
+    from bgc.linear import modes, to_statespace
 
     mod = model if isinstance(model, CompiledModel) else compile(model)
     if at == "equilibrium":

@@ -77,7 +77,9 @@ def bode_plot(path, lin, i_in, i_out, in_label, out_label, in_unit="", out_unit=
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .plots import _plain  # model text shown as written (no mathtext from a "$")
+    from bgc.run.plots import (
+        _plain,  # model text shown as written (no mathtext from a "$")
+    )
 
     A = np.asarray(lin[0])
     if f_range is None:

@@ -4,7 +4,7 @@ One parent process imports bgc (and sympy, numpy, scipy, matplotlib) once; every
 a child made with ``os.fork``: the child puts itself in its own process group, limits its
 address space (``RLIMIT_AS``: the parent's size plus ``MEM_LIMIT``), moves into a fresh
 temporary directory that holds the case's files and a canary, points ``TMPDIR`` at an empty
-folder of its own, and runs the real command line (``bgc.cli.main``) with its stdout and stderr
+folder of its own, and runs the real command line (``bgc.cli.commands.main``) with its stdout and stderr
 sent to files. A run that outlasts ``TIMEOUT`` seconds is killed with its whole process group.
 When a compile succeeded, the child also loads the module it wrote (compiled from its text, in
 memory) and evaluates ``rhs(0, X0)``: a payload hidden in the module would run there, in the
@@ -149,8 +149,8 @@ def warm() -> None:
     """Import what the commands import, once, in the parent: every child starts warm."""
     import importlib
 
-    for name in ("bgc.cli", "bgc.compiler", "bgc.runner", "bgc.scene", "bgc.draw",
-                 "bgc.plots", "bgc.accuracy", "scipy.integrate", "scipy.sparse",
+    for name in ("bgc.cli.commands", "bgc.run.driver", "bgc.run.runner", "bgc.format.scene", "bgc.core.draw",
+                 "bgc.run.plots", "bgc.studies.accuracy", "scipy.integrate", "scipy.sparse",
                  "scipy.sparse.linalg", "scipy.linalg", "matplotlib.pyplot"):
         try:
             importlib.import_module(name)
@@ -164,7 +164,7 @@ def reference_skeletons() -> list:
     global _REFERENCE
     if _REFERENCE is None:
         warm()
-        from bgc.compiler import compile_file
+        from bgc.run.driver import compile_file
 
         refs = []
         models = [ROOT / "models" / "msd.yaml"] + sorted(
@@ -280,7 +280,7 @@ def _run_cli(argv: list, res: Path, k: int) -> int:
     # as a real interpreter opens them: stdout strict, stderr backslashreplace
     sys.stdout = open(1, "w", encoding="utf-8", errors="strict", closefd=False)
     sys.stderr = open(2, "w", encoding="utf-8", errors="backslashreplace", closefd=False)
-    from bgc.cli import main
+    from bgc.cli.commands import main
 
     code = 0
     try:

@@ -44,7 +44,7 @@ GOLDEN = harness.ROOT / "models" / "msd.yaml"
 
 def _module_code(extra: str = "") -> str:
     """Child code that writes bgc's module for msd (compiled in the child) plus ``extra``."""
-    return ("from bgc.compiler import compile_file\n"
+    return ("from bgc.run.driver import compile_file\n"
             f"src = compile_file({str(GOLDEN)!r}).source + {extra!r}\n"
             "open('out.py', 'w').write(src)\n")
 

@@ -21,8 +21,8 @@ from reference import mech3r2s as ref  # noqa: E402,F401  (re-exported)
 @lru_cache(maxsize=None)
 def scene_module(path):
     """(scene, module) for a scene file: its model compiled with the scene's signals."""
-    from bgc.runner import compile_scene
-    from bgc.scene import parse_scene
+    from bgc.format.scene import parse_scene
+    from bgc.run.runner import compile_scene
 
     scene = parse_scene(path)
     _, mod = compile_scene(scene)
@@ -31,7 +31,7 @@ def scene_module(path):
 
 def scene_run(scene, mod, **overrides):
     """simulate() with the scene's own settings (as `bgc simulate`), overrides on top."""
-    from bgc.scene import free_values
+    from bgc.format.scene import free_values
 
     kw = dict(dt=scene.dt, method=scene.method, rtol=scene.rtol, atol=scene.atol,
               p=free_values(scene) or None, breakpoints=scene.breakpoints,

@@ -25,7 +25,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.linalg import expm
-
 from stability_helpers import chain_matrix
 
 N = 1000

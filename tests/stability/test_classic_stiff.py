@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from stability_helpers import CHAIN_STATES, chain_exact, chain_matrix
 
 VDPOL_T2 = (1.706167732170483, -0.8928097010247975)  # Bari test set, vdpol, eps = 1e-6

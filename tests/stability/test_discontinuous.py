@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from stability_helpers import SCENES, chain_exact, scene_module
 
 ANGLES = ("theta1", "theta2", "theta3", "theta4")

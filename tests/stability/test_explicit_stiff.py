@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 import scipy.integrate
 
-from bgc.compiler import compile_file
-from bgc.scene import load_module
+from bgc.backends.load import load_module
+from bgc.run.driver import compile_file
 
 EXPLICIT = ("RK23", "RK45", "DOP853")
 

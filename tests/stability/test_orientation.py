@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from stability_helpers import SCENES, orthogonality_error, rows, scene_module, scene_run
 
 LINKS = ("link1", "link2", "link3", "link4")

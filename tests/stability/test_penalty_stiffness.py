@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from stability_helpers import orthogonality_error, ref, rows
 
 K_T = (1e8, 1e10, 1e12)

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from stability_helpers import SCENES, link1_pose, ref, scene_module, scene_run
 
 ANGLES = ("theta1", "theta2", "theta3", "theta4")

@@ -1,0 +1,225 @@
+"""Building the C backend's shared library with the system C compiler.
+
+The compiler is ``$CC`` (split like a shell word list), else ``cc``; flags ``-O2 -std=c99
+-fPIC`` and ``-fopenmp`` when the compiler accepts it (probed once per compiler). The model's
+units and the runtime's build in parallel; the runtime's object files do not change from one
+model to the next and are kept in the compile cache under a key of their sources, the
+compiler's identity and the flags.
+"""
+from __future__ import annotations
+
+import functools
+import os
+import shlex
+import shutil
+from pathlib import Path
+
+from bgc.base.errors import ModelError
+
+CFLAGS = ("-O2", "-std=c99", "-fPIC")
+RUNTIME_DIR = "c/runtime"
+LIB_NAME = "libmodel.so"
+
+
+class CompilerMissing(ModelError):
+    """No working C compiler: the C backend cannot build (the numpy backend still can)."""
+
+    def __init__(self, message: str):
+        super().__init__(None, message)
+
+
+def compiler() -> list[str]:
+    cc = os.environ.get("CC", "").strip() or "cc"
+    return shlex.split(cc)
+
+
+def _run_version(cc: tuple[str, ...]) -> str:
+    import subprocess
+
+    try:
+        out = subprocess.run(list(cc) + ["--version"], capture_output=True, text=True,
+                             timeout=30)
+    except (OSError, subprocess.SubprocessError) as exc:
+        raise CompilerMissing(f"no C compiler: {' '.join(cc)!r} cannot run ({exc}); set CC, or "
+                              "use the numpy backend") from None
+    if out.returncode != 0:
+        raise CompilerMissing(f"no C compiler: `{' '.join(cc)} --version` failed; set CC, or "
+                              "use the numpy backend")
+    return out.stdout.strip()
+
+
+def _stamp(cc: tuple[str, ...]) -> str | None:
+    """The compiler executable's resolved path, size, change time and inode (ccache's
+    "mtime" check): while they hold, its `--version` text is the one kept in the cache, and a
+    warm run starts no compiler. None when the command is not a file on PATH."""
+    exe = shutil.which(cc[0]) if cc else None
+    if exe is None:
+        return None
+    try:
+        real = os.path.realpath(exe)
+        st = os.stat(real)
+    except OSError:
+        return None
+    return "\0".join([*cc, real, str(st.st_size), str(st.st_mtime_ns), str(st.st_ctime_ns),
+                      str(st.st_ino)])
+
+
+@functools.lru_cache(maxsize=None)
+def _identity(cc: tuple[str, ...]) -> str:
+    import hashlib
+
+    stamp = _stamp(cc)
+    if stamp is not None:
+        try:
+            from bgc.base.store import Cache
+
+            key = "cc-" + hashlib.sha256(stamp.encode()).hexdigest()[:32]
+            d = Cache().get_or_build("c-runtime", key, lambda tmp: (tmp / "identity").write_text(
+                _run_version(cc), encoding="utf-8"))
+            text = (d / "identity").read_text(encoding="utf-8")
+            if text:
+                return text
+        except (OSError, UnicodeError, ModelError) as exc:
+            if isinstance(exc, CompilerMissing):
+                raise
+    return _run_version(cc)
+
+
+def identity() -> str:
+    """The compiler's command and `--version` text (part of every C cache key)."""
+    cc = tuple(compiler())
+    return " ".join(cc) + "\n" + _identity(cc)
+
+
+def available() -> bool:
+    try:
+        identity()
+        return True
+    except CompilerMissing:
+        return False
+
+
+@functools.lru_cache(maxsize=None)
+def _openmp(cc: tuple[str, ...]) -> bool:
+    """Does the compiler build OpenMP code? Probed once per compiler; the answer is kept in
+    the compile cache (when there is a safe one), so a warm run starts no compiler."""
+    import hashlib
+
+    ident = hashlib.sha256(_identity(cc).encode() + b"\0" + " ".join(cc).encode()).hexdigest()
+    try:
+        from bgc.base.store import Cache
+
+        store = Cache()
+        d = store.get_or_build("c-runtime", "openmp-" + ident[:32],
+                               lambda tmp: (tmp / "openmp").write_text(
+                                   "1" if _probe_openmp(cc) else "0"))
+        return (d / "openmp").read_text() == "1"
+    except (OSError, ModelError):
+        return _probe_openmp(cc)
+
+
+def _probe_openmp(cc: tuple[str, ...]) -> bool:
+    import subprocess
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="bgc-omp-") as d:
+        src = Path(d) / "probe.c"
+        src.write_text("#include <omp.h>\nint f(void) { return omp_get_max_threads(); }\n")
+        r = subprocess.run(list(cc) + ["-fopenmp", "-fPIC", "-shared", "-o",
+                                       str(Path(d) / "probe.so"), str(src)],
+                           capture_output=True, timeout=60)
+        return r.returncode == 0
+
+
+def flags() -> tuple[str, ...]:
+    """The compile flags for the current compiler (with -fopenmp when it has OpenMP)."""
+    cc = tuple(compiler())
+    _identity(cc)
+    return CFLAGS + (("-fopenmp",) if _openmp(cc) else ())
+
+
+def runtime_sources() -> list[Path]:
+    from bgc.base.paths import templates_dir
+
+    d = templates_dir() / RUNTIME_DIR
+    return sorted(d.glob("*.c"))
+
+
+def runtime_headers() -> list[Path]:
+    from bgc.base.paths import templates_dir
+
+    return sorted((templates_dir() / RUNTIME_DIR).glob("*.h"))
+
+
+def runtime_key() -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    for f in runtime_sources() + runtime_headers():
+        h.update(f.name.encode() + b"\0" + f.read_bytes() + b"\0")
+    h.update(identity().encode() + b"\0" + " ".join(flags()).encode())
+    return h.hexdigest()[:32]
+
+
+def _cc(args: list[str], cwd: Path) -> None:
+    import subprocess
+
+    r = subprocess.run(compiler() + args, cwd=cwd, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise RuntimeError(f"the C compiler failed ({' '.join(compiler() + args)}):\n"
+                           f"{r.stderr[-4000:]}")
+
+
+def _runtime_objects(cache, jobs: int, tmpdir) -> list[Path]:
+    """The runtime's object files, compiled once per (sources, compiler, flags)."""
+    fl = list(flags())
+    key = runtime_key()
+
+    def build(tmp: Path):
+        from concurrent.futures import ThreadPoolExecutor
+
+        inc = runtime_sources()[0].parent if runtime_sources() else tmp
+        srcs = runtime_sources()
+        with ThreadPoolExecutor(max_workers=jobs) as ex:
+            list(ex.map(lambda s: _cc(fl + ["-I", str(inc), "-c", str(s), "-o",
+                                            str(tmp / (s.stem + ".o"))], tmp), srcs))
+
+    if cache is not None:
+        d = cache.get_or_build("c-runtime", key, build)
+    else:  # uncached: built beside the model's objects, removed with them
+        d = Path(tmpdir) / "runtime"
+        d.mkdir()
+        build(d)
+    return sorted(d.glob("*.o"))
+
+
+def build_library(srcdir: Path, files: list[str], cache=None, jobs: int | None = None) -> Path:
+    """Compile the model's C files in srcdir (in parallel), link them with the runtime's
+    objects into srcdir/LIB_NAME. Raises CompilerMissing without a compiler."""
+    identity()
+    srcdir = Path(srcdir)
+    jobs = jobs or os.cpu_count() or 1
+    fl = list(flags())
+    inc = str(runtime_sources()[0].parent) if runtime_sources() else str(srcdir)
+    if not runtime_sources():
+        raise ModelError(None, "the C runtime (templates/c/runtime/*.c) is not installed: "
+                               "use the numpy backend")
+    import tempfile
+    from concurrent.futures import ThreadPoolExecutor
+
+    objdir = Path(tempfile.mkdtemp(prefix="bgc-obj-"))
+    try:
+        with ThreadPoolExecutor(max_workers=jobs) as ex:
+            rt = ex.submit(_runtime_objects, cache, jobs, objdir)
+            objs = list(ex.map(
+                lambda f: (_cc(fl + ["-I", inc, "-c", str(srcdir / f), "-o",
+                                     str(objdir / (Path(f).stem + ".o"))], srcdir),
+                           objdir / (Path(f).stem + ".o"))[1], files))
+            rt_objs = rt.result()
+        tmp = srcdir / f".{LIB_NAME}.tmp{os.getpid()}"
+        _cc(fl + ["-shared", "-o", str(tmp)] + [str(o) for o in objs + rt_objs] + ["-lm"],
+            srcdir)
+        os.replace(tmp, srcdir / LIB_NAME)
+    finally:
+        shutil.rmtree(objdir, ignore_errors=True)
+    return srcdir / LIB_NAME

@@ -1,0 +1,588 @@
+"""FMU export: a model (or a scene's specialised model) as an FMI 2.0 FMU for Model Exchange
+and Co-Simulation.
+
+The FMU holds modelDescription.xml, the C sources under ``sources/`` (the model printed by
+the C backend's printer from bgc's lowering, the FMI glue ``bgc_fmi2.c``, bgc's C runtime and
+the FMI 2.0 headers taken from the installed FMPy package) and a shared library for this
+platform under ``binaries/<platform>/``.
+
+The model functions of an FMU differ from the C backend's in one respect: the inputs are
+values in the parameter vector (set through fmi2SetReal) instead of compiled default
+expressions; an input nobody has set follows its default signal (:mod:`templates/c/fmu`).
+"""
+from __future__ import annotations
+
+import atexit
+import hashlib
+import io
+import os
+import platform
+import re
+import shutil
+import subprocess
+import tempfile
+import uuid
+import xml.etree.ElementTree as ET
+import zipfile
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import sympy as sp
+
+from bgc.base import __version__
+from bgc.base.errors import ModelError
+from bgc.core.equations import T
+
+KINDS = ("me", "cs", "both")
+FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+GLUE_DIR = "c/fmu"
+#: uuid5 namespace of bgc's FMU GUIDs
+_GUID_NS = uuid.UUID("6f1d2c9e-5b0a-4c1e-9d0f-b9c0f3a1e2d4")
+_STRUCTURED = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\[[0-9]+(,[0-9]+)*\])?"
+                         r"(\.[A-Za-z_][A-Za-z0-9_]*(\[[0-9]+(,[0-9]+)*\])?)*")
+_METHODS = {"Rodas4": 0, "Radau": 1}  # BGC_RODAS4, BGC_RADAU5; other methods run Radau5
+
+
+@dataclass(frozen=True)
+class Var:
+    name: str
+    vr: int
+    causality: str
+    variability: str
+    initial: str | None = None
+    start: float | None = None
+    unit: str = ""
+    description: str = ""
+    derivative: int | None = None  # 1-based index of the state variable
+
+
+@dataclass(frozen=True)
+class FmuSpec:
+    """What the XML and the C model share: variables and value references, in one order."""
+    model_identifier: str
+    guid: str
+    variables: tuple[Var, ...]
+    n: int
+    np: int
+    nu: int
+    nout: int
+    param_start: tuple[float, ...]
+    param_tunable: tuple[int, ...]
+    input_start: tuple[float, ...]
+    state_deps: tuple[tuple[int, ...], ...]  # derivative i -> variable indices (1-based)
+    output_deps: tuple[tuple[int, ...], ...]
+    initial_deps: tuple[tuple[int, tuple[int, ...]], ...]  # (index, dependencies), by index
+
+
+def flat_names(name: str, shape: tuple[int, ...]) -> list[str]:
+    """FMI scalar names of a value: ``name``, ``name[i]`` or ``name[i,j]`` (1-based)."""
+    if not shape:
+        return [name]
+    if len(shape) == 1:
+        return [f"{name}[{i + 1}]" for i in range(shape[0])]
+    return [f"{name}[{i + 1},{j + 1}]" for i in range(shape[0]) for j in range(shape[1])]
+
+
+def _flat_values(v) -> list[float]:
+    if isinstance(v, (tuple, list)):
+        out = []
+        for r in v:
+            out += _flat_values(r)
+        return out
+    return [float(v)]
+
+
+def _deps(fn, state_syms, input_syms, extra=None) -> list[set]:
+    """For each result of a lowered function, the states and inputs (as ('x', i) / ('u', k))
+    it depends on, through the function's definitions; ``extra`` adds symbols of other
+    kinds (symbol -> set), e.g. parameters as ('p', k)."""
+    base = {s: {("x", i)} for i, s in enumerate(state_syms)}
+    base.update({s: {("u", k)} for k, s in enumerate(input_syms)})
+    base.update(extra or {})
+    known: dict = {}
+
+    def of(expr):
+        out = set()
+        for s in expr.free_symbols:
+            if s in known:
+                out |= known[s]
+            elif s in base:
+                out |= base[s]
+        return out
+
+    for ln in fn.lines:
+        known[ln.target] = of(ln.expr)
+    return [of(r) for _, r in fn.results]
+
+
+def _param_base(eq, psyms) -> dict:
+    """symbol -> {('p', k)}: the parameters, and the derived parameters through their
+    definitions."""
+    base = {s: {("p", k)} for k, s in enumerate(psyms)}
+    for a in eq.derived:
+        d = set()
+        for s in a.expr.free_symbols:
+            d |= base.get(s, set())
+        base[a.symbol] = d
+    return base
+
+
+def _numeric(expr, values: dict) -> float:
+    v = sp.sympify(expr).xreplace(values)
+    try:
+        return float(sp.N(v))
+    except TypeError:
+        raise ModelError(None, f"cannot evaluate the start value {expr} numerically") from None
+
+
+def build_spec(compiled, scene=None, kind: str = "both") -> FmuSpec:
+    low = compiled.lowered
+    eq = compiled.equations
+    ident = compiled.model.name + (f"_{scene.name}" if scene is not None else "")
+    ident = re.sub(r"[^A-Za-z0-9_]", "_", ident)
+    if not ident or ident[0].isdigit():
+        ident = "m_" + ident
+    n = len(eq.states)
+    # parameter start values: the model's (the scene's top-level values are already in),
+    # then the scene's free parameters
+    overrides = {}
+    if scene is not None:
+        from bgc.format.scene import free_values
+
+        overrides = free_values(scene)
+    pstart, punits, pdesc, pnames, psyms = [], [], [], [], []
+    for pv in eq.params:
+        vals = _flat_values(overrides.get(pv.id, pv.value))
+        if len(vals) != len(pv.symbols):
+            raise ModelError(None, f"parameter {pv.id!r}: {len(vals)} values for "
+                                   f"{len(pv.symbols)} entries")
+        pstart += vals
+        names = flat_names(pv.id, tuple(pv.shape))
+        pnames += names
+        punits += [pv.unit] * len(names)
+        pdesc += [pv.description] * len(names)
+        psyms += list(pv.symbols)
+    # fixed: parameters the initial state depends on (directly or through derived ones)
+    init_syms = set()
+    for sv in eq.states:
+        init_syms |= sp.sympify(sv.initial).free_symbols
+    for a in reversed(eq.derived):
+        if a.symbol in init_syms:
+            init_syms |= a.expr.free_symbols
+    ptun = [0 if s in init_syms else 1 for s in psyms]
+    values = {s: sp.Float(v) for s, v in zip(psyms, pstart)}
+    for a in eq.derived:
+        values[a.symbol] = sp.Float(_numeric(a.expr, values))
+    t0 = scene.t_span[0] if scene is not None else 0.0
+    values[T] = sp.Float(t0)
+    model_inputs = {i.name: i for i in compiled.model.inputs}
+    inames, iunits, istart, isyms = [], [], [], []
+    for iv in eq.inputs:
+        names = flat_names(iv.name, tuple(iv.shape))
+        inames += names
+        unit = model_inputs[iv.name].unit if iv.name in model_inputs else ""
+        iunits += [unit] * len(names)
+        istart += [_numeric(d, values) for d in iv.default]
+        isyms += list(iv.symbols)
+    onames, ounits = [], []
+    out_unit = {o.name: o.unit for o in compiled.model.body.outputs}  # {expr, unit} outputs
+    for name, shape, vals in eq.outputs:
+        onames += flat_names(name, tuple(shape))
+        ounits += [out_unit.get(name, "")] * len(flat_names(name, tuple(shape)))
+    snames = [sv.name for sv in eq.states]
+    nu, npar, nout = len(inames), len(pnames), len(onames)
+    vr_p, vr_u, vr_y = 2 * n, 2 * n + npar, 2 * n + npar + nu
+    # FMI indices (1-based) in ModelVariables order: states, derivatives, params, inputs, outputs
+    idx_x = [i + 1 for i in range(n)]
+    idx_u = [vr_u + k + 1 for k in range(nu)]
+    state_syms = [sv.symbol for sv in eq.states]
+    rhs_deps = _deps(low.rhs, state_syms, isyms)
+    jac_cols: list[set] = [set() for _ in range(n)]
+    for r, col in low.jac_keys:
+        jac_cols[r].add(col)
+    sdeps = []
+    for i in range(n):
+        d = sorted({idx_x[j] for j in jac_cols[i]}
+                   | {idx_u[k] for (kind_, k) in rhs_deps[i] if kind_ == "u"})
+        sdeps.append(tuple(d))
+    out_deps = _deps(low.outs, state_syms, isyms)
+    odeps = [tuple(sorted(idx_x[k] if kind_ == "x" else idx_u[k] for kind_, k in d))
+             for d in out_deps]
+    # InitialUnknowns: in terms of what is known at initialisation, the parameters and the
+    # inputs (the states are calculated from parameters)
+    pbase = _param_base(eq, psyms)
+    idx_p = [vr_p + k + 1 for k in range(npar)]
+
+    def known(kind_, k):
+        return idx_p[k] if kind_ == "p" else idx_u[k]
+
+    init_x = [{known(*d) for d in ds} for ds in _deps(low.init, state_syms, isyms, pbase)]
+
+    def at_init(ds):
+        out = set()
+        for kind_, k in ds:
+            out |= init_x[k] if kind_ == "x" else {known(kind_, k)}
+        return tuple(sorted(out))
+
+    initial = {idx_x[i]: tuple(sorted(init_x[i])) for i in range(n)}
+    for i, ds in enumerate(_deps(low.rhs, state_syms, isyms, pbase)):
+        initial[n + i + 1] = at_init(ds)
+    for k, ds in enumerate(_deps(low.outs, state_syms, isyms, pbase)):
+        initial[vr_y + k + 1] = at_init(ds)
+    variables = []
+    for i, s in enumerate(snames):
+        variables.append(Var(s, i, "local", "continuous", "calculated"))
+    for i, s in enumerate(snames):
+        variables.append(Var(f"der({s})", n + i, "local", "continuous", "calculated",
+                             derivative=i + 1))
+    for k, nm in enumerate(pnames):
+        variables.append(Var(nm, vr_p + k, "parameter", "tunable" if ptun[k] else "fixed",
+                             "exact", pstart[k], punits[k], pdesc[k]))
+    for k, nm in enumerate(inames):
+        variables.append(Var(nm, vr_u + k, "input", "continuous", None, istart[k], iunits[k]))
+    for k, nm in enumerate(onames):
+        variables.append(Var(nm, vr_y + k, "output", "continuous", "calculated",
+                             unit=ounits[k]))
+    seen: dict = {}
+    for v in variables:
+        if v.name in seen:
+            raise ModelError(None, f"two FMI variables would be named {v.name!r}: rename the "
+                                   "parameter, input or output")
+        seen[v.name] = v
+    for v in pstart + istart:
+        if v != v or v in (float("inf"), float("-inf")):
+            raise ModelError(None, "a parameter or input start value is not finite")
+    h = hashlib.sha256()
+    for part in (compiled.model.source_hash, getattr(scene, "source_hash", "") or "",
+                 __version__, kind, ident, compiled.source):
+        h.update(str(part).encode("utf-8") + b"\0")
+    guid = "{" + str(uuid.uuid5(_GUID_NS, h.hexdigest())) + "}"
+    return FmuSpec(ident, guid, tuple(variables), n, npar, nu, nout, tuple(pstart),
+                   tuple(ptun), tuple(istart), tuple(sdeps), tuple(odeps),
+                   tuple(sorted(initial.items())))
+
+
+# ---------------------------------------------------------------------------------------------
+# modelDescription.xml
+
+
+def _g(v: float) -> str:
+    return repr(float(v))
+
+
+def model_description(compiled, spec: FmuSpec, scene=None, kind: str = "both",
+                      sources: tuple[str, ...] = ()) -> bytes:
+    eq = compiled.equations
+    desc = compiled.model.description or ""
+    naming = "structured" if all(_STRUCTURED.fullmatch(v.name) or (
+        v.name.startswith("der(") and _STRUCTURED.fullmatch(v.name[4:-1]))
+        for v in spec.variables) else "flat"
+    root = ET.Element("fmiModelDescription", {
+        "fmiVersion": "2.0", "modelName": compiled.model.name + (
+            f" (scene {scene.name})" if scene is not None else ""),
+        "guid": spec.guid, "description": desc, "generationTool": f"bgc {__version__}",
+        "variableNamingConvention": naming, "numberOfEventIndicators": "0"})
+    caps = {"modelIdentifier": spec.model_identifier,
+            "needsExecutionTool": "false", "canNotUseMemoryManagementFunctions": "true",
+            "canGetAndSetFMUstate": "true", "canSerializeFMUstate": "false",
+            "providesDirectionalDerivative": "true"}
+    for tag, extra in (("ModelExchange", {"completedIntegratorStepNotNeeded": "true"}),
+                       ("CoSimulation", {"canHandleVariableCommunicationStepSize": "true",
+                                         "canInterpolateInputs": "false",
+                                         "maxOutputDerivativeOrder": "0",
+                                         "canRunAsynchronuously": "false"})):
+        if (tag == "ModelExchange" and kind == "cs") or (tag == "CoSimulation" and kind == "me"):
+            continue
+        el = ET.SubElement(root, tag, {**caps, **extra})
+        sf = ET.SubElement(el, "SourceFiles")
+        for f in sources:
+            ET.SubElement(sf, "File", {"name": f})
+    units = sorted({v.unit for v in spec.variables if v.unit})
+    if units:
+        ud = ET.SubElement(root, "UnitDefinitions")
+        for u in units:
+            ET.SubElement(ud, "Unit", {"name": u})
+    cats = ET.SubElement(root, "LogCategories")
+    for cat, what in (("logStatusError", "errors: bad calls, failed evaluations"),
+                      ("logStatusDiscard", "communication steps the integrator could not end"),
+                      ("logAll", "everything")):
+        ET.SubElement(cats, "Category", {"name": cat, "description": what})
+    de = {}
+    if scene is not None:
+        de = {"startTime": _g(scene.t_span[0]), "stopTime": _g(scene.t_span[1]),
+              "tolerance": _g(scene.rtol)}
+        if scene.dt:
+            de["stepSize"] = _g(scene.dt)
+    else:
+        de = {"startTime": "0.0", "tolerance": "1e-06"}
+    ET.SubElement(root, "DefaultExperiment", de)
+    mv = ET.SubElement(root, "ModelVariables")
+    for v in spec.variables:
+        a = {"name": v.name, "valueReference": str(v.vr)}
+        if v.description:
+            a["description"] = v.description
+        a["causality"] = v.causality
+        a["variability"] = v.variability
+        if v.initial:
+            a["initial"] = v.initial
+        sv = ET.SubElement(mv, "ScalarVariable", a)
+        ra = {}
+        if v.unit:
+            ra["unit"] = v.unit
+        if v.derivative is not None:
+            ra["derivative"] = str(v.derivative)
+        if v.start is not None:
+            ra["start"] = _g(v.start)
+        ET.SubElement(sv, "Real", ra)
+    ms = ET.SubElement(root, "ModelStructure")
+    n = spec.n
+    idx_y = [2 * n + spec.np + spec.nu + k + 1 for k in range(spec.nout)]
+    if spec.nout:
+        outs = ET.SubElement(ms, "Outputs")
+        for k, i in enumerate(idx_y):
+            ET.SubElement(outs, "Unknown", {"index": str(i), "dependencies": " ".join(
+                map(str, spec.output_deps[k]))})
+    if n:
+        ders = ET.SubElement(ms, "Derivatives")
+        for i in range(n):
+            ET.SubElement(ders, "Unknown", {"index": str(n + i + 1), "dependencies": " ".join(
+                map(str, spec.state_deps[i]))})
+    if spec.initial_deps:
+        iu = ET.SubElement(ms, "InitialUnknowns")
+        for i, deps in spec.initial_deps:
+            ET.SubElement(iu, "Unknown", {"index": str(i),
+                                          "dependencies": " ".join(map(str, deps))})
+    ET.indent(root, space="  ")
+    buf = io.BytesIO()
+    ET.ElementTree(root).write(buf, encoding="UTF-8", xml_declaration=True)
+    return buf.getvalue() + b"\n"
+
+
+# ---------------------------------------------------------------------------------------------
+# C sources
+
+
+class _FmuCtx:
+    """The C backend's part context with the inputs moved into the parameter vector."""
+
+    def __init__(self, low):
+        eq = low.eq
+        self.input_syms_fmu = [s for iv in eq.inputs for s in iv.symbols]
+        self.param_syms = ([s for pv in eq.params for s in pv.symbols]
+                           + [d.target for d in low.derived] + self.input_syms_fmu)
+        self.state_syms = [sv.symbol for sv in eq.states]
+        self.input_syms = []
+        self.input_default = {}
+        self.table_of = {}  # inputs are values in the parameter vector, tables included
+        self.newton = ()  # refused before (render_sources)
+
+
+def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> dict[str, str]:
+    """The FMU's generated C files (name -> text): bgc_fmu_model.c, the parts and the
+    configuration header."""
+    from bgc.backends.c.printer import CPrinter, _env, _parts, c_name, has_solves
+    from bgc.base.paths import templates_dir
+
+    low = compiled.lowered
+    eq = compiled.equations
+    if has_solves(eq):  # the FMU's model functions keep no per-instance workspace yet
+        raise ModelError(None, f"model {eq.name!r}: the FMU export does not support numeric "
+                               "linear solves or nonlinear algebraic loops (Newton) yet")
+    tabs = [iv.name for iv in eq.inputs if getattr(iv, "table", None) is not None]
+    if tabs:  # an input following its default would follow the placeholder 0, not the data
+        raise ModelError(None, f"model {eq.name!r}: the FMU export does not support table "
+                               f"inputs yet (input {tabs[0]!r})")
+    printer = CPrinter()
+    ctx = _FmuCtx(low)
+    fns = {name: _parts(name, fn, printer, ctx) for name, fn in
+           (("rhs", low.rhs), ("jac", low.jac), ("outputs", low.outs), ("init", low.init))}
+    syms = ctx.param_syms + ctx.state_syms
+    cnames = [c_name(str(s)) for s in syms]
+    if not all(nm.isidentifier() and nm.isascii() for nm in cnames) or \
+            len(set(cnames)) != len(syms):
+        raise AssertionError("two model identifiers map to one C name")
+    n_par = sum(len(pv.symbols) for pv in eq.params)
+    nd = len(low.derived)
+    assert n_par == spec.np and len(ctx.input_syms_fmu) == spec.nu
+    index = {s: k for k, s in enumerate(ctx.param_syms)}
+    defaults = [d for iv in eq.inputs for d in iv.default]
+    used = set()
+    for d in defaults:
+        used |= sp.sympify(d).free_symbols
+    default_params = [(c_name(str(s)), index[s]) for s in ctx.param_syms[:n_par + nd]
+                      if s in used]
+    default_codes = [printer.doprint(d) for d in defaults]
+    dused = set()
+    for ln in low.derived:
+        dused |= ln.expr.free_symbols
+    derived_params = [(c_name(str(s)), k) for k, s in enumerate(ctx.param_syms[:n_par])
+                      if s in dused]
+    derived_lines = [(c_name(str(ln.target)), printer.doprint(ln.expr), n_par + j)
+                     for j, ln in enumerate(low.derived)]
+    has_t = int(fns["rhs"].uses_t or fns["jac"].uses_t or T in used)
+    all_parts = [p for f in fns.values() for p in f.parts]
+    from bgc.backends.c.printer import UNIT_PARTS
+
+    units = [all_parts[i:i + UNIT_PARTS] for i in range(0, len(all_parts), UNIT_PARTS)]
+    env = _env()
+    m = compiled.model
+    common = dict(name=eq.name, version=__version__, source=Path(m.file).name,
+                  source_hash=m.source_hash, description=m.description,
+                  notes=list(compiled.notes) + list(eq.loops))
+    files = {}
+    for k, unit in enumerate(units):
+        files[f"model_part{k}.c"] = env.get_template("c/part.c.j2").render(
+            parts=unit, unit=k, **common)
+    method, rtol, atol, max_step, breaks = 1, 1e-6, 1e-9, 0.0, []
+    if scene is not None:
+        method = _METHODS.get(scene.method, 1)
+        rtol, atol = scene.rtol, scene.atol
+        max_step = scene.max_step if scene.max_step not in (None, float("inf")) else 0.0
+        breaks = sorted(b for b in scene.breakpoints if scene.t_span[0] < b < scene.t_span[1])
+    tmpl = env.from_string((templates_dir() / GLUE_DIR / "fmu_model.c.j2").read_text("utf-8"))
+    files["bgc_fmu_model.c"] = tmpl.render(
+        fns=fns, all_parts=all_parts, n=spec.n, np=n_par, nd=nd, nu=spec.nu, nout=spec.nout,
+        np_all=n_par + nd + 2 * spec.nu, jac_keys=low.jac_keys, has_t=has_t,
+        default_params=default_params, default_codes=default_codes,
+        derived_params=derived_params, derived_lines=derived_lines,
+        param_start=[_g(v) for v in spec.param_start], param_tunable=list(spec.param_tunable),
+        input_start=[_g(v) for v in spec.input_start], breaks=[_g(b) for b in breaks],
+        guid=spec.guid, model_identifier=spec.model_identifier, method=method,
+        rtol=_g(rtol), atol=_g(atol), max_step=_g(max_step), **common)
+    cfg = ["/* bgc FMU configuration (generated) */", "#ifndef BGC_FMU_CONFIG_H",
+           "#define BGC_FMU_CONFIG_H"]
+    if kind == "cs":
+        cfg.append("#define BGCF_NO_ME 1")
+    if kind == "me":
+        cfg.append("#define BGCF_NO_CS 1")
+    cfg += ["#endif", ""]
+    files["bgc_fmu_config.h"] = "\n".join(cfg)
+    return files
+
+
+def fmi_headers_dir() -> Path:
+    """The folder of the FMI 2.0 headers shipped by the installed FMPy package."""
+    try:
+        import fmpy
+    except ImportError:
+        raise ModelError(None, "bgc export --fmu needs the FMI 2.0 headers, which bgc takes "
+                               "from the FMPy package: pip install fmpy") from None
+    base = Path(fmpy.__file__).parent
+    for d in [base / "c-code"] + sorted(p.parent for p in base.rglob("fmi2Functions.h")):
+        if all((d / h).is_file() for h in FMI_HEADERS):
+            return d
+    raise ModelError(None, f"the FMPy package at {base} ships no FMI 2.0 headers")
+
+
+def platform_dir() -> str:
+    bits = "64" if platform.architecture()[0] == "64bit" else "32"
+    system = {"Linux": "linux", "Darwin": "darwin", "Windows": "win"}.get(platform.system(),
+                                                                       platform.system().lower())
+    return f"{system}{bits}"
+
+
+def _lib_suffix() -> str:
+    return {"Darwin": ".dylib", "Windows": ".dll"}.get(platform.system(), ".so")
+
+
+def write_sources(compiled, spec, scene, kind, dest: Path) -> list[str]:
+    """All C sources (generated, glue, runtime, FMI headers) into dest; the .c file names."""
+    from bgc.backends.c import build as cbuild
+    from bgc.base.paths import templates_dir
+
+    files = render_sources(compiled, spec, scene, kind)
+    for name, text in files.items():
+        (dest / name).write_text(text, encoding="utf-8")
+    glue = templates_dir() / GLUE_DIR
+    for f in ("bgc_fmi2.c", "bgc_fmu_model.h"):
+        shutil.copyfile(glue / f, dest / f)
+    for f in cbuild.runtime_sources() + cbuild.runtime_headers():
+        shutil.copyfile(f, dest / f.name)
+    hd = fmi_headers_dir()
+    for h in FMI_HEADERS:
+        shutil.copyfile(hd / h, dest / h)
+    return sorted(p.name for p in dest.glob("*.c"))
+
+
+_RUNTIME_OBJS: dict = {}
+
+
+def build_binary(src: Path, cfiles: list[str], out: Path) -> None:
+    """Compile the sources with the system C compiler into the shared library out."""
+    from bgc.backends.c import build as cbuild
+
+    cbuild.identity()  # CompilerMissing when there is none
+    cc = cbuild.compiler()
+    fl = ["-O2", "-std=c99", "-fPIC", "-fvisibility=hidden", "-I", str(src)]
+    objdir = Path(tempfile.mkdtemp(prefix="bgc-fmu-obj-"))
+    rt_names = {f.name for f in cbuild.runtime_sources()}
+    try:
+        def one(f, dest=objdir):
+            o = dest / (Path(f).stem + ".o")
+            r = subprocess.run(cc + fl + ["-c", str(src / f), "-o", str(o)],
+                               capture_output=True, text=True)
+            if r.returncode != 0:
+                raise RuntimeError(f"the C compiler failed on {f}:\n{r.stderr[-4000:]}")
+            return o
+
+        # the runtime's objects do not change from one model to the next: once per process
+        key = (tuple(cc), cbuild.runtime_key())
+        rt = [f for f in cfiles if f in rt_names]
+        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as ex:
+            if key not in _RUNTIME_OBJS or not all(p.is_file() for p in _RUNTIME_OBJS[key]):
+                d = Path(tempfile.mkdtemp(prefix="bgc-fmu-rt-"))
+                atexit.register(shutil.rmtree, d, True)
+                _RUNTIME_OBJS[key] = list(ex.map(lambda f: one(f, d), rt))
+            objs = list(ex.map(one, [f for f in cfiles if f not in rt_names]))
+        objs += _RUNTIME_OBJS[key]
+        r = subprocess.run(cc + ["-shared", "-fPIC", "-o", str(out)] + [str(o) for o in objs]
+                           + ["-lm"], capture_output=True, text=True)
+        if r.returncode != 0:
+            raise RuntimeError(f"linking the FMU's library failed:\n{r.stderr[-4000:]}")
+    finally:
+        shutil.rmtree(objdir, ignore_errors=True)
+
+
+def package_fmu(compiled, out, scene=None, kind: str = "both", progress=None) -> Path:
+    """The FMU of a compiled model (specialised to ``scene`` when given), written to ``out``
+    atomically: its description, C sources and built binary in one zip."""
+    say = progress or (lambda msg: None)
+    if kind not in KINDS:
+        raise ModelError(None, f"unknown FMU kind {kind!r}: one of {', '.join(KINDS)}")
+    fmi_headers_dir()  # fail early without FMPy's headers
+    spec = build_spec(compiled, scene, kind)
+    out = Path(out)
+    work = Path(tempfile.mkdtemp(prefix="bgc-fmu-"))
+    try:
+        src = work / "sources"
+        src.mkdir()
+        say("writing the C sources")
+        cfiles = write_sources(compiled, spec, scene, kind, src)
+        xml = model_description(compiled, spec, scene, kind, tuple(cfiles))
+        libname = spec.model_identifier + _lib_suffix()
+        say(f"building {libname}")
+        lib = work / libname
+        build_binary(src, cfiles, lib)
+        entries = [("modelDescription.xml", xml)]
+        for f in sorted(src.iterdir()):
+            entries.append((f"sources/{f.name}", f.read_bytes()))
+        entries.append((f"binaries/{platform_dir()}/{libname}", lib.read_bytes()))
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = out.with_name(f".{out.name}.tmp{os.getpid()}")
+        try:
+            with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
+                for name, data in entries:
+                    zi = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
+                    zi.compress_type = zipfile.ZIP_DEFLATED
+                    zi.external_attr = 0o644 << 16
+                    zf.writestr(zi, data)
+            os.replace(tmp, out)
+        finally:
+            if tmp.exists():
+                tmp.unlink()
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    say(f"wrote {out}: {spec.n} states, {spec.np} parameters, {spec.nu} inputs, "
+        f"{spec.nout} outputs")
+    return out

@@ -1,0 +1,240 @@
+"""Backends: from a compiled model to a loaded module (numpy, or C through a shared library),
+through the compile cache.
+
+``load(...)`` is what `bgc simulate` uses: on a cache hit it reads the entry and imports the
+module without importing sympy or the compiler; on a miss it compiles (the caller's
+``compile_fn``), writes the entry atomically and loads it.
+"""
+from __future__ import annotations
+
+import shutil
+import sys
+from pathlib import Path
+
+BACKENDS = ("numpy", "c")
+MODULE_FILE = "module.py"
+CODE_FILE = "module.code"
+
+
+def c_files(compiled) -> tuple[dict, str]:
+    """(C sources by file name, wrapper text) of a compiled model."""
+    from bgc.backends.c.build import LIB_NAME
+    from bgc.backends.c.printer import render_c, render_wrapper
+
+    m = compiled.model
+    csrc = render_c(compiled.lowered, source=Path(m.file).name, source_hash=m.source_hash,
+                    description=m.description, header_notes=compiled.notes)
+    wrapper = render_wrapper(compiled.lowered, compiled.source, csrc, LIB_NAME)
+    return dict(csrc.files), wrapper
+
+
+def write_c(compiled, outdir, cache=None, progress=None) -> Path:
+    """Write the C sources, the runtime's sources, the wrapper (``<name>.py``) and the built
+    library into outdir; returns the wrapper's path."""
+    from bgc.backends.c import build as cbuild
+    from bgc.base.outfiles import write_output
+
+    say = progress or (lambda msg: None)
+    out = Path(outdir)
+    out.mkdir(parents=True, exist_ok=True)
+    files, wrapper = c_files(compiled)
+    for name, text in files.items():
+        write_output(out / name, text)
+    rt = out / "runtime"
+    rt.mkdir(exist_ok=True)
+    for f in cbuild.runtime_sources() + cbuild.runtime_headers():
+        shutil.copyfile(f, rt / f.name)
+    say(f"building the C library ({len(files)} model units)")
+    cbuild.build_library(out, sorted(files), cache=cache)
+    path = out / f"{compiled.model.name}.py"
+    write_output(path, wrapper)
+    return path
+
+
+def _code_file(tmp: Path, text: str, name: str) -> None:
+    """The module's compiled code beside its text: a warm load skips parsing and compiling
+    (the cache key includes the Python version; the text was checked when written)."""
+    import marshal
+
+    (tmp / CODE_FILE).write_bytes(marshal.dumps(compile(text, f"<bgc {name}>", "exec")))
+
+
+def _build_entry(compiled, backend, cache, progress, name):
+    def build(tmp: Path):
+        from bgc.base.outfiles import write_output
+
+        if backend == "numpy":
+            write_output(tmp / MODULE_FILE, compiled.source)
+            _code_file(tmp, compiled.source, name)
+            return
+        files, wrapper = c_files(compiled)
+        c_entry_builder(files, wrapper, name, cache, progress)(tmp)
+    return build
+
+
+def c_entry_builder(files: dict, wrapper: str, name: str, cache=None, progress=None):
+    """build(tmp): write the C sources (file name -> text) and the wrapper into tmp and build
+    the library there with the system compiler (a compile-cache entry for ``load_entry``)."""
+    def build(tmp: Path):
+        from bgc.backends.c import build as cbuild
+        from bgc.base.outfiles import write_output
+
+        for fname, text in files.items():
+            write_output(tmp / fname, text)
+        (progress or (lambda m: None))(f"building the C library ({len(files)} model units)")
+        cbuild.build_library(tmp, sorted(files), cache=cache)
+        write_output(tmp / MODULE_FILE, wrapper)
+        _code_file(tmp, wrapper, name)
+    return build
+
+
+def c_key(files: dict, wrapper: str) -> str:
+    """The compile-cache key of a C entry made from these texts (as `bgc sweep` ships them):
+    the texts, the C runtime's sources, the compiler's identity and flags, bgc's and Python's
+    versions (the entry keeps the wrapper's compiled code). Raises CompilerMissing without a
+    compiler."""
+    import hashlib
+    import sys
+
+    from bgc.backends.c import build as cbuild
+    from bgc.base import __version__
+
+    h = hashlib.sha256(f"bgc {__version__}\0python {sys.version}\0c-texts\0".encode())
+    for fname in sorted(files):
+        h.update(fname.encode() + b"\0" + files[fname].encode() + b"\0")
+    h.update(b"wrapper\0" + wrapper.encode() + b"\0")
+    h.update(cbuild.runtime_key().encode())  # runtime sources, compiler identity and flags
+    return h.hexdigest()
+
+
+def load_c(files: dict, wrapper: str, name: str, key: str | None = None, progress=None):
+    """The C wrapper module of shipped texts (C sources by file name, wrapper text), its
+    library built through the compile cache: a process that finds the entry loads it, one
+    that does not builds it (the system compiler) and keeps it for the next. The wrapper text
+    is checked before anything of it is kept or run. An unusable cache (unsafe, unwritable):
+    built in a temporary folder instead. Raises CompilerMissing without a compiler."""
+    import tempfile
+
+    from bgc.backends.skeleton import check_wrapper
+    from bgc.base.store import Cache, UnsafeCache
+
+    check_wrapper(wrapper)
+    key = key or c_key(files, wrapper)
+    try:
+        store = Cache()
+        entry = store.get_or_build("c", key, c_entry_builder(files, wrapper, name, store,
+                                                             progress))
+        return load_entry(entry, "c", name, trusted=True)
+    except (UnsafeCache, PermissionError) as exc:
+        (progress or (lambda m: None))(f"compile cache not used ({exc})")
+    d = Path(tempfile.mkdtemp(prefix="bgc-c-"))
+    try:
+        c_entry_builder(files, wrapper, name, None, progress)(d)
+        return load_entry(d, "c", name)  # loaded (the mapping outlives the file)
+    finally:
+        shutil.rmtree(d, ignore_errors=True)
+
+
+def load_entry(entry: Path, backend: str, name: str, trusted: bool = False):
+    """Import the module of a cache entry (or a folder holding module.py). ``trusted``: the
+    entry is in a checked cache directory and was checked when written; its compiled code
+    (module.code) is used as it is."""
+    entry = Path(entry)
+    text = (entry / MODULE_FILE).read_text(encoding="utf-8")
+    code = None
+    if trusted and (entry / CODE_FILE).is_file():
+        import marshal
+
+        try:
+            code = marshal.loads((entry / CODE_FILE).read_bytes())
+        except (ValueError, EOFError, TypeError):
+            code = None
+    if backend == "numpy":
+        return load_module(text, name, code=code)
+    from bgc.backends.c.build import LIB_NAME
+
+    check = None
+    if code is None:  # compiled code comes from a checked entry; text is checked first
+        from bgc.backends.skeleton import check_wrapper as check
+    mod = load_module(text, name, check=check, code=code)
+    mod._bind(Path(entry) / LIB_NAME)
+    return mod
+
+
+def load_module(source: str, name: str, check=None, code=None):
+    """Import generated source as a module, from memory: nothing is written to disk. The code
+    is compiled under a recognisable file name (``<bgc NAME>``) registered with ``linecache``,
+    so tracebacks and ``inspect`` still show the generated lines."""
+    if code is None:  # code: compiled from checked text (a trusted cache entry)
+        if check is None:
+            from bgc.backends.skeleton import check_skeleton as check
+        check(source)  # never execute a module whose top level is not the template's
+    modname = f"bgc_generated_{name}"
+    filename = f"<bgc {name}>"
+    loader = _SourceLoader(modname, filename, source, code)
+    import importlib.util
+    import linecache
+
+    spec = importlib.util.spec_from_loader(modname, loader, origin=filename)
+    mod = importlib.util.module_from_spec(spec)
+    mod.__file__ = filename
+    linecache.cache[filename] = (len(source), None, source.splitlines(True), filename)
+    sys.modules[modname] = mod
+    try:
+        loader.exec_module(mod)
+    except BaseException:
+        sys.modules.pop(modname, None)
+        raise
+    return mod
+
+
+class _SourceLoader:
+    """A loader for generated source held in memory (``get_source`` serves tracebacks,
+    ``get_data`` the module's own text). It has importlib.abc.Loader's methods without
+    subclassing it: importing importlib.abc costs a warm run 8 ms (importlib.resources)."""
+
+    def __init__(self, modname: str, filename: str, source: str, code=None):
+        self.modname, self.filename, self.source, self.code = modname, filename, source, code
+
+    def create_module(self, spec):
+        return None
+
+    def exec_module(self, module):
+        code = self.code if self.code is not None else compile(self.source, self.filename,
+                                                                 "exec")
+        exec(code, module.__dict__)
+
+    def get_source(self, fullname):
+        return self.source
+
+    def get_data(self, path):
+        return self.source.encode("utf-8")
+
+
+def load(name: str, backend: str, key: str | None, compile_fn, cache=None, progress=None):
+    """(compiled or None, module): from the cache when key hits, else compiled now.
+
+    compile_fn() -> Compiled. cache: a bgc.run.cache.Cache, or None (no caching: the C library is
+    built in a temporary folder)."""
+    say = progress or (lambda msg: None)
+    if cache is not None and key is not None:
+        entry = cache.get(backend, key)
+        if entry is not None:
+            say(f"cache hit ({backend} {key[:12]})")
+            return None, load_entry(entry, backend, name, trusted=True)
+    compiled = compile_fn()
+    if backend == "numpy" and (cache is None or key is None):
+        return compiled, load_module(compiled.source, name)
+    if cache is None or key is None:
+        import tempfile
+
+        d = Path(tempfile.mkdtemp(prefix="bgc-c-"))
+        try:
+            _build_entry(compiled, backend, None, progress, name)(d)
+            # loaded (the mapping outlives the file): nothing is left behind
+            return compiled, load_entry(d, backend, name)
+        finally:
+            shutil.rmtree(d, ignore_errors=True)
+    entry = cache.get_or_build(backend, key,
+                               _build_entry(compiled, backend, cache, progress, name))
+    return compiled, load_entry(entry, backend, name, trusted=True)

@@ -1,0 +1,2 @@
+"""The numpy backend: ``printer`` renders the IR into a standalone numpy module
+(templates/numpy)."""

@@ -1,0 +1,334 @@
+"""Stage 5b: the lowered equations (:mod:`bgc.lower.ir`) -> one standalone numpy module, through
+the jinja2 templates.
+
+The expression printer is sympy's ``NumPyPrinter`` (strict: an unknown function is an error,
+never silently printed) with a few overrides for speed and readability; the generated import
+block lists what the printer actually used. Pruning, CSE and scheduling happen before, in the
+backend-neutral lowering that the C printer (:mod:`bgc.backends.c.printer`) shares.
+"""
+from __future__ import annotations
+
+import ast
+import keyword
+from dataclasses import dataclass
+
+import jinja2
+import sympy as sp
+from sympy.printing.numpy import NumPyPrinter
+
+from bgc.backends.skeleton import (  # noqa: F401 (re-exported)
+    ALLOWED_IMPORTS,
+    SkeletonError,
+    check_skeleton,
+    runtime_source,
+)
+from bgc.base import __version__
+from bgc.base.errors import oneline
+from bgc.base.paths import templates_dir
+from bgc.core.equations import Equations, T, linear_parts
+from bgc.lower import ir as lower
+
+_IDENT_OK = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_")
+_TEMPLATES = "numpy"  # this backend's folder in templates/
+
+
+# ---------------------------------------------------------------------------------------------
+# The one door for text: every string from a model or scene reaches generated code through
+# exactly one of these three functions, and nowhere else.
+
+def lit(value) -> str:
+    """A Python literal for a value from the model: str (escaped by ``repr``: quotes,
+    backslashes, control characters, line separators and lone surrogates all come out as
+    escapes), int, float, bool, None, or tuples/lists of them. Anything else is a bug."""
+    if isinstance(value, (list, tuple)):
+        return ("[" if isinstance(value, list) else "(") + ", ".join(lit(v) for v in value) + (
+            "]" if isinstance(value, list) else ("," if len(value) == 1 else "") + ")")
+    if value is None or isinstance(value, (bool, int, str)):
+        out = repr(value)
+    elif isinstance(value, float):
+        out = repr(value)
+        if out in ("inf", "-inf", "nan"):
+            raise ValueError(f"non-finite constant {out} cannot be written as a literal")
+    else:
+        raise TypeError(f"no literal for {type(value).__name__}")
+    return out
+
+
+def comment(text) -> str:
+    """Text for a ``# comment``: one line (see :func:`oneline`)."""
+    return oneline(text, 300)
+
+
+def docstring(text: str) -> str:
+    """A triple-quoted literal holding ``text`` exactly: backslashes, a quote that could end
+    the literal and every unprintable character are escaped; line breaks stay line breaks."""
+    out = []
+    for i, c in enumerate(text):
+        if c == "\\":
+            out.append("\\\\")
+        elif c == '"' and (i + 1 == len(text) or text[i + 1] == '"'):
+            out.append('\\"')
+        elif c == "\n" or c.isprintable():
+            out.append(c)
+        else:
+            out.append(repr(c)[1:-1])
+    s = '"""' + "".join(out) + '"""'
+    if ast.literal_eval(s) != text:  # the literal must mean exactly the text
+        raise AssertionError("docstring escaping failed")
+    return s
+
+
+# numpy's names for functions whose array-API standard name differs (numpy >= 2 has both)
+_STANDARD_NAMES = {"arcsin": "asin", "arccos": "acos", "arctan": "atan", "arctan2": "atan2",
+                   "arcsinh": "asinh", "arccosh": "acosh", "arctanh": "atanh", "power": "pow",
+                   "absolute": "abs", "amax": "max", "amin": "min", "conjugate": "conj"}
+# names of the array API standard (2023.12) the printer may emit: elementwise functions,
+# where, and the constants
+_STANDARD = frozenset("""abs acos acosh asin asinh atan atan2 atanh ceil clip conj copysign
+    cos cosh exp expm1 floor hypot imag isfinite isinf isnan log log1p log2 log10 logaddexp
+    logical_and logical_not logical_or logical_xor maximum minimum nextafter pow real
+    remainder round sign signbit sin sinh sqrt square tan tanh trunc where max min sum prod
+    pi e inf nan""".split())
+
+
+class BgcPrinter(NumPyPrinter):
+    """NumPyPrinter writing the array API's functions as ``xp.`` (the namespace of the
+    inputs), numpy's others as ``np.``, and cheap forms of common operations."""
+
+    def __init__(self):
+        # order="none": print terms in sympy's canonical argument order (deterministic, and
+        # far cheaper than sorting every sum for display)
+        super().__init__({"fully_qualified_modules": True, "strict": True, "order": "none",
+                          "allow_unknown_functions": False})
+
+    def _module_format(self, fqn, register=True):
+        if register:
+            parts = fqn.split(".")
+            self.module_imports[".".join(parts[:-1])].add(parts[-1])
+        if fqn.startswith("numpy."):
+            name = fqn[len("numpy."):]
+            name = _STANDARD_NAMES.get(name, name)
+            # the array API standard's functions through the namespace xp (numpy itself for
+            # numpy inputs, else the inputs' own, see templates/numpy/runtime.py); anything
+            # else stays numpy's
+            return ("xp." if name in _STANDARD else "np.") + name
+        return fqn
+
+    def _print_Pow(self, expr, rational=False):
+        b, e = expr.as_base_exp()
+        if e.is_Integer:
+            n = int(e)
+            base = self.parenthesize(b, sp.printing.precedence.PRECEDENCE["Pow"])
+            if n == -1:
+                return f"1/{base}"
+            if n < 0:
+                return f"{base}**({n})" if n != -2 else f"1/({base}*{base})"
+            if n == 2:
+                return f"{base}*{base}"
+        if e == sp.Rational(1, 2):
+            return f"{self._module_format('numpy.sqrt')}({self._print(b)})"
+        if e == -sp.Rational(1, 2):
+            return f"1/{self._module_format('numpy.sqrt')}({self._print(b)})"
+        return super()._print_Pow(expr, rational=rational)
+
+    def _print_Mul(self, expr):
+        # CodePrinter._print_Mul writes a lone denominator factor after "/" without
+        # parentheses, trusting that a power binds tighter than "/". _print_Pow writes b**2 as
+        # the product b*b, so x/b**2 would come out as x/b*b (= x): parenthesise it.
+        s = super()._print_Mul(expr)
+        den = [f for f in sp.Mul.make_args(expr) if f.is_commutative and f.is_Pow
+               and f.exp.is_Rational and f.exp.is_negative]
+        if len(den) == 1 and den[0].exp == -2:
+            d = self._print(sp.Pow(den[0].base, 2, evaluate=False))
+            if s.endswith("/" + d):
+                s = f"{s[:-len(d)]}({d})"
+        return s
+
+    def _print_Piecewise(self, expr):
+        # where(c0, a0, where(c1, a1, ... default))
+        *pairs, last = expr.args
+        if last.cond != sp.true:
+            return super()._print_Piecewise(expr)
+        out = self._print(last.expr)
+        w = self._module_format("numpy.where")
+        for e, c in reversed(pairs):
+            out = f"{w}({self._print(c)}, {self._print(e)}, {out})"
+        return out
+
+    def _print_Heaviside(self, expr):
+        arg = self._print(expr.args[0])
+        w = self._module_format("numpy.where")
+        return f"{w}({arg} >= 0, 1.0, 0.0)"
+
+    def _print_Relational(self, expr):
+        op = {"<": "<", "<=": "<=", ">": ">", ">=": ">="}.get(expr.rel_op)
+        if op is None:
+            return super()._print_Relational(expr)
+        return f"({self._print(expr.lhs)} {op} {self._print(expr.rhs)})"
+
+    def _print_Min(self, expr):
+        return self._minmax(expr, "numpy.minimum")
+
+    def _print_Max(self, expr):
+        return self._minmax(expr, "numpy.maximum")
+
+    def _minmax(self, expr, fn):
+        f = self._module_format(fn)
+        args = [self._print(a) for a in expr.args]
+        out = args[0]
+        for a in args[1:]:
+            out = f"{f}({out}, {a})"
+        return out
+
+    def _print_LinSolve(self, expr):
+        # x = A^-1 b, batched (derivative causality's linear system, too large for symbols)
+        n = int(expr.args[0])
+        a = ", ".join(self._print(v) for v in expr.args[1:1 + n * n])
+        b = ", ".join(self._print(v) for v in expr.args[1 + n * n:])
+        self.uses_linsolve = True
+        return f"_bgc_linsolve({n}, ({a},), ({b},))"
+
+    def _print_NewtonSolve(self, expr):
+        k = int(expr.args[0])
+        return f"_newton_{k}({', '.join(self._print(a) for a in expr.args[1:])})"
+
+    def _print_LinSolveEntry(self, expr):
+        return f"{self._print(expr.args[0])}[{int(expr.args[1])}]"
+
+    def _print_Float(self, expr):
+        return repr(float(expr))
+
+
+@dataclass(frozen=True)
+class Line:
+    target: str
+    code: str
+    comment: str = ""
+
+
+@dataclass(frozen=True)
+class Function:
+    params: tuple[str, ...]  # parameter identifiers the body uses
+    inputs: tuple[str, ...]
+    states: tuple[str, ...]
+    lines: tuple[Line, ...]
+    results: tuple[tuple[object, str], ...]  # (key, code)
+    ops: int  # operation count after CSE
+
+
+def printed(fn: lower.Function, printer) -> Function:
+    """One lowered function with its expressions printed (lines first, then results)."""
+    lines = tuple(Line(str(ln.target), printer.doprint(ln.expr), ln.comment) for ln in fn.lines)
+    results = tuple((k, printer.doprint(r)) for k, r in fn.results)
+    return Function(fn.params, fn.inputs, fn.states, lines, results, fn.ops)
+
+
+def _function(eq: Equations, printer, results: list, assigns: list, keys: list,
+              cse: bool = True) -> Function:
+    """Lower (prune, CSE, schedule: :mod:`bgc.lower.ir`) and print one generated function."""
+    return printed(lower.lower_function(eq, results, assigns, keys, cse), printer)
+
+
+def _pyrepr(v) -> str:
+    if isinstance(v, tuple):
+        if all(len(r) == 1 for r in v):
+            return "[" + ", ".join(repr(float(r[0])) for r in v) + "]"
+        return "[" + ", ".join("[" + ", ".join(repr(float(c)) for c in r) + "]" for r in v) + "]"
+    return repr(float(v))
+
+
+def render(eq: Equations, *, source: str, source_hash: str, description: str = "",
+           header_notes: tuple[str, ...] = (), progress=None,
+           output_units: dict | None = None, input_units: dict | None = None,
+           lowered=None) -> str:
+    """The numpy module's text; ``lowered`` (the model's :func:`bgc.lower.ir.lower`) is made
+    here unless given, so that several backends can share one lowering."""
+    printer = BgcPrinter()
+    n = len(eq.states)
+    say = progress or (lambda msg: None)
+    low = lowered if lowered is not None else lower.lower(eq, progress)
+    rhs, jac, outs = (printed(f, printer) for f in (low.rhs, low.jac, low.outs))
+    jkeys = list(low.jac_keys)
+    say("emitting the linearisation's B, C, D")
+    lp = linear_parts(eq)
+    bkeys = sorted(lp.B)
+    ujac = _function(eq, printer, [lp.B[k] for k in bkeys],
+                     list(eq.assignments) + list(lp.B_assignments), bkeys)
+    ykeys = [("C",) + k for k in sorted(lp.C)] + [("D",) + k for k in sorted(lp.D)]
+    yjac = _function(eq, printer, [lp.C[k] for k in sorted(lp.C)] + [lp.D[k] for k in sorted(lp.D)],
+                     list(eq.assignments) + list(lp.CD_assignments), ykeys)
+    init = printed(low.init, printer)
+    newton = []
+    for nl in eq.newton:  # nonlinear algebraic loops: a Newton solver each
+        newton.append({
+            "name": nl.name, "n": len(nl.tear), "args": [str(a) for a in nl.args],
+            "tear": [str(t) for t in nl.tear], "message": nl.where,
+            "body": [Line(str(sym), printer.doprint(e)) for sym, e in nl.body],
+            "residual": [printer.doprint(e) for e in nl.residual],
+            "jac": [printer.doprint(e) for e in nl.jac]})
+    if newton:
+        printer.uses_linsolve = True
+    derived = [Line(str(a.symbol), printer.doprint(a.expr), a.why) for a in eq.derived]
+    inputs, tables = [], []
+    for iv in eq.inputs:
+        tb = getattr(iv, "table", None)
+        if tb is not None:  # data: numbers only, through lit; evaluated by the runtime
+            tables.append({"input": iv.name, "t": [float(v) for v in tb.t],
+                           "v": [float(v) for v in tb.v], "interp": tb.interp})
+            inputs.append({"name": iv.name, "symbols": [str(s) for s in iv.symbols],
+                           "shape": iv.shape, "unit": (input_units or {}).get(iv.name, ""),
+                           "default": [f"_table_eval(t, {len(tables) - 1}, "
+                                       f"{lit(tb.interp)}, {lit(tb.extrapolate)}, "
+                                       f"{lit(iv.name)})"]})
+            continue
+        inputs.append({"name": iv.name, "symbols": [str(s) for s in iv.symbols],
+                       "shape": iv.shape, "unit": (input_units or {}).get(iv.name, ""),
+                       "default": [printer.doprint(d) for d in iv.default]})
+    input_params = sorted({str(s) for iv in eq.inputs for d in iv.default for s in d.free_symbols
+                           if s != T})
+    params = []
+    for pv in eq.params:
+        params.append({"id": pv.id, "code": pv.code, "shape": pv.shape,
+                       "symbols": [str(s) for s in pv.symbols], "default": _pyrepr(pv.value),
+                       "unit": pv.unit, "description": pv.description})
+    imports = sorted(m for m in printer.module_imports if m and m != "numpy")
+    env = jinja2.Environment(loader=_loader(), keep_trailing_newline=True,
+                             trim_blocks=True, lstrip_blocks=True,
+                             undefined=jinja2.StrictUndefined, autoescape=False)
+    env.filters.update(lit=lit, oneline=oneline, comment=comment, docstring=docstring)
+    tpl = env.get_template(f"{_TEMPLATES}/module.py.j2")
+    ounits = output_units or {}
+    outputs = [{"name": name, "shape": shp, "size": len(vals), "unit": ounits.get(name, "")}
+               for name, shp, vals in eq.outputs]
+    # does the rhs read t itself? (inputs are signals of t; a law may name t directly)
+    rhs_uses_t = bool(eq.inputs) or any(T in ln.expr.free_symbols for ln in low.rhs.lines) \
+        or any(T in r.free_symbols for _, r in low.rhs.results)
+    text = tpl.render(
+        rhs_uses_t=rhs_uses_t,
+        name=eq.name, version=__version__, source=source, source_hash=source_hash,
+        description=description, notes=list(header_notes) + list(eq.loops),
+        states=eq.states, params=params, derived=derived, inputs=inputs,
+        input_params=input_params, outputs=outputs, rhs=rhs, jac=jac, outs=outs, init=init,
+        jac_keys=jkeys, n=n, imports=imports, ujac=ujac, yjac=yjac,
+        tables=tables, input_labels=lp.input_labels, output_labels=lp.output_labels,
+        linsolve=getattr(printer, "uses_linsolve", False), newton=newton,
+        all_param_symbols=[s for p in params for s in p["symbols"]] + [d.target for d in derived],
+        runtime=runtime_source(),
+    )
+    for ident in _identifiers(eq):
+        assert ident.isidentifier() and not keyword.iskeyword(ident) and set(ident) <= _IDENT_OK
+    check_skeleton(text)  # the module's top level is exactly the template's, nothing else
+    return text
+
+
+def _identifiers(eq: Equations):
+    for sv in eq.states:
+        yield str(sv.symbol)
+    for pv in eq.params:
+        yield from (str(s) for s in pv.symbols)
+    for a in eq.assignments:
+        yield str(a.symbol)
+
+
+def _loader():
+    return jinja2.FileSystemLoader(str(templates_dir()))

@@ -1,0 +1,169 @@
+"""The skeleton checks of generated modules (a light module: no sympy, no jinja2, so that a
+warm run can check a cached module before it runs it).
+
+After rendering, and again before a module is loaded, its top-level statements must be exactly
+the template's. Model text can only ever appear inside literals; if escaping were ever wrong, a
+stray statement would show here and nothing would be written or run.
+"""
+from __future__ import annotations
+
+import ast
+import functools
+import hashlib
+import re
+
+from bgc.base.paths import templates_dir
+
+_TEMPLATES = "numpy"
+_RUNTIME_MARK = "# ==== bgc numpy runtime: copied below this line ====\n"
+# Modules the generated code may import (numpy always; the printer may ask for these).
+ALLOWED_IMPORTS = frozenset({"numpy", "scipy", "scipy.special", "math"})
+_BINDING_MARK = "# ==== bgc C binding: copied below this line ====\n"
+#: the line that separates the numpy part of a C-backend wrapper module from its C part
+WRAPPER_MARK = "# ==== bgc C backend ====\n"
+
+
+@functools.lru_cache(maxsize=None)
+def runtime_source(backend: str = _TEMPLATES) -> str:
+    """The part of templates/<backend>/runtime.py copied into every generated module."""
+    text = (templates_dir() / backend / "runtime.py").read_text(encoding="utf-8")
+    head, sep, body = text.partition(_RUNTIME_MARK)
+    if not sep:
+        raise AssertionError(f"runtime.py has no marker line {_RUNTIME_MARK!r}")
+    return body.strip("\n")
+
+
+# ---------------------------------------------------------------------------------------------
+# The skeleton check: after rendering, the module's top-level statements must be exactly the
+# template's. Model text can only ever appear inside literals; if escaping were ever wrong, a
+# stray statement would show here and nothing would be written.
+
+#: Names the model part of the template binds at top level, with the statement kind.
+_MODEL_TOP = {
+    "Assign": {"xp", "BGC_VERSION", "MODEL_HASH", "N_STATES", "STATE_NAMES", "STATE_OWNERS",
+               "PARAM_DEFAULTS",
+               "PARAM_UNITS", "_PARAM_NDIM", "INPUT_NAMES", "OUTPUT_NAMES", "OUTPUT_SHAPES",
+               "JAC_SPARSITY", "_P0", "X0", "INPUT_LABELS", "OUTPUT_LABELS", "_TABLES",
+               "TABLE_BREAKPOINTS", "TABLE_MAX_STEP", "OUTPUT_UNITS", "INPUT_UNITS",
+               "_NEWTON_WARM", "RHS_USES_T"},
+    "FunctionDef": {"_unpack", "_params", "_inputs", "initial_state", "rhs", "jacobian",
+                    "outputs", "input_jacobian", "output_jacobian", "_bgc_linsolve"},
+    "ClassDef": {"_Unpacked"},
+}
+
+
+class SkeletonError(AssertionError):
+    """The rendered module's top level is not the template's (a bug, never written out)."""
+
+
+def _top_names(node) -> tuple[str, set]:
+    kind = type(node).__name__
+    if isinstance(node, (ast.FunctionDef, ast.ClassDef)):
+        return kind, {node.name}
+    if isinstance(node, ast.Assign):
+        names = set()
+        for tgt in node.targets:
+            base = tgt.value if isinstance(tgt, ast.Subscript) else tgt
+            if not isinstance(base, ast.Name):
+                return kind, {"<complex target>"}
+            names.add(base.id)
+        return kind, names
+    return kind, set()
+
+
+#: sha256 digests of the texts that passed check_skeleton in this process: rendering checks a
+#: module and loading it checks it again; the second check of the same text is a lookup
+#: (parsing the 3R2S module takes 0.4 s). In memory only, never persisted.
+_PASSED: set[tuple[str, bytes]] = set()
+
+
+def check_skeleton(text: str, backend: str = _TEMPLATES) -> None:
+    """Parse the generated module and check its top-level statements: a docstring, the
+    imports the printer may ask for, the model part's own definitions (each name once at most,
+    except JAC_SPARSITY's pattern assignment) and then, statement for statement, the runtime."""
+    digest = (backend, hashlib.sha256(text.encode("utf-8", "surrogatepass")).digest())
+    if digest in _PASSED:
+        return
+    _check_skeleton(text, backend)
+    _PASSED.add(digest)
+
+
+def _check_skeleton(text: str, backend: str) -> None:
+    runtime = runtime_source(backend)
+    body = text.rstrip("\n")  # (a C wrapper continues after the module: see check_wrapper)
+    if not body.endswith("\n\n\n" + runtime):  # the runtime, verbatim, at the end
+        raise SkeletonError(f"the runtime part differs from templates/{backend}/runtime.py")
+    try:  # the model part must parse on its own: nothing in it can reach into the runtime
+        head = ast.parse(body[:-len(runtime)]).body
+    except SyntaxError as exc:
+        raise SkeletonError(f"generated module does not parse: {exc}") from None
+    if not head:
+        raise SkeletonError("the generated module has no model part")
+    doc = head[0]
+    if not (isinstance(doc, ast.Expr) and isinstance(doc.value, ast.Constant)
+            and isinstance(doc.value.value, str)):
+        raise SkeletonError("the module does not start with its docstring")
+    seen: dict[str, int] = {}
+    for node in head[1:]:
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                if a.name not in ALLOWED_IMPORTS or a.asname not in (None, "np"):
+                    raise SkeletonError(f"unexpected import {a.name!r}")
+            continue
+        kind, names = _top_names(node)
+        allowed = _MODEL_TOP.get(kind, set())
+        if kind == "FunctionDef":  # one Newton solver per nonlinear algebraic loop
+            allowed = allowed | {n for n in names if re.fullmatch(r"_newton_[0-9]+", n)}
+        if not names or not names <= allowed:
+            raise SkeletonError(f"unexpected top-level {kind} {sorted(names)} at line "
+                                f"{getattr(node, 'lineno', '?')}")
+        for nm in names:
+            seen[nm] = seen.get(nm, 0) + 1
+            if seen[nm] > (2 if nm == "JAC_SPARSITY" else 1):
+                raise SkeletonError(f"{nm} bound twice at top level")
+
+
+# ---------------------------------------------------------------------------------------------
+# The C backend's wrapper module: the numpy module, then the C constants, then the binding
+
+@functools.lru_cache(maxsize=None)
+def binding_source() -> str:
+    """The part of templates/c/binding.py copied into every wrapper module."""
+    text = (templates_dir() / "c" / "binding.py").read_text(encoding="utf-8")
+    head, sep, body = text.partition(_BINDING_MARK)
+    if not sep:
+        raise AssertionError(f"binding.py has no marker line {_BINDING_MARK!r}")
+    return body.strip("\n")
+
+
+#: names the C part of a wrapper binds at top level (before the binding)
+_C_TOP = {"C_LIBRARY", "C_DIGEST", "_C_NP", "_C_NNZ", "_C_NOUT", "_C_NWS"}
+
+
+def check_wrapper(text: str) -> None:
+    """The wrapper's skeleton: the numpy module (checked as such), then the C constants, then
+    exactly templates/c/binding.py's part."""
+    head, sep, tail = text.rpartition(WRAPPER_MARK)
+    if not sep:
+        raise SkeletonError("the wrapper has no C part")
+    check_skeleton(head)
+    try:
+        body = ast.parse(tail).body
+    except SyntaxError as exc:
+        raise SkeletonError(f"the wrapper's C part does not parse: {exc}") from None
+    rt = ast.parse(binding_source()).body
+    if len(body) < len(rt):
+        raise SkeletonError("the wrapper's C part is shorter than the binding")
+    top, rest = body[:len(body) - len(rt)], body[len(body) - len(rt):]
+    if [ast.dump(s) for s in rest] != [ast.dump(s) for s in rt]:
+        raise SkeletonError("the wrapper's binding differs from templates/c/binding.py")
+    seen = set()
+    for node in top:
+        if not (isinstance(node, ast.Assign) and len(node.targets) == 1
+                and isinstance(node.targets[0], ast.Name) and node.targets[0].id in _C_TOP
+                and isinstance(node.value, ast.Constant)):
+            raise SkeletonError(f"unexpected statement in the wrapper's C part at line "
+                                f"{getattr(node, 'lineno', '?')}")
+        if node.targets[0].id in seen:
+            raise SkeletonError(f"{node.targets[0].id} bound twice")
+        seen.add(node.targets[0].id)

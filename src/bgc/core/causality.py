@@ -1,0 +1,446 @@
+"""Stage 3: causality by the sequential causality assignment procedure (SCAP).
+
+A pure graph pass over element and bond ids, no symbolic work (as in ModelingToolkit's
+structural passes). The result says, for every bond, which end computes its *effort* (the other
+end computes its flow); the causal stroke sits at the end that receives the effort.
+
+Order (Karnopp, Margolis & Rosenberg): 1. sources and fixed-form R elements, each followed by
+propagation through 0/1 junctions, TF/MTF and GY/MGY; 2. storage elements in integral causality,
+with propagation; 3. remaining R elements (resistance form), with propagation; 4. any bond still
+open (zero-order loops between junctions). Storage elements that propagation forces into
+derivative causality are reported with the decision that forced them.
+"""
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+from bgc.base.errors import ModelError
+from bgc.core.graph import BondGraph, FlatBond, FlatElement
+
+FIXED_R = {"effort": "resistance", "flow": "conductance"}
+
+
+@dataclass(frozen=True)
+class Causality:
+    effort_by: dict  # bond id -> element id that computes the bond's effort
+    derivative: tuple[str, ...]  # storage elements left in derivative causality
+    forced_by: dict  # element id -> (origin element id, via junction id) for derivative ones
+    arbitrary: tuple[str, ...]  # R elements whose causality SCAP chose (step 3)
+    open_bonds: tuple[str, ...]  # bonds chosen in step 4
+    warnings: tuple[str, ...]
+
+    def sets_effort(self, bond: FlatBond, el: str) -> bool:
+        return self.effort_by[bond.id] == el
+
+    def form(self, bg: BondGraph, el: FlatElement) -> str:
+        """The causal form of an element, in words."""
+        t = el.type
+        bonds = bg.bonds_of(el.id)
+        if t in ("I", "C"):
+            sets = self.effort_by[bonds[0].id] == el.id
+            integral = (not sets) if t == "I" else sets
+            return "integral" if integral else "derivative"
+        if t == "R":
+            return "resistance" if self.effort_by[bonds[0].id] == el.id else "conductance"
+        if t in ("TF", "MTF"):
+            b_in = next(b for b in bonds if b.dst == el.id)
+            return "flow forward" if self.effort_by[b_in.id] == el.id else "effort forward"
+        if t in ("GY", "MGY"):
+            return ("flows in" if all(self.effort_by[b.id] == el.id for b in bonds)
+                    else "efforts in")
+        if t == "0":
+            b = next(b for b in bonds if self.effort_by[b.id] != el.id)
+            return f"effort from {b.id}"
+        if t == "1":
+            b = next(b for b in bonds if self.effort_by[b.id] == el.id)
+            return f"flow from {b.id}"
+        return "fixed"
+
+
+class CausalConflict(ModelError):
+    """A causal conflict, with the element where it arose (``at``)."""
+
+    def __init__(self, coord, message: str, at: str):
+        super().__init__(coord, message)
+        self.at = at
+
+
+class _Scap:
+    def __init__(self, bg: BondGraph):
+        self.bg = bg
+        self.effort_by: dict[str, str] = {}
+        self.origin: dict[str, tuple[str, str]] = {}  # bond -> (origin element, via element)
+
+    def other(self, b: FlatBond, el: str) -> str:
+        return b.dst if b.src == el else b.src
+
+    def set(self, b: FlatBond, setter: str, origin: str, via: str, queue: deque) -> None:
+        cur = self.effort_by.get(b.id)
+        if cur is not None:
+            if cur != setter:
+                # Both ends impose the same variable on the bond: `via` its effort if it is to
+                # set the effort (else its flow), and the owner so far from the other end.
+                o, o_via = self.origin[b.id]
+                what = "effort" if setter == via else "flow"
+                src = lambda x, y: (self.kind(x) if x == y  # noqa: E731
+                                    else f"{self.kind(x)} (through {self.kind(y)})")
+                raise CausalConflict(self.bg.element(via).coord,
+                                 f"causal conflict on bond {b.id!r} ({b.src} -> {b.dst}): "
+                                 f"{src(origin, via)} and {src(o, o_via)} both impose its {what}",
+                                 via)
+            return
+        self.effort_by[b.id] = setter
+        self.origin[b.id] = (origin, via)
+        queue.append(b.src)
+        queue.append(b.dst)
+
+    def kind(self, eid: str) -> str:
+        el = self.bg.element(eid)
+        t = el.type
+        return f"{t}-junction {eid!r}" if t in ("0", "1") else f"{t} {eid!r}"
+
+    def propagate(self, queue: deque, origin: str) -> None:
+        while queue:
+            eid = queue.popleft()
+            el = self.bg.element(eid)
+            t = el.type
+            bonds = self.bg.bonds_of(eid)
+            if t in ("0", "1"):
+                # "imposing" bonds: on a 0-junction those where the other end sets the effort;
+                # on a 1-junction those where the junction sets the effort (the other end sets
+                # the flow). Exactly one imposing bond per junction.
+                def imposing(b):
+                    eb = self.effort_by.get(b.id)
+                    if eb is None:
+                        return None
+                    return (eb != eid) if t == "0" else (eb == eid)
+
+                states = [imposing(b) for b in bonds]
+                n_imp = sum(1 for s in states if s is True)
+                if n_imp > 1:
+                    imp = [b for b, s in zip(bonds, states) if s]
+                    origins = sorted({self.origin[b.id][0] for b in imp})
+                    raise CausalConflict(el.coord, f"causal conflict at {self.kind(eid)}: "
+                                                   f"{' and '.join(self.kind(o) for o in origins)} "
+                                                   f"each impose its "
+                                                   f"{'effort' if t == '0' else 'flow'}", eid)
+                if n_imp == 0 and bonds and all(st is False for st in states):
+                    what = "effort" if t == "0" else "flow"
+                    raise CausalConflict(el.coord, f"causal conflict at {self.kind(eid)}: every "
+                                                   f"bond has its "
+                                                   f"{'flow' if t == '0' else 'effort'} imposed "
+                                                   f"and none sets its {what}", eid)
+                if n_imp == 1:
+                    for b, s in zip(bonds, states):
+                        if s is None:  # not imposing: on a 0 the junction sets the effort
+                            self.set(b, eid if t == "0" else self.other(b, eid),
+                                     origin, eid, queue)
+                elif states.count(None) == 1:
+                    b = bonds[states.index(None)]
+                    self.set(b, self.other(b, eid) if t == "0" else eid,
+                             origin, eid, queue)
+            elif t in ("TF", "MTF"):
+                a, b = bonds
+                ea, eb = self.effort_by.get(a.id), self.effort_by.get(b.id)
+                if ea is not None and eb is None:
+                    self.set(b, self.other(b, eid) if ea == eid else eid, origin, eid, queue)
+                elif eb is not None and ea is None:
+                    self.set(a, self.other(a, eid) if eb == eid else eid, origin, eid, queue)
+                elif ea is not None and eb is not None and (ea == eid) == (eb == eid):
+                    raise CausalConflict(el.coord, f"causal conflict at {self.kind(eid)}: it must "
+                                                   "set the effort on exactly one of its bonds",
+                                                   eid)
+            elif t in ("GY", "MGY"):
+                a, b = bonds
+                ea, eb = self.effort_by.get(a.id), self.effort_by.get(b.id)
+                if ea is not None and eb is None:
+                    self.set(b, eid if ea == eid else self.other(b, eid), origin, eid, queue)
+                elif eb is not None and ea is None:
+                    self.set(a, eid if eb == eid else self.other(a, eid), origin, eid, queue)
+                elif ea is not None and eb is not None and (ea == eid) != (eb == eid):
+                    raise CausalConflict(el.coord, f"causal conflict at {self.kind(eid)}: it sets "
+                                                   "both efforts or both flows", eid)
+
+    def decide(self, el: FlatElement, sets_effort: bool) -> None:
+        (b,) = self.bg.bonds_of(el.id)
+        q: deque = deque()
+        self.set(b, el.id if sets_effort else self.other(b, el.id), el.id, el.id, q)
+        self.propagate(q, el.id)
+
+
+def assign_causality(bg: BondGraph, allow_derivative: bool = False) -> Causality:
+    s = _Scap(bg)
+    # 1. sources and R elements whose law fixes their form
+    for el in bg.elements:
+        if el.type == "Se":
+            s.decide(el, True)
+        elif el.type == "Sf":
+            s.decide(el, False)
+        elif el.type == "R" and el.law and el.law[0] in FIXED_R:
+            s.decide(el, el.law[0] == "effort")
+    # 2. storage in integral causality. In file order when that leaves none in derivative
+    # causality (then the order does not matter); otherwise the independent set is chosen.
+    trial = _copy(s)
+    plain_err = None
+    try:
+        arbitrary, open_bonds = _finish(trial, [e for e in bg.elements if e.type in ("I", "C")])
+        plain_ok = not _derivative(bg, trial)
+    except ModelError as err:
+        plain_ok, plain_err = False, err
+    if plain_ok:
+        s = trial
+    else:
+        try:
+            _choose_independent(bg, s)
+            arbitrary, open_bonds = _finish(s, [])
+        except CausalConflict as err:
+            loop = closed_loop(bg, err.at)
+            if loop:
+                raise ModelError(err.coord, closed_loop_message(bg, loop, err.message)) from None
+            if plain_err is not None:
+                raise plain_err from None
+            raise
+        except ModelError:
+            if plain_err is not None:
+                raise plain_err from None
+            raise
+    _check_partial(bg, s)
+    # Derivative causality
+    derivative, forced = [], {}
+    for el in bg.elements:
+        if el.type in ("I", "C"):
+            (b,) = bg.bonds_of(el.id)
+            sets = s.effort_by[b.id] == el.id
+            if sets == (el.type == "I"):
+                derivative.append(el.id)
+                forced[el.id] = s.origin[b.id]
+    warnings = []
+    if arbitrary:
+        warnings.append("R elements with causality chosen by SCAP (possible algebraic loop): "
+                        + ", ".join(arbitrary))
+    if open_bonds:
+        warnings.append("bonds with arbitrary causality (zero-order causal paths): "
+                        + ", ".join(open_bonds))
+    caus = Causality(dict(s.effort_by), tuple(derivative), forced, tuple(arbitrary),
+                     tuple(open_bonds), tuple(warnings))
+    if derivative and not allow_derivative:
+        culprit = fixed_r_culprit(bg, caus)
+        if culprit is not None:
+            raise ModelError(culprit[0], culprit[1])
+        raise ModelError(bg.element(derivative[0]).coord, derivative_message(bg, caus))
+    return caus
+
+
+def _copy(s: _Scap) -> _Scap:
+    c = _Scap(s.bg)
+    c.effort_by = dict(s.effort_by)
+    c.origin = dict(s.origin)
+    return c
+
+
+def _finish(s: _Scap, storage) -> tuple[list, list]:
+    """SCAP from step 2 on: the given storage elements in order, then R, then open bonds."""
+    bg = s.bg
+    for el in storage:
+        if bg.bonds_of(el.id)[0].id not in s.effort_by:
+            s.decide(el, el.type == "C")
+    # 3. remaining R elements: resistance form
+    arbitrary = []
+    for el in bg.elements:
+        if el.type == "R" and bg.bonds_of(el.id)[0].id not in s.effort_by:
+            arbitrary.append(el.id)
+            s.decide(el, True)
+    # 4. open bonds (zero-order loops): the bond's source end sets the effort
+    open_bonds = []
+    for b in bg.bonds:
+        if b.id not in s.effort_by:
+            open_bonds.append(b.id)
+            q: deque = deque()
+            s.set(b, b.src, b.src, b.src, q)
+            s.propagate(q, b.src)
+    return arbitrary, open_bonds
+
+
+def _derivative(bg: BondGraph, s: _Scap) -> list:
+    out = []
+    for el in bg.elements:
+        if el.type in ("I", "C"):
+            (b,) = bg.bonds_of(el.id)
+            if (s.effort_by.get(b.id) == el.id) == (el.type == "I"):
+                out.append(el.id)
+    return out
+
+
+#: Cost of a two-port in its non-preferred causality, by the modulus it must invert.
+INVERT_COST = {"MTF": 10, "MGY": 10, "TF": 1, "GY": 1}
+NONSQUARE_COST = 1000
+
+
+def _inversions(bg: BondGraph, s: _Scap) -> int:
+    """How much inverting a complete causal assignment asks: a modulated (state- or
+    time-dependent) modulus can vanish during the motion, a constant one cannot, and a
+    non-square one has no inverse at all."""
+    cost = 0
+    for el in bg.elements:
+        if el.type not in INVERT_COST:
+            continue
+        b1, b2 = sorted(bg.bonds_of(el.id), key=lambda b: b.dst != el.id)
+        if el.type in ("TF", "MTF"):
+            inverted = s.effort_by[b1.id] != el.id
+        else:
+            inverted = not (s.effort_by[b1.id] == el.id and s.effort_by[b2.id] == el.id)
+        if inverted:
+            cost += NONSQUARE_COST if b1.n != b2.n else INVERT_COST[el.type]
+    return cost
+
+
+def _choose_independent(bg: BondGraph, s: _Scap) -> None:
+    """Give integral causality to storage elements one at a time, each time the first (by
+    instance path, so the file's order does not matter) whose choice, completed by SCAP,
+    inverts the cheapest moduli (``_inversions``): the dependent elements are then those
+    reached through modulated or non-square moduli, and the map from the independent states
+    to them stays regular. Ties (e.g. equal inertias on one shaft) go to the first path."""
+    storage = sorted((e for e in bg.elements if e.type in ("I", "C")), key=lambda e: e.id)
+    while True:
+        cands = [e for e in storage if bg.bonds_of(e.id)[0].id not in s.effort_by]
+        if not cands:
+            return
+        best, best_score = None, None
+        for el in cands:
+            t = _copy(s)
+            try:
+                t.decide(el, el.type == "C")
+                _finish(t, [e for e in cands if e is not el])
+                score = (0, _inversions(bg, t), len(_derivative(bg, t)))
+            except ModelError:
+                score = (1, 0, 0)
+            if best_score is None or score < best_score:
+                best, best_score = el, score
+            if score[:2] == (0, 0):
+                break  # nothing inverted: cannot do better
+        s.decide(best, best.type == "C")
+
+
+def _check_partial(bg: BondGraph, s: _Scap) -> None:
+    for el in bg.elements:  # a non-square modulus left inverted: partly determined
+        if el.type in ("MTF", "MGY"):
+            b1, b2 = sorted(bg.bonds_of(el.id), key=lambda b: b.dst != el.id)
+            inv = (s.effort_by[b1.id] != el.id if el.type == "MTF" else
+                   not (s.effort_by[b1.id] == el.id and s.effort_by[b2.id] == el.id))
+            if inv and b1.n != b2.n:
+                big = b1 if b1.n > b2.n else b2
+                why = (f"multibond {big.id!r} ({big.src} -> {big.dst}, n={big.n}) is only "
+                       f"partly determined: causality reaches {el.type} {el.id!r} from its "
+                       f"n={big.n} side, and its {b2.n}x{b1.n} modulus has no inverse "
+                       f"(some components of {big.id!r} are dependent, some not)")
+                raise ModelError(el.coord, why + ": split the multibond (give the free "
+                                 "components their own storage element), or make a "
+                                 "connection on its causal path compliant (a C || R coupling "
+                                 "with a stiffness)")
+
+
+def closed_loop(bg: BondGraph, at: str) -> list[str]:
+    """A cycle through element ``at`` and the ground (every flow source joined to one ground
+    node: fixed points are one body), made of two node-disjoint paths from ``at`` to the
+    ground: a closed kinematic loop. Empty when there is none (or no inertia at all)."""
+    import networkx as nx
+
+    g = nx.Graph()
+    for b in bg.bonds:
+        g.add_edge(b.src, b.dst, bond=b.id)
+    ground = ("ground",)
+    for el in bg.elements:
+        if el.type == "Sf":
+            g.add_edge(el.id, ground, bond=None)
+    if at not in g or not any(el.type == "I" for el in bg.elements):
+        return []
+    if ground in g and nx.has_path(g, at, ground):
+        paths = sorted(nx.node_disjoint_paths(g, at, ground), key=len)
+        if len(paths) >= 2:
+            p1, p2 = paths[0], paths[1]
+            return [x if x != ground else "ground" for x in p1[:-1] + [ground] + p2[::-1][1:-1]]
+    return []
+
+
+def closed_loop_message(bg: BondGraph, loop: list[str], why: str) -> str:
+    """A closed kinematic loop: where, and the choice (one compliant coupling)."""
+    names = [x for x in loop if x != "ground"]
+    # the connections between bodies on the loop: bonds whose ends lie in different instances
+    joints = []
+    for a, b in zip(loop, loop[1:] + loop[:1]):
+        for bd in bg.bonds:
+            if {bd.src, bd.dst} == {a, b} and bd.src.rsplit(".", 1)[0] != bd.dst.rsplit(".", 1)[0]:
+                joints.append(bd)
+    # prefer the connection at the flow source that closes the loop (the last one written)
+    grounded = [bd for bd in joints if bg.element(bd.src).type == "Sf"
+                or bg.element(bd.dst).type == "Sf"]
+    pick = max(grounded or joints, key=lambda bd: bd.index) if joints else None
+    where = (f"bond {pick.id!r} ({pick.src} -> {pick.dst}, n={pick.n})" if pick
+             else "one of its bonds")
+    listed = ", ".join(names[:24]) + (f", ... ({len(names)} elements)" if len(names) > 24 else "")
+    through = " (closed through the ground, its flow sources)" if "ground" in loop else ""
+    return (f"closed kinematic loop{through} through {listed}: {why}. Differentiating the "
+            "constraint cannot hold it at position level; close the loop with one compliant "
+            f"coupling, e.g. at {where}: a 0-junction with a 1-junction carrying a C (stiffness "
+            "k, say 1e6..1e8 for metal joints) in parallel with an R, in place of the rigid "
+            "connection (the `joint` component of bench/planar_chain.py; the paper's remedy)")
+
+
+def dependent_report(bg: BondGraph, caus: Causality, eqs=None) -> str:
+    """What `bgc check` says about the storage elements in derivative causality."""
+    lines = ["dependent storage elements (derivative causality, eliminated):"]
+    deps = dict(eqs.dependent) if eqs is not None and getattr(eqs, "dependent", None) else {}
+    for eid in caus.derivative:
+        el = bg.element(eid)
+        origin, via = caus.forced_by[eid]
+        o = bg.element(origin)
+        v = bg.element(via)
+        through = (f"{v.type}-junction {via!r}" if v.type in ("0", "1") else f"{v.type} {via!r}")
+        if el.type == "I":
+            how = "p = M f, its flow f imposed by the causal path; its effort is dp/dt"
+        else:
+            how = "q = K^-1 e, its effort e imposed by the causal path; its flow is dq/dt"
+        on = deps.get(eid)
+        on_txt = f"; follows from {', '.join(on)}" if on else ""
+        unused = "; its `initial:` is not used" if el.initial is not None else ""
+        lines.append(f"  {el.type} {eid} (line {el.coord.line}): forced by {o.type} {origin} "
+                     f"through {through}{on_txt}; {how}{unused}")
+    return "\n".join(lines) + "\n"
+
+
+def fixed_r_culprit(bg: BondGraph, caus: Causality):
+    """(coord, message) when the storage elements in derivative causality were forced there by
+    an R whose law fixes its form (``effort:`` of f sets the effort, ``flow:`` of e the flow):
+    the R's law is in the form the graph cannot take, and the message says so, naming the R."""
+    for eid in caus.derivative:
+        origin, via = caus.forced_by[eid]
+        o = bg.element(origin)
+        if o.type != "R" or not o.law or o.law[0] not in FIXED_R:
+            continue
+        el = bg.element(eid)
+        has = "resistance" if o.law[0] == "effort" else "conductance"
+        needs = "conductance" if has == "resistance" else "resistance"
+        other = "flow: an expression of e" if needs == "conductance" else \
+            "effort: an expression of f"
+        return o.coord, (f"R {origin!r}: its law ({o.law[0]}: ...) is in {has} form, but its "
+                         f"causality must be {needs}: in {has} form it forces {el.type} {eid!r} "
+                         f"into derivative causality (through {bg.element(via).id!r}). Write "
+                         f"its law in {needs} form ({other}), or as resistance: r")
+    return None
+
+
+def derivative_message(bg: BondGraph, caus: Causality) -> str:
+    parts = []
+    for eid in caus.derivative:
+        origin, via = caus.forced_by[eid]
+        el = bg.element(eid)
+        o = bg.element(origin)
+        parts.append(f"{el.type} {eid!r} is forced into derivative causality by {o.type} "
+                     f"{origin!r} through {bg.element(via).type}-junction {via!r}"
+                     if bg.element(via).type in ("0", "1") else
+                     f"{el.type} {eid!r} is forced into derivative causality by {o.type} "
+                     f"{origin!r} through {via!r}")
+    return ("derivative causality: " + "; ".join(parts) + ". Join the storage elements through "
+            "a compliant coupling (a stiff C in parallel with an R, as Maini & Vaz do at every "
+            "joint), or merge them into one element")

@@ -1,0 +1,760 @@
+"""Whitelisting expression parser.
+
+A model's expressions are untrusted text. They are parsed with Python's :mod:`ast` and every
+node is checked against a whitelist (numbers, names, arithmetic, indexing, list literals and a
+fixed set of functions); nothing is ever evaluated or passed to ``sympify``. The checked tree is
+turned into sympy objects by :func:`build`, which asks a resolver for the meaning of each name,
+so name resolution (parameters, states, bond variables) stays with the stage that knows them.
+"""
+from __future__ import annotations
+
+import ast
+import functools
+import math
+import warnings
+from dataclasses import dataclass
+from typing import Callable, Protocol
+
+from bgc.base.errors import Coord, ModelError
+from bgc.base.limits import LIMITS
+
+
+class _LazySympy:
+    """sympy, imported on first use: parsing and checking a model or scene needs no sympy, so a
+    warm `bgc simulate` (the module from the compile cache) never imports it."""
+
+    def __getattr__(self, name):
+        import sympy
+
+        globals()["sp"] = sympy
+        return getattr(sympy, name)
+
+
+sp = _LazySympy()
+
+#: Functions an expression may call, with their number of arguments (None: any, at least one).
+FUNCTIONS: dict[str, tuple[int, int | None]] = {
+    "sin": (1, 1), "cos": (1, 1), "tan": (1, 1), "asin": (1, 1), "acos": (1, 1),
+    "atan": (1, 1), "atan2": (2, 2), "sinh": (1, 1), "cosh": (1, 1), "tanh": (1, 1),
+    "exp": (1, 1), "log": (1, 1), "sqrt": (1, 1), "abs": (1, 1), "sign": (1, 1),
+    "min": (2, None), "max": (2, None), "where": (3, 3), "heaviside": (1, 1),
+    "skew": (1, 1), "cross": (2, 2), "dot": (2, 2), "norm": (1, 1), "transpose": (1, 1),
+    "eye": (1, 1), "zeros": (1, 2), "diag": (1, None), "inv": (1, 1), "det": (1, 1),
+}
+#: Functions whose argument names a bond, element or junction rather than a value.
+BOND_FUNCTIONS = ("e", "f", "p", "q", "power")
+class _Constants:
+    """Named constants: the names are known without sympy, the values built on use."""
+
+    def __contains__(self, name):
+        return name == "pi"
+
+    def __getitem__(self, name):
+        if name != "pi":
+            raise KeyError(name)
+        return sp.pi
+
+
+CONSTANTS = _Constants()
+
+#: Deepest nesting of an expression tree (a guard against stack exhaustion in later stages).
+MAX_DEPTH = LIMITS.expr_depth
+#: Largest magnitude of a number an expression may produce (10**MAX_EXPONENT).
+MAX_EXPONENT = LIMITS.number_exponent
+
+#: Names people write from other languages, with what bgc calls them.
+HINTS = {"signum": "sign", "sgn": "sign", "ln": "log", "pow": "** (a ** b)",
+         "arctan": "atan", "arctan2": "atan2", "arcsin": "asin", "arccos": "acos",
+         "fabs": "abs", "minimum": "min", "maximum": "max", "exp10": "10 ** x",
+         "ifelse": "where", "if_else": "where", "step": "heaviside", "identity": "eye"}
+
+_BINOPS = (ast.Add, ast.Sub, ast.Mult, ast.Div, ast.Pow, ast.MatMult)
+_CMPOPS = (ast.Lt, ast.LtE, ast.Gt, ast.GtE)
+
+
+@dataclass(frozen=True)
+class Expr:
+    """An expression as written in the model, with the place of its first character."""
+
+    text: str
+    coord: Coord
+
+    def tree(self) -> ast.expr:
+        return check(self)
+
+    def names(self) -> set[tuple[str, ...]]:
+        """Dotted name paths used as values (not as arguments of e/f/p/q/power)."""
+        out: set[tuple[str, ...]] = set()
+        _collect(self.tree(), out)
+        return out
+
+
+def _collect(node: ast.AST, out: set) -> None:
+    if isinstance(node, ast.Call):
+        name = node.func.id  # checked: a plain name
+        if name in BOND_FUNCTIONS:
+            return
+        for a in node.args:
+            _collect(a, out)
+        return
+    path = dotted_path(node)
+    if path is not None:
+        if path[-1] == "T" and len(path) > 1:
+            path = path[:-1]
+        if path[0] not in CONSTANTS:
+            out.add(path)
+        return
+    for child in ast.iter_child_nodes(node):
+        _collect(child, out)
+
+
+def dotted_path(node: ast.AST) -> tuple[str, ...] | None:
+    """`a.b.c` -> ("a", "b", "c"); None for anything but a (dotted) name."""
+    if isinstance(node, ast.Name):
+        return (node.id,)
+    if isinstance(node, ast.Attribute):
+        head = dotted_path(node.value)
+        return None if head is None else head + (node.attr,)
+    return None
+
+
+def _source(text: str) -> tuple[str, int]:
+    """The text as one line (line breaks become spaces, so character offsets are kept) without
+    its leading blanks, and the number of blanks removed."""
+    src = text.replace("\r", " ").replace("\n", " ")
+    body = src.lstrip(" \t")
+    return body, len(src) - len(body)
+
+
+def _at(expr: Expr, offset: int) -> Coord:
+    """The place of the character at ``offset`` (0-based) in the expression's text."""
+    text = expr.text
+    line = text.count("\n", 0, offset)
+    col = offset - (text.rfind("\n", 0, offset) + 1)
+    return expr.coord.shifted(line, col)
+
+
+def _where(expr: Expr, node: ast.AST) -> Coord:
+    body, lead = _source(expr.text)
+    col = getattr(node, "col_offset", 0)  # UTF-8 bytes into ``body``
+    chars = len(body.encode("utf-8")[:col].decode("utf-8", "ignore"))
+    return _at(expr, lead + chars)
+
+
+def _short(text: str) -> str:
+    return repr(text) if len(text) <= 60 else repr(text[:57]) + "..."
+
+
+def check(expr: Expr) -> ast.expr:
+    """Parse ``expr`` and verify every node against the whitelist; return the tree."""
+    text = expr.text
+    if len(text) > LIMITS.expr_chars:
+        raise ModelError(expr.coord, f"expression is too long (over {LIMITS.expr_chars} "
+                                     "characters, the limit of expression length)")
+    body, lead = _source(text)
+    if not body.strip():
+        raise ModelError(expr.coord, "empty expression")
+    try:
+        with warnings.catch_warnings():  # e.g. "invalid decimal literal" for 1if: never shown
+            warnings.simplefilter("ignore")
+            tree = ast.parse(body, mode="eval")
+    except SyntaxError as exc:
+        off = lead + max((exc.offset or 1) - 1, 0) if (exc.lineno or 1) == 1 else lead
+        raise ModelError(_at(expr, min(off, len(text))),
+                         f"invalid expression {_short(text)}: {exc.msg}") from None
+    except (RecursionError, MemoryError):
+        raise ModelError(expr.coord, "expression is nested too deeply") from None
+    except ValueError as exc:  # e.g. null bytes, on some Python versions
+        raise ModelError(expr.coord, f"invalid expression {_short(text)}: {exc}") from None
+    _check_depth(expr, tree.body)
+    _check_node(expr, tree.body)
+    return tree.body
+
+
+def _check_depth(expr: Expr, root: ast.AST) -> None:
+    stack = [(root, 1)]
+    count = 0
+    while stack:
+        node, depth = stack.pop()
+        count += 1
+        if count > LIMITS.expr_nodes:
+            raise ModelError(expr.coord, f"expression is too large (more than "
+                                         f"{LIMITS.expr_nodes} syntax nodes, the limit of "
+                                         "expression size)")
+        if depth > MAX_DEPTH:
+            raise ModelError(_where(expr, node), f"expression is nested too deeply "
+                                                 f"(more than {MAX_DEPTH} levels)")
+        stack.extend((child, depth + 1) for child in ast.iter_child_nodes(node))
+
+
+def _check_node(expr: Expr, node: ast.AST, in_where: bool = False) -> None:
+    bad = lambda msg: ModelError(_where(expr, node), msg)  # noqa: E731
+    if isinstance(node, ast.Constant):
+        v = node.value
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            r = repr(v)
+            raise bad(f"only numbers are allowed as constants, not "
+                      f"{r if len(r) <= 60 else r[:57] + '...'}")
+        if isinstance(v, float) and not math.isfinite(v) or (
+                isinstance(v, int) and abs(v) > 10 ** MAX_EXPONENT):
+            raise bad(f"number {str(v)[:40]} is out of range")
+        return
+    if isinstance(node, ast.Name):
+        return
+    if isinstance(node, ast.Attribute):
+        if dotted_path(node) is None:
+            raise bad("attribute access is only allowed on names (component paths, .T)")
+        for part in dotted_path(node):
+            if part.startswith("_"):
+                raise bad(f"name {part!r} is not allowed (leading underscore)")
+        return
+    if isinstance(node, ast.BinOp):
+        if isinstance(node.op, ast.BitXor):
+            raise bad("operator ^ is not allowed: write ** for a power (a ** b)")
+        if not isinstance(node.op, _BINOPS):
+            raise bad(f"operator {type(node.op).__name__} is not allowed")
+        _check_node(expr, node.left)
+        _check_node(expr, node.right)
+        return
+    if isinstance(node, ast.UnaryOp):
+        if not isinstance(node.op, (ast.USub, ast.UAdd)):
+            raise bad(f"operator {type(node.op).__name__} is not allowed")
+        _check_node(expr, node.operand)
+        return
+    if isinstance(node, ast.Compare):
+        if not in_where:
+            raise bad("comparisons are only allowed as the condition of where(...)")
+        if len(node.ops) != 1 or not isinstance(node.ops[0], _CMPOPS):
+            raise bad("a condition is one comparison with <, <=, > or >=")
+        _check_node(expr, node.left)
+        _check_node(expr, node.comparators[0])
+        return
+    if isinstance(node, ast.List):
+        if not node.elts:
+            raise bad("empty list")
+        for e in node.elts:
+            _check_node(expr, e)
+        return
+    if isinstance(node, ast.Subscript):
+        _check_node(expr, node.value)
+        idx = node.slice
+        parts = idx.elts if isinstance(idx, ast.Tuple) else [idx]
+        if len(parts) > 2:
+            raise bad("at most two indices")
+        for part in parts:
+            if isinstance(part, ast.Slice):
+                for bound in (part.lower, part.upper):
+                    if bound is not None:
+                        _int_const(expr, bound)
+                if part.step is not None:
+                    raise bad("slices with a step are not allowed")
+            else:
+                _int_const(expr, part)
+        return
+    if isinstance(node, ast.Call):
+        if not isinstance(node.func, ast.Name):
+            raise bad("only the built-in functions may be called")
+        name = node.func.id
+        if node.keywords or any(isinstance(a, ast.Starred) for a in node.args):
+            raise bad(f"{name}(): keyword and starred arguments are not allowed")
+        if name in BOND_FUNCTIONS:
+            if len(node.args) != 1 or dotted_path(node.args[0]) is None:
+                raise bad(f"{name}() takes one name: a bond, element or junction")
+            return
+        if name not in FUNCTIONS:
+            hint = f" (did you mean {HINTS[name]}?)" if name in HINTS else ""
+            raise bad(f"unknown function {name!r}{hint}")
+        lo, hi = FUNCTIONS[name]
+        n = len(node.args)
+        if n < lo or (hi is not None and n > hi):
+            want = str(lo) if lo == hi else f"{lo} or more" if hi is None else f"{lo} to {hi}"
+            raise bad(f"{name}() takes {want} argument(s), got {n}")
+        for i, a in enumerate(node.args):
+            _check_node(expr, a, in_where=(name == "where" and i == 0))
+        return
+    raise bad(f"{type(node).__name__} is not allowed in an expression")
+
+
+def _int_const(expr: Expr, node: ast.AST) -> int:
+    if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub):
+        return -_int_const(expr, node.operand)
+    if isinstance(node, ast.Constant) and type(node.value) is int:
+        return node.value
+    raise ModelError(_where(expr, node), "an index must be an integer constant")
+
+
+# ---------------------------------------------------------------------------------------------
+# Building sympy objects
+
+
+class Resolver(Protocol):
+    def value(self, path: tuple[str, ...], coord: Coord): ...
+
+    def bond(self, func: str, path: tuple[str, ...], coord: Coord): ...
+
+
+def shape_of(v) -> tuple[int, ...]:
+    return tuple(v.shape) if isinstance(v, sp.MatrixBase) else ()
+
+
+def _as_matrix(v):
+    return v if isinstance(v, sp.MatrixBase) else sp.Matrix([[v]])
+
+
+def build(expr: Expr, resolver: Resolver):
+    """Turn a checked expression into a sympy scalar or an immutable sympy matrix."""
+    try:
+        return _Builder(expr, resolver).visit(expr.tree())
+    except RecursionError:
+        raise ModelError(expr.coord, "expression is nested too deeply") from None
+
+
+
+
+def _finite(v) -> bool:
+    items = v if isinstance(v, sp.MatrixBase) else (v,)
+    return not any(isinstance(x, sp.Basic) and x.has(sp.zoo, sp.oo, -sp.oo, sp.nan) for x in items)
+
+
+def _too_big(v) -> bool:
+    """An exact number too large to print, or a float beyond the double range."""
+    limit = 10 ** MAX_EXPONENT
+    items = v if isinstance(v, sp.MatrixBase) else (v,)
+    for x in items:
+        if isinstance(x, sp.Rational) and (abs(x.p) > limit or x.q > limit):
+            return True
+        if isinstance(x, sp.Float) and abs(x) > sp.Float(10) ** MAX_EXPONENT:
+            return True
+    return False
+
+
+class _NumError(Exception):
+    pass
+
+
+_FLOAT_LIMIT = 10.0 ** MAX_EXPONENT
+
+
+def _checked(x: float) -> float:
+    if isinstance(x, complex):
+        raise _NumError("complex")
+    if x != x:
+        raise _NumError("undefined")
+    if not math.isfinite(x) or abs(x) > _FLOAT_LIMIT:
+        raise _NumError("overflow")
+    return x
+
+
+def _pow(a: float, b: float) -> float:
+    if a == 0 and b < 0:
+        raise _NumError("undefined")
+    if a < 0 and b != int(b):
+        raise _NumError("complex")
+    try:
+        return math.pow(a, b)
+    except OverflowError:
+        raise _NumError("overflow") from None
+
+
+@functools.lru_cache(maxsize=None)
+def _tables():
+    """sympy function -> its double-precision evaluation, and sympy relations -> operators
+    (built on first use: importing this module must not import sympy, see __getattr__)."""
+    math1 = {
+        sp.exp: math.exp, sp.log: math.log, sp.sin: math.sin, sp.cos: math.cos,
+        sp.tan: math.tan, sp.asin: math.asin, sp.acos: math.acos, sp.atan: math.atan,
+        sp.sinh: math.sinh, sp.cosh: math.cosh, sp.tanh: math.tanh, sp.Abs: abs,
+        sp.sign: lambda a: (a > 0) - (a < 0),
+    }
+    relations = {sp.StrictLessThan: lambda a, b: a < b, sp.LessThan: lambda a, b: a <= b,
+                 sp.StrictGreaterThan: lambda a, b: a > b, sp.GreaterThan: lambda a, b: a >= b}
+    return math1, relations
+
+
+def numeric(v, memo: dict | None = None):
+    """The value of a constant sympy expression in double precision, or None where it depends
+    on a symbol (or holds a function this evaluator does not know). Raises :class:`_NumError`
+    ("overflow", "complex", "undefined") where the constant is no finite real double: bounded
+    work, where sympy's own evaluation of ``exp(exp(exp(100)))`` would not end."""
+    memo = {} if memo is None else memo
+    return _num(v, memo)
+
+
+def _num(v, memo):
+    try:
+        return memo[v]
+    except (KeyError, TypeError):
+        pass
+    x = _num1(v, memo)
+    if x is not None:
+        x = _checked(x)
+    memo[v] = x
+    return x
+
+
+def _num1(v, memo):  # noqa: C901 - one case per sympy class
+    if isinstance(v, (int, float)):
+        return float(v)
+    if v.is_Symbol:
+        return None
+    if v in (sp.zoo, sp.nan, sp.oo, -sp.oo):
+        raise _NumError("undefined" if v in (sp.zoo, sp.nan) else "overflow")
+    if v is sp.I:
+        raise _NumError("complex")
+    if isinstance(v, sp.Rational):
+        try:
+            return v.p / v.q
+        except OverflowError:
+            raise _NumError("overflow") from None
+    if isinstance(v, (sp.Float, sp.NumberSymbol)):
+        return float(v)
+    if isinstance(v, (sp.Add, sp.Mul, sp.Pow, sp.Min, sp.Max, sp.atan2, sp.Heaviside)) or (
+            v.func in _tables()[0]):
+        args = [_num(a, memo) for a in v.args]
+        if any(a is None for a in args):
+            return None
+        try:
+            if isinstance(v, sp.Add):
+                return math.fsum(args)
+            if isinstance(v, sp.Mul):
+                out = 1.0
+                for a in args:
+                    out = _checked(out * a)
+                return out
+            if isinstance(v, sp.Pow):
+                return _pow(*args)
+            if isinstance(v, sp.Min):
+                return min(args)
+            if isinstance(v, sp.Max):
+                return max(args)
+            if isinstance(v, sp.atan2):
+                return math.atan2(*args)
+            if isinstance(v, sp.Heaviside):
+                return 1.0 if args[0] > 0 else 0.0 if args[0] < 0 else args[1]
+            if v.func in (sp.log,) and args[0] <= 0:
+                raise _NumError("complex" if args[0] < 0 else "undefined")
+            return _tables()[0][v.func](*args)
+        except OverflowError:
+            raise _NumError("overflow") from None
+        except ValueError:  # math domain error: asin(2), acos(-3)
+            raise _NumError("complex") from None
+        except ZeroDivisionError:
+            raise _NumError("undefined") from None
+    if isinstance(v, sp.Piecewise):
+        for val, cond in v.args:
+            if cond is sp.true:
+                return _num(val, memo)
+            if type(cond) not in _tables()[1]:
+                return None
+            a, b = _num(cond.lhs, memo), _num(cond.rhs, memo)
+            if a is None or b is None:
+                return None
+            if _tables()[1][type(cond)](a, b):
+                return _num(val, memo)
+        raise _NumError("undefined")
+    return None
+
+
+_NUM_MESSAGES = {
+    "overflow": f"the constant is not a finite number (it overflows 10**{MAX_EXPONENT})",
+    "complex": "the constant is complex, not real (a square root or logarithm of a negative "
+               "number, or asin/acos beyond [-1, 1]?)",
+    "undefined": "the expression is infinite or undefined (division by zero?)",
+}
+
+
+def _tree_size(v, limit: int) -> int:
+    """The number of nodes of a sympy expression tree, counting stops past ``limit``."""
+    n = 0
+    stack = [v]
+    while stack:
+        x = stack.pop()
+        n += 1
+        if n > limit:
+            return n
+        stack.extend(x.args)
+    return n
+
+
+class _Builder:
+    def __init__(self, expr: Expr, resolver: Resolver):
+        self.expr = expr
+        self.r = resolver
+        self.memo: dict = {}  # constant sub-expression -> its double value (or None)
+        self.work = 0  # operations done so far (bounded by LIMITS.built_ops)
+
+    def err(self, node, msg):
+        what = getattr(self.r, "what", "")  # the resolver's name for the expression's owner
+        return ModelError(_where(self.expr, node), f"{what}: {msg}" if what else msg)
+
+    def _spend(self, node, amount: int) -> None:
+        self.work += amount
+        if self.work > LIMITS.built_ops:
+            raise self.err(node, f"the expression expands into more than {LIMITS.built_ops} "
+                                 "operations (the limit of symbolic work per expression)")
+
+    def _shape_guard(self, node, v):
+        if isinstance(v, sp.MatrixBase):
+            r, c = v.shape
+            if r > LIMITS.matrix_dim or c > LIMITS.matrix_dim or r * c > LIMITS.matrix_entries:
+                raise self.err(node, f"a {r}x{c} matrix is larger than the limit of matrix size "
+                                     f"({LIMITS.matrix_dim} rows or columns, "
+                                     f"{LIMITS.matrix_entries} entries)")
+            self._spend(node, r * c)
+        return v
+
+    def _number_guard(self, node, v):
+        if not _finite(v):
+            raise self.err(node, "the expression is infinite or undefined (division by zero?)")
+        if _too_big(v):
+            raise self.err(node, f"a number larger than 10**{MAX_EXPONENT}")
+        self._shape_guard(node, v)
+        try:
+            for x in (v if isinstance(v, sp.MatrixBase) else (v,)):
+                numeric(x, self.memo)
+        except _NumError as exc:
+            raise self.err(node, _NUM_MESSAGES[str(exc)]) from None
+        return v
+
+    def visit(self, node):
+        if isinstance(node, ast.Constant):
+            v = node.value
+            return sp.Integer(v) if type(v) is int else sp.Float(repr(v))
+        if isinstance(node, (ast.Name, ast.Attribute)):
+            path = dotted_path(node)
+            if len(path) > 1 and path[-1] == "T":
+                v = self.r.value(path[:-1], _where(self.expr, node))
+                if not isinstance(v, sp.MatrixBase):
+                    raise self.err(node, f"'{'.'.join(path[:-1])}' is a scalar: .T needs a matrix")
+                return v.T
+            if len(path) == 1 and path[0] in CONSTANTS:
+                return CONSTANTS[path[0]]
+            return self.r.value(path, _where(self.expr, node))
+        if isinstance(node, ast.UnaryOp):
+            v = self.visit(node.operand)
+            return -v if isinstance(node.op, ast.USub) else v
+        if isinstance(node, ast.BinOp):
+            return self._number_guard(node, self.binop(node))
+        if isinstance(node, ast.List):
+            return self._number_guard(node, self.listlit(node))
+        if isinstance(node, ast.Subscript):
+            return self.subscript(node)
+        if isinstance(node, ast.Call):
+            return self._number_guard(node, self.call(node))
+        raise self.err(node, "not allowed")  # unreachable after check()
+
+    def binop(self, node):
+        a, b = self.visit(node.left), self.visit(node.right)
+        sa, sb = shape_of(a), shape_of(b)
+        op = node.op
+        try:
+            if isinstance(op, (ast.Add, ast.Sub)):
+                if sa != sb:
+                    raise self.err(node, f"shape mismatch: {_fmt(sa)} {'+' if isinstance(op, ast.Add) else '-'} {_fmt(sb)}")
+                return a + b if isinstance(op, ast.Add) else a - b
+            if isinstance(op, (ast.Mult, ast.MatMult)):
+                if sa and sb:
+                    if sa[1] != sb[0]:
+                        raise self.err(node, f"shape mismatch in matrix product: {_fmt(sa)} times {_fmt(sb)}")
+                    # Each entry of a is used by every column of b, each entry of b by every
+                    # row of a: the product's size, paid before sympy builds it.
+                    self._spend(node, sa[0] * sa[1] * sb[1])
+                    self._spend(node, sb[1] * _tree_size(a, LIMITS.built_ops)
+                                + sa[0] * _tree_size(b, LIMITS.built_ops))
+                    return _matmul(a, b)
+                if isinstance(op, ast.MatMult):
+                    raise self.err(node, "@ needs two matrices")
+                return a * b
+            if isinstance(op, ast.Div):
+                if sb:
+                    raise self.err(node, "division by a matrix (use inv())")
+                return a / b
+            if isinstance(op, ast.Pow):
+                if sa or sb:
+                    raise self.err(node, "** needs scalars")
+                if isinstance(a, sp.Number) and isinstance(b, sp.Number) and a != 0 and (
+                        abs(float(b)) * abs(math.log10(abs(float(a)))) > MAX_EXPONENT):
+                    raise self.err(node, f"a number larger than 10**{MAX_EXPONENT}")
+                if isinstance(b, sp.Number) and abs(b) > LIMITS.power_exponent:
+                    raise self.err(node, f"exponent {_short(str(b))} is larger than "
+                                         f"{LIMITS.power_exponent} in magnitude (the limit of "
+                                         "exponents)")
+                return a ** b
+        except ModelError:
+            raise
+        except Exception as exc:  # sympy shape errors
+            raise self.err(node, f"invalid operation: {exc}") from None
+        raise self.err(node, "operator not allowed")
+
+    def listlit(self, node):
+        items = [self.visit(e) for e in node.elts]
+        shapes = {shape_of(i) for i in items}
+        if shapes == {()}:
+            return sp.ImmutableMatrix(len(items), 1, items)
+        if len(shapes) == 1:
+            (s,) = shapes
+            if len(s) == 2 and s[1] == 1:  # a list of column vectors: rows
+                return sp.ImmutableMatrix([[v for v in item] for item in items])
+        raise self.err(node, "a list holds scalars (a vector) or equal-length lists (a matrix)")
+
+    def subscript(self, node):
+        base = self.visit(node.value)
+        if not isinstance(base, sp.MatrixBase):
+            raise self.err(node, "indexing a scalar")
+        idx = node.slice
+        parts = idx.elts if isinstance(idx, ast.Tuple) else [idx]
+        if len(parts) == 1:
+            if base.shape[1] != 1 and base.shape[0] != 1:
+                raise self.err(node, "a matrix needs two indices")
+            flat = list(base)
+            sl = self._index(parts[0], len(flat), node)
+            if isinstance(sl, int):
+                return flat[sl]
+            return sp.ImmutableMatrix([flat[i] for i in range(len(flat))[sl]])
+        r = self._index(parts[0], base.shape[0], node)
+        c = self._index(parts[1], base.shape[1], node)
+        if isinstance(r, int) and isinstance(c, int):
+            return base[r, c]
+        out = base[r, c]
+        return sp.ImmutableMatrix(out) if isinstance(out, sp.MatrixBase) else sp.ImmutableMatrix([[out]])
+
+    def _index(self, part, size, node):
+        if isinstance(part, ast.Slice):
+            lo = _int_const(self.expr, part.lower) if part.lower is not None else None
+            hi = _int_const(self.expr, part.upper) if part.upper is not None else None
+            return slice(lo, hi)
+        i = _int_const(self.expr, part)
+        if not -size <= i < size:
+            raise self.err(node, f"index {i} is out of range for size {size}")
+        return i % size
+
+    def call(self, node):
+        name = node.func.id
+        if name in BOND_FUNCTIONS:
+            return self.r.bond(name, dotted_path(node.args[0]), _where(self.expr, node.args[0]))
+        if name in ("eye", "zeros"):
+            dims = [_int_const(self.expr, a) for a in node.args]
+            if any(d < 1 or d > LIMITS.matrix_dim for d in dims):
+                raise self.err(node, f"{name}() size must be 1..{LIMITS.matrix_dim} (the limit "
+                                     "of matrix size)")
+            return sp.ImmutableMatrix(sp.eye(dims[0]) if name == "eye" else sp.zeros(*dims))
+        if name == "where":
+            cond = node.args[0]
+            if not isinstance(cond, ast.Compare):
+                raise self.err(node, "where(cond, a, b): the condition must be a comparison")
+            lhs, rhs = self.visit(cond.left), self.visit(cond.comparators[0])
+            if shape_of(lhs) or shape_of(rhs):
+                raise self.err(node, "where(): the condition must compare scalars")
+            op = type(cond.ops[0])
+            a, b = self.visit(node.args[1]), self.visit(node.args[2])
+            if shape_of(a) != shape_of(b):
+                raise self.err(node, "where(): both branches must have the same shape")
+            try:
+                lv, rv = numeric(lhs, self.memo), numeric(rhs, self.memo)
+            except _NumError as exc:
+                raise self.err(cond, _NUM_MESSAGES[str(exc)]) from None
+            if lv is not None and rv is not None:  # a constant condition: decided here, in
+                # double precision (sympy would evaluate it to whatever precision it takes)
+                holds = {ast.Lt: lv < rv, ast.LtE: lv <= rv, ast.Gt: lv > rv,
+                         ast.GtE: lv >= rv}[op]
+                return a if holds else b
+            rel = {ast.Lt: sp.Lt, ast.LtE: sp.Le, ast.Gt: sp.Gt, ast.GtE: sp.Ge}[op]
+            c = rel(lhs, rhs)
+            if shape_of(a):
+                return sp.ImmutableMatrix(a.shape[0], a.shape[1],
+                                          [sp.Piecewise((x, c), (y, True)) for x, y in zip(a, b)])
+            return sp.Piecewise((a, c), (b, True))
+        args = [self.visit(a) for a in node.args]
+        shapes = [shape_of(a) for a in args]
+        fn = _funcs().get(name)
+        if fn is not None:  # elementwise scalar functions
+            if name in ("atan2", "min", "max"):
+                if any(shapes):
+                    raise self.err(node, f"{name}() takes scalars")
+                return fn(*args)
+            (a,) = args
+            return a.applyfunc(fn) if shapes[0] else fn(a)
+        try:
+            return self.matrix_call(name, args, shapes, node)
+        except ModelError:
+            raise
+        except Exception as exc:
+            raise self.err(node, f"{name}(): {exc}") from None
+
+    def matrix_call(self, name, args, shapes, node):
+        vec3 = lambda i: shapes[i] == (3, 1)  # noqa: E731
+        if name == "skew":
+            if not vec3(0):
+                raise self.err(node, "skew() needs a 3-vector")
+            x, y, z = args[0]
+            return sp.ImmutableMatrix([[0, -z, y], [z, 0, -x], [-y, x, 0]])
+        if name == "cross":
+            if not (vec3(0) and vec3(1)):
+                raise self.err(node, "cross() needs two 3-vectors")
+            return sp.ImmutableMatrix(args[0].cross(args[1]))
+        if name == "dot":
+            if not (shapes[0] and shapes[0] == shapes[1] and shapes[0][1] == 1):
+                raise self.err(node, "dot() needs two vectors of the same length")
+            return sum((a * b for a, b in zip(args[0], args[1])), sp.Integer(0))
+        if name == "norm":
+            if not shapes[0] or shapes[0][1] != 1:
+                raise self.err(node, "norm() needs a vector")
+            return sp.sqrt(sum((a ** 2 for a in args[0]), sp.Integer(0)))
+        if name == "transpose":
+            return sp.ImmutableMatrix(_as_matrix(args[0]).T)
+        if name == "diag":
+            size = len(args[0]) if len(args) == 1 and shapes[0] else len(args)
+            if size > LIMITS.matrix_dim:
+                raise self.err(node, f"diag(): a {size}x{size} matrix is larger than the limit "
+                                     f"of matrix size ({LIMITS.matrix_dim})")
+            if len(args) == 1 and shapes[0] and shapes[0][1] == 1:
+                return sp.ImmutableMatrix(sp.diag(*list(args[0])))
+            if any(shapes):
+                raise self.err(node, "diag() takes scalars or one vector")
+            return sp.ImmutableMatrix(sp.diag(*args))
+        if name in ("inv", "det"):
+            m = args[0]
+            if not shapes[0] or shapes[0][0] != shapes[0][1]:
+                raise self.err(node, f"{name}() needs a square matrix")
+            if shapes[0][0] > 4:
+                raise self.err(node, f"{name}() is symbolic and limited to 4x4 matrices")
+            self._spend(node, _tree_size(m, LIMITS.built_ops) * 24)
+            if name == "det":
+                return m.det(method="berkowitz")
+            d = m.det(method="berkowitz")
+            if d == 0:
+                raise self.err(node, "inv(): the matrix is singular")
+            return sp.ImmutableMatrix(m.adjugate() / d)
+        if name == "heaviside":
+            raise self.err(node, "heaviside() takes a scalar")
+        raise self.err(node, f"unknown function {name!r}")
+
+
+_FUNCS: dict[str, Callable] = {}
+
+
+def _funcs() -> dict[str, Callable]:
+    """The functions' sympy meanings (built on first use: sympy is imported lazily)."""
+    if not _FUNCS:
+        _FUNCS.update({
+            "sin": sp.sin, "cos": sp.cos, "tan": sp.tan, "asin": sp.asin, "acos": sp.acos,
+            "atan": sp.atan, "atan2": sp.atan2, "sinh": sp.sinh, "cosh": sp.cosh,
+            "tanh": sp.tanh, "exp": sp.exp, "log": sp.log, "sqrt": sp.sqrt, "abs": sp.Abs,
+            "sign": sp.sign, "min": sp.Min, "max": sp.Max,
+            "heaviside": lambda a: sp.Heaviside(a, 1)})
+    return _FUNCS
+
+
+def _fmt(shape: tuple[int, ...]) -> str:
+    return "scalar" if not shape else "x".join(map(str, shape))
+
+
+def _matmul(a, b):
+    """The matrix product as sums of products, entry by entry: the same canonical sympy
+    expressions as ``a * b``, without the domain-matrix machinery that made the 3R2S's
+    rotation products a fifth of its equation derivation."""
+    n, k = a.shape
+    m = b.shape[1]
+    return sp.ImmutableMatrix(n, m, [sp.Add(*[a[i, q] * b[q, j] for q in range(k)])
+                                     for i in range(n) for j in range(m)])
+

@@ -1,0 +1,381 @@
+"""Scenes: which model, how long, parameter overrides, input signals, outputs, solver, plots.
+
+A scene's input expressions replace the model's input defaults before compilation, so the
+generated module carries the scene's signals; its parameter overrides are passed at run time.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+
+from bgc.base.errors import Coord, ModelError
+from bgc.base.limits import LIMITS
+from bgc.base.safeio import read_text_bounded
+from bgc.format import tables as _tables
+from bgc.format.expr import Expr
+from bgc.format.parse import Model, parse_file
+from bgc.format.reader import Reader, check_name, param_value, require
+
+METHODS = ("Radau", "BDF", "LSODA", "RK45", "RK23", "DOP853", "Rodas4")
+PLOT_KINDS = ("time", "path3d", "loci")
+BACKENDS = ("numpy", "c")
+
+
+@dataclass(frozen=True)
+class Plot:
+    kind: str
+    outputs: tuple[str, ...]
+    title: str
+    coord: Coord
+    labels: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Scene:
+    file: str
+    name: str
+    model_path: str
+    t_span: tuple[float, float]
+    params: dict  # id -> float or nested tuple
+    inputs: dict  # name -> Expr
+    outputs: tuple[str, ...]
+    method: str
+    rtol: float
+    atol: float
+    dt: float | None
+    max_step: float
+    breakpoints: tuple[float, ...]
+    plots: tuple[Plot, ...]
+    effects: dict  # effect name -> bool
+    description: str = ""
+    coord: Coord | None = None
+    source_hash: str = ""
+    free: tuple[str, ...] = ()  # scene parameters that stay parameters (not folded)
+    output_coords: dict = dataclasses.field(default_factory=dict)  # output -> Coord
+    model_coord: Coord | None = None  # where the scene names its model
+    # initial states: None (the model's), "equilibrium", or {state or element: (value, Coord)}
+    initial: object = None
+    initial_coord: Coord | None = None
+    backend: str = "numpy"  # solver.backend: numpy, or c (the C step loop)
+
+
+def parse_scene(path: str | Path) -> Scene:
+    path = str(path)
+    text = read_text_bounded(path, None, "scene file", LIMITS.scene_bytes)
+    r = Reader(path, text)
+    root = r.compose()
+    if root is None:
+        raise ModelError(Coord(path, 1, 1), "the scene file is empty")
+    top = r.mapping(root, "the scene")
+    allowed = ("bgc_scene", "name", "description", "model", "duration", "t_span", "parameters",
+               "inputs", "outputs", "solver", "breakpoints", "plots", "effects", "free",
+               "initial", "sweep")  # sweep: read by bgc.studies.sweep (bgc sweep); bgc simulate ignores it
+    require(r, top, root, allowed, "the scene", required=("bgc_scene", "model"))
+    version = r.scalar(top["bgc_scene"][1], "bgc_scene")
+    if isinstance(version, bool) or version != 1:
+        raise ModelError(r.coord(top["bgc_scene"][1]), "unsupported scene format version")
+    name = Path(path).stem
+    if "name" in top:
+        name = check_name(r.string(top["name"][1], "name"), r.coord(top["name"][1]), "scene")
+    model_rel = r.string(top["model"][1], "model")
+    if "\0" in model_rel:
+        raise ModelError(r.coord(top["model"][1]), "the model's path contains a NUL byte")
+    model_path = str(Path(path).parent / model_rel)
+    if not Path(model_path).is_file():
+        raise ModelError(r.coord(top["model"][1]), f"model file {model_rel!r} does not exist")
+    tmax = LIMITS.time_magnitude
+
+    def a_time(node, what):
+        v = r.number(node, what)
+        if abs(v) > tmax:
+            raise ModelError(r.coord(node), f"{what}: {v:g} s is beyond the limit of times "
+                                            f"(|t| <= {tmax:g} s)")
+        return v
+
+    if "t_span" in top:
+        span_node = top["t_span"][1]
+        span = r.seq(span_node, "t_span")
+        if len(span) != 2:
+            raise ModelError(r.coord(span_node), "t_span is [start, end]")
+        t0, t1 = (a_time(s, "t_span") for s in span)
+    elif "duration" in top:
+        span_node = top["duration"][1]
+        t0, t1 = 0.0, a_time(span_node, "duration")
+    else:
+        raise ModelError(r.coord(root), "the scene: give duration or t_span")
+    if not t1 > t0:
+        raise ModelError(r.coord(span_node), f"the scene: the end time {t1:g} is not after "
+                                             f"the start {t0:g}")
+    length = t1 - t0
+    params = {}
+    if "parameters" in top:
+        for pname, (kn, vn) in r.mapping(top["parameters"][1], "parameters").items():
+            parts = pname.split(".")
+            for part in parts:
+                check_name(part, r.coord(kn), "parameter")
+            v = param_value(r, pname, vn)
+            if isinstance(v, Expr):
+                raise ModelError(r.coord(vn), f"scene parameter {pname!r} must be a number or "
+                                              "a matrix")
+            params[pname] = (v, r.coord(kn))
+    inputs = {}
+    if "inputs" in top:
+        for iname, (kn, vn) in r.mapping(top["inputs"][1], "inputs").items():
+            check_name(iname, r.coord(kn), "input")
+            if _tables.is_table(r, vn):  # data from a CSV file beside the scene
+                inputs[iname] = (_tables.read_table(r, vn, f"input {iname!r}"), r.coord(kn))
+                continue
+            inputs[iname] = (r.expr(vn, f"input {iname!r}"), r.coord(kn))
+    outputs, output_coords = (), {}
+    if "outputs" in top:
+        for o in r.seq(top["outputs"][1], "outputs"):
+            oname = check_name(r.string(o, "output"), r.coord(o), "output", allow_reserved=True)
+            if oname in output_coords:
+                raise ModelError(r.coord(o), f"output {oname!r} is listed twice")
+            output_coords[oname] = r.coord(o)
+        if not output_coords:
+            raise ModelError(r.coord(top["outputs"][1]), "outputs: list at least one output "
+                                                         "(leave the key out for all of them)")
+        outputs = tuple(output_coords)
+    method, rtol, atol, dt, max_step = "Radau", 1e-6, 1e-9, None, float("inf")
+    backend = "numpy"
+    if "solver" in top:
+        sm = r.mapping(top["solver"][1], "solver")
+        require(r, sm, top["solver"][1], ("method", "rtol", "atol", "dt", "max_step", "backend"),
+                 "solver")
+        if "backend" in sm:
+            backend = r.string(sm["backend"][1], "backend")
+            if backend not in BACKENDS:
+                raise ModelError(r.coord(sm["backend"][1]), f"unknown backend {backend!r} "
+                                                            f"(one of {', '.join(BACKENDS)})")
+        if "method" in sm:
+            method = r.string(sm["method"][1], "method")
+            if method not in METHODS:
+                raise ModelError(r.coord(sm["method"][1]), f"unknown solver method {method!r} "
+                                                           f"(one of {', '.join(METHODS)})")
+        for key in ("rtol", "atol", "dt", "max_step"):
+            if key in sm:
+                v = r.number(sm[key][1], key)  # finite, within 10**300
+                where = r.coord(sm[key][1])
+                if not v > 0:
+                    raise ModelError(where, f"solver {key} must be positive")
+                if key == "rtol":
+                    check_rtol(v, where, "solver rtol")
+                if key == "dt" and length / v + 1 > LIMITS.output_samples:
+                    raise ModelError(where, f"solver dt {v:g} over {length:g} s gives "
+                                            f"{length / v + 1:.0f} output samples, more than "
+                                            f"the limit of {LIMITS.output_samples}")
+                if key == "max_step" and v < length * LIMITS.min_step_fraction:
+                    raise ModelError(where, f"solver max_step {v:g} is below the limit of "
+                                            f"{LIMITS.min_step_fraction:g} times the span "
+                                            f"({length * LIMITS.min_step_fraction:g} s): the "
+                                            "run would not end")
+                if key == "rtol":
+                    rtol = v
+                elif key == "atol":
+                    atol = v
+                elif key == "dt":
+                    dt = v
+                else:
+                    max_step = v
+    bps = ()
+    if "breakpoints" in top:
+        items = r.seq(top["breakpoints"][1], "breakpoints")
+        if len(items) > LIMITS.breakpoints:
+            raise ModelError(r.coord(items[LIMITS.breakpoints]), f"more than "
+                                                                 f"{LIMITS.breakpoints} "
+                                                                 "breakpoints (the limit)")
+        bps = tuple(a_time(b, "breakpoint") for b in items)
+    plots = []
+    if "plots" in top:
+        for pn in r.seq(top["plots"][1], "plots"):
+            pm = r.mapping(pn, "a plot")
+            require(r, pm, pn, ("kind", "outputs", "title", "labels"), "a plot",
+                     required=("kind", "outputs"))
+            kind = r.string(pm["kind"][1], "kind")
+            if kind not in PLOT_KINDS:
+                raise ModelError(r.coord(pm["kind"][1]), f"unknown plot kind {kind!r} "
+                                                         f"(one of {', '.join(PLOT_KINDS)})")
+            outs = tuple(r.string(o, "output") for o in r.seq(pm["outputs"][1], "outputs"))
+            labels = tuple(r.string(o, "label") for o in r.seq(pm["labels"][1], "labels")) \
+                if "labels" in pm else ()
+            title = r.string(pm["title"][1], "title") if "title" in pm else ""
+            for o, on in zip(outs, pm["outputs"][1].value):
+                if outputs and o not in output_coords:
+                    raise ModelError(r.coord(on), f"plot: output {o!r} is not among the "
+                                                  f"scene's outputs ({', '.join(outputs)})")
+            plots.append(Plot(kind, outs, title, r.coord(pn), labels))
+    effects = {}
+    if "effects" in top:
+        for ename, (kn, vn) in r.mapping(top["effects"][1], "effects").items():
+            check_name(ename, r.coord(kn), "effect")
+            v = r.scalar(vn, f"effect {ename!r}")
+            if not isinstance(v, bool):
+                raise ModelError(r.coord(vn), f"effect {ename!r}: write on or off (true/false)")
+            effects[ename] = (v, r.coord(kn))
+    desc = r.string(top["description"][1], "description") if "description" in top else ""
+    free = ()
+    if "free" in top:
+        free = tuple(r.string(f, "free parameter") for f in r.seq(top["free"][1], "free"))
+        for k, (f, fn) in enumerate(zip(free, top["free"][1].value)):
+            if f not in params:
+                raise ModelError(r.coord(fn), f"free parameter {f!r} is not set by the scene's "
+                                              "parameters (free keeps a scene value tunable)")
+            if f in free[:k]:
+                raise ModelError(r.coord(fn), f"free parameter {f!r} is listed twice")
+    initial, initial_coord = None, None
+    if "initial" in top:
+        initial, initial_coord = _initial(r, top["initial"][1]), r.coord(top["initial"][0])
+    return Scene(path, name, model_path, (t0, t1), params, inputs, outputs, method, rtol, atol,
+                 dt, max_step, bps, tuple(plots), effects, desc, r.coord(root),
+                 hashlib.sha256(text.encode()).hexdigest()[:16], free, output_coords,
+                 r.coord(top["model"][1]), initial, initial_coord,
+                 backend)
+
+
+def _initial(r: Reader, node):
+    """``initial: equilibrium`` or ``initial: {state-or-element: value}`` (a number, or a
+    list / nested list for a vector or matrix state); names are checked against the
+    compiled module's states by :func:`initial_state`."""
+
+    if isinstance(node, yaml.ScalarNode):
+        v = r.scalar(node, "initial")
+        if v != "equilibrium":
+            raise ModelError(r.coord(node), "initial: write 'equilibrium' or a mapping "
+                                            "{state or element: value}")
+        return "equilibrium"
+    out = {}
+    for sname, (kn, vn) in r.mapping(node, "initial").items():
+        for part in sname.replace("[", ".").replace("]", "").replace(",", ".").split("."):
+            if not part.isdigit():
+                check_name(part, r.coord(kn), "state", allow_reserved=True)
+        if isinstance(vn, yaml.ScalarNode):
+            vals = (r.number(vn, f"initial {sname!r}"),)
+        else:
+            vals = []
+            for item in r.seq(vn, f"initial {sname!r}"):
+                if isinstance(item, yaml.SequenceNode):
+                    vals += [r.number(c, f"initial {sname!r}") for c in item.value]
+                else:
+                    vals.append(r.number(item, f"initial {sname!r}"))
+            vals = tuple(vals)
+        out[sname] = (vals, r.coord(kn))
+    return out
+
+
+def initial_state(scene: Scene, module, p=None):
+    """The scene's initial state for ``module``: the module's own x0 with the scene's values
+    set (names: a state of STATE_NAMES, or an element or state whose components follow in
+    order), or its equilibrium with the inputs held at their values at t0."""
+    import numpy as np
+
+    if scene.initial is None:
+        return None
+    t0 = scene.t_span[0]
+    if scene.initial == "equilibrium":
+        x, info = module.equilibrium(p=p, t=t0)
+        if not np.all(info.converged):
+            raise ModelError(scene.initial_coord, f"initial: no equilibrium found (max "
+                                                  f"|dx/dt| = {np.max(info.residual):.3g})")
+        return x
+    names = list(module.STATE_NAMES)
+    x = np.array(module.initial_state(p), dtype=float)
+    for sname, (vals, coord) in scene.initial.items():
+        if sname in names:
+            idx = [names.index(sname)]
+        else:
+            idx = [i for i, n in enumerate(names)
+                   if n.split("[")[0] in (sname, sname + ".p", sname + ".q")]
+        if not idx:
+            raise ModelError(coord, f"initial: the model has no state {sname!r}"
+                             + (" (removed by the scene?)" if names else "")
+                             + f" (states: {', '.join(names[:12])}"
+                             + (", ..." if len(names) > 12 else "") + ")")
+        if len(vals) != len(idx):
+            raise ModelError(coord, f"initial {sname!r}: {len(vals)} value(s) for "
+                                    f"{len(idx)} state(s) ({', '.join(names[i] for i in idx)})")
+        for i, v in zip(idx, vals):
+            x[i] = v
+    return x
+
+
+def check_rtol(v: float, where: Coord | None, what: str) -> float:
+    """A relative tolerance: finite, within [LIMITS.min_rtol, 1] (a scene's, or ``--rtol``)."""
+    if not LIMITS.min_rtol <= v <= 1:  # false for NaN too
+        raise ModelError(where, f"{what} {v:g} is outside [{LIMITS.min_rtol:g}, 1] (the limit "
+                                "of tolerances: doubles carry about 16 digits)")
+    return v
+
+
+def apply_scene(model: Model, scene: Scene) -> Model:
+    """The model with the scene's input signals in place of the input defaults."""
+    names = {i.name for i in model.inputs}
+    for iname, (_, coord) in scene.inputs.items():
+        if iname not in names:
+            raise ModelError(coord, f"the model has no input {iname!r} "
+                                    f"(inputs: {', '.join(sorted(names)) or 'none'})")
+    new_inputs = []
+    for i in model.inputs:
+        if i.name not in scene.inputs:
+            new_inputs.append(i)
+            continue
+        v, coord = scene.inputs[i.name]
+        if isinstance(v, _tables.Table):
+            if i.shape:
+                raise ModelError(coord, f"input {i.name!r} has shape {list(i.shape)}: a table "
+                                        "gives a scalar input")
+            new_inputs.append(dataclasses.replace(i, default=Expr("0", v.coord), table=v))
+        else:
+            new_inputs.append(dataclasses.replace(i, default=v, table=None))
+    new_inputs = tuple(new_inputs)
+    return dataclasses.replace(model, inputs=new_inputs)
+
+
+def check_against(scene: Scene, module) -> None:
+    """Scene plots must name outputs of the compiled module."""
+    check_outputs(scene, module.OUTPUT_NAMES)
+
+
+def param_values(scene: Scene) -> dict:
+    """The scene's parameter values as plain numbers and nested lists."""
+    out = {}
+    for pid, (v, _) in scene.params.items():
+        if isinstance(v, tuple):
+            v = [list(r) for r in v] if len(v[0]) > 1 else [r[0] for r in v]
+        out[pid] = v
+    return out
+
+
+def free_values(scene: Scene) -> dict:
+    """Run-time values of the scene's free parameters."""
+    return {k: v for k, v in param_values(scene).items() if k in scene.free}
+
+
+
+
+def scene_model(scene: Scene) -> Model:
+    """The scene's model: its input signals, and its values for the model's top-level
+    parameters in place of the defaults (the module keeps them as parameters unless the
+    scene's plan folds them in)."""
+    model = apply_scene(parse_file(scene.model_path), scene)
+    values = {k: v for k, (v, _) in scene.params.items()}
+    top = {p.name: p for p in model.body.params}
+    if not any(k in top and not isinstance(top[k].value, Expr) for k in values):
+        return model
+    params = tuple(dataclasses.replace(p, value=values[p.name])
+                   if p.name in values and not isinstance(p.value, Expr) else p
+                   for p in model.body.params)
+    return dataclasses.replace(model, body=dataclasses.replace(model.body, params=params))
+
+
+def check_outputs(scene: Scene, names) -> None:
+    """Scene plots must name outputs the compiled module has."""
+    for pl in scene.plots:
+        for o in pl.outputs:
+            if o not in names:
+                raise ModelError(pl.coord, f"plot: the module has no output {o!r} "
+                                           f"(outputs: {', '.join(names)})")

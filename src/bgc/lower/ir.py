@@ -1,0 +1,145 @@
+"""Stage 5a: equations -> a backend-neutral lowered form (the IR every printer consumes).
+
+Each generated function (rhs, Jacobian values on JAC_SPARSITY, outputs, initial state)
+computes only what its results need: the assignments are pruned backwards from the results,
+common subexpressions are eliminated (symengine's ``cse``, else sympy's), and the definitions are scheduled in
+causal order. The result is a tree of frozen dataclasses holding sympy expressions; printing
+them as numpy (:mod:`bgc.backends.numpy.printer`) or C (:mod:`bgc.backends.c.printer`) is the printers' business.
+"""
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import networkx as nx
+import sympy as sp
+
+from bgc.core import fastsym
+from bgc.core.equations import Assignment, Equations, prune, schedule
+
+
+@dataclass(frozen=True)
+class Line:
+    """One definition ``target = expr`` of a function body (``comment`` names the element)."""
+    target: sp.Symbol
+    expr: sp.Basic
+    comment: str = ""
+
+
+@dataclass(frozen=True)
+class Function:
+    params: tuple[str, ...]  # parameter identifiers the body uses
+    inputs: tuple[str, ...]  # input symbols the body uses
+    states: tuple[str, ...]  # state identifiers, "_" where unused
+    lines: tuple[Line, ...]
+    results: tuple[tuple[object, sp.Basic], ...]  # (key, expression)
+    ops: int  # operation count after CSE
+
+
+@dataclass(frozen=True)
+class Lowered:
+    """Everything a printer needs about one model, in a fixed (deterministic) order."""
+    eq: Equations
+    rhs: Function  # results keyed by state index
+    jac: Function  # results keyed by (row, col), sorted: the order of JAC_SPARSITY's values
+    outs: Function  # results keyed by (output name, flat index)
+    init: Function  # results keyed by state index (no CSE)
+    jac_keys: tuple[tuple[int, int], ...]
+    derived: tuple[Line, ...]  # derived parameters, in dependency order
+
+    @property
+    def n(self) -> int:
+        return len(self.eq.states)
+
+
+def lower_function(eq: Equations, results: list, assigns: list[Assignment], keys: list,
+                   cse: bool = True) -> Function:
+    """Prune, CSE and schedule one generated function's body."""
+    assigns = prune(results, assigns)
+    exprs = [a.expr for a in assigns] + list(results)
+    if cse and exprs:
+        names = (sp.Symbol(f"_c{i}", real=True) for i in itertools.count())
+        fast = fastsym.cse(exprs, lambda: next(names))  # symengine, when it can read them all
+        if fast is not None:
+            repl, reduced = fast
+        else:
+            repl, reduced = sp.cse(exprs, symbols=names, order="none", list=True)
+    else:
+        repl, reduced = [], exprs
+    defs = [(s, e, "") for s, e in repl]
+    defs += [(a.symbol, r, a.why) for a, r in zip(assigns, reduced[:len(assigns)])]
+    res = reduced[len(assigns):]
+    # schedule: cse temporaries just before their first use, assignments in causal order
+    g = nx.DiGraph()
+    index = {}
+    byname = {}
+    defined = {s for s, _, _ in defs}
+    for s, e, why in defs:
+        g.add_node(s)
+        byname[s] = (e, why)
+        for d in e.free_symbols:
+            if d in defined:
+                g.add_edge(d, s)
+    pos = {a.symbol: i for i, a in enumerate(assigns)}
+    first_use: dict = {}
+    for s, e, _ in defs:
+        if s in pos:
+            for d in e.free_symbols:
+                if d in defined:
+                    first_use[d] = min(first_use.get(d, 10 ** 9), pos[s])
+    for s, e, _ in reversed(defs[:len(repl)]):  # temporaries used by later temporaries
+        for d in e.free_symbols:
+            if d in defined and s in first_use:
+                first_use[d] = min(first_use.get(d, 10 ** 9), first_use[s])
+    for s, _, _ in defs:
+        if s in pos:
+            index[s] = 2 * pos[s] + 1
+        else:
+            index[s] = 2 * first_use.get(s, len(assigns)) if s in first_use else 2 * len(assigns)
+    order = schedule(g, index)
+    lines = tuple(Line(s, byname[s][0], byname[s][1]) for s in order)
+    used = set()
+    for s, e, _ in defs:
+        used |= e.free_symbols
+    for r in res:
+        used |= r.free_symbols
+    pnames = tuple(str(s) for pv in eq.params for s in pv.symbols if s in used)
+    pnames += tuple(str(a.symbol) for a in eq.derived if a.symbol in used)
+    inames = tuple(str(s) for iv in eq.inputs for s in iv.symbols if s in used)
+    snames = tuple(str(sv.symbol) if sv.symbol in used else "_" for sv in eq.states)
+    ops = count_ops([e for _, e, _ in defs] + list(res))
+    return Function(pnames, inames, snames, lines, tuple(zip(keys, res)), ops)
+
+
+def count_ops(exprs) -> int:
+    """Arithmetic operations and function calls, counted on the expression trees (cheap)."""
+    n = 0
+    for e in exprs:
+        for node in sp.preorder_traversal(e):
+            if node.is_Add or node.is_Mul:
+                n += len(node.args) - 1
+            elif node.is_Pow or node.is_Function or isinstance(node, sp.Piecewise):
+                n += 1
+    return n
+
+
+def lower(eq: Equations, progress=None) -> Lowered:
+    """The model's functions, pruned, CSE'd and scheduled (backend-neutral)."""
+    say = progress or (lambda msg: None)
+    n = len(eq.states)
+    say("lowering rhs")
+    rhs = lower_function(eq, list(eq.derivatives), list(eq.assignments), list(range(n)))
+    say("lowering jacobian")
+    jkeys = sorted(eq.jacobian)
+    jac = lower_function(eq, [eq.jacobian[k] for k in jkeys],
+                         list(eq.assignments) + list(eq.jac_assignments), jkeys)
+    say("lowering outputs")
+    oexprs, okeys = [], []
+    for name, shp, vals in eq.outputs:
+        for k, v in enumerate(vals):
+            oexprs.append(v)
+            okeys.append((name, k))
+    outs = lower_function(eq, oexprs, list(eq.assignments), okeys)
+    init = lower_function(eq, [sv.initial for sv in eq.states], [], list(range(n)), cse=False)
+    derived = tuple(Line(a.symbol, a.expr, a.why) for a in eq.derived)
+    return Lowered(eq, rhs, jac, outs, init, tuple(jkeys), derived)

@@ -1,0 +1,532 @@
+"""Run a scene: compile its model with the scene's signals, simulate, collect outputs."""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bgc.backends.load import load_module
+from bgc.base.errors import ModelError, SimulationFailed
+from bgc.format.scene import (
+    Scene,
+    check_against,
+    free_values,
+    initial_state,
+    param_values,
+    parse_scene,
+    scene_model,
+)
+
+
+@dataclass(frozen=True)
+class SceneResult:
+    scene: Scene
+    module: object
+    t: np.ndarray
+    x: np.ndarray
+    y: dict
+    stats: dict
+    method: str
+    rtol: float
+    compile_time: float
+    run_time: float
+    backend: str = "numpy"
+    atol: float = 1e-9
+    #: (backend, key, [(path, bytes) the key digested], scene bytes) of the module's
+    #: compile-cache entry; None when it did not go through the cache
+    cache_entry: tuple | None = None
+    module_name: str = ""
+    #: the module's simulate arguments as the scene resolved them (a run record replays them)
+    run_args: dict | None = None
+
+
+def compile_scene(scene: Scene, progress=None, specialise: bool = True,
+                  strict_causality: bool = False):
+    """The scene's module: its signals compiled in, and (by default) specialised to it.
+
+    ``specialise=False`` gives the scene's full model: the model with the scene's input
+    signals, every effect on, every parameter and output kept."""
+    model = scene_model(scene)
+    plan = None
+    if specialise:
+        from bgc.core.graph import build_graph
+        from bgc.core.specialize import plan_for  # (the compile path: sympy, networkx)
+
+        plan = plan_for(scene, build_graph(model).params)
+    from bgc.run.driver import compile_model
+
+    c = compile_model(model, progress, plan, strict_causality=strict_causality)
+    with np.errstate(all="ignore"):  # X0 is computed on import: no numpy warnings
+        mod = load_module(c.source, f"{c.model.name}_{scene.name}{'' if specialise else '_full'}")
+    check_against(scene, mod)
+    from bgc.run.plots import check_plots
+
+    check_plots(scene, mod.OUTPUT_SHAPES)  # a plot that cannot be drawn: before any run
+    return c, mod
+
+
+def runtime_params(scene: Scene, mod) -> dict | None:
+    """The scene's free parameter values the module does not already have as defaults (the
+    scene's values of top-level parameters are compiled in as defaults, so most scenes pass
+    none and use the module's precomputed defaults)."""
+    out = {}
+    for k, v in free_values(scene).items():
+        if k in mod.PARAM_DEFAULTS and not np.array_equal(np.asarray(v, dtype=float),
+                                                          np.asarray(mod.PARAM_DEFAULTS[k])):
+            out[k] = v
+    return out or None
+
+
+def scene_module(scene: Scene, progress=None, backend: str = "numpy", use_cache: bool = True,
+                 strict_causality: bool = False):
+    """The scene's specialised module for a backend, through the compile cache: a warm run
+    imports neither sympy nor the compiler. Without a C compiler, backend "c" says so and
+    falls back to numpy. Returns (backend used, module)."""
+    backend, mod, _ = _scene_module(scene, progress, backend, use_cache, strict_causality)
+    return backend, mod
+
+
+def _scene_module(scene: Scene, progress=None, backend: str = "numpy", use_cache: bool = True,
+                  strict_causality: bool = False):
+    """scene_module's (backend, module, cache entry as in SceneResult.cache_entry, or None)."""
+    from bgc.backends import load as backends
+    from bgc.run import cache as cache_mod
+
+    say = progress or (lambda msg: None)
+    if backend == "c":
+        from bgc.backends.c import build as cbuild
+
+        if not cbuild.available():
+            say(f"no C compiler ({' '.join(cbuild.compiler())!r} cannot run; set CC): "
+                "using the numpy backend")
+            backend = "numpy"
+        elif not cbuild.runtime_sources():
+            say("the C runtime (templates/c/runtime/*.c) is not installed: using the numpy "
+                "backend")
+            backend = "numpy"
+    store = cache_mod.Cache() if use_cache else None
+    key, files, scene_bytes = (cache_mod.key_inputs(backend, scene.model_path, scene.file,
+                                                    extra="strict" if strict_causality else "")
+                               if store is not None else (None, [], None))
+
+    def compile_fn():
+        c, _ = _compiled(scene, progress, strict_causality)
+        return c
+    name = scene_module_name(scene)
+    with np.errstate(all="ignore"):  # X0 is computed on import: no numpy warnings
+        try:
+            _, mod = backends.load(name, backend, key, compile_fn, store, progress)
+        except ModelError as exc:
+            if backend != "c" or type(exc).__name__ != "CUnsupported":
+                raise
+            say(f"{exc.message}: using the numpy backend")
+            return _scene_module(scene, progress, "numpy", use_cache, strict_causality)
+    check_against(scene, mod)
+    from bgc.run.plots import check_plots
+
+    check_plots(scene, mod.OUTPUT_SHAPES)  # a plot that cannot be drawn: before any run
+    return backend, mod, None if key is None else (backend, key, files, scene_bytes)
+
+
+def scene_module_name(scene: Scene) -> str:
+    return f"{Path(scene.model_path).stem}_{scene.name}"
+
+
+def _compiled(scene: Scene, progress=None, strict_causality: bool = False):
+    from bgc.core.graph import build_graph
+    from bgc.run.driver import compile_model
+
+    model = scene_model(scene)
+    from bgc.core.specialize import plan_for
+
+    return compile_model(model, progress, plan_for(scene, build_graph(model).params),
+                         strict_causality=strict_causality), model
+
+
+def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=None,
+              backend=None, use_cache: bool = True,
+              strict_causality: bool = False) -> SceneResult:
+    say = progress or (lambda msg: None)
+    scene = path if isinstance(path, Scene) else parse_scene(path)
+    t0 = time.perf_counter()
+    backend, mod, entry = _scene_module(scene, progress, backend or scene.backend, use_cache,
+                                        strict_causality)
+    t1 = time.perf_counter()
+    method = method or scene.method
+    rtol = rtol or scene.rtol
+    atol = scene.atol if atol is None else atol
+    from bgc.run.progress import simulating_line
+
+    say(simulating_line(scene.name, method, backend, rtol, atol))
+    dt = scene.dt or (scene.t_span[1] - scene.t_span[0]) / 1000
+    p = runtime_params(scene, mod)
+    x0 = initial_state(scene, mod, p)  # the scene's initial: values, or equilibrium
+    try:
+        res = mod.simulate(scene.t_span, dt=dt, method=method, rtol=rtol, atol=atol,
+                           p=p, breakpoints=scene.breakpoints, x0=x0,
+                           max_step=scene.max_step, max_wall=max_wall)
+    except mod.SimulationError as exc:
+        # the diagnosis reads the model's equations: compiled now if the module came from
+        # the cache (a failed run can afford it)
+        c, _ = _compiled(scene, None, strict_causality)
+        raise simulation_failed(c, mod, scene, exc, p) from None
+    t2 = time.perf_counter()
+    t, x, y = res
+    return SceneResult(scene, mod, t, x, y, res.stats, method, rtol, t1 - t0, t2 - t1,
+                       backend, atol, entry,
+                       scene_module_name(scene),
+                       dict(t_span=scene.t_span, dt=dt, method=method, rtol=rtol, atol=atol,
+                            p=p, breakpoints=scene.breakpoints, x0=x0,
+                            max_step=scene.max_step, max_wall=max_wall))
+
+
+# ---------------------------------------------------------------------------------------------
+# Which law made a value that is not finite (the module names the state; bgc, holding the
+# equations, finds the element and, where known, a remedy)
+
+#: Most assignments a diagnosis evaluates (it runs on failure only; sympy is slow).
+_DIAGNOSE_MAX = 5000
+
+
+def _num(expr, vals):
+    """expr's value at vals (symbol -> float): a complex, or None if it cannot be evaluated."""
+    import sympy as sp
+
+    try:
+        v = expr.xreplace({s: sp.Float(vals[s]) for s in expr.free_symbols if s in vals})
+        if v.free_symbols:
+            return None
+        if v.has(sp.nan):
+            return complex(np.nan)
+        if v.has(sp.zoo, sp.oo, -sp.oo):
+            return complex(-np.inf if v == -sp.oo else np.inf)
+        return complex(v.evalf())
+    except (TypeError, ValueError, ArithmeticError, AttributeError):
+        return complex(np.nan)
+
+
+def _show(expr, limit: int = 160) -> str:
+    """An expression for a one-line message, cut to ``limit`` characters."""
+    text = " ".join(str(expr).split())
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def _finite(v) -> bool:
+    return v is None or (np.isfinite(v.real) and np.isfinite(v.imag) and v.imag == 0)
+
+
+def _element_of(why: str) -> str | None:
+    """The element id an assignment's description starts with (see equations.derive)."""
+    for prefix in ("0-junction ", "1-junction "):
+        if why.startswith(prefix):
+            return why[len(prefix):].split(":", 1)[0]
+    if why.startswith("derived parameter "):
+        return None
+    head = why.split(" (", 1)[0]
+    return head or None
+
+
+def _remedy(expr, vals, wrt=None) -> str:
+    """A known cure for the law expr, at the point vals, that gave a non-finite value (or,
+    with wrt, an infinite slope): a fractional power of zero, a log of zero, a division by
+    zero, the root of a negative number."""
+    import sympy as sp
+
+    for node in sp.preorder_traversal(expr):
+        if isinstance(node, sp.Pow) and node.exp.is_number:
+            base = _num(node.base, vals)
+            if base is None:
+                continue
+            e = float(node.exp)
+            if abs(base) == 0 and 0 < e < 1:
+                return (f" ({_show(node, 50)} at {_show(node.base, 40)} = 0): regularise it, "
+                        "e.g. sqrt(abs(e) + eps**2) - eps for sqrt(abs(e)), or give it a "
+                        "laminar (linear) region near 0")
+            if abs(base) == 0 and e < 0:
+                return f" (it divides by {_show(node.base, 60)}, which is 0 here)"
+            if base.real < 0 and not float(e).is_integer():
+                return (f" (it takes a fractional power of {_show(node.base, 60)}, which is "
+                        "negative here: keep the argument positive)")
+        if isinstance(node, sp.log):
+            arg = _num(node.args[0], vals)
+            if arg is not None and arg.real <= 0:
+                return (f" (it takes the log of {_show(node.args[0], 60)}, which is "
+                        f"{arg.real:g} here)")
+    return ""
+
+
+def simulation_failed(c, mod, scene, exc, p=None) -> SimulationFailed:
+    """The user's error for the module's SimulationError ``exc``: at the scene, or for a value
+    that is not finite at the law that made it, with a remedy where one is known."""
+    coord, why = scene.coord, ""
+    if getattr(exc, "where", None) is not None:  # a NonFiniteError: which law, and why
+        with np.errstate(all="ignore"):
+            found = nonfinite_culprit(c, mod, exc, p)
+        if found is not None:
+            coord, why = found[0] or scene.coord, found[1]
+    return SimulationFailed(coord, f"simulation failed: {exc}{why}")
+
+
+def check_start(c, mod, scene, p=None) -> None:
+    """The model's rhs and Jacobian are finite where the scene starts: a short Radau run
+    (it evaluates both at t0 first); a value that is not finite there is the located
+    SimulationFailed of :func:`simulation_failed`. Other failures are left to the caller."""
+    t0, t1 = scene.t_span
+    span = (t0, t0 + 1e-9 * (t1 - t0))
+    try:
+        with np.errstate(all="ignore"):
+            mod.simulate(span, t_eval=span[:1], method="Radau", p=p, rtol=1e-3, atol=1e-6,
+                         max_steps=100)
+    except mod.NonFiniteError as exc:
+        raise simulation_failed(c, mod, scene, exc, p) from None
+    except Exception:  # noqa: BLE001 - only the non-finite start is checked here
+        pass
+
+
+def check_module_start(c) -> None:
+    """The compiled module's initial state and right-hand side at t = 0 with its default
+    parameters are finite, or one located error naming the law that is not (a zero inertia or
+    capacitance, a root of a negative parameter, ...): `bgc compile` writes no module that
+    fails on its first call. (Loads the module from memory, as `bgc simulate` does.)"""
+    with np.errstate(all="ignore"):
+        mod = load_module(c.source, f"{c.model.name}_start_check")
+        x0 = np.asarray(mod.X0, dtype=float)
+        dx = mod.rhs(0.0, x0)
+        what, values = ("initial state", x0) if not np.isfinite(x0).all() else ("rhs", dx)
+        if np.isfinite(values).all() and np.isreal(values).all():
+            return
+        err = mod._nonfinite("compile", what, 0.0, x0, values, (mod.N_STATES,), {})
+        found = nonfinite_culprit(c, mod, err, None)
+    owner = None  # the element that owns the first state that is not finite
+    if isinstance(err.index, int) and err.index < len(mod.STATE_OWNERS):
+        owner = next((el.coord for el in c.graph.elements
+                      if el.id == mod.STATE_OWNERS[err.index]), None)
+    fallback = owner or c.model.coord
+    coord, why = (found[0] or fallback, found[1]) if found else (fallback, "")
+    raise ModelError(coord, f"not finite with the default parameters: {err}{why}")
+
+
+def nonfinite_culprit(c, mod, exc, p=None):
+    """(coord, text) naming the element whose law made the NonFiniteError ``exc``, and a
+    remedy where one is known; None if it cannot be told (the module's message stands)."""
+    import sympy as sp
+
+    eq = c.equations
+    try:
+        b = int(exc.instance or 0)
+        t = float(exc.t)
+        pv, _ = mod._params(p)
+
+        def pick(v):
+            a = np.asarray(v, dtype=float).ravel()
+            return float(a[b] if a.size > b else a[0])
+
+        vals = {}
+        names = [s for pvar in eq.params for s in pvar.symbols] + [d.symbol for d in eq.derived]
+        for s, v in zip(names, pv):
+            vals[s] = pick(v)
+        if eq.inputs:
+            uv = mod._inputs(t, pv, None)
+            for s, v in zip((s for iv in eq.inputs for s in iv.symbols), uv):
+                vals[s] = pick(v)
+        for sv, v in zip(eq.states, np.asarray(exc.x, dtype=float)):
+            vals[sv.symbol] = float(v)
+    except Exception:  # noqa: BLE001 - a diagnosis is best effort
+        return None
+    where = exc.where
+    if where == "initial state":
+        row = eq.states[exc.index].initial
+        rows = [row]
+    else:
+        i = exc.index if where == "rhs" else exc.index[0]
+        rows = [eq.derivatives[i]]
+    j = exc.index[1] if where == "jacobian" else None
+
+    def located(owner, text):
+        try:
+            coord = c.graph.element(owner).coord
+        except Exception:  # noqa: BLE001 - a state's owner, or not an element
+            coord = None
+        return coord, text
+
+    def param_coord(pid):
+        return next((fp.coord for fp in c.graph.params if fp.id == pid), None)
+
+    # parameters and inputs the failing row reads: one that is itself not finite is the cause
+    by_sym = {a.symbol: a for a in eq.assignments}
+    need, todo = set(), set().union(*(r.free_symbols for r in rows))
+    while todo and len(need) < _DIAGNOSE_MAX:
+        s = todo.pop()
+        if s in need:
+            continue
+        need.add(s)
+        if s in by_sym:
+            todo |= by_sym[s].expr.free_symbols
+    for pvar in eq.params:
+        for s in pvar.symbols:
+            if s in need and not np.isfinite(vals.get(s, 0.0)):
+                return param_coord(pvar.id), f"; parameter {pvar.id!r} is {vals[s]:g}"
+    for d in eq.derived:
+        if d.symbol in need and not np.isfinite(vals.get(d.symbol, 0.0)):
+            pid = d.why[len("derived parameter "):] if d.why.startswith("derived parameter ") \
+                else None
+            return param_coord(pid), (f"; the {d.why} is {vals[d.symbol]:g} (= "
+                                      f"{_show(d.expr)} with the parameters' values)"
+                                      + _remedy(d.expr, vals))
+    for iv in eq.inputs:
+        for s in iv.symbols:
+            if s in need and not np.isfinite(vals.get(s, 0.0)):
+                return None, f"; input {iv.name!r} is {vals[s]:g} at t = {t:g}"
+    if where == "initial state" or len(need) > _DIAGNOSE_MAX:
+        return None
+    dep = {eq.states[j].symbol} if j is not None else set()
+    for a in eq.assignments:
+        if a.symbol not in need:
+            continue
+        v = _num(a.expr, vals)
+        vals[a.symbol] = complex(np.nan) if v is None else v
+        owner = _element_of(a.why)
+        if not _finite(v):
+            shown = ("nan" if v is None or np.isnan(v.real) else
+                     f"{v.real:g}" if v.imag == 0 or np.isinf(v.real) else f"complex ({v:g})")
+            return located(owner, f"; it comes from {a.why}: {_show(a.expr, 120)} is {shown} here"
+                           + _remedy(a.expr, vals))
+        vals[a.symbol] = v.real
+        if j is None or not (a.expr.free_symbols & dep):
+            continue
+        dep.add(a.symbol)
+        from bgc.core.equations import _clean
+
+        for s in sorted(a.expr.free_symbols & dep, key=str):
+            try:
+                d = _clean(sp.diff(a.expr, s))
+            except Exception:  # noqa: BLE001
+                continue
+            if not _finite(_num(d, vals)):
+                return located(owner, f"; it comes from {a.why}: {_show(a.expr, 120)} has an infinite "
+                                      f"slope at {s} = {vals[s]:g}" + _remedy(a.expr, vals, s))
+    return None
+
+
+# ---------------------------------------------------------------------------------------------
+# Full model against scene: what specialisation saves (bgc explain, bench/bench_scenes.py)
+
+_NOT_WORK = {"empty", "zeros", "asarray", "broadcast_shapes", "broadcast_to", "shape", "stack",
+             "array", "reshape"}
+_SETUP = {"_pv", "_bshape", "_uv", "x", "dx", "J", "_shape", "_b"}
+
+
+def operation_counts(source: str) -> dict:
+    """Arithmetic operations and function calls in the generated rhs and jacobian (after CSE),
+    counted on the module's own code: binary and unary operators and calls of numpy functions,
+    leaving out the unpacking of x, p and u and the allocation of the result."""
+    import ast
+
+    tree = ast.parse(source)
+    out = {}
+    for fn in tree.body:
+        if not isinstance(fn, ast.FunctionDef) or fn.name not in ("rhs", "jacobian"):
+            continue
+        n = 0
+        for stmt in fn.body:
+            if isinstance(stmt, ast.Assign):
+                tgt = stmt.targets[0]
+                if isinstance(tgt, ast.Tuple) or (isinstance(tgt, ast.Name) and tgt.id in _SETUP):
+                    continue
+            elif not isinstance(stmt, ast.Return):
+                continue
+            for node in ast.walk(stmt):
+                if isinstance(node, (ast.BinOp, ast.UnaryOp)):
+                    n += 1
+                elif isinstance(node, ast.Call):
+                    f = node.func
+                    if isinstance(f, ast.Attribute) and f.attr not in _NOT_WORK:
+                        n += 1
+        out[fn.name] = n
+    return out
+
+
+def rhs_cost(mods, ps, t: float, rounds: int = 7, budget: float = 0.04) -> list[float]:
+    """Seconds per rhs call of each module at its initial state, measured side by side:
+    ``rounds`` interleaved rounds of about ``budget`` seconds each, the median per module
+    (a shared machine is noisy; compare the ratios)."""
+    import statistics
+
+    xs = [np.asarray(m.X0, dtype=float) for m in mods]
+    ns = []
+    for m, x, p in zip(mods, xs, ps):  # calibrate: calls per round
+        n, t0 = 0, time.perf_counter()
+        while time.perf_counter() - t0 < budget / 4 or n < 3:
+            m.rhs(t, x, p)
+            n += 1
+        ns.append(max(3, int(n * 4)))
+    per: list[list[float]] = [[] for _ in mods]
+    for _ in range(rounds):
+        for k, (m, x, p, n) in enumerate(zip(mods, xs, ps, ns)):
+            t0 = time.perf_counter()
+            for _ in range(n):
+                m.rhs(t, x, p)
+            per[k].append((time.perf_counter() - t0) / n)
+    return [statistics.median(v) for v in per]
+
+
+@dataclass(frozen=True)
+class Explanation:
+    scene: Scene
+    full: object  # Compiled: the scene's model with every effect, parameter and output
+    special: object  # Compiled: specialised to the scene
+    full_module: object
+    module: object
+    compile_time: tuple[float, float]  # full, scene [s]
+    same: bool  # the scene changes nothing: both modules are the same text
+
+    @property
+    def states(self) -> tuple[list[str], list[str]]:
+        """(kept, removed) state names."""
+        kept = list(self.module.STATE_NAMES)
+        return kept, [s for s in self.full_module.STATE_NAMES if s not in set(kept)]
+
+    @property
+    def full_params(self) -> dict | None:
+        """Run-time parameters of the full module: the scene's values it lacks as defaults."""
+        out = {k: v for k, v in param_values(self.scene).items()
+               if k in self.full_module.PARAM_DEFAULTS and not np.array_equal(
+                   np.asarray(v, dtype=float), np.asarray(self.full_module.PARAM_DEFAULTS[k]))}
+        return out or None
+
+    @property
+    def params(self) -> dict | None:
+        """Run-time parameters of the scene's module (as `bgc simulate` passes them)."""
+        return runtime_params(self.scene, self.module)
+
+    def ops(self) -> tuple[dict, dict]:
+        return operation_counts(self.full.source), operation_counts(self.special.source)
+
+    def rhs_cost(self, rounds: int = 7) -> tuple[float, float]:
+        """Seconds per rhs call, full and scene, at the initial state with the modules' own
+        parameter values (p=None: no parameter dictionary unpacked per call), so the numbers
+        compare the equations' arithmetic."""
+        sc = self.scene
+        t = 0.5 * (sc.t_span[0] + sc.t_span[1])
+        with np.errstate(all="ignore"):  # timing only: no numpy warnings on the terminal
+            if self.same:
+                c = rhs_cost([self.module], [None], t, rounds)[0]
+                return c, c
+            a, b = rhs_cost([self.full_module, self.module], [None, None], t, rounds)
+        return a, b
+
+
+def explain_scene(path, progress=None) -> Explanation:
+    scene = parse_scene(path) if not isinstance(path, Scene) else path
+    say = progress or (lambda msg: None)
+    say("compiling the full model")
+    t0 = time.perf_counter()
+    full, full_mod = compile_scene(scene, None, specialise=False)
+    t1 = time.perf_counter()
+    say("compiling the scene's specialisation")
+    spec, mod = compile_scene(scene, None, specialise=True)
+    t2 = time.perf_counter()
+    return Explanation(scene, full, spec, full_mod, mod, (t1 - t0, t2 - t1),
+                       full.source == spec.source)

@@ -1,0 +1,932 @@
+"""Parameter sweeps of a scene: the scene's ``sweep:`` section, its samples, and the engine
+that runs them as batched simulations on Dask and writes the results to Zarr.
+
+The ``sweep:`` section (documented in docs/model-format.md, "Sweeps")::
+
+    sweep:
+      parameters:                      # model parameters (ids as in PARAM_DEFAULTS)
+        m: {linspace: [0.5, 2.0, 4]}   # n evenly spaced values from a to b
+        k: {logspace: [10, 1000, 3]}   # n values from a to b, evenly spaced in log (a, b > 0)
+        c: {values: [0.1, 0.2]}        # a list
+        F0: {uniform: [5, 15]}         # random: uniform, normal [mu, sigma], loguniform [a, b]
+      initial:                         # initial states by name (STATE_NAMES), same forms
+        spring.q: {values: [0, 0.01]}
+      combine: cross                   # cross (every combination, default) or zip
+      samples: 32                      # how many random samples (with random entries only)
+      method: lhs                      # lhs (Latin hypercube, default) or random
+      seed: 1
+      plot: {outputs: [position], stat: final, units: {position: m}}
+
+Every grid or list is one axis; the random entries together are one more axis of ``samples``
+rows (sampled jointly: a Latin hypercube over all of them). ``cross`` takes every combination
+of the axes (the first listed varies slowest), ``zip`` pairs them row by row (equal lengths).
+
+The engine (:func:`run_sweep`) cuts the samples into chunks; each chunk is one Dask task that
+loads the module from its text (no module is pickled), integrates the chunk's instances in one
+``simulate`` call, and returns its arrays; the client writes each chunk into
+a pre-created Zarr store (a region write) and then marks it done. Rerunning with the same
+store computes only the chunks not marked done; the store's attributes hold a hash of
+everything the results depend on, and a store made for another sweep is refused.
+
+Backends (:func:`choose_backend`): the C backend when a C compiler is available and the C
+printer accepts the model, else numpy; ``bgc sweep --backend`` or the scene's ``solver:
+{backend: ...}`` choose. For C the tasks receive the C sources and the wrapper's text; each
+worker process gets the library from the compile cache (on the client's machine it was built
+there by :func:`prepare`; elsewhere the worker builds it once from the texts) and loads it
+once. A C batch integrates every instance with its own step size (a sample equals the same run
+alone); a numpy batch shares its steps (one error norm over the batch).
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import sys
+import time
+import uuid
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from bgc.base.errors import Coord, ModelError
+
+MAX_SAMPLES = 1_000_000
+GRIDS = ("linspace", "logspace", "values")
+RANDOM = ("uniform", "normal", "loguniform")
+COMBINE = ("cross", "zip")
+SAMPLE_METHODS = ("lhs", "random")
+STATS = ("nfev", "njev", "nlu", "nsteps")
+MESSAGE_WIDTH = 240  # characters of a failure message kept in the store
+PLOT_STATS = ("final", "max", "min", "fan")
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One swept quantity: kind 'param' or 'state', its name, its rule and arguments."""
+
+    kind: str
+    name: str
+    rule: str
+    args: tuple
+    coord: Coord
+
+    @property
+    def label(self) -> str:
+        """Its coordinate name in the results (states: x0_<name>)."""
+        return self.name if self.kind == "param" else f"x0_{self.name}"
+
+
+@dataclass(frozen=True)
+class SweepSpec:
+    entries: tuple[Entry, ...]
+    combine: str = "cross"
+    samples: int | None = None
+    method: str = "lhs"
+    seed: int = 0
+    coord: Coord | None = None
+    plot_outputs: tuple[str, ...] = ()
+    plot_stat: str = "final"
+    plot_units: dict = field(default_factory=dict)
+    plot_coord: Coord | None = None
+
+
+# ---------------------------------------------------------------------------------------------
+# parsing
+
+
+def parse_sweep(path) -> SweepSpec | None:
+    """The scene file's ``sweep:`` section (None when it has none), validated with places."""
+    from bgc.format.reader import Reader, require
+
+    path = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ModelError(Coord(path, 1, 1), f"cannot read scene file: {exc}") from None
+    r = Reader(path, text)
+    root = r.compose()
+    if root is None:
+        raise ModelError(Coord(path, 1, 1), "the scene file is empty")
+    top = r.mapping(root, "the scene")
+    if "sweep" not in top:
+        return None
+    kn, node = top["sweep"]
+    sm = r.mapping(node, "sweep")
+    require(r, sm, node, ("parameters", "initial", "combine", "samples", "method", "seed",
+                           "plot"), "sweep")
+    entries = []
+    for key, kind in (("parameters", "param"), ("initial", "state")):
+        if key not in sm:
+            continue
+        for name, (ekn, evn) in r.mapping(sm[key][1], f"sweep {key}").items():
+            entries.append(_entry(r, kind, name, ekn, evn))
+    if not entries:
+        raise ModelError(r.coord(node), "sweep: name at least one parameter (parameters:) or "
+                                        "initial state (initial:) to sweep")
+    combine = "cross"
+    if "combine" in sm:
+        combine = r.string(sm["combine"][1], "combine")
+        if combine not in COMBINE:
+            raise ModelError(r.coord(sm["combine"][1]), f"sweep combine {combine!r}: one of "
+                                                        f"{', '.join(COMBINE)}")
+    randoms = [e for e in entries if e.rule in RANDOM]
+    samples = None
+    if "samples" in sm:
+        samples = r.integer(sm["samples"][1], "samples")
+        if not 1 <= samples <= MAX_SAMPLES:
+            raise ModelError(r.coord(sm["samples"][1]), f"sweep samples must lie in 1.."
+                                                        f"{MAX_SAMPLES}")
+        if not randoms:
+            raise ModelError(r.coord(sm["samples"][1]), "sweep samples: no entry is random "
+                                                        "(uniform, normal, loguniform)")
+    elif randoms:
+        raise ModelError(randoms[0].coord, f"sweep {randoms[0].name!r} is random: give the "
+                                           "number of samples (sweep samples: N)")
+    method = "lhs"
+    if "method" in sm:
+        method = r.string(sm["method"][1], "method")
+        if method not in SAMPLE_METHODS:
+            raise ModelError(r.coord(sm["method"][1]), f"sweep method {method!r}: one of "
+                                                       f"{', '.join(SAMPLE_METHODS)}")
+    seed = 0
+    if "seed" in sm:
+        seed = r.integer(sm["seed"][1], "seed")
+        if seed < 0:
+            raise ModelError(r.coord(sm["seed"][1]), "sweep seed must be a whole number >= 0")
+    plot_outputs, plot_stat, units, pcoord = (), "final", {}, None
+    if "plot" in sm:
+        pn = sm["plot"][1]
+        pcoord = r.coord(pn)
+        pm = r.mapping(pn, "sweep plot")
+        require(r, pm, pn, ("outputs", "stat", "units"), "sweep plot")
+        if "outputs" in pm:
+            plot_outputs = tuple(r.string(o, "output") for o in r.seq(pm["outputs"][1],
+                                                                        "outputs"))
+        if "stat" in pm:
+            plot_stat = r.string(pm["stat"][1], "stat")
+            if plot_stat not in PLOT_STATS:
+                raise ModelError(r.coord(pm["stat"][1]), f"sweep plot stat {plot_stat!r}: one "
+                                                         f"of {', '.join(PLOT_STATS)}")
+        if "units" in pm:
+            for un, (ukn, uvn) in r.mapping(pm["units"][1], "units").items():
+                units[un] = r.string(uvn, f"unit of {un!r}")
+    spec = SweepSpec(tuple(entries), combine, samples, method, seed, r.coord(kn),
+                     plot_outputs, plot_stat, units, pcoord)
+    n = _count(spec)
+    if n > MAX_SAMPLES:
+        raise ModelError(r.coord(kn), f"sweep: {n} samples, more than the limit "
+                                      f"{MAX_SAMPLES}")
+    return spec
+
+
+def _entry(r, kind, name, kn, vn) -> Entry:
+    from bgc.format.reader import check_name
+
+    where = r.coord(kn)
+    for part in name.split("."):
+        check_name(part, where, "parameter" if kind == "param" else "state",
+                   allow_reserved=True)
+    what = f"sweep {name!r}"
+    m = r.mapping(vn, what)
+    rules = [k for k in m if k in GRIDS + RANDOM]
+    unknown = [k for k in m if k not in GRIDS + RANDOM]
+    if unknown:
+        raise ModelError(r.coord(m[unknown[0]][0]), f"{what}: unknown rule {unknown[0]!r} "
+                                                    f"(one of {', '.join(GRIDS + RANDOM)})")
+    if len(rules) != 1:
+        raise ModelError(r.coord(vn), f"{what}: give exactly one of "
+                                      f"{', '.join(GRIDS + RANDOM)}")
+    rule = rules[0]
+    rn = m[rule][1]
+    rc = r.coord(rn)
+    items = r.seq(rn, f"{what} {rule}")
+    if rule == "values":
+        vals = tuple(r.number(v, f"{what} value") for v in items)
+        if not vals:
+            raise ModelError(rc, f"{what}: values is an empty list")
+        if len(vals) > MAX_SAMPLES:
+            raise ModelError(rc, f"{what}: more than {MAX_SAMPLES} values")
+        args = vals
+    elif rule in ("linspace", "logspace"):
+        if len(items) != 3:
+            raise ModelError(rc, f"{what}: {rule} is [start, stop, count]")
+        a, b = (r.number(v, f"{what} {rule}") for v in items[:2])
+        cnt = r.integer(items[2], f"{what} {rule} count")
+        if not 1 <= cnt <= MAX_SAMPLES:
+            raise ModelError(r.coord(items[2]), f"{what}: the count must lie in 1..{MAX_SAMPLES}")
+        if rule == "logspace" and not (a > 0 and b > 0):
+            raise ModelError(rc, f"{what}: logspace needs positive start and stop (the values "
+                                 "themselves, spaced evenly in log)")
+        args = (a, b, cnt)
+    else:
+        if len(items) != 2:
+            form = "[mu, sigma]" if rule == "normal" else "[low, high]"
+            raise ModelError(rc, f"{what}: {rule} is {form}")
+        a, b = (r.number(v, f"{what} {rule}") for v in items)
+        if rule == "normal" and not b > 0:
+            raise ModelError(rc, f"{what}: normal's sigma must be positive")
+        if rule != "normal" and not b > a:
+            raise ModelError(rc, f"{what}: {rule} needs low < high")
+        if rule == "loguniform" and not a > 0:
+            raise ModelError(rc, f"{what}: loguniform needs a positive lower bound")
+        args = (a, b)
+    for v in args:
+        if not math.isfinite(v):
+            raise ModelError(rc, f"{what}: values must be finite")
+    return Entry(kind, name, rule, args, where)
+
+
+def _axes(spec: SweepSpec):
+    """The axes to combine, in order: (entries, length); the random entries form one axis at
+    the place of the first of them."""
+    axes, rand_done = [], False
+    for e in spec.entries:
+        if e.rule in RANDOM:
+            if not rand_done:
+                axes.append(([x for x in spec.entries if x.rule in RANDOM], spec.samples))
+                rand_done = True
+            continue
+        n = len(e.args) if e.rule == "values" else e.args[2]
+        axes.append(([e], n))
+    return axes
+
+
+def _count(spec: SweepSpec) -> int:
+    axes = _axes(spec)
+    if spec.combine == "zip":
+        lens = {n for _, n in axes}
+        if len(lens) > 1:
+            desc = ", ".join(f"{'+'.join(e.name for e in es)}: {n}" for es, n in axes)
+            raise ModelError(spec.coord, f"sweep combine zip: the axes differ in length "
+                                         f"({desc})")
+        return axes[0][1]
+    return math.prod(n for _, n in axes)
+
+
+def _grid(e: Entry) -> np.ndarray:
+    if e.rule == "values":
+        return np.array(e.args, dtype=float)
+    a, b, n = e.args
+    return np.linspace(a, b, n) if e.rule == "linspace" else np.geomspace(a, b, n)
+
+
+def _random_block(entries, n, method, seed) -> np.ndarray:
+    """(n, len(entries)) samples: a Latin hypercube (each variable's range cut into n equally
+    likely strata, one sample in each, strata paired at random) or plain random draws, mapped
+    through each distribution's inverse CDF."""
+    from scipy.special import ndtri
+
+    rng = np.random.default_rng(seed)
+    d = len(entries)
+    if method == "lhs":
+        u = (np.stack([rng.permutation(n) for _ in range(d)], axis=1) + rng.random((n, d))) / n
+    else:
+        u = rng.random((n, d))
+    u = np.clip(u, np.finfo(float).tiny, 1 - np.finfo(float).epsneg)
+    out = np.empty((n, d))
+    for k, e in enumerate(entries):
+        a, b = e.args
+        if e.rule == "uniform":
+            out[:, k] = a + (b - a) * u[:, k]
+        elif e.rule == "loguniform":
+            out[:, k] = np.exp(np.log(a) + (np.log(b) - np.log(a)) * u[:, k])
+        else:
+            out[:, k] = a + b * ndtri(u[:, k])
+    return out
+
+
+def samples(spec: SweepSpec) -> dict:
+    """label -> array of the swept values, one per sample (in the order of the entries)."""
+    axes = _axes(spec)
+    cols = []  # per axis: (entries, (len, n_entries) values)
+    for es, n in axes:
+        if es[0].rule in RANDOM:
+            cols.append((es, _random_block(es, n, spec.method, spec.seed)))
+        else:
+            cols.append((es, _grid(es[0])[:, None]))
+    total = _count(spec)
+    if spec.combine == "zip":
+        idx = [np.arange(total)] * len(cols)
+    else:
+        grids = np.meshgrid(*[np.arange(len(v)) for _, v in cols], indexing="ij")
+        idx = [g.ravel() for g in grids]
+    out = {}
+    for (es, vals), ix in zip(cols, idx):
+        for k, e in enumerate(es):
+            out[e.label] = vals[ix, k]
+    return {e.label: out[e.label] for e in spec.entries}
+
+
+# ---------------------------------------------------------------------------------------------
+# preparing: the scene's module with every swept parameter kept as a parameter
+
+
+@dataclass
+class Prepared:
+    """What every task needs, all plain data: the module's text (for C, the C sources and the
+    wrapper's text, from which a worker builds the library) and the call."""
+
+    scene_name: str
+    backend: str  # "numpy" (source) or "c" (c_files and c_wrapper; source kept for reference)
+    source: str
+    modname: str
+    t_span: tuple
+    dt: float
+    method: str
+    rtol: float
+    atol: float
+    max_step: float
+    breakpoints: tuple
+    base_p: dict  # the scene's run-time parameter values
+    params: dict  # label -> (param id) for swept parameters
+    states: dict  # label -> state index for swept initial states
+    values: dict  # label -> (S,) swept values
+    outputs: tuple  # output names kept
+    output_shapes: dict
+    param_units: dict
+    spec: SweepSpec = None
+    max_wall: float | None = None
+    c_files: dict = field(default_factory=dict)  # C file name -> text
+    c_wrapper: str = ""  # the C wrapper module's text
+    c_key: str = ""  # their compile-cache key on the client's machine (backends.c_key)
+
+    @property
+    def n(self) -> int:
+        return len(next(iter(self.values.values())))
+
+    def digest(self, chunk: int) -> str:
+        """A hash of everything the results depend on (backend, module and C texts, call,
+        samples, chunking)."""
+        h = hashlib.sha256()
+        h.update(self.backend.encode() + b"\0")
+        h.update(self.source.encode())
+        if self.backend == "c":
+            for name in sorted(self.c_files):
+                h.update(b"\0" + name.encode() + b"\0" + self.c_files[name].encode())
+            h.update(b"\0" + self.c_wrapper.encode())
+            # the client's cache key: the C runtime's sources, the compiler and its flags
+            h.update(b"\0" + str(self.c_key).encode())
+        h.update(json.dumps([self.t_span, self.dt, self.method, self.rtol, self.atol,
+                             repr(self.max_step), self.breakpoints, _jsonable(self.base_p),
+                             sorted(self.params.items()), sorted(self.states.items()),
+                             list(self.outputs), chunk, self.max_wall], default=str).encode())
+        for k in sorted(self.values):
+            h.update(k.encode())
+            h.update(np.ascontiguousarray(self.values[k], dtype="<f8").tobytes())
+        return h.hexdigest()[:24]
+
+
+def _jsonable(d):
+    return {k: np.asarray(v).tolist() for k, v in (d or {}).items()}
+
+
+def solver_backend(path) -> str | None:
+    """The backend the scene's ``solver:`` names, None when it names none (the scene parser
+    has already checked the value)."""
+    from bgc.format.reader import Reader
+
+    path = str(path)
+    r = Reader(path, Path(path).read_text(encoding="utf-8"))
+    top = r.mapping(r.compose(), "the scene")
+    if "solver" not in top:
+        return None
+    sm = r.mapping(top["solver"][1], "solver")
+    return r.string(sm["backend"][1], "backend") if "backend" in sm else None
+
+
+def choose_backend(compiled, backend=None, progress=None):
+    """(backend, C files, wrapper text, cache key) for a compiled sweep module: "c" when asked
+    for or by default, if a C compiler is there and the C printer accepts the model (else
+    the reason is said and numpy it is); "numpy" when asked for."""
+    say = progress or (lambda msg: None)
+    if backend == "numpy":
+        return "numpy", {}, "", ""
+    from bgc.backends import load as backends
+    from bgc.backends.c import build as cbuild
+    from bgc.backends.c.printer import CUnsupported
+
+    if not cbuild.available():
+        say(f"no C compiler ({' '.join(cbuild.compiler())!r} cannot run; set CC): using the "
+            "numpy backend")
+        return "numpy", {}, "", ""
+    if not cbuild.runtime_sources():
+        say("the C runtime (templates/c/runtime/*.c) is not installed: using the numpy backend")
+        return "numpy", {}, "", ""
+    try:
+        files, wrapper = backends.c_files(compiled)
+    except CUnsupported as exc:
+        say(f"{exc.message}: using the numpy backend")
+        return "numpy", {}, "", ""
+    return "c", files, wrapper, backends.c_key(files, wrapper)
+
+
+def prepare(scene_path, progress=None, backend: str | None = None) -> Prepared:
+    """Parse the scene and its sweep, compile the module (swept parameters kept free).
+
+    backend: "c", "numpy", or None for the scene's ``solver: {backend: ...}`` if it names
+    one, else C where it can run (see :func:`choose_backend`). For C the library is built here
+    into the compile cache, so that workers on this machine only load it."""
+    from bgc.core.graph import build_graph
+    from bgc.format.expr import Expr
+    from bgc.format.scene import parse_scene, scene_model
+    from bgc.run.runner import compile_scene, runtime_params
+
+    scene = parse_scene(scene_path)
+    spec = parse_sweep(scene_path)
+    if spec is None:
+        raise ModelError(scene.coord, "the scene has no sweep: section (see docs/model-format.md,"
+                                      " Sweeps)")
+    known = {p.id: p for p in build_graph(scene_model(scene)).params}
+    swept = []
+    for e in spec.entries:
+        if e.kind != "param":
+            continue
+        if e.name not in known:
+            raise ModelError(e.coord, f"sweep: the model has no parameter {e.name!r}")
+        pv = known[e.name].value
+        if isinstance(pv, Expr):
+            raise ModelError(e.coord, f"sweep: parameter {e.name!r} is derived from others; "
+                                      "sweep the ones it is made of")
+        if isinstance(pv, tuple):
+            raise ModelError(e.coord, f"sweep: parameter {e.name!r} is a matrix; only scalar "
+                                      "parameters can be swept")
+        swept.append(e.name)
+    extra = tuple(n for n in swept if n in scene.params and n not in scene.free)
+    scene2 = dataclasses.replace(scene, free=scene.free + extra)
+    c, mod = compile_scene(scene2, progress)
+    states = {}
+    for e in spec.entries:
+        if e.kind == "param" and e.name not in mod.PARAM_DEFAULTS:
+            raise ModelError(e.coord, f"sweep: parameter {e.name!r} is not in the scene's "
+                                      "module (an effect the scene turns off removed it)")
+        if e.kind == "state":
+            if e.name not in mod.STATE_NAMES:
+                raise ModelError(e.coord, f"sweep: the scene's module has no state {e.name!r} "
+                                          f"(states: {', '.join(mod.STATE_NAMES)})")
+            states[e.label] = mod.STATE_NAMES.index(e.name)
+    outs = scene.outputs or tuple(mod.OUTPUT_NAMES)
+    for o in spec.plot_outputs:
+        if o not in outs:
+            raise ModelError(spec.plot_coord, f"sweep plot: no output {o!r} (outputs: "
+                                              f"{', '.join(outs)})")
+    for o in spec.plot_units:
+        if o not in outs:
+            raise ModelError(spec.plot_coord, f"sweep plot units: no output {o!r}")
+    dt = scene.dt or (scene.t_span[1] - scene.t_span[0]) / 1000
+    if backend is None:
+        backend = solver_backend(scene_path)
+    backend, files, wrapper, ckey = choose_backend(c, backend, progress)
+    prep = Prepared(scene.name, backend, c.source, f"{c.model.name}_{scene.name}_sweep",
+                    tuple(scene.t_span), dt, scene.method, scene.rtol, scene.atol,
+                    scene.max_step, tuple(scene.breakpoints),
+                    runtime_params(scene2, mod) or {},
+                    {e.label: e.name for e in spec.entries if e.kind == "param"}, states,
+                    samples(spec), outs, {o: tuple(mod.OUTPUT_SHAPES[o]) for o in outs},
+                    dict(mod.PARAM_UNITS), spec, c_files=files, c_wrapper=wrapper, c_key=ckey)
+    if backend == "c":
+        load(prep, progress)  # built once here: the workers on this machine find it cached
+    return prep
+
+
+# ---------------------------------------------------------------------------------------------
+# one task: a chunk of instances
+
+
+_MODULES: dict = {}
+
+
+def _module_key(prep: Prepared) -> str:
+    h = hashlib.sha256(prep.backend.encode() + b"\0")
+    if prep.backend == "c":
+        for name in sorted(prep.c_files):
+            h.update(name.encode() + b"\0" + prep.c_files[name].encode() + b"\0")
+        h.update(prep.c_wrapper.encode())
+    else:
+        h.update(prep.source.encode())
+    return h.hexdigest()
+
+
+def load(prep: Prepared, progress=None):
+    """The module in this process, loaded once (memoised by a hash of its texts): numpy from
+    its source text; C through the compile cache (backends.load_c: the entry the client built,
+    or built here from the shipped sources when this machine has none)."""
+    key = _module_key(prep)
+    mod = _MODULES.get(key)
+    if mod is None:
+        name = f"{prep.modname}_{key[:8]}"
+        if prep.backend == "numpy":
+            from bgc.backends.load import load_module
+
+            mod = load_module(prep.source, name)
+        elif prep.backend == "c":
+            from bgc.backends.load import c_key, load_c
+
+            # the key of this machine's compiler (on the client's machine: prep.c_key)
+            with np.errstate(all="ignore"):
+                mod = load_c(prep.c_files, prep.c_wrapper, name,
+                             c_key(prep.c_files, prep.c_wrapper), progress)
+        else:
+            raise ModelError(None, f"sweep: unknown backend {prep.backend!r}")
+        _MODULES[key] = mod
+    return mod
+
+
+def task_threads(slots: dict | None) -> int | None:
+    """Threads for one C simulate call in this task: this machine's CPUs shared evenly among
+    the task slots (workers x threads per worker) the cluster has on this host, at least one
+    (so with as many workers as cores, or more, every task runs one thread and the workers
+    never oversubscribe the cores). slots: host -> task slots, from the client when the sweep
+    started; a host it does not know (a worker that joined later) gets 1 thread. None outside a
+    Dask worker (the C default: every CPU)."""
+    import os
+
+    try:
+        from distributed import get_worker
+        from distributed.comm import get_address_host
+
+        host = get_address_host(get_worker().address)
+    except (ImportError, ValueError):
+        return None
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cpus = os.cpu_count() or 1
+    n = (slots or {}).get(host)
+    return max(1, cpus // n) if n else 1
+
+
+def host_slots(client) -> dict:
+    """host -> task slots (sum of the threads of the workers there) of the client's cluster."""
+    out: dict = {}
+    for w in client.scheduler_info().get("workers", {}).values():
+        out[w.get("host")] = out.get(w.get("host"), 0) + int(w.get("nthreads") or 1)
+    return out
+
+
+def _call(mod, prep: Prepared, idx: np.ndarray, nthreads: int | None = None):
+    """One vectorised simulate over the instances idx; (y dict with the batch first, stats).
+    nthreads: the C integrator's threads (None: every CPU); unused by numpy."""
+    p = dict(prep.base_p)
+    for label, pid in prep.params.items():
+        p[pid] = prep.values[label][idx]
+    x0 = None
+    if prep.states:
+        x0 = np.array(np.broadcast_to(mod.initial_state(p or None).reshape(
+            mod.N_STATES, -1), (mod.N_STATES, len(idx))))
+        for label, k in prep.states.items():
+            x0[k] = prep.values[label][idx]
+    if not prep.params:  # a batch axis from x0 only
+        p = p or None
+    t, _, y = res = mod.simulate(prep.t_span, dt=prep.dt, method=prep.method, rtol=prep.rtol,
+                                 atol=prep.atol, p=p, x0=x0, breakpoints=prep.breakpoints,
+                                 max_step=prep.max_step, max_wall=prep.max_wall,
+                                 **({"nthreads": nthreads} if prep.backend == "c" else {}))
+    out = {}
+    for o in prep.outputs:
+        a = np.asarray(y[o], dtype=float)
+        k = len(prep.output_shapes[o])
+        a = np.broadcast_to(a, prep.output_shapes[o] + (len(idx), len(t))) if a.ndim < k + 2 \
+            else a
+        out[o] = np.moveaxis(a, k, 0)
+    bad = [o for o in out if not np.all(np.isfinite(out[o]))]
+    if bad:
+        raise FloatingPointError(f"non-finite values in output {bad[0]!r}")
+    return t, out, res.stats
+
+
+def run_chunk(prep: Prepared, a: int, b: int, slots: dict | None = None) -> dict:
+    """Instances a..b-1 as one batch; when the batch fails, each instance alone, so that one
+    diverging instance is recorded (NaNs and its message) while the others finish. slots:
+    host -> task slots of the cluster (see :func:`task_threads`)."""
+    t0 = time.perf_counter()
+    mod = load(prep)
+    nth = task_threads(slots) if prep.backend == "c" else None
+    idx = np.arange(a, b)
+    nt = int(round(abs(prep.t_span[1] - prep.t_span[0]) / prep.dt)) + 1
+    ys = {o: np.full((b - a,) + prep.output_shapes[o] + (nt,), np.nan) for o in prep.outputs}
+    stats = {k: np.zeros(b - a, dtype=np.int64) for k in STATS}
+    status = np.zeros(b - a, dtype=np.int8)
+    message = np.full(b - a, "", dtype=f"<U{MESSAGE_WIDTH}")
+    batch = np.full(b - a, b - a, dtype=np.int32)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        try:
+            _, out, st = _call(mod, prep, idx, nth)
+            for o in out:
+                ys[o][...] = out[o]
+            for k in STATS:
+                stats[k][:] = st.get(k, 0)
+        except Exception:  # noqa: BLE001 - isolate: every instance alone
+            batch[:] = 1
+            for j, i in enumerate(idx):
+                try:
+                    _, out, st = _call(mod, prep, np.array([i]), nth)
+                    for o in out:
+                        ys[o][j] = out[o][0]
+                    for k in STATS:
+                        stats[k][j] = st.get(k, 0)
+                except Exception as exc:  # noqa: BLE001 - recorded, not raised
+                    status[j] = 1
+                    msg = " ".join(f"{type(exc).__name__}: {exc}".split())
+                    message[j] = msg[:MESSAGE_WIDTH]
+                    st = getattr(exc, "stats", None) or {}
+                    for k in STATS:
+                        stats[k][j] = st.get(k, 0)
+    return {"a": a, "b": b, "y": ys, "stats": stats, "status": status, "message": message,
+            "batch": batch, "wall": time.perf_counter() - t0}
+
+
+# ---------------------------------------------------------------------------------------------
+# the store
+
+
+def _chunks(n: int, chunk: int) -> list[tuple[int, int]]:
+    return [(a, min(a + chunk, n)) for a in range(0, n, chunk)]
+
+
+def _skeleton(prep: Prepared, chunk: int, digest: str):
+    """The dataset with lazy placeholders (written as metadata only) and the coordinates."""
+    import dask.array as da
+    import xarray as xr
+
+    n = prep.n
+    nt = int(round(abs(prep.t_span[1] - prep.t_span[0]) / prep.dt)) + 1
+    t = np.linspace(prep.t_span[0], prep.t_span[1], nt)
+    data = {}
+    for o in prep.outputs:
+        shp = prep.output_shapes[o]
+        dims = ("sample",) + tuple(f"{o}_dim{k}" for k in range(len(shp))) + ("time",)
+        data[o] = (dims, da.full((n,) + shp + (nt,), np.nan, chunks=(chunk,) + shp + (nt,)))
+    for k in STATS:
+        data[k] = ("sample", da.zeros(n, dtype=np.int64, chunks=chunk))
+    data["status"] = ("sample", da.full(n, -1, dtype=np.int8, chunks=chunk))
+    data["message"] = ("sample", da.full(n, "", dtype=f"<U{MESSAGE_WIDTH}", chunks=chunk))
+    data["batch"] = ("sample", da.zeros(n, dtype=np.int32, chunks=chunk))
+    data["chunk_wall"] = ("sample", da.full(n, np.nan, chunks=chunk))
+    nc = len(_chunks(n, chunk))
+    data["chunk_done"] = ("chunk", np.zeros(nc, dtype=bool))
+    coords = {"time": ("time", t, {"units": "s"}), "sample": np.arange(n)}
+    for label, v in prep.values.items():
+        unit = prep.param_units.get(prep.params.get(label, ""), "")
+        coords[label] = ("sample", v, {"units": unit} if unit else {})
+    ds = xr.Dataset(data, coords=coords)
+    ds["status"].attrs["meaning"] = "-1 not run, 0 ok, 1 failed (see message)"
+    ds["batch"].attrs["meaning"] = ("instances integrated together (their solver statistics "
+                                    "are the batch's)")
+    ds.attrs.update({"bgc_sweep_hash": digest, "scene": prep.scene_name, "chunk": chunk,
+                     "backend": prep.backend,
+                     "method": prep.method, "rtol": prep.rtol, "atol": prep.atol,
+                     "swept": json.dumps(list(prep.values))})
+    return ds
+
+
+class SweepMismatch(ModelError):
+    """The store holds another sweep's results."""
+
+
+def open_or_create(prep: Prepared, out, chunk: int, restart: bool = False) -> list[bool]:
+    """The store at out, created if missing; its completion record (one flag per chunk)."""
+    import shutil
+
+    import xarray as xr
+
+    digest = prep.digest(chunk)
+    out = Path(out)
+    if out.exists() and not restart:
+        try:
+            old = xr.open_zarr(out, consolidated=None)
+            h = old.attrs.get("bgc_sweep_hash")
+            done = [bool(v) for v in old["chunk_done"].values] if "chunk_done" in old else None
+        except Exception as exc:  # noqa: BLE001
+            raise ModelError(None, f"{out} exists and is not a readable sweep store ({exc}); "
+                                   "remove it or pass --restart") from None
+        if h != digest:
+            raise SweepMismatch(None, f"{out} holds the results of another sweep (the scene, "
+                                      "its sweep, the model or --chunk changed): pass --restart "
+                                      "to discard them, or write to a new --out")
+        return done
+    if out.exists():
+        shutil.rmtree(out)
+    _skeleton(prep, chunk, digest).to_zarr(out, compute=False, mode="w", zarr_format=2,
+                                           consolidated=True)
+    return [False] * len(_chunks(prep.n, chunk))
+
+
+def _write_chunk(out, res: dict, k: int, prep: Prepared):
+    import xarray as xr
+
+    a, b = res["a"], res["b"]
+    data = {}
+    for o in prep.outputs:
+        shp = prep.output_shapes[o]
+        dims = ("sample",) + tuple(f"{o}_dim{j}" for j in range(len(shp))) + ("time",)
+        data[o] = (dims, res["y"][o])
+    for s in STATS:
+        data[s] = ("sample", res["stats"][s])
+    data["status"] = ("sample", res["status"])
+    data["message"] = ("sample", res["message"])
+    data["batch"] = ("sample", res["batch"])
+    data["chunk_wall"] = ("sample", np.full(b - a, res["wall"]))
+    xr.Dataset(data).to_zarr(out, region={"sample": slice(a, b)}, consolidated=False)
+    # the completion record last: a chunk counts as done only once its data are written
+    xr.Dataset({"chunk_done": ("chunk", np.array([True]))}).to_zarr(
+        out, region={"chunk": slice(k, k + 1)}, consolidated=False)
+
+
+# ---------------------------------------------------------------------------------------------
+# the engine
+
+
+@dataclass
+class SweepReport:
+    out: str
+    n: int
+    chunks: int
+    computed: int  # chunks computed by this run
+    skipped: int  # chunks already done
+    failed: int  # failed instances in the chunks computed now
+    wall: float
+
+
+def client_for(scheduler=None, workers=None):
+    """A dask.distributed Client: on a new LocalCluster (processes, `workers` workers, one
+    thread each) for None or 'local', else on the running scheduler at that address. The
+    caller closes it (and its cluster: client.bgc_cluster)."""
+    import dask
+    from distributed import Client, LocalCluster
+
+    if scheduler in (None, "", "local"):
+        # workers may fork children (bgc accuracy isolates each run in one); no statistical
+        # profiler sampling the workers 100 times a second (it competes for the cores)
+        with dask.config.set({"distributed.worker.daemon": False,
+                              "distributed.worker.profile.enabled": False}):
+            cluster = LocalCluster(n_workers=workers or 2, threads_per_worker=1,
+                                   processes=True, dashboard_address=None)
+        client = Client(cluster)
+        client.bgc_cluster = cluster
+        return client
+    client = Client(scheduler)
+    client.bgc_cluster = None
+    return client
+
+
+def close_client(client):
+    cluster = getattr(client, "bgc_cluster", None)
+    client.close()
+    if cluster is not None:
+        cluster.close()
+
+
+class _Counter:
+    """Progress on stderr: chunks and instances done, failures so far."""
+
+    def __init__(self, total_chunks, n, quiet=False):
+        self.total, self.n, self.quiet = total_chunks, n, quiet
+        self.t0 = time.perf_counter()
+
+    def __call__(self, done, inst, failed):
+        if self.quiet:
+            return
+        el = time.perf_counter() - self.t0
+        rate = inst / el if el > 0 else 0.0
+        tty = sys.stderr.isatty()  # a terminal: one line rewritten; a log: a line per chunk
+        cr = "\r" if tty else ""
+        print(f"{cr}sweep: {done}/{self.total} chunks, {inst}/{self.n} "
+              f"instances, {failed} failed, {el:.1f} s ({rate:.1f} instances/s)",
+              end="" if tty else "\n", file=sys.stderr, flush=True)
+
+    def end(self):
+        if not self.quiet and sys.stderr.isatty():
+            print(file=sys.stderr, flush=True)
+
+
+def run_sweep(prep: Prepared, out, client, chunk: int = 16, restart: bool = False,
+              quiet: bool = False, after_chunk=None) -> SweepReport:
+    """Run the sweep's missing chunks on the client's cluster, writing each to the store as it
+    arrives. after_chunk(k): called after chunk k is written (tests use it to stop a run)."""
+    from distributed import as_completed
+
+    if chunk < 1:
+        raise ModelError(None, "--chunk must be at least 1")
+    t0 = time.perf_counter()
+    spans = _chunks(prep.n, chunk)
+    done = open_or_create(prep, out, chunk, restart)
+    todo = [k for k, d in enumerate(done) if not d]
+    counter = _Counter(len(spans), prep.n, quiet)
+    ndone = sum(done)
+    inst = sum(b - a for (a, b), d in zip(spans, done) if d)
+    counter(ndone, inst, 0)
+    failed = computed = 0
+    if todo:
+        fprep = client.scatter(prep, broadcast=True, hash=False)
+        run = uuid.uuid4().hex[:8]  # fresh keys: never those of an earlier, cancelled run
+        slots = host_slots(client) if prep.backend == "c" else None
+        futures = {client.submit(run_chunk, fprep, *spans[k], slots,
+                                 key=f"bgc-sweep-{k}-{run}", pure=False): k for k in todo}
+        try:
+            for fut in as_completed(futures):
+                k = futures[fut]
+                res = fut.result()
+                _write_chunk(out, res, k, prep)
+                computed += 1
+                ndone += 1
+                inst += res["b"] - res["a"]
+                failed += int(np.sum(res["status"] != 0))
+                counter(ndone, inst, failed)
+                if after_chunk is not None:
+                    after_chunk(k)
+        finally:
+            for fut in futures:
+                fut.cancel()
+            counter.end()
+    else:
+        counter.end()
+    _consolidate(out)
+    return SweepReport(str(out), prep.n, len(spans), computed, len(spans) - len(todo), failed,
+                       time.perf_counter() - t0)
+
+
+def _consolidate(out):
+    import zarr
+
+    zarr.consolidate_metadata(str(out))
+
+
+def open_results(out):
+    """The results as an xarray Dataset (loaded lazily from the store)."""
+    import xarray as xr
+
+    return xr.open_zarr(out, consolidated=None)
+
+
+# ---------------------------------------------------------------------------------------------
+# overview plot
+
+
+def plot_sweep(prep: Prepared, ds, out_dir) -> list:
+    """PNGs: each chosen output's final value (or max/min) against each swept quantity, or a
+    fan of its trajectories (stat: fan). Failed instances are left out."""
+    from bgc.run.plots import _mpl, _plain
+
+    plt = _mpl()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    spec = prep.spec
+    outs = spec.plot_outputs or prep.outputs[:3]
+    ok = ds["status"].values == 0
+    files = []
+
+    def ylab(o, comp):
+        u = spec.plot_units.get(o)
+        return _plain(f"{comp} [{u}]" if u else f"{comp} [units not given: sweep plot units]")
+
+    def xlab(label):
+        pid = prep.params.get(label)
+        u = prep.param_units.get(pid, "") if pid else ""
+        return _plain(f"{label} [{u}]" if u else (f"{label} [as the state]" if pid is None
+                                                  else f"{label} [-]"))
+
+    for o in outs:
+        arr = ds[o].values  # (S, *shape, T)
+        comps = arr.reshape(arr.shape[0], -1, arr.shape[-1])
+        names = [o] if comps.shape[1] == 1 else [f"{o}[{j}]" for j in range(comps.shape[1])]
+        if spec.plot_stat == "fan":
+            fig, ax = plt.subplots(figsize=(7.2, 4.4))
+            t = ds["time"].values
+            for j, nm in enumerate(names[:3]):
+                for s in np.nonzero(ok)[0]:
+                    ax.plot(t, comps[s, j], lw=0.7, alpha=0.5,
+                            color=f"C{j}", label=nm if s == np.nonzero(ok)[0][0] else None)
+            ax.set_xlabel("time [s]")
+            ax.set_ylabel(ylab(o, o))
+            ax.set_title(_plain(f"{prep.scene_name}: {o}, {int(ok.sum())} instances"))
+            ax.legend(fontsize=8)
+        else:
+            labels = list(prep.values)
+            fig, axes = plt.subplots(1, len(labels), squeeze=False,
+                                     figsize=(3.6 * len(labels) + 1, 3.8))
+            red = {"final": lambda v: v[..., -1], "max": lambda v: np.max(v, axis=-1),
+                   "min": lambda v: np.min(v, axis=-1)}[spec.plot_stat]
+            vals = red(comps)
+            for ax, label in zip(axes[0], labels):
+                x = ds[label].values
+                for j, nm in enumerate(names[:6]):
+                    ax.plot(x[ok], vals[ok, j], "o", ms=3.5, alpha=0.7, label=nm)
+                if (~ok).any():
+                    for xv in x[~ok]:
+                        ax.axvline(xv, color="r", lw=0.6, alpha=0.4)
+                ax.set_xlabel(xlab(label))
+                ax.set_ylabel(ylab(o, f"{spec.plot_stat} {o}"))
+                if len(names) > 1:
+                    ax.legend(fontsize=7)
+            fig.suptitle(_plain(f"{prep.scene_name}: {spec.plot_stat} {o} against the swept "
+                                "values" + (" (red: failed instances)" if (~ok).any() else "")))
+        fig.tight_layout()
+        path = out_dir / f"{prep.scene_name}_sweep_{o}.png"
+        fig.savefig(path)
+        plt.close(fig)
+        files.append(path)
+    return files
