@@ -21,6 +21,7 @@ import sympy as sp
 from bgc.base.errors import Coord, ModelError
 from bgc.core import fastsym
 from bgc.core.causality import Causality
+from bgc.core.events import build_events
 from bgc.core.graph import BondGraph, FlatElement, a_kind, code_name, join
 from bgc.format.expr import Expr, build, shape_of
 from bgc.format.parse import TWO_PORTS
@@ -114,6 +115,8 @@ class Equations:
     #: form is no longer a "possible algebraic loop" once the equations are derived (any loop
     #: was found and solved, and is listed in ``loops``; or there was none)
     warnings: tuple[str, ...] = field(default=())
+    events: tuple = field(default=())  # bgc.core.events.EventEq: guards and resets
+    modes: tuple[str, ...] = field(default=())  # the states that are mode variables
 
 
 class _Ctx:
@@ -420,6 +423,7 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
         progress("ordering assignments")
     nloops: list = [] if newton else None
     order, loops = _causal_order(bg, defs, owner, tear_sets, symbolic_max, nloops)
+    events = build_events(ctx, bg, state_vars, T) if bg.model.events else ()
     # Inline plain copies (junction equalities, sign flips, constants): they are not work.
     subs: dict = {}
     kept: list[Assignment] = []
@@ -433,6 +437,7 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
     derivatives = tuple((derivs[sv.symbol].xreplace(subs) if subs else derivs[sv.symbol])
                         for sv in state_vars)
     outputs = tuple((n, shp, tuple(e.xreplace(subs) for e in vals)) for n, shp, vals in outputs)
+    events = tuple(ev.replace(subs) for ev in events)
     ctx_derived = [ctx.derived[k] for k in ctx.derived_order]
 
     # Every free symbol must be declared: a state, a parameter, an input, t, or an assignment.
@@ -445,7 +450,8 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
         known.update(iv.symbols)
     known.update(a.symbol for a in kept)
     for expr in itertools.chain((a.expr for a in kept), derivatives,
-                                (e for _, _, v in outputs for e in v)):
+                                (e for _, _, v in outputs for e in v),
+                                (e for ev in events for e in ev.exprs())):
         stray = expr.free_symbols - known
         if stray:
             names = ", ".join(sorted(map(str, stray)))
@@ -461,7 +467,8 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
     return Equations(bg.model.name, tuple(state_vars), tuple(ctx.params.values()),
                      tuple(ctx_derived), tuple(ctx.inputs[i.name] for i in bg.model.inputs),
                      tuple(kept), derivatives, outputs, jac, tuple(jac_assign), tuple(loops),
-                     warnings=standing, dependent=tuple(dependent), newton=tuple(nloops))
+                     warnings=standing, dependent=tuple(dependent), newton=tuple(nloops),
+                     events=events, modes=bg.model.modes)
 
 
 _BAD_VALUES = (sp.zoo, sp.oo, -sp.oo, sp.nan, sp.I)

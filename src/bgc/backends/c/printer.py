@@ -451,6 +451,9 @@ def unsupported(eq) -> None:
     C function per loop) and table inputs (the data as arrays, the numpy module's
     interpolation); the check stays for what may come."""
     what: list[str] = []
+    if getattr(eq, "events", ()):  # bgc.core.events: the numpy runtime locates them
+        raise CUnsupported(eq.events[0].coord, f"event {eq.events[0].name!r}: the C backend "
+                           "does not locate events yet; use the numpy backend (--backend numpy)")
     if what:
         raise CUnsupported(None, f"model {eq.name!r}: the C backend does not support "
                                f"{' and '.join(what)} yet; use the numpy backend "

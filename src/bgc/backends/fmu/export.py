@@ -389,6 +389,9 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
     if has_solves(eq):  # the FMU's model functions keep no per-instance workspace yet
         raise ModelError(None, f"model {eq.name!r}: the FMU export does not support numeric "
                                "linear solves or nonlinear algebraic loops (Newton) yet")
+    if eq.events:  # event indicators and fmi2NewDiscreteStates are not written yet
+        raise ModelError(eq.events[0].coord, f"event {eq.events[0].name!r}: the FMU export "
+                                             "does not support events yet")
     tabs = [iv.name for iv in eq.inputs if getattr(iv, "table", None) is not None]
     if tabs:  # an input following its default would follow the placeholder 0, not the data
         raise ModelError(None, f"model {eq.name!r}: the FMU export does not support table "
