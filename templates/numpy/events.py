@@ -51,13 +51,15 @@ class _StepEnd:
 class _Guards:
     """The events' guards on the solver's flat state, and the side of zero each was last on
     (per event and instance): a guard that reaches zero stays on its former side until it
-    leaves zero, so touching zero is one crossing, not two."""
+    leaves zero, so touching zero is one crossing, not two. A guard zero where the run starts
+    counts as before its event (a rising one as negative), an either one as on no side."""
 
     def __init__(self, at, shape, p, u):
         self.at, self.shape, self.p, self.u = at, shape, p, u
         self.nb = int(np.prod(shape[1:]))
         self.dirs = np.asarray(EVENT_DIRECTIONS, dtype=float)[:, None]
-        self.side = np.zeros((N_EVENTS, self.nb))
+        # a guard that starts at zero is taken to be before its event (rising: below zero)
+        self.side = np.broadcast_to(-self.dirs, (N_EVENTS, self.nb)).copy()
 
     def values(self, t, y):
         """(N_EVENTS, nb) guard values at time t of the flat state y."""
