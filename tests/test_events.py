@@ -233,3 +233,45 @@ def test_cli_summary_counts_events_and_writes_the_log(tmp_path):
         assert before.shape == (len(expected), 2)
         assert np.allclose(after[:, 0], -0.8 * before[:, 0], rtol=1e-14, atol=0)
         assert np.max(np.abs(data["height"] - ball_height(data["t"], 1.0, 0.8))) < 1e-8
+
+
+# --- stick-slip: the closed-form periodic solution ---------------------------------------------
+
+def stick_slip_exact(t, m=1.0, k=100.0, vb=0.1, Fs=2.0, Fk=1.0):
+    """Position and the phase boundaries of the mass on the belt, started stuck at x = 0:
+    stuck until k x = Fs, then a harmonic slip about Fk/k from (Fs/k, vb) to (2 Fk - Fs)/k
+    where the velocity is vb again, then stuck, ..."""
+    w, A = np.sqrt(k / m), (Fs - Fk) / k
+    t_slip = 2 * (np.pi - np.arctan2(A * w, vb)) / w
+    t_stick = 2 * (Fs - Fk) / (k * vb)
+    x = vb * t
+    bounds, t0, x_stick = [], Fs / (k * vb), 0.0
+    while t0 <= t.max():
+        bounds += [t0, t0 + t_slip]
+        tau = t - t0
+        slip = (tau >= 0) & (tau < t_slip)
+        x = np.where(slip, Fk / k + A * np.cos(w * tau) + vb / w * np.sin(w * tau), x)
+        x_stick = (2 * Fk - Fs) / k
+        stick = (tau >= t_slip) & (tau < t_slip + t_stick)
+        x = np.where(stick, x_stick + vb * (tau - t_slip), x)
+        t0 += t_slip + t_stick
+    return x, np.array([b for b in bounds if b <= t.max()]), t_slip, t_stick
+
+
+@pytest.mark.parametrize("method", ["Radau", "Rodas4"])
+def test_stick_slip_phases_match_the_closed_form(method):
+    model = bgc.compile(str(ROOT / "models" / "stick_slip.yaml"))
+    r = model.simulate((0.0, 3.0), dt=1e-3, rtol=1e-10, atol=1e-12, method=method)
+    x, bounds, t_slip, t_stick = stick_slip_exact(r.t)
+    names = [ev[1] for ev in r.events]
+    assert names == ["breakaway", "stick"] * (len(bounds) // 2) + ["breakaway"] * (len(bounds) % 2)
+    times = np.array([ev[0] for ev in r.events])
+    assert np.max(np.abs(times - bounds)) < 1e-6
+    durations = np.diff(times)
+    assert np.max(np.abs(durations[0::2] - t_slip)) < 1e-6  # slipping
+    assert np.max(np.abs(durations[1::2] - t_stick)) < 1e-6  # stuck
+    assert np.max(np.abs(r.y["position"] - x)) < 1e-8
+    # stuck, the mass moves with the belt and friction holds the spring's force
+    stuck = r.y["sticking"] > 0.5
+    assert np.all(np.abs(r.y["velocity"][stuck] - 0.1) < 1e-12)
+    assert np.all(np.abs(r.y["friction_force"][stuck]) <= 2.0 + 1e-9)
