@@ -211,7 +211,7 @@ N_EVENTS = 1
 EVENT_NAMES = ('impact', )
 EVENT_DIRECTIONS = (-1, )  # +1 rising, -1 falling, 0 either
 EVENT_WHERE = (  # where each event is declared: messages name it
-    '/work/wt/events/models/bouncing_ball.yaml:33:3',
+    'bouncing_ball.yaml:33:3',
 )
 MODE_NAMES = ()  # states that only events change
 

@@ -247,8 +247,8 @@ N_EVENTS = 2
 EVENT_NAMES = ('turn_off', 'turn_on', )
 EVENT_DIRECTIONS = (-1, 1, )  # +1 rising, -1 falling, 0 either
 EVENT_WHERE = (  # where each event is declared: messages name it
-    '/work/wt/events/models/rectifier.yaml:40:3',
-    '/work/wt/events/models/rectifier.yaml:44:3',
+    'rectifier.yaml:40:3',
+    'rectifier.yaml:44:3',
 )
 MODE_NAMES = ('on', )  # states that only events change
 

@@ -259,8 +259,8 @@ N_EVENTS = 2
 EVENT_NAMES = ('breakaway', 'stick', )
 EVENT_DIRECTIONS = (1, -1, )  # +1 rising, -1 falling, 0 either
 EVENT_WHERE = (  # where each event is declared: messages name it
-    'models/stick_slip.yaml:49:3',
-    'models/stick_slip.yaml:53:3',
+    'stick_slip.yaml:49:3',
+    'stick_slip.yaml:53:3',
 )
 MODE_NAMES = ('stuck', 'slip_dir', )  # states that only events change
 

@@ -5,6 +5,7 @@ Each is pruned, CSE'd and scheduled like rhs (bgc.lower.ir.lower_function)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import PurePath
 
 from bgc.core.equations import Equations
 from bgc.lower.ir import Function, lower_function
@@ -13,7 +14,7 @@ from bgc.lower.ir import Function, lower_function
 @dataclass(frozen=True)
 class LoweredEvents:
     names: tuple[str, ...]
-    where: tuple[str, ...]  # "file:line:col" of each event's declaration (for messages)
+    where: tuple[str, ...]  # "file:line:col" of each event's declaration (the file's name)
     directions: tuple[int, ...]  # +1 rising, -1 falling, 0 either
     guards: Function  # results keyed by event index
     resets: tuple[Function, ...]  # per event: results keyed by state index, in order
@@ -31,5 +32,8 @@ def lower_events(eq: Equations) -> LoweredEvents | None:
     for ev in eq.events:
         pairs = sorted((index[s], v) for s, v in ev.resets)
         resets.append(lower_function(eq, [v for _, v in pairs], assigns, [k for k, _ in pairs]))
-    return LoweredEvents(tuple(ev.name for ev in eq.events), tuple(str(ev.coord) for ev in eq.events),
+    # the model file by its name only: the module is the same wherever the model lies
+    where = tuple(f"{PurePath(ev.coord.file).name}:{ev.coord.line}:{ev.coord.column}"
+                  for ev in eq.events)
+    return LoweredEvents(tuple(ev.name for ev in eq.events), where,
                          tuple(ev.direction for ev in eq.events), guards, tuple(resets))
