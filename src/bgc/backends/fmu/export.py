@@ -30,6 +30,7 @@ from pathlib import Path
 
 import sympy as sp
 
+from bgc.backends.fmu.events import fmu_events
 from bgc.base import __version__
 from bgc.base.errors import ModelError
 from bgc.core.equations import T
@@ -282,7 +283,8 @@ def model_description(compiled, spec: FmuSpec, scene=None, kind: str = "both",
         "fmiVersion": "2.0", "modelName": compiled.model.name + (
             f" (scene {scene.name})" if scene is not None else ""),
         "guid": spec.guid, "description": desc, "generationTool": f"bgc {__version__}",
-        "variableNamingConvention": naming, "numberOfEventIndicators": "0"})
+        "variableNamingConvention": naming,
+        "numberOfEventIndicators": str(len(compiled.equations.events))})
     caps = {"modelIdentifier": spec.model_identifier,
             "needsExecutionTool": "false", "canNotUseMemoryManagementFunctions": "true",
             "canGetAndSetFMUstate": "true", "canSerializeFMUstate": "false",
@@ -389,9 +391,6 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
     if has_solves(eq):  # the FMU's model functions keep no per-instance workspace yet
         raise ModelError(None, f"model {eq.name!r}: the FMU export does not support numeric "
                                "linear solves or nonlinear algebraic loops (Newton) yet")
-    if eq.events:  # event indicators and fmi2NewDiscreteStates are not written yet
-        raise ModelError(eq.events[0].coord, f"event {eq.events[0].name!r}: the FMU export "
-                                             "does not support events yet")
     tabs = [iv.name for iv in eq.inputs if getattr(iv, "table", None) is not None]
     if tabs:  # an input following its default would follow the placeholder 0, not the data
         raise ModelError(None, f"model {eq.name!r}: the FMU export does not support table "
@@ -400,6 +399,7 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
     ctx = _FmuCtx(low)
     fns = {name: _parts(name, fn, printer, ctx) for name, fn in
            (("rhs", low.rhs), ("jac", low.jac), ("outputs", low.outs), ("init", low.init))}
+    events = fmu_events(eq, kind, lambda name, fn: _parts(name, fn, printer, ctx))
     syms = ctx.param_syms + ctx.state_syms
     cnames = [c_name(str(s)) for s in syms]
     if not all(nm.isidentifier() and nm.isascii() for nm in cnames) or \
@@ -424,7 +424,8 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
     derived_lines = [(c_name(str(ln.target)), printer.doprint(ln.expr), n_par + j)
                      for j, ln in enumerate(low.derived)]
     has_t = int(fns["rhs"].uses_t or fns["jac"].uses_t or T in used)
-    all_parts = [p for f in fns.values() for p in f.parts]
+    all_parts = [p for f in fns.values() for p in f.parts] + ([] if events is None else [
+        p for f in [events["guards"]] + [r["fn"] for r in events["resets"]] for p in f.parts])
     from bgc.backends.c.printer import UNIT_PARTS
 
     units = [all_parts[i:i + UNIT_PARTS] for i in range(0, len(all_parts), UNIT_PARTS)]
@@ -452,7 +453,7 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
         param_start=[_g(v) for v in spec.param_start], param_tunable=list(spec.param_tunable),
         input_start=[_g(v) for v in spec.input_start], breaks=[_g(b) for b in breaks],
         guid=spec.guid, model_identifier=spec.model_identifier, method=method,
-        rtol=_g(rtol), atol=_g(atol), max_step=_g(max_step), **common)
+        rtol=_g(rtol), atol=_g(atol), max_step=_g(max_step), events=events, **common)
     cfg = ["/* bgc FMU configuration (generated) */", "#ifndef BGC_FMU_CONFIG_H",
            "#define BGC_FMU_CONFIG_H"]
     if kind == "cs":
