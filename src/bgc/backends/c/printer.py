@@ -26,6 +26,7 @@ import sympy as sp
 from sympy.printing.c import C99CodePrinter
 from sympy.printing.precedence import PRECEDENCE
 
+from bgc.backends.c.events import c_events, event_parts
 from bgc.backends.numpy.printer import _loader, lit
 from bgc.backends.numpy.printer import comment as py_comment
 from bgc.backends.skeleton import WRAPPER_MARK, binding_source, check_wrapper  # noqa: F401
@@ -451,9 +452,6 @@ def unsupported(eq) -> None:
     C function per loop) and table inputs (the data as arrays, the numpy module's
     interpolation); the check stays for what may come."""
     what: list[str] = []
-    if getattr(eq, "events", ()):  # bgc.core.events: the numpy runtime locates them
-        raise CUnsupported(eq.events[0].coord, f"event {eq.events[0].name!r}: the C backend "
-                           "does not locate events yet; use the numpy backend (--backend numpy)")
     if what:
         raise CUnsupported(None, f"model {eq.name!r}: the C backend does not support "
                                f"{' and '.join(what)} yet; use the numpy backend "
@@ -469,6 +467,7 @@ def render_c(low: Lowered, *, source: str, source_hash: str, description: str = 
     ctx = _Ctx(low)
     fns = {name: _parts(name, fn, printer, ctx, PART_LINES) for name, fn in
            (("rhs", low.rhs), ("jac", low.jac), ("outputs", low.outs), ("init", low.init))}
+    events = c_events(eq, lambda name, fn: _parts(name, fn, printer, ctx, PART_LINES))
     names = [c_name(str(s)) for s in ctx.param_syms + ctx.state_syms + ctx.input_syms]
     names += [c_name(str(a.symbol)) for a in eq.assignments + eq.jac_assignments]
     for nm in names:
@@ -476,7 +475,7 @@ def render_c(low: Lowered, *, source: str, source_hash: str, description: str = 
     if len(set(c_name(str(s)) for s in ctx.param_syms + ctx.state_syms + ctx.input_syms)) != \
             len(ctx.param_syms) + len(ctx.state_syms) + len(ctx.input_syms):
         raise AssertionError("two model identifiers map to one C name")
-    all_parts = [p for f in fns.values() for p in f.parts]
+    all_parts = [p for f in fns.values() for p in f.parts] + event_parts(events)
     units = [all_parts[i:i + UNIT_PARTS] for i in range(0, len(all_parts), UNIT_PARTS)]
     env = _env()
     common = dict(name=eq.name, version=__version__, source=source, source_hash=source_hash,
@@ -500,7 +499,7 @@ def render_c(low: Lowered, *, source: str, source_hash: str, description: str = 
                       if ctx.table_fail(k)],
         fns=fns, n=len(eq.states), np=len(ctx.param_syms), jac_keys=low.jac_keys,
         states=[sv.name for sv in eq.states], outputs=[o[0] for o in eq.outputs],
-        nout=sum(olens), all_parts=all_parts,
+        nout=sum(olens), all_parts=all_parts, events=events,
         has_t=int(fns["rhs"].uses_t or fns["jac"].uses_t), **common)
     files.insert(0, ("model.c", main))
     h = hashlib.sha256()

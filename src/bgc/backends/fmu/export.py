@@ -30,6 +30,7 @@ from pathlib import Path
 
 import sympy as sp
 
+from bgc.backends.c.events import event_parts
 from bgc.backends.fmu.events import fmu_events
 from bgc.base import __version__
 from bgc.base.errors import ModelError
@@ -424,8 +425,7 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
     derived_lines = [(c_name(str(ln.target)), printer.doprint(ln.expr), n_par + j)
                      for j, ln in enumerate(low.derived)]
     has_t = int(fns["rhs"].uses_t or fns["jac"].uses_t or T in used)
-    all_parts = [p for f in fns.values() for p in f.parts] + ([] if events is None else [
-        p for f in [events["guards"]] + [r["fn"] for r in events["resets"]] for p in f.parts])
+    all_parts = [p for f in fns.values() for p in f.parts] + event_parts(events)
     from bgc.backends.c.printer import UNIT_PARTS
 
     units = [all_parts[i:i + UNIT_PARTS] for i in range(0, len(all_parts), UNIT_PARTS)]
