@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 
 from bgc.base.errors import Coord, ModelError
 from bgc.core.causality import Causality, assign_causality, derivative_message
-from bgc.core.equations import Equations
+from bgc.core.eqtypes import Equations
 from bgc.core.graph import BondGraph, FlatBond, join
 from bgc.format.expr import BOND_FUNCTIONS, Expr, dotted_path
 
@@ -567,7 +567,7 @@ def slice_outputs(eq: Equations) -> tuple[Equations, tuple, dict]:
 
 def state_owners(bg: BondGraph, caus: Causality) -> list[tuple[str, str]]:
     """(state name as in STATE_NAMES, owning element or state id), in the module's order."""
-    from bgc.core.equations import _state_label
+    from bgc.core.eqtypes import state_label
 
     out = []
     for el in bg.elements:
@@ -579,7 +579,7 @@ def state_owners(bg: BondGraph, caus: Causality) -> list[tuple[str, str]]:
         size = 1
         for d in st.shape:
             size *= d
-        out += [(_state_label(st.id, st.shape, k), st.id) for k in range(size)]
+        out += [(state_label(st.id, st.shape, k), st.id) for k in range(size)]
     return out
 
 
