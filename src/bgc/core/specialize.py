@@ -38,7 +38,7 @@ from bgc.base.errors import Coord, ModelError
 from bgc.core.causality import Causality, assign_causality, derivative_message
 from bgc.core.eqtypes import Equations
 from bgc.core.graph import BondGraph, FlatBond, join
-from bgc.format.expr import BOND_FUNCTIONS, Expr, dotted_path
+from bgc.format.whitelist import BOND_FUNCTIONS, Expr, dotted_path
 
 
 @dataclass(frozen=True)

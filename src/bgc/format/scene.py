@@ -16,9 +16,9 @@ from bgc.base.errors import Coord, ModelError
 from bgc.base.limits import LIMITS
 from bgc.base.safeio import read_text_bounded
 from bgc.format import tables as _tables
-from bgc.format.expr import Expr
 from bgc.format.parse import Model, parse_file
 from bgc.format.reader import Reader, check_name, param_value, require
+from bgc.format.whitelist import Expr
 
 METHODS = ("Radau", "BDF", "LSODA", "RK45", "RK23", "DOP853", "Rodas4")
 PLOT_KINDS = ("time", "path3d", "loci")
