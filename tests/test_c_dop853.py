@@ -130,10 +130,12 @@ static int jac(double t, const double *x, const double *p, double *jv)
 int main(void)
 {
     static const int row[2] = {0, 1}, col[2] = {1, 0};
-    bgc_model m = {2, 0, 2, row, col, rhs, jac, 0, NULL, 0, NULL, NULL};
+    bgc_model m = {.n = 2, .np = 0, .nnz = 2, .jac_row = row, .jac_col = col, .rhs = rhs,
+                   .jac = jac};
     double atol = 1e-14, tout[101], y[202], x0[2] = {1.0, 0.0}, brk = 3.3;
     for (int k = 0; k < 101; k++) tout[k] = 0.1 * k;
-    bgc_options o = {BGC_DOP853, 1e-10, &atol, 1, 0.0, 0.0, 0, 0.0, tout, 101, &brk, 1};
+    bgc_options o = {.method = BGC_DOP853, .rtol = 1e-10, .atol = &atol, .atol_len = 1,
+                     .t_out = tout, .n_out = 101, .breaks = &brk, .n_breaks = 1};
     bgc_stats st;
     int s = bgc_integrate(&m, NULL, 0.0, 10.0, x0, &o, y, &st);
     double err = 0.0;
