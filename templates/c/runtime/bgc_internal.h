@@ -100,5 +100,6 @@ int bgc_step_end(bgc_ctx *c, double t, double t_new, double *y, bgc_interp_fn f,
 
 int bgc_rodas4_segment(bgc_ctx *c, double a, double b, double *y);
 int bgc_radau5_segment(bgc_ctx *c, double a, double b, double *y);
+int bgc_dop853_segment(bgc_ctx *c, double a, double b, double *y);
 
 #endif

@@ -40,7 +40,10 @@ int bgc_fail(bgc_ctx *c, int status, double t, const char *fmt, ...)
     return status;
 }
 
-static const char *method_name(int method) { return method == BGC_RADAU5 ? "Radau5" : "Rodas4"; }
+static const char *method_name(int method)
+{
+    return method == BGC_RADAU5 ? "Radau5" : method == BGC_DOP853 ? "DOP853" : "Rodas4";
+}
 
 double bgc_min_step(double t) { return 10.0 * fabs(nextafter(t, INFINITY) - t); }
 
@@ -198,18 +201,23 @@ int bgc_integrate(const bgc_model *m, const double *p, double t0, double t1, con
     return bgc_integrate_ex(m, p, t0, t1, x0, opt, y_out, st, NULL);
 }
 
+static int method_segment(bgc_ctx *c, double a, double b, double *y)
+{
+    return c->opt->method == BGC_RADAU5 ? bgc_radau5_segment(c, a, b, y)
+           : c->opt->method == BGC_DOP853 ? bgc_dop853_segment(c, a, b, y)
+           : bgc_rodas4_segment(c, a, b, y);
+}
+
 /* one segment; a hybrid model's integrator restarts (a fresh Jacobian and LU) after each
  * event inside it (bgc_events.c) */
 static int run_segment(bgc_ctx *c, double a, double b, double *y)
 {
-    int status = c->opt->method == BGC_RADAU5 ? bgc_radau5_segment(c, a, b, y)
-                                              : bgc_rodas4_segment(c, a, b, y);
+    int status = method_segment(c, a, b, y);
     while (status == BGC_EVENT) {
         double t = c->t_restart;
         if (!(t < b)) return 0;
         if ((status = bgc_events_restart(c, t, y))) return status;
-        status = c->opt->method == BGC_RADAU5 ? bgc_radau5_segment(c, t, b, y)
-                                              : bgc_rodas4_segment(c, t, b, y);
+        status = method_segment(c, t, b, y);
     }
     return status;
 }
@@ -238,7 +246,8 @@ int bgc_integrate_ex(const bgc_model *m, const double *p, double t0, double t1,
         bad = "missing model, options or state";
     else if (m->nev > 0 && (!m->guards || !m->reset || !m->ev_dir))
         bad = "events without their functions";
-    else if (opt->method != BGC_RODAS4 && opt->method != BGC_RADAU5) bad = "unknown method";
+    else if (opt->method != BGC_RODAS4 && opt->method != BGC_RADAU5 && opt->method != BGC_DOP853)
+        bad = "unknown method";
     else if (!(opt->rtol > 0) || !isfinite(opt->rtol)) bad = "rtol must be positive";
     else if (!opt->atol || (opt->atol_len != 1 && opt->atol_len != m->n)) bad = "atol: give 1 or n values";
     else if (!(t1 >= t0) || !isfinite(t0) || !isfinite(t1)) bad = "the span must have t1 >= t0 (finite)";
