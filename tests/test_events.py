@@ -80,6 +80,13 @@ def test_ball_height_matches_the_piecewise_analytic_solution(ball, method):
         assert after[1] == before[1] and abs(before[1]) < 1e-12
 
 
+def test_ball_with_dop853(ball):  # the explicit method's interpolant locates the impacts too
+    r = ball.simulate((0.0, 3.0), dt=1e-3, rtol=1e-10, atol=1e-12, method="DOP853")
+    assert np.max(np.abs(r.y["height"] - ball_height(r.t, 1.0, 0.8))) < 1e-8
+    assert np.allclose([ev[0] for ev in r.events], impact_times(1.0, 0.8, 3.0), atol=1e-9,
+                       rtol=0)
+
+
 def test_ball_batched_over_restitution_and_height(ball):
     e = np.array([0.8, 0.85, 0.9])
     h0 = np.array([[1.0], [1.5], [2.0]])

@@ -4,7 +4,7 @@
  * a fixed sparsity pattern. See docs/c-runtime.md.
  *
  * Build: cc -O2 -std=c99 -fPIC -shared model.c bgc_runtime.c bgc_linalg.c bgc_rodas4.c
- *        bgc_radau5.c bgc_dop853.c -lm   [-fopenmp for batches over threads] */
+ *        bgc_radau5.c bgc_dop853.c bgc_events.c -lm   [-fopenmp for batches over threads] */
 #ifndef BGC_RUNTIME_H
 #define BGC_RUNTIME_H
 
