@@ -237,14 +237,17 @@ def test_mode_mistakes_are_located(tmp_path):
         exc.value)
 
 
-def test_cli_summary_counts_events_and_writes_the_log(tmp_path):
+@pytest.mark.parametrize("run", ["full", "replayed"])
+def test_cli_summary_counts_events_and_writes_the_log(tmp_path, run):
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "BGC_CACHE_DIR": str(tmp_path / "c")}
     scene = ROOT / "models" / "scenes" / "bouncing_ball.yaml"
     out = tmp_path / "run.npz"
-    proc = subprocess.run([sys.executable, "-m", "bgc", "simulate", str(scene), "--out",
-                           str(out)], capture_output=True, text=True, env=env, timeout=300)
-    assert proc.returncode == 0, proc.stderr
-    assert "LU, 6 events;" in proc.stdout
+    for _ in range(1 if run == "full" else 2):  # the second run replays the run record
+        proc = subprocess.run([sys.executable, "-m", "bgc", "simulate", str(scene), "--out",
+                               str(out)], capture_output=True, text=True, env=env, timeout=300)
+        assert proc.returncode == 0, proc.stderr
+        assert "LU, 6 events;" in proc.stdout
+    assert ("run record" in proc.stdout + proc.stderr) == (run == "replayed")
     with np.load(out) as data:
         expected = impact_times(1.0, 0.8, 3.0)
         assert np.allclose(data["event__t"], expected, atol=1e-9, rtol=0)
