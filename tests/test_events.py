@@ -303,27 +303,17 @@ def test_stick_slip_phases_match_the_closed_form(method, target):
 
 # --- the FMU: event indicators and resets in Model Exchange ---------------------------------------
 
-def test_fmu_with_events_is_model_exchange_only(tmp_path):
-    from bgc.run.fmu import export_fmu
-
-    out = tmp_path / "ball.fmu"
-    with pytest.raises(ModelError) as exc:
-        export_fmu(BALL, out, kind="both")
-    assert exc.value.coord.line == 33 and "--kind me" in exc.value.message
-    assert not out.exists()
-
-
 @pytest.mark.slow
-def test_fmu_ball_under_fmpy_model_exchange(tmp_path):
+def test_fmu_ball_under_fmpy_model_exchange_and_co_simulation(tmp_path):
     fmpy = pytest.importorskip("fmpy")
     from bgc.backends.c import build as cbuild
     from bgc.run.fmu import export_fmu
 
     if not cbuild.available():
         pytest.skip("no C compiler")
-    fmu = export_fmu(BALL, tmp_path / "ball.fmu", kind="me")
+    fmu = export_fmu(BALL, tmp_path / "ball.fmu")
     md = fmpy.read_model_description(str(fmu))
-    assert md.numberOfEventIndicators == 1 and md.coSimulation is None
+    assert md.numberOfEventIndicators == 1
     for rtol in (1e-6, 1e-10):  # FMPy's own solver (CVode) finds the roots of our indicators
         r = fmpy.simulate_fmu(str(fmu), fmi_type="ModelExchange", solver="CVode",
                               stop_time=3.0, output_interval=1e-3, relative_tolerance=rtol,
@@ -333,3 +323,7 @@ def test_fmu_ball_under_fmpy_model_exchange(tmp_path):
     t, v = r["time"], r["velocity"]
     jumps = t[1:][(np.diff(t) == 0) & (np.diff(v) > 1.0)]
     assert np.allclose(jumps, impact_times(1.0, 0.8, 3.0), atol=1e-8, rtol=0)
+    # Co-Simulation: the FMU's own step (the C runtime) locates the impacts inside each step
+    r = fmpy.simulate_fmu(str(fmu), fmi_type="CoSimulation", stop_time=3.0,
+                          output_interval=1e-2, output=["height"])
+    assert np.max(np.abs(r["height"] - ball_height(r["time"], 1.0, 0.8))) < 1e-8

@@ -30,8 +30,7 @@ from pathlib import Path
 
 import sympy as sp
 
-from bgc.backends.c.events import event_parts
-from bgc.backends.fmu.events import fmu_events
+from bgc.backends.c.events import c_events, event_parts
 from bgc.base import __version__
 from bgc.base.errors import ModelError
 from bgc.core.equations import T
@@ -400,7 +399,8 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
     ctx = _FmuCtx(low)
     fns = {name: _parts(name, fn, printer, ctx) for name, fn in
            (("rhs", low.rhs), ("jac", low.jac), ("outputs", low.outs), ("init", low.init))}
-    events = fmu_events(eq, kind, lambda name, fn: _parts(name, fn, printer, ctx))
+    # events: the guards are the indicators (ME); the C runtime locates them in a step (CS)
+    events = c_events(eq, lambda name, fn: _parts(name, fn, printer, ctx))
     syms = ctx.param_syms + ctx.state_syms
     cnames = [c_name(str(s)) for s in syms]
     if not all(nm.isidentifier() and nm.isascii() for nm in cnames) or \
