@@ -42,6 +42,7 @@ _C_STATUS = {1: "non-finite value", 2: "too many steps", 3: "step size too small
              4: "wall time exceeded", 5: "singular iteration matrix", 6: "model failure",
              7: "bad arguments", 8: "Zeno behaviour or chattering"}
 _EV_CAP = 4096  # event log rows per instance and run (a run with more runs again, larger)
+_N_EV = globals().get("N_EVENTS", 0)  # a hybrid model's events (its numpy part defines them)
 _LIB = None
 _DP = _ct.c_void_p  # arrays are passed by address (ndarray.ctypes.data)
 _JAC_ROWS, _JAC_COLS = np.nonzero(JAC_SPARSITY)
@@ -71,7 +72,7 @@ def _bind(path):
         _ct.c_int, _ct.c_double, _DP, _ct.c_int, _ct.c_double, _ct.c_double, _ct.c_long,
         _ct.c_double, _DP, _ct.c_int, _DP, _ct.c_int, _ct.c_int, _DP, _DP, _ct.c_double,
         _ct.c_double, _DP, _DP, _ct.c_char_p, _ct.c_int]
-    if globals().get("N_EVENTS"):  # a hybrid model: the event log, counts and Zeno guard
+    if _N_EV:  # a hybrid model: the event log, counts and Zeno guard
         lib.bgcm_simulate.argtypes += [_DP, _ct.c_int, _DP, _ct.c_int, _ct.c_double]
     info = (_ct.c_int * 6)()
     lib.bgcm_info(info)
@@ -255,7 +256,7 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
     max_events and zeno_window: as the numpy module's simulate).
     """
     if method not in C_METHODS or u is not None or (not jac and method not in _EXPLICIT):
-        kw = dict(max_events=max_events, zeno_window=zeno_window) if N_EVENTS else {}
+        kw = dict(max_events=max_events, zeno_window=zeno_window) if _N_EV else {}
         return _np_simulate(t_span, t_eval=t_eval, method=method, rtol=rtol, atol=atol, p=p,
                             u=u, x0=x0, dt=dt, breakpoints=breakpoints, jac=jac,
                             max_step=max_step, max_steps=max_steps, stiff_check=stiff_check,
@@ -299,18 +300,18 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
             _ptr(times), len(times), _ptr(bps), nbps, nb, _ptr(P), _ptr(X0), t0, t1, _ptr(Y),
             _ptr(S), msg, threads)
     cap, log = _EV_CAP, None
-    while N_EVENTS:  # the log: nb x cap rows (t, event, x before, x after)
+    while _N_EV:  # the log: nb x cap rows (t, event, x before, x after)
         log, counts = np.zeros((nb, cap, 2 * N_STATES + 2)), np.zeros(nb, dtype=np.intc)
         window = 1e-6 * (t1 - t0) if zeno_window is None else float(zeno_window)
         _lib().bgcm_simulate(*args, _ptr(log), cap, _ptr(counts), int(max_events), window)
         if counts.max(initial=0) <= cap:
             break
         cap = int(counts.max())
-    if not N_EVENTS:
+    if not _N_EV:
         _lib().bgcm_simulate(*args)
     stats = {"nfev": int(S[:, 3].sum()), "njev": int(S[:, 4].sum()), "nlu": int(S[:, 5].sum()),
              "nsteps": int(S[:, 1].sum()), "nrejected": int(S[:, 2].sum()), "nstiff": 0}
-    if N_EVENTS:
+    if _N_EV:
         stats["nevents"] = int(counts.sum())
     failed = np.nonzero(S[:, 6])[0]
     if failed.size:
@@ -325,7 +326,7 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
         name: np.asarray(v)[..., None] if np.ndim(v) > _PARAM_NDIM[name] else v
         for name, v in p.items()}
     res = SimResult(times, X, outputs(times, X, pt), stats)
-    if N_EVENTS:
+    if _N_EV:
         res.events = _event_log(log, counts, batch)
     return res
 
@@ -355,7 +356,7 @@ def _c_message(method, S, failed, raw, batch):
         what = "right-hand side" if where == 0 else "Jacobian row"
         return (f"{method} failed at t = {t:.6g}: non-finite value in the {what} of state "
                 f"{STATE_NAMES[bad]!r}{inst}")
-    if status == 8 and 0 <= bad < N_EVENTS:  # the Zeno guard: located at the event
+    if status == 8 and 0 <= bad < _N_EV:  # the Zeno guard: located at the event
         rest = raw.decode("utf-8", "replace").split(": ", 1)[-1]
         return (f"{EVENT_WHERE[bad]}: event {EVENT_NAMES[bad]!r} at t = {t:.9g}: {rest}; raise "
                 f"max_events or change the model{inst}")
