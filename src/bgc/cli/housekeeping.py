@@ -50,6 +50,7 @@ def _example_files() -> dict:
     for name in ("model-format.md", "api.md"):
         if (docs / name).is_file():
             out[f"docs/{name}"] = docs / name
+    return out
 
 
 @click.group("cache")
