@@ -55,7 +55,7 @@ class CUnsupported(ModelError):
 def has_solves(eq) -> bool:
     """Does the model solve equations numerically (numeric linear solves of derivative
     causality, Newton loops of nonlinear algebraic loops)?"""
-    from bgc.core.equations import LinSolve, LinSolveEntry, NewtonSolve
+    from bgc.core.eqtypes import LinSolve, LinSolveEntry, NewtonSolve
 
     kinds = (LinSolve, LinSolveEntry, NewtonSolve)
     return bool(getattr(eq, "newton", ())) or any(
