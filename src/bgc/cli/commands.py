@@ -142,27 +142,19 @@ def main():
 def compile_cmd(model, output, scene, target, no_cache, quiet, strict_causality):
     """Compile MODEL.yaml into a Python module (or, --target c, C sources and a library)."""
     from bgc.base.outfiles import write_output
-    from bgc.format.parse import parse_file
-    from bgc.run.driver import compile_model
+    from bgc.run.driver import compile_source
 
     prog = _Progress(quiet)
-    prog("parsing")
+    sc = None
     if scene:
-        from bgc.core.graph import build_graph
-        from bgc.core.specialize import plan_for
-        from bgc.format.scene import apply_scene, check_outputs, parse_scene
+        from bgc.format.scene import parse_scene
 
+        prog("parsing")
         sc = parse_scene(scene)
-        if Path(sc.model_path).resolve() != Path(model).resolve():
-            raise ModelError(sc.model_coord, f"the scene is for {sc.model_path}, not {model}")
-        m = apply_scene(parse_file(model), sc)
-        c = compile_model(m, prog, plan_for(sc, build_graph(m).params),
-                          strict_causality=strict_causality)
-        check_outputs(sc, [o[0] for o in c.equations.outputs])
-        if output is None:
-            output = Path(f"{c.model.name}_{sc.name}.py")
-    else:
-        c = compile_model(parse_file(model), prog, strict_causality=strict_causality)
+    # the scene's module is the one `bgc simulate` runs: bgc.run.driver's one scene compile
+    c = compile_source(model, sc, prog, strict_causality)
+    if sc is not None and output is None:
+        output = Path(f"{c.model.name}_{sc.name}.py")
     if target == "c":
         from bgc.backends import load as backends
         from bgc.backends.c import build as cbuild
@@ -200,22 +192,13 @@ def _default_output(model: Path, name: str) -> Path:
                    "eliminating the dependent storage elements")
 def check_cmd(model, strict_causality):
     """Check MODEL.yaml completely (up to the equations) and list causality, states, warnings."""
-    from bgc.core.causality import assign_causality
-    from bgc.core.equations import derive
-    from bgc.core.graph import build_graph
     from bgc.format.parse import parse_file
+    from bgc.run.driver import check_model
 
-    m = parse_file(model)
-    bg = build_graph(m)
-    strict = strict_causality or m.strict_causality
-    caus = assign_causality(bg, allow_derivative=not strict)
-    if caus.derivative:
-        from bgc.core.causality import fixed_r_culprit
-
-        culprit = fixed_r_culprit(bg, caus)
-        if culprit is not None:
-            raise ModelError(culprit[0], culprit[1])
-    eqs = derive(bg, caus, newton=not strict)  # everything built and checked, as in compile
+    chk = check_model(parse_file(model), strict_causality)  # as bgc.check() and compile check
+    if chk.error is not None:
+        raise chk.error
+    m, bg, caus, eqs = chk.model, chk.graph, chk.causality, chk.equations
     out = io.StringIO()
     out.write(f"model {m.name}: {len(bg.elements)} elements, {len(bg.bonds)} bonds\n\n")
     out.write("causality (the stroke is at the end that receives the effort):\n")
@@ -388,23 +371,9 @@ def explain_cmd(scene, rounds, quiet):
 
 def _load_target(path, prog):
     """A scene file (its specialised module, parameters and span) or a model file."""
-    from bgc.backends.load import load_module
-    from bgc.format.parse import parse_file
-    from bgc.format.scene import parse_scene
-    from bgc.run.driver import compile_model
+    from bgc.linear import load_target
 
-    try:
-        head = Path(path).read_text(encoding="utf-8")[:4096]
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ModelError(None, f"cannot read {path}: {exc}") from None
-    if "bgc_scene" in head:
-        from bgc.run.runner import compile_scene, runtime_params
-
-        sc = parse_scene(path)
-        _, mod = compile_scene(sc, prog)
-        return mod, runtime_params(sc, mod), sc.t_span[0], sc
-    c = compile_model(parse_file(path), prog)
-    return load_module(c.source, c.model.name), None, 0.0, None
+    return load_target(path, prog)
 
 
 @main.command("linearize", epilog="Example: bgc linearize models/quarter_car.yaml --at "
@@ -422,7 +391,7 @@ def _load_target(path, prog):
 def linearize_cmd(target, at, out, bode, quiet):
     """Linearise SCENE_OR_MODEL: eigenvalues with natural frequencies and damping ratios and
     the states that dominate each mode; matrices and Bode plots with --out."""
-    from bgc.linear import bode_plot, modes
+    from bgc.linear import bode_plot, modes, operating_point
 
     prog = _Progress(quiet)
     mod, p, t0, sc = _load_target(target, prog)
@@ -434,29 +403,8 @@ def linearize_cmd(target, at, out, bode, quiet):
                                    f"{', '.join(mod.INPUT_LABELS) or '(no inputs)'} and OUT "
                                    f"one of {', '.join(mod.OUTPUT_LABELS)}")
         pairs.append((i_name, o_name))
-    if at == "equilibrium":
-        t = t0
-        prog("finding the equilibrium")
-        x, info = mod.equilibrium(p=p, t=t)
-        if not info.converged:
-            raise ModelError(None, f"no equilibrium found (max |dx/dt| = {info.residual:.3g} "
-                                   "after Newton): linearise at a time instead (--at TIME)")
-        where = "the equilibrium"
-    else:
-        try:
-            t = float(at)
-        except ValueError:
-            raise ModelError(None, f"--at {at!r}: 'equilibrium' or a time in seconds") from None
-        if t != t0:
-            prog(f"simulating to t = {t:g} s")
-            try:
-                res = mod.simulate((t0, t), t_eval=[t], p=p, rtol=1e-8, atol=1e-10)
-            except mod.SimulationError as exc:
-                raise ModelError(None, f"simulation to t = {t:g} failed: {exc}") from None
-            x = res.x[..., -1]
-        else:
-            x = mod.initial_state(p)
-        where = f"t = {t:g} s"
+    t, x, where = operating_point(mod, at, p, None, t0, prog, " after Newton): linearise at "
+                                  "a time instead (--at TIME)")
     lin = mod.linearize(t, x, None, p)
     ms = modes(lin[0], mod.STATE_NAMES)
     buf = io.StringIO()

@@ -28,6 +28,12 @@ class CompilerMissing(ModelError):
         super().__init__(None, message)
 
 
+class CUnsupported(ModelError):
+    """The model needs something the C printer does not write yet
+    (:func:`bgc.backends.c.printer.unsupported`); here, light, so that a caller can catch it
+    without importing the printer (sympy)."""
+
+
 def compiler() -> list[str]:
     cc = os.environ.get("CC", "").strip() or "cc"
     return shlex.split(cc)

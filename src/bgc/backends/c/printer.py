@@ -26,11 +26,11 @@ import sympy as sp
 from sympy.printing.c import C99CodePrinter
 from sympy.printing.precedence import PRECEDENCE
 
+from bgc.backends.c.build import CUnsupported  # noqa: F401 (raised by unsupported)
 from bgc.backends.numpy.printer import _loader, lit
 from bgc.backends.numpy.printer import comment as py_comment
 from bgc.backends.skeleton import WRAPPER_MARK, binding_source, check_wrapper  # noqa: F401
 from bgc.base import __version__
-from bgc.base.errors import ModelError
 from bgc.core.equations import T
 from bgc.lower.ir import Lowered
 
@@ -429,10 +429,6 @@ class CSources:
 
     def __getitem__(self, name):
         return dict(self.files)[name]
-
-
-class CUnsupported(ModelError):
-    """The model needs something the C printer does not write yet (see :func:`unsupported`)."""
 
 
 def has_solves(eq) -> bool:
