@@ -305,9 +305,10 @@ def compile_file(path: str | Path, progress=None, strict_causality: bool = False
         progress("parsing")
     t0 = time.perf_counter()
     model = parse(path)
+    t1 = time.perf_counter()
     c = compile_model(model, progress, strict_causality=strict_causality,
                       symbolic_max=symbolic_max)
-    return replace(c, times=(("parse", time.perf_counter() - t0),) + c.times)
+    return replace(c, times=(("parse", t1 - t0),) + c.times)
 
 
 def check_scene_for(scene, model_path, label=None) -> None:
@@ -401,7 +402,6 @@ def build(model=None, scene=None, backend: str = "numpy", *, use_cache: bool = T
         backend, path, None if scene is None else scene.file,
         extra="strict" if strict_causality else "") if cached else (None, [], None))
     name = module_name(model, scene)
-    clock = _Clock()
     made: list[Compiled] = []
 
     def compile_fn():
@@ -418,12 +418,12 @@ def build(model=None, scene=None, backend: str = "numpy", *, use_cache: bool = T
             (progress or (lambda msg: None))(f"{exc.message}: using the numpy backend")
             return build(model, scene, "numpy", use_cache=use_cache,
                          strict_causality=strict_causality, progress=progress, label=label)
-    times = made[-1].times if made else ()
-    clock.times.append(("load", time.perf_counter() - t0 - sum(s for _, s in times)))
+    times = made[-1].times if made else ()  # the compile's stages; the rest is the load
+    times += (("load", time.perf_counter() - t0 - sum(s for _, s in times)),)
     if scene is not None:
         _check_scene_module(scene, mod)
     return Built(backend, mod, compiled, None if key is None else
-                 (backend, key, files, scene_bytes), name, tuple(times) + tuple(clock.times))
+                 (backend, key, files, scene_bytes), name, times)
 
 
 def _check_scene_module(scene, mod) -> None:
