@@ -97,7 +97,7 @@ def test_a_scene_compiles_one_way_with_one_key(tmp_path, rc, fresh_cache, api_fi
         assert c1 is not None  # compiled by the API...
     else:
         assert c2 is None  # ...and the API's call found the runner's entry
-    entries = [p for p in (fresh_cache / "numpy").iterdir() if p.is_dir()]
+    entries = [p for p in (fresh_cache / "numpy").glob("*/*") if p.is_dir()]
     assert len(entries) == 1, entries
 
 
@@ -244,3 +244,53 @@ def test_any_source_or_template_change_invalidates_cache_and_records(tmp_path, m
         assert record.code_stamp() != stamp, f
         f.write_bytes(before)
         assert cache._code_digest() == digest, f
+
+
+# ---------------------------------------------------------------------------------------------
+# The FMU is built by the C backend's build
+
+FAKE_CC = """#!/bin/sh
+if [ "$1" = "--version" ]; then echo "refusing-cc 1.0"; exit 0; fi
+echo "x.c:1:1: error: this compiler refuses everything" >&2
+exit 1
+"""
+
+
+def test_fmu_compiler_failure_is_one_located_user_error(tmp_path, rc, fresh_cache):
+    """A C compiler that refuses the FMU's sources: `bgc export` says so in one line at the
+    model (exit 2, a user's problem, not an internal error), and writes nothing."""
+    pytest.importorskip("fmpy")
+    cc = tmp_path / "refusing-cc"
+    cc.write_text(FAKE_CC)
+    cc.chmod(0o755)
+    out = tmp_path / "rc.fmu"
+    env_run = subprocess.run([sys.executable, "-m", "bgc", "export", str(rc), "--fmu",
+                              str(out), "-q"], capture_output=True, text=True, timeout=600,
+                             env={**__import__("os").environ, "CC": str(cc)})
+    assert env_run.returncode == 2, env_run.stderr
+    lines = env_run.stderr.strip().splitlines()
+    assert len(lines) == 1, lines
+    assert lines[0].startswith(f"{rc}:") and "the C compiler" in lines[0]
+    assert "refuses everything" in lines[0]
+    assert not out.exists()
+
+
+def test_fmu_takes_the_c_runtime_objects_from_the_compile_cache(tmp_path, rc, fresh_cache):
+    """The FMU's library links the C backend's cached runtime objects (one entry per
+    compiler and flags), and the FMU it makes still runs: FMPy's simulation of the RC circuit
+    charges it to C V0 = 12 (closed form q = C V0 (1 - exp(-t / (R C))))."""
+    fmpy = pytest.importorskip("fmpy")
+    from bgc.backends.c import build as cbuild
+    from bgc.run.fmu import export_fmu
+
+    if not cbuild.available():
+        pytest.skip("no C compiler")
+    out = export_fmu(rc, tmp_path / "rc.fmu")
+    key = cbuild.runtime_key()
+    entry = fresh_cache / "c-runtime" / key[:2] / key
+    objs = sorted(p.name for p in entry.glob("*.o"))
+    assert objs == sorted(f.stem + ".o" for f in cbuild.runtime_sources())
+    res = fmpy.simulate_fmu(str(out), fmi_type="ModelExchange", stop_time=3.0,
+                            output=["charge"], output_interval=0.5)
+    q = 0.5 * 24.0 * (1 - np.exp(-res["time"] / (2.0 * 0.5)))
+    assert np.allclose(res["charge"], q, rtol=1e-3, atol=1e-6)

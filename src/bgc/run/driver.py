@@ -338,13 +338,14 @@ def scene_compiled(scene, progress=None, specialise: bool = True,
 
 
 def compile_source(model=None, scene=None, progress=None, strict_causality: bool = False,
-                   label=None) -> Compiled:
+                   label=None, specialise: bool = True) -> Compiled:
     """Stages 1-7 of a model (a path, or a parsed Model) or of a scene (for that model, when
-    both are given): the one compile every caller shares."""
+    both are given; ``specialise=False``: the scene's full model): the one compile every
+    caller shares."""
     if scene is not None:
         if model is not None:
             check_scene_for(scene, model if isinstance(model, (str, Path)) else None, label)
-        return scene_compiled(scene, progress, strict_causality=strict_causality)
+        return scene_compiled(scene, progress, specialise, strict_causality)
     if isinstance(model, (str, Path)):
         return compile_file(model, progress, strict_causality=strict_causality)
     return compile_model(model, progress, strict_causality=strict_causality)
@@ -372,21 +373,22 @@ def usable_backend(backend: str, progress=None) -> str:
     return backend
 
 
-def module_name(model, scene=None) -> str:
+def module_name(model, scene=None, specialise: bool = True) -> str:
     """The loaded module's name: the model file's stem (and the scene's name)."""
     if scene is not None:
-        return f"{Path(scene.model_path).stem}_{scene.name}"
+        return f"{Path(scene.model_path).stem}_{scene.name}{'' if specialise else '_full'}"
     return Path(model).stem if isinstance(model, (str, Path)) else "string"
 
 
 def build(model=None, scene=None, backend: str = "numpy", *, use_cache: bool = True,
           strict_causality: bool = False, progress=None, fallback: bool = False,
-          label=None) -> Built:
+          label=None, specialise: bool = True) -> Built:
     """The one compile of a scene (or a bare model: a path, or a parsed Model, never cached)
     for a backend, through the compile cache: a hit loads the entry without compiling (and
     without importing sympy); a miss compiles (:func:`compile_source`), keeps the entry and
     loads it. ``fallback``: without a C compiler or for a model the C backend refuses, say so
-    and use numpy (else the error stands). A scene's plots must name the module's outputs."""
+    and use numpy (else the error stands). A scene's plots must name the module's outputs.
+    ``specialise=False``: the scene's full model (every effect, parameter and output)."""
     import numpy as np
 
     from bgc.backends import load as backends
@@ -396,16 +398,17 @@ def build(model=None, scene=None, backend: str = "numpy", *, use_cache: bool = T
     if fallback:
         backend = usable_backend(backend, progress)
     path = scene.model_path if scene is not None else model
-    cached = use_cache and isinstance(path, (str, Path))
+    cached = use_cache and specialise and isinstance(path, (str, Path))
     store = cache_mod.Cache() if cached else None
     key, files, scene_bytes = (cache_mod.key_inputs(
         backend, path, None if scene is None else scene.file,
         extra="strict" if strict_causality else "") if cached else (None, [], None))
-    name = module_name(model, scene)
+    name = module_name(model, scene, specialise)
     made: list[Compiled] = []
 
     def compile_fn():
-        made.append(compile_source(model, scene, progress, strict_causality, label))
+        made.append(compile_source(model, scene, progress, strict_causality, label,
+                                   specialise))
         return made[-1]
     t0 = time.perf_counter()
     with np.errstate(all="ignore"):  # X0 is computed on import: no numpy warnings
@@ -417,7 +420,8 @@ def build(model=None, scene=None, backend: str = "numpy", *, use_cache: bool = T
                 raise
             (progress or (lambda msg: None))(f"{exc.message}: using the numpy backend")
             return build(model, scene, "numpy", use_cache=use_cache,
-                         strict_causality=strict_causality, progress=progress, label=label)
+                         strict_causality=strict_causality, progress=progress, label=label,
+                         specialise=specialise)
     times = made[-1].times if made else ()  # the compile's stages; the rest is the load
     times += (("load", time.perf_counter() - t0 - sum(s for _, s in times)),)
     if scene is not None:

@@ -27,4 +27,7 @@ def export_fmu(model_path, out, scene_path=None, kind: str = "both", progress=No
         say("parsing")
     # the one compile (bgc.run.driver): the scene's module is the one `bgc simulate` runs
     compiled = build(model_path, scene, "numpy", use_cache=False, progress=progress).compiled
-    return package_fmu(compiled, out, scene, kind, progress)
+    from bgc.base.store import Cache
+
+    # the C runtime's objects from the compile cache, as `bgc compile --target c` builds them
+    return package_fmu(compiled, out, scene, kind, progress, Cache())

@@ -10,7 +10,6 @@ from bgc.backends.load import load_module
 from bgc.base.errors import ModelError, SimulationFailed
 from bgc.format.scene import (
     Scene,
-    check_against,
     free_values,
     initial_state,
     param_values,
@@ -47,16 +46,11 @@ def compile_scene(scene: Scene, progress=None, specialise: bool = True,
 
     ``specialise=False`` gives the scene's full model: the model with the scene's input
     signals, every effect on, every parameter and output kept."""
-    from bgc.run.driver import scene_compiled
+    from bgc.run.driver import build
 
-    c = scene_compiled(scene, progress, specialise, strict_causality)
-    with np.errstate(all="ignore"):  # X0 is computed on import: no numpy warnings
-        mod = load_module(c.source, f"{c.model.name}_{scene.name}{'' if specialise else '_full'}")
-    check_against(scene, mod)
-    from bgc.run.plots import check_plots
-
-    check_plots(scene, mod.OUTPUT_SHAPES)  # a plot that cannot be drawn: before any run
-    return c, mod
+    b = build(scene=scene, use_cache=False, strict_causality=strict_causality,
+              progress=progress, specialise=specialise)
+    return b.compiled, b.module
 
 
 def runtime_params(scene: Scene, mod) -> dict | None:
