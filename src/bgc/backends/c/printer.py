@@ -173,7 +173,7 @@ class CPrinter(C99CodePrinter):
         # component i of a numeric solve's result (a local array, or the scratch array)
         return f"{self._print(expr.args[0])}[{int(expr.args[1])}]"
 
-    def _print_LinSolve(self, expr):  # printed as its own line by _parts, never inline
+    def _print_LinSolve(self, expr):  # its own line (function_parts), never inline
         raise ValueError("internal: a numeric linear solve inside an expression")
 
     _print_NewtonSolve = _print_LinSolve
@@ -239,7 +239,7 @@ class CFunction:
     uses_t: bool
 
 
-def _parts(name: str, fn, printer: CPrinter, ctx: "_Ctx", limit: int = PART_LINES
+def function_parts(name: str, fn, printer: CPrinter, ctx: "_Ctx", limit: int = PART_LINES
            ) -> CFunction:
     from bgc.core.equations import LinSolve, NewtonSolve
 
@@ -460,7 +460,7 @@ def render_c(low: Lowered, *, source: str, source_hash: str, description: str = 
     unsupported(eq)
     printer = CPrinter()
     ctx = _Ctx(low)
-    fns = {name: _parts(name, fn, printer, ctx, PART_LINES) for name, fn in
+    fns = {name: function_parts(name, fn, printer, ctx, PART_LINES) for name, fn in
            (("rhs", low.rhs), ("jac", low.jac), ("outputs", low.outs), ("init", low.init))}
     names = [c_name(str(s)) for s in ctx.param_syms + ctx.state_syms + ctx.input_syms]
     names += [c_name(str(a.symbol)) for a in eq.assignments + eq.jac_assignments]
@@ -471,7 +471,7 @@ def render_c(low: Lowered, *, source: str, source_hash: str, description: str = 
         raise AssertionError("two model identifiers map to one C name")
     all_parts = [p for f in fns.values() for p in f.parts]
     units = [all_parts[i:i + UNIT_PARTS] for i in range(0, len(all_parts), UNIT_PARTS)]
-    env = _env()
+    env = template_env()
     common = dict(name=eq.name, version=__version__, source=source, source_hash=source_hash,
                   description=description, notes=list(header_notes) + list(eq.loops))
     files = []
@@ -553,7 +553,7 @@ def _lu_plan(n: int, keys) -> str:
 
 
 @functools.lru_cache(maxsize=None)
-def _env():
+def template_env():
     env = jinja2.Environment(loader=_loader(), keep_trailing_newline=True, trim_blocks=True,
                              lstrip_blocks=True, undefined=jinja2.StrictUndefined,
                              autoescape=False)
@@ -565,7 +565,7 @@ def render_wrapper(low: Lowered, numpy_source: str, csrc: CSources, lib_name: st
     """The wrapper module: the numpy module, then the C part (constants and the binding)."""
     eq = low.eq
     olens = [len(vals) for _, _, vals in eq.outputs]
-    text = _env().get_template("c/wrapper.py.j2").render(
+    text = template_env().get_template("c/wrapper.py.j2").render(
         numpy_source=numpy_source.rstrip("\n"), mark=WRAPPER_MARK.rstrip("\n"),
         lib_name=lib_name, digest=csrc.digest, nws=_Ctx(low).nws,
         np=len(_Ctx(low).param_syms),

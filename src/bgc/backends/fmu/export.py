@@ -378,7 +378,13 @@ class _FmuCtx:
 def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> dict[str, str]:
     """The FMU's generated C files (name -> text): bgc_fmu_model.c, the parts and the
     configuration header."""
-    from bgc.backends.c.printer import CPrinter, _env, _parts, c_name, has_solves
+    from bgc.backends.c.printer import (
+        CPrinter,
+        c_name,
+        function_parts,
+        has_solves,
+        template_env,
+    )
     from bgc.base.paths import templates_dir
 
     low = compiled.lowered
@@ -392,7 +398,7 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
                                f"inputs yet (input {tabs[0]!r})")
     printer = CPrinter()
     ctx = _FmuCtx(low)
-    fns = {name: _parts(name, fn, printer, ctx) for name, fn in
+    fns = {name: function_parts(name, fn, printer, ctx) for name, fn in
            (("rhs", low.rhs), ("jac", low.jac), ("outputs", low.outs), ("init", low.init))}
     syms = ctx.param_syms + ctx.state_syms
     cnames = [c_name(str(s)) for s in syms]
@@ -422,7 +428,7 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
     from bgc.backends.c.printer import UNIT_PARTS
 
     units = [all_parts[i:i + UNIT_PARTS] for i in range(0, len(all_parts), UNIT_PARTS)]
-    env = _env()
+    env = template_env()
     m = compiled.model
     common = dict(name=eq.name, version=__version__, source=Path(m.file).name,
                   source_hash=m.source_hash, description=m.description,
