@@ -11,7 +11,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from bgc.base import __version__
+from bgc.base import BACKENDS, __version__
 from bgc.base.errors import ModelError, SimulationFailed
 from bgc.cli.options import POSITIVE
 from bgc.cli.options import model_inputs as _model_inputs
@@ -131,7 +131,7 @@ def main():
               "--scene: ./<name>_<scene>.py)")
 @click.option("--scene", type=click.Path(dir_okay=False),
               help="specialise for this scene (its signals, effects, parameters, outputs)")
-@click.option("--target", type=click.Choice(("numpy", "c")), default="numpy", show_default=True,
+@click.option("--target", type=click.Choice(BACKENDS), default="numpy", show_default=True,
               help="numpy: one Python module; c: C sources, a wrapper module and the built "
                    "library in the folder -o")
 @click.option("--no-cache", is_flag=True, help="do not use the compile cache (C runtime objects)")
@@ -274,7 +274,7 @@ def graph_cmd(model, output):
               help="absolute tolerance (default: the scene's solver atol)")
 @click.option("--max-wall", type=POSITIVE, default=None,
               help="stop with an error once the integration has taken this many seconds")
-@click.option("--backend", type=click.Choice(("numpy", "c")), default=None,
+@click.option("--backend", type=click.Choice(BACKENDS), default=None,
               help="numpy module, or C (the step loop in a compiled library); default: the "
                    "scene's solver backend, else numpy")
 @click.option("--no-cache", is_flag=True, help="compile afresh, without the compile cache")
