@@ -4,7 +4,8 @@ The compiler is ``$CC`` (split like a shell word list), else ``cc``; flags ``-O2
 -fPIC`` and ``-fopenmp`` when the compiler accepts it (probed once per compiler). The model's
 units and the runtime's build in parallel; the runtime's object files do not change from one
 model to the next and are kept in the compile cache under a key of their sources, the
-compiler's identity and the flags.
+compiler's identity and the flags (they are built with hidden visibility: a library exports
+only its model's functions). The FMU export builds its library here too.
 """
 from __future__ import annotations
 
@@ -17,6 +18,9 @@ from pathlib import Path
 from bgc.base.errors import ModelError
 
 CFLAGS = ("-O2", "-std=c99", "-fPIC")
+#: The runtime's objects export nothing from a library (the model's units call them inside
+#: it; the binding calls only the model's bgcm_ functions, an FMU only fmi2 functions).
+RUNTIME_FLAGS = ("-fvisibility=hidden",)
 RUNTIME_DIR = "c/runtime"
 LIB_NAME = "libmodel.so"
 
@@ -168,7 +172,7 @@ def runtime_key() -> str:
     h = hashlib.sha256()
     for f in runtime_sources() + runtime_headers():
         h.update(f.name.encode() + b"\0" + f.read_bytes() + b"\0")
-    h.update(identity().encode() + b"\0" + " ".join(flags()).encode())
+    h.update(identity().encode() + b"\0" + " ".join(flags() + RUNTIME_FLAGS).encode())
     return h.hexdigest()[:32]
 
 
@@ -189,7 +193,7 @@ def _cc(args: list[str], cwd: Path, coord=None) -> None:
 
 def _runtime_objects(cache, jobs: int, tmpdir, coord=None) -> list[Path]:
     """The runtime's object files, compiled once per (sources, compiler, flags)."""
-    fl = list(flags())
+    fl = list(flags() + RUNTIME_FLAGS)
     key = runtime_key()
 
     def build(tmp: Path):
