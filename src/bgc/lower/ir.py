@@ -15,7 +15,8 @@ import networkx as nx
 import sympy as sp
 
 from bgc.core import fastsym
-from bgc.core.equations import Assignment, Equations, linear_parts, prune, schedule
+from bgc.core.eqtypes import Assignment, Equations, prune, schedule
+from bgc.core.forward import linear_parts
 
 
 @dataclass(frozen=True)

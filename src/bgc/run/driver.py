@@ -175,7 +175,7 @@ class _Special:
 
 def _check_plan_effects(graph, plan) -> None:
     """Every effect the scene names (on or off) must exist."""
-    from bgc.core.specialize import known_effects
+    from bgc.core.effects import known_effects
 
     effects = known_effects(graph)
     for eff in list(plan.effect_coords) + sorted(plan.effects_off):

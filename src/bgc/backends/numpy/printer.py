@@ -25,7 +25,7 @@ from bgc.backends.skeleton import (  # noqa: F401 (re-exported)
 from bgc.base import __version__
 from bgc.base.errors import oneline
 from bgc.base.paths import templates_dir
-from bgc.core.equations import Equations, T
+from bgc.core.eqtypes import Equations, T
 from bgc.lower import ir as lower
 
 _IDENT_OK = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_")
