@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import jinja2
 
+from bgc.backends.c.build import CUnsupported  # noqa: F401 (raised by unsupported)
 from bgc.backends.c.cexpr import (  # noqa: F401 (the C text helpers, as printer.*)
     CPrinter,
     c_comment,
@@ -31,11 +32,10 @@ from bgc.backends.c.cexpr import (  # noqa: F401 (the C text helpers, as printer
 )
 from bgc.backends.c.events import c_events, event_parts
 from bgc.backends.c.parts import PART_LINES, UNIT_PARTS, PartContext, cut_parts
-from bgc.backends.numpy.printer import lit, template_loader
 from bgc.backends.numpy.printer import comment as py_comment
+from bgc.backends.numpy.printer import lit, template_loader
 from bgc.backends.skeleton import WRAPPER_MARK, binding_source, check_wrapper  # noqa: F401
 from bgc.base import __version__
-from bgc.base.errors import ModelError
 from bgc.lower.ir import Lowered
 
 
@@ -47,10 +47,6 @@ class CSources:
 
     def __getitem__(self, name):
         return dict(self.files)[name]
-
-
-class CUnsupported(ModelError):
-    """The model needs something the C printer does not write yet (see :func:`unsupported`)."""
 
 
 def has_solves(eq) -> bool:
