@@ -145,6 +145,7 @@ class Model:
     source_hash: str = ""
     coord: Coord = field(default=None)  # type: ignore[assignment]
     strict_causality: bool = False  # `causality: strict`: derivative causality is an error
+    strict_units: bool = False  # `units: strict`: every parameter needs a unit
 
     def component(self, name: str) -> Component | None:
         for c in self.components:
@@ -190,7 +191,7 @@ def parse_text(text: str, path: str = "<model>", _imports: _Imports | None = Non
         raise ModelError(Coord(path, 1, 1), "the model file is empty")
     top = r.mapping(root, "the model")
     allowed = ("bgc", "name", "description", "parameters", "inputs", "elements", "bonds",
-               "states", "outputs", "components", "imports", "causality")
+               "states", "outputs", "components", "imports", "causality", "units")
     require(r, top, root, allowed, "the model", required=("bgc", "name", "elements", "bonds"))
     strict = False
     if "causality" in top:
@@ -199,6 +200,13 @@ def parse_text(text: str, path: str = "<model>", _imports: _Imports | None = Non
             raise ModelError(r.coord(top["causality"][1]), f"causality: {mode!r} is not one of "
                                                             "'strict', 'eliminate'")
         strict = mode == "strict"
+    strict_units = False
+    if "units" in top:
+        mode = r.string(top["units"][1], "units")
+        if mode not in ("strict", "check"):
+            raise ModelError(r.coord(top["units"][1]), f"units: {short(mode)} is not one of "
+                                                        "'strict', 'check'")
+        strict_units = mode == "strict"
     version = r.scalar(top["bgc"][1], "bgc")
     if isinstance(version, bool) or version != 1:
         raise ModelError(r.coord(top["bgc"][1]), f"unsupported format version {version!r} "
@@ -256,7 +264,7 @@ def parse_text(text: str, path: str = "<model>", _imports: _Imports | None = Non
     return Model(name=name, file=path, body=body, inputs=tuple(inputs),
                   components=tuple(components), description=description,
                   source_hash=hashlib.sha256(text.encode()).hexdigest()[:16],
-                  coord=r.coord(root), strict_causality=strict)
+                  coord=r.coord(root), strict_causality=strict, strict_units=strict_units)
 
 
 def _resolve(path, coord: Coord, shown) -> str:
