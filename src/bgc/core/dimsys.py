@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from fractions import Fraction
 
 from bgc.base.errors import Coord, ModelError
-from bgc.format.units import ZERO, Dim, div, mul, power, show
+from bgc.format.units import ZERO, Dim, div, mul, num, power, show
 
 
 @dataclass(frozen=True)
@@ -31,7 +31,7 @@ class Form:
 
     @staticmethod
     def var(name) -> "Form":
-        return Form(ZERO, ((name, Fraction(1)),))
+        return Form(ZERO, ((name, 1),))
 
     def __add__(self, other: "Form") -> "Form":  # product of quantities: dimensions add
         return _combine(self, other, 1)
@@ -40,10 +40,12 @@ class Form:
         return _combine(self, other, -1)
 
     def scaled(self, n) -> "Form":
-        n = Fraction(n)
+        n = num(Fraction(n))
+        if n == 1:
+            return self
         if n == 0:
             return Form(ZERO)
-        return Form(power(self.const, n), tuple((v, c * n) for v, c in self.terms))
+        return Form(power(self.const, n), tuple((v, num(c * n)) for v, c in self.terms))
 
     @property
     def known(self) -> bool:
@@ -54,10 +56,14 @@ ANY = None  # the dimension of 0 (and of zeros(n)): equal to anything
 
 
 def _combine(a: Form, b: Form, sign: int) -> Form:
-    coefs: dict = dict(a.terms)
-    for v, c in b.terms:
-        coefs[v] = coefs.get(v, 0) + sign * c
-    terms = tuple(sorted(((v, c) for v, c in coefs.items() if c != 0), key=lambda t: str(t[0])))
+    if not b.terms:
+        terms = a.terms
+    else:
+        coefs: dict = dict(a.terms)
+        for v, c in b.terms:
+            coefs[v] = num(coefs.get(v, 0) + sign * c)
+        terms = tuple(sorted(((v, c) for v, c in coefs.items() if c != 0),
+                             key=lambda t: str(t[0])))
     const = mul(a.const, b.const) if sign > 0 else div(a.const, b.const)
     return Form(const, terms)
 
@@ -118,8 +124,10 @@ class System:
                 raise ModelError(coord, message(show_form(self.resolve(a)),
                                                 show_form(self.resolve(b))))
             return
-        pivot, coef = diff.terms[-1]
-        rest = Form(diff.const, diff.terms[:-1]).scaled(Fraction(-1) / coef)
+        # the variable fewest rows mention: a chain of equalities stays linear in time
+        pivot, coef = min(diff.terms, key=lambda t: len(self.uses.get(t[0], ())))
+        rest = Form(diff.const, tuple(t for t in diff.terms if t[0] != pivot)).scaled(
+            -1 if coef == 1 else 1 if coef == -1 else Fraction(-1) / coef)
         for v in self.uses.pop(pivot, ()):
             row = self.rows[v]
             c = dict(row.terms).get(pivot)

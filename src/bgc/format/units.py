@@ -7,7 +7,7 @@ space (``N s/m`` is ``N*s/m``), with powers ``^n`` or ``**n`` (an integer, a dec
 ``0.5`` or a fraction in parentheses, ``^(1/2)``) and parentheses. ``1`` is dimensionless.
 Left to right: ``a/b*c`` is ``(a/b)*c``, ``a/b/c`` is ``a/(b*c)``.
 
-A dimension is a tuple of seven :class:`fractions.Fraction` exponents of :data:`BASE`
+A dimension is a tuple of seven exponents (ints, Fractions where not whole) of :data:`BASE`
 (m, kg, s, A, K, mol, cd). Radians and steradians are dimensionless. The scale is the factor to
 SI (``mm`` -> 0.001); bgc converts no value, the scale is only reported.
 """
@@ -25,12 +25,20 @@ MAX_NESTING = 4
 
 Dim = tuple  # tuple[Fraction, ...] of length 7
 
-ZERO: Dim = (Fraction(0),) * 7
+ZERO: Dim = (0,) * 7
+
+
+def num(x):
+    """An exponent: an int when it is whole (fast), else a Fraction."""
+    if isinstance(x, Fraction) and x.denominator == 1:
+        return x.numerator
+    return x
 
 
 def dim(**exps) -> Dim:
-    """``dim(kg=1, m=1, s=-2)``: a dimension from named base exponents."""
-    return tuple(Fraction(exps.get(b, 0)) for b in BASE)
+    """``dim(kg=1, m=1, s=-2)``: a dimension from named base exponents (ints, or Fractions
+    where they are not whole)."""
+    return tuple(num(Fraction(exps.get(b, 0))) for b in BASE)
 
 
 def mul(a: Dim, b: Dim) -> Dim:
@@ -38,19 +46,19 @@ def mul(a: Dim, b: Dim) -> Dim:
         return a
     if a == ZERO:
         return b
-    return tuple(x + y for x, y in zip(a, b))
+    return tuple(num(x + y) for x, y in zip(a, b))
 
 
 def power(a: Dim, n) -> Dim:
     if n == 1 or a == ZERO:
         return a
-    return tuple(x * n for x in a)
+    return tuple(num(x * n) for x in a)
 
 
 def div(a: Dim, b: Dim) -> Dim:
     if b == ZERO:
         return a
-    return tuple(x - y for x, y in zip(a, b))
+    return tuple(num(x - y) for x, y in zip(a, b))
 
 
 _NEWTON = dim(kg=1, m=1, s=-2)
