@@ -174,6 +174,26 @@ def test_a_transformer_modulus_in_the_wrong_unit():
     assert err.message == "TF 'rack': ratio 'r' is kg, but its bonds need m"
 
 
+def test_a_gyrator_modulus_in_the_wrong_unit():
+    text = (ROOT / "models" / "dc_motor.yaml").read_text(encoding="utf-8")
+    assert text.count("unit: N*m/A,") == 1
+    err = error_of(text.replace("unit: N*m/A,", "unit: N*m,"))
+    assert err.coord.line == 36
+    assert err.message == "GY 'motor': ratio 'K' is N*m, but its bonds need N*m/A"
+
+
+def test_a_scene_input_in_the_wrong_unit(tmp_path):
+    from bgc.format.scene import parse_scene, scene_model
+
+    (tmp_path / "msd.yaml").write_text(MSD, encoding="utf-8")
+    scene = tmp_path / "s.yaml"
+    scene.write_text("bgc_scene: 1\nmodel: msd.yaml\nduration: 1.0\n"
+                     "inputs: {F: \"where(t < 0.5, 0, m)\"}\n", encoding="utf-8")
+    with pytest.raises(ModelError) as exc:
+        build_graph(scene_model(parse_scene(scene)))
+    assert exc.value.message == "input 'F' is N, but its default 'where(t < 0.5, 0, m)' is kg"
+
+
 def test_exp_of_a_dimensional_argument():
     err = error_of(MSD.replace('spring: {type: C, stiffness: "k"}',
                                'spring: {type: C, effort: "k*q*exp(q)"}'))

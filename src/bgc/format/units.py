@@ -252,7 +252,8 @@ NAMES = (("N", _NEWTON), ("N*m", _JOULE), ("W", _WATT), ("Pa", div(_NEWTON, dim(
          ("V", _VOLT), ("Ohm", _OHM), ("F", div(_COULOMB, _VOLT)), ("H", mul(_OHM, dim(s=1))),
          ("S", power(_OHM, -1)), ("C", _COULOMB), ("W/K", div(_WATT, dim(K=1))),
          ("J/K", div(_JOULE, dim(K=1))), ("N*s/m", div(mul(_NEWTON, dim(s=1)), dim(m=1))),
-         ("N/m", div(_NEWTON, dim(m=1))), ("N*m*s", mul(_JOULE, dim(s=1))))
+         ("N/m", div(_NEWTON, dim(m=1))), ("N*m*s", mul(_JOULE, dim(s=1))),
+         ("N*m/A", div(_JOULE, dim(A=1))), ("m^3/s", dim(m=3, s=-1)))
 
 
 def _pow_text(name: str, n: Fraction) -> str:
