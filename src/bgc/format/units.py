@@ -16,12 +16,14 @@ from __future__ import annotations
 import math
 from fractions import Fraction
 
+from bgc.base.limits import LIMITS
+
 #: The base dimensions, in the order of a dimension tuple.
 BASE = ("m", "kg", "s", "A", "K", "mol", "cd")
-#: Longest unit string read; longest exponent (as written); largest magnitude of an exponent.
-MAX_CHARS = 100
-MAX_EXPONENT = 12
-MAX_NESTING = 4
+#: Longest unit string read, largest magnitude of an exponent, deepest parentheses.
+MAX_CHARS = LIMITS.unit_chars
+MAX_EXPONENT = LIMITS.unit_exponent
+MAX_NESTING = LIMITS.unit_depth
 
 Dim = tuple  # tuple[Fraction, ...] of length 7
 
