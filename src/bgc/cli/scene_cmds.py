@@ -60,8 +60,10 @@ def simulate_cmd(scene, out, plot_dir, method, rtol, atol, max_wall, backend, no
         figures = render_plots(res.scene, res.t, res.y,
                                getattr(res.module, "OUTPUT_UNITS", None))
     if out:
+        from bgc.run.event_log import event_arrays  # a hybrid model's event log
+
         buf = io.BytesIO()
-        np.savez_compressed(buf, t=res.t, **res.y)
+        np.savez_compressed(buf, t=res.t, **res.y, **event_arrays(res.events, res.x.shape[0]))
         write_output(out, buf.getvalue(), ins, "--out")
         prog(f"wrote {out}")
     if plot_dir is not None:

@@ -40,6 +40,8 @@ class SceneResult:
     module_name: str = ""
     #: the module's simulate arguments as the scene resolved them (a run record replays them)
     run_args: dict | None = None
+    #: a hybrid model's event log: (t, event, instance index, x before, x after) per event
+    events: tuple = ()
 
 
 def compile_scene(scene: Scene, progress=None, specialise: bool = True,
@@ -179,7 +181,8 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
                        scene_module_name(scene),
                        dict(t_span=scene.t_span, dt=dt, method=method, rtol=rtol, atol=atol,
                             p=p, breakpoints=scene.breakpoints, x0=x0,
-                            max_step=scene.max_step, max_wall=max_wall))
+                            max_step=scene.max_step, max_wall=max_wall),
+                       tuple(getattr(res, "events", ())))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import sympy as sp
 
+from bgc.backends.c.events import c_events, event_parts
 from bgc.backends.fmu.spec import FmuSpec, build_spec, flat_names  # noqa: F401 (as export.*)
 from bgc.base import __version__
 from bgc.base.errors import ModelError
@@ -61,7 +62,8 @@ def model_description(compiled, spec: FmuSpec, scene=None, kind: str = "both",
         "fmiVersion": "2.0", "modelName": compiled.model.name + (
             f" (scene {scene.name})" if scene is not None else ""),
         "guid": spec.guid, "description": desc, "generationTool": f"bgc {__version__}",
-        "variableNamingConvention": naming, "numberOfEventIndicators": "0"})
+        "variableNamingConvention": naming,
+        "numberOfEventIndicators": str(len(compiled.equations.events))})
     caps = {"modelIdentifier": spec.model_identifier,
             "needsExecutionTool": "false", "canNotUseMemoryManagementFunctions": "true",
             "canGetAndSetFMUstate": "true", "canSerializeFMUstate": "false",
@@ -162,6 +164,8 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
     ctx = PartContext.inputs_as_params(low)  # the inputs are values in the parameter vector
     fns = {name: cut_parts(name, fn, printer, ctx) for name, fn in
            (("rhs", low.rhs), ("jac", low.jac), ("outputs", low.outs), ("init", low.init))}
+    # events: the guards are the indicators (ME); the C runtime locates them in a step (CS)
+    events = c_events(eq, lambda name, fn: cut_parts(name, fn, printer, ctx))
     syms = ctx.param_syms + ctx.state_syms
     cnames = [c_name(str(s)) for s in syms]
     if not all(nm.isidentifier() and nm.isascii() for nm in cnames) or \
@@ -186,7 +190,7 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
     derived_lines = [(c_name(str(ln.target)), printer.doprint(ln.expr), n_par + j)
                      for j, ln in enumerate(low.derived)]
     has_t = int(fns["rhs"].uses_t or fns["jac"].uses_t or T in used)
-    all_parts = [p for f in fns.values() for p in f.parts]
+    all_parts = [p for f in fns.values() for p in f.parts] + event_parts(events)
     units = [all_parts[i:i + UNIT_PARTS] for i in range(0, len(all_parts), UNIT_PARTS)]
     env = template_env()
     m = compiled.model
@@ -212,7 +216,7 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
         param_start=[_g(v) for v in spec.param_start], param_tunable=list(spec.param_tunable),
         input_start=[_g(v) for v in spec.input_start], breaks=[_g(b) for b in breaks],
         guid=spec.guid, model_identifier=spec.model_identifier, method=method,
-        rtol=_g(rtol), atol=_g(atol), max_step=_g(max_step), **common)
+        rtol=_g(rtol), atol=_g(atol), max_step=_g(max_step), events=events, **common)
     cfg = ["/* bgc FMU configuration (generated) */", "#ifndef BGC_FMU_CONFIG_H",
            "#define BGC_FMU_CONFIG_H"]
     if kind == "cs":

@@ -16,10 +16,12 @@ import jinja2
 import sympy as sp
 from sympy.printing.numpy import NumPyPrinter
 
+from bgc.backends.numpy.events import events_part
 from bgc.backends.skeleton import (  # noqa: F401 (re-exported)
     ALLOWED_IMPORTS,
     SkeletonError,
     check_skeleton,
+    events_runtime_source,
     runtime_source,
 )
 from bgc.base import __version__
@@ -259,6 +261,7 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
     yjac = _function(eq, printer, [lp.C[k] for k in sorted(lp.C)] + [lp.D[k] for k in sorted(lp.D)],
                      list(eq.assignments) + list(lp.CD_assignments), ykeys)
     init = printed(low.init, printer)
+    events = events_part(eq, printer, printed)  # None without events: the module is unchanged
     newton = []
     for nl in eq.newton:  # nonlinear algebraic loops: a Newton solver each
         newton.append({
@@ -314,7 +317,8 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
         tables=tables, input_labels=lp.input_labels, output_labels=lp.output_labels,
         linsolve=getattr(printer, "uses_linsolve", False), newton=newton,
         all_param_symbols=[s for p in params for s in p["symbols"]] + [d.target for d in derived],
-        runtime=runtime_source(),
+        runtime=runtime_source() + (f"\n\n\n{events_runtime_source()}" if events else ""),
+        events=events,
     )
     for ident in _identifiers(eq):
         assert ident.isidentifier() and not keyword.iskeyword(ident) and set(ident) <= _IDENT_OK
