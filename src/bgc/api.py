@@ -287,8 +287,12 @@ def equations(path_or_text) -> StateEquations:
     from bgc.core.equations import T, derive
     from bgc.core.graph import build_graph
 
-    bg = build_graph(_model(path_or_text))
-    eqs = derive(bg, assign_causality(bg))
+    model = _model(path_or_text)
+    bg = build_graph(model)
+    strict = bool(getattr(model, "strict_causality", False))
+    # as compile does: rigid connections (derivative causality) eliminated, nonlinear
+    # algebraic loops solved by Newton, unless the model asks for strict causality
+    eqs = derive(bg, assign_causality(bg, allow_derivative=not strict), newton=not strict)
     states = tuple(sv.symbol for sv in eqs.states)
     assigns = tuple(sp.Eq(a.symbol, a.expr, evaluate=False) for a in eqs.assignments)
     derivs = tuple(sp.Eq(sp.Derivative(s, T), d, evaluate=False)

@@ -281,6 +281,11 @@ def graph_cmd(model, output):
 
 @main.command("simulate")
 @click.argument("scene", type=click.Path())  # (as MODEL: bgc.base.safeio)
+@click.option("--t-end", type=float, default=None,
+              help="end time in s (default: the scene's; a model alone runs 10 s)")
+@click.option("--max-steps", type=int, default=None,
+              help="the most steps the run may take (default: the scene's solver max_steps, "
+                   "else 50000)")
 @click.option("--out", type=click.Path(), help="results .npz (t and outputs)")
 @click.option("--plot", "plot_dir", type=click.Path(), help="write PNG plots here")
 @click.option("--method", type=click.Choice(SOLVER_METHODS), default=None,
@@ -299,24 +304,25 @@ def graph_cmd(model, output):
               help="refuse derivative causality (every storage element independent) instead of "
                    "eliminating the dependent storage elements")
 @click.option("-q", "--quiet", is_flag=True)
-def simulate_cmd(scene, out, plot_dir, method, rtol, atol, max_wall, backend, no_cache,
-                 strict_causality, quiet):
-    """Compile the scene's model (or take it from the compile cache) and simulate the scene."""
+def simulate_cmd(scene, t_end, max_steps, out, plot_dir, method, rtol, atol, max_wall, backend,
+                 no_cache, strict_causality, quiet):
+    """Compile the scene's model (or take it from the compile cache) and simulate the scene.
+    SCENE may also be a model file: it runs with its defaults for 10 s (or --t-end)."""
     from bgc.base.outfiles import check_folder, check_output, write_output
-    from bgc.format.scene import check_rtol, parse_scene
+    from bgc.format.scene import check_rtol
     from bgc.run.runner import run_scene
 
     if rtol is not None:  # finite, within the limits (bgc.base.limits): one line, exit 2
         check_rtol(rtol, None, "--rtol")
     prog = _Progress(quiet)
-    sc = parse_scene(scene)
+    sc = _scene_or_model(scene, t_end, max_steps, prog)
     if out:  # refused before the run, not after it (the imports are known after it)
         check_output(out, _model_inputs(scene, sc.model_path, follow=False), "--out")
     if plot_dir is not None:
         check_folder(plot_dir, "--plot")
     res = run_scene(sc, progress=prog, method=method, rtol=rtol, max_wall=max_wall,
                     atol=atol, backend=backend, use_cache=not no_cache,
-                    strict_causality=strict_causality)
+                    strict_causality=strict_causality, max_steps=max_steps)
     ins = _model_inputs(scene, sc.model_path)
     figures = None
     if plot_dir is not None:  # every figure drawn before anything is written
@@ -335,11 +341,29 @@ def simulate_cmd(scene, out, plot_dir, method, rtol, atol, max_wall, backend, no
     if not no_cache:  # a later run of the same scene and options replays it (bgc.run.record)
         from bgc.run.record import keep, options_text
 
-        keep(scene, options_text(method, rtol, atol, max_wall, backend, strict_causality), res)
+        keep(scene, options_text(method, rtol, atol, max_wall, backend, strict_causality,
+                                 t_end=t_end, max_steps=max_steps), res)
     from bgc.run.progress import summary_line
 
     click.echo(summary_line(res.scene.name, res.t, res.method, res.rtol, res.atol, res.backend,
                             res.stats, res.compile_time, res.run_time))
+
+
+def _scene_or_model(path, t_end, max_steps, say):
+    """The scene file at path, or a model file as the scene of its defaults (bgc simulate
+    MODEL.yaml); --t-end and --max-steps checked (one located line each)."""
+    from bgc.format.scene import (MODEL_T_END, check_max_steps, is_model_file, model_scene,
+                                  parse_scene, with_t_end)
+
+    if max_steps is not None:
+        check_max_steps(max_steps, None, "--max-steps")
+    if is_model_file(path):
+        say(f"{path} is a model: simulating it with its defaults from 0 to "
+            f"{MODEL_T_END if t_end is None else t_end:g} s (a scene file chooses more)")
+        sc = model_scene(path)
+    else:
+        sc = parse_scene(path)
+    return sc if t_end is None else with_t_end(sc, t_end)
 
 
 @main.command("explain")

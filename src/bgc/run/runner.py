@@ -147,7 +147,7 @@ def _compiled(scene: Scene, progress=None, strict_causality: bool = False):
 
 def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=None,
               backend=None, use_cache: bool = True,
-              strict_causality: bool = False) -> SceneResult:
+              strict_causality: bool = False, max_steps: int | None = None) -> SceneResult:
     say = progress or (lambda msg: None)
     scene = path if isinstance(path, Scene) else parse_scene(path)
     t0 = time.perf_counter()
@@ -160,13 +160,21 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
     from bgc.run.progress import simulating_line
 
     say(simulating_line(scene.name, method, backend, rtol, atol))
+    if backend == "c" and method not in getattr(mod, "C_METHODS", (method,)):
+        say(f"note: {method} runs in scipy's Python step loop, calling the C functions (little "
+            "faster than numpy); the C step loop runs Radau and Rodas4")
     dt = scene.dt or (scene.t_span[1] - scene.t_span[0]) / 1000
     p = runtime_params(scene, mod)
     x0 = initial_state(scene, mod, p)  # the scene's initial: values, or equilibrium
+    max_step = scene_max_step(scene, mod)
+    max_steps = scene.max_steps if max_steps is None else max_steps
+    if max_step < scene.max_step:
+        say(f"max_step {max_step:.3g} s: {STEPS_PER_PERIOD} steps per period of the input "
+            f"{_fastest(mod)!r} (solver max_step in the scene overrides it)")
     try:
         res = mod.simulate(scene.t_span, dt=dt, method=method, rtol=rtol, atol=atol,
                            p=p, breakpoints=scene.breakpoints, x0=x0,
-                           max_step=scene.max_step, max_wall=max_wall)
+                           max_step=max_step, max_steps=max_steps, max_wall=max_wall)
     except mod.SimulationError as exc:
         # the diagnosis reads the model's equations: compiled now if the module came from
         # the cache (a failed run can afford it)
@@ -174,12 +182,82 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
         raise simulation_failed(c, mod, scene, exc, p) from None
     t2 = time.perf_counter()
     t, x, y = res
+    warning = stepped_over(mod, t, x, p, scene.breakpoints)
+    if warning:
+        say(f"warning: {warning}")
     return SceneResult(scene, mod, t, x, y, res.stats, method, rtol, t1 - t0, t2 - t1,
                        backend, atol, entry,
                        scene_module_name(scene),
                        dict(t_span=scene.t_span, dt=dt, method=method, rtol=rtol, atol=atol,
                             p=p, breakpoints=scene.breakpoints, x0=x0,
-                            max_step=scene.max_step, max_wall=max_wall))
+                            max_step=max_step, max_steps=max_steps, max_wall=max_wall))
+
+
+#: A periodic input bounds a scene's step to its period divided by this (docs/model-format.md).
+STEPS_PER_PERIOD = 50
+
+
+def scene_max_step(scene: Scene, mod) -> float:
+    """The step bound of a run: the scene's solver max_step when it gives one, else 1/50 of
+    the shortest period of the module's periodic inputs (INPUT_PERIODS), else none (inf)."""
+    if scene.max_step != float("inf"):
+        return scene.max_step
+    periods = getattr(mod, "INPUT_PERIODS", None) or {}
+    return min(periods.values()) / STEPS_PER_PERIOD if periods else float("inf")
+
+
+def _fastest(mod) -> str:
+    periods = getattr(mod, "INPUT_PERIODS", None) or {}
+    return min(periods, key=periods.get) if periods else ""
+
+
+def stepped_over(mod, t, x, p=None, breakpoints=()) -> str | None:
+    """A warning when the run's solution misses something faster than its steps, else None.
+
+    The solution's own derivative (central differences on the output grid) is compared with
+    the model's, rhs(t, x(t)), along it: an integrator that stepped over a fast event (a diode's
+    conduction pulse, a contact) interpolates smoothly across it while the model's derivative
+    (and every output computed from it) shows the event. Where the two differ by more than half
+    the derivative's largest value over five samples in a row, away from breakpoints, and the
+    difference adds up to a twentieth of the state's range there, the run says when and for
+    which state."""
+    t = np.asarray(t, dtype=float)
+    if t.size < 5:
+        return None
+    n, nt = np.shape(x)[0], t.size
+    X = np.asarray(x, dtype=float).reshape(n, -1, nt)
+    try:
+        with np.errstate(all="ignore"):
+            f = np.asarray(mod.rhs(t, X, p), dtype=float).reshape(n, -1, nt)
+    except Exception:  # noqa: BLE001 - a warning only: a model that cannot say, says nothing
+        return None
+    d = (X[..., 2:] - X[..., :-2]) / (t[2:] - t[:-2])
+    f = f[..., 1:-1]
+    scale = np.max(np.abs(f), axis=-1, keepdims=True)
+    bad = (np.abs(d - f) > 0.5 * scale) & (scale > 0) & np.isfinite(f)
+    tm = t[1:-1]
+    for b in breakpoints:  # a jump in an input: the difference quotient straddles it
+        bad &= ~(np.abs(tm - b) <= (t[-1] - t[0]) / (nt - 1) * 1.5)
+    # ... over 5 samples in a row, the difference of one sign (not a fast oscillation the
+    # output grid undersamples) and adding up to a twentieth of the state's range
+    w = 5
+    if bad.shape[-1] < w:
+        return None
+    def window(v):  # sums over w samples in a row
+        c = np.cumsum(np.concatenate([np.zeros(v.shape[:-1] + (1,)), v], axis=-1), axis=-1)
+        return c[..., w:] - c[..., :-w]
+    gap = (f - d) * np.gradient(tm)
+    added = np.abs(window(gap))
+    run = (window(bad.astype(float)) == w) & (added > 0.05 * np.ptp(X, axis=-1, keepdims=True)) \
+        & (added > 0.9 * window(np.abs(gap)))  # one sign: not an undersampled oscillation
+    if not run.any():
+        return None
+    i, _, k = (int(v[0]) for v in np.nonzero(run))
+    name = mod.STATE_NAMES[i] if i < len(mod.STATE_NAMES) else str(i)
+    return (f"the solution misses something faster than its steps near t = {tm[k + 1]:.6g} s: "
+            f"d{name}/dt of the model is {f.reshape(n, -1, nt - 2)[i].flat[k + 1]:.4g}, the "
+            f"solution's {d[i].flat[k + 1]:.4g} (outputs there show what the state never saw); "
+            "a smaller solver max_step resolves it")
 
 
 # ---------------------------------------------------------------------------------------------

@@ -383,8 +383,8 @@ class _Ctx:
         return self.fail_messages.index(message) + 1
 
     def newton_message(self, k: int) -> str:
-        # exactly the numpy module's message (templates/numpy/module.py.j2)
-        return self.newton[k].where + " did not converge (Newton, 50 iterations)"
+        # the numpy module's message (templates/numpy/module.py.j2); the step loop adds when
+        return self.newton[k].where + NEWTON_FAILURE
 
     def linsolve_message(self, e) -> str:
         """What a singular numeric solve says: derivative causality's system (named by its
@@ -519,6 +519,12 @@ def _tables(ctx) -> list[dict]:
     return out
 
 
+#: The end of a Newton loop's failure message (the C step loop appends the method and time).
+NEWTON_FAILURE = (" did not converge (damped Newton, 100 iterations). Check the laws' parameters"
+                  " and units for a solution there; a smaller max_step keeps the warm start"
+                  " close; a small compliance (C) or inertance (I) in the loop makes it a state")
+
+
 def _newton_protos(ctx) -> list[str]:
     """The prototypes of the Newton loops' functions (model_newton.c)."""
     out = []
@@ -536,6 +542,7 @@ def _newton_loops(ctx, printer) -> list[dict]:
     for k, nl in enumerate(ctx.newton):
         loops.append({
             "proto": protos[k], "n": len(nl.tear), "where": nl.where,
+            "args": [c_name(str(a)) for a in nl.args],
             "tear": [c_name(str(t)) for t in nl.tear],
             "body": [(c_name(str(sym)), printer.doprint(e)) for sym, e in nl.body],
             "residual": [printer.doprint(e) for e in nl.residual],
