@@ -130,3 +130,87 @@ def test_simulate_a_model_file(tmp_path):
     assert d["position"][-1] == pytest.approx(p["F0"] / p["k"], rel=1e-3)
     bad = _bgc("simulate", model, "--t-end", "-1", cache_dir=tmp_path / "c")
     assert bad.returncode == 2 and "--t-end" in bad.stderr
+
+
+# ---------------------------------------------------------------------------------------------
+# The quick-start's figures (bgc.run.plots), read as matplotlib objects before they are saved
+
+
+def _circle_outputs():
+    t = np.linspace(0.0, 4.0, 400)
+    w = 2 * np.pi / 4
+    desired = np.array([0.5 + 0.01 * np.cos(w * t), 0.01 * np.sin(w * t), 0.3 + 0 * t])
+    projected = desired + 1e-4
+    actual = desired + 2e-4 * np.sin(3 * w * t)
+    c, s = np.cos(w * t), np.sin(w * t)
+    R = np.array([[c, -s, 0 * t], [s, c, 0 * t], [0 * t, 0 * t, 1 + 0 * t]])
+    return t, {"p3_desired": desired, "p3_projected": projected, "p3": actual, "R4": R}
+
+
+def _inside(fig, artist):
+    """The artist's drawn extent lies within the figure (not cut at its edges)."""
+    fig.canvas.draw()
+    box, page = artist.get_window_extent(), fig.bbox
+    return box.x0 >= page.x0 - 1 and box.x1 <= page.x1 + 1 and box.y0 >= page.y0 - 1 \
+        and box.y1 <= page.y1 + 1
+
+
+def test_path3d_figure_axes_legend_and_labels():
+    from bgc.run.plots import figure_path3d
+
+    t, y = _circle_outputs()
+    units = {"p3": "m", "p3_desired": "m", "p3_projected": "m"}
+    fig = figure_path3d(t, y, ["p3_desired", "p3_projected", "p3"], "Circle: path of P3",
+                        ("desired", "projected desired", "actual"), units)
+    ax3, top = fig.axes
+    assert (ax3.get_xlabel(), ax3.get_ylabel(), ax3.get_zlabel()) == ("X0 [m]", "Y0 [m]",
+                                                                      "Z0 [m]")
+    assert (top.get_xlabel(), top.get_ylabel()) == ("X0 [m]", "Y0 [m]")
+    legend = top.get_legend()
+    assert [x.get_text() for x in legend.get_texts()] == ["desired", "projected desired",
+                                                         "actual"]
+    lines = {ln.get_label(): ln for ln in top.get_lines()}
+    # the projected path is drawn over the actual one, which is wider and half transparent
+    assert lines["projected desired"].get_zorder() > lines["actual"].get_zorder()
+    assert lines["actual"].get_alpha() < 1
+    for label in (ax3.zaxis.label, ax3.xaxis.label, top.yaxis.label):
+        assert _inside(fig, label), label.get_text()
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+
+
+def test_loci_figure_units_titles_apart_and_labels_inside():
+    from bgc.run.plots import figure_loci
+
+    t, y = _circle_outputs()
+    fig = figure_loci(t, y, ["R4"], "Circle: loci of the unit vectors of R4 (Fig. 8)",
+                      ("i4", "j4", "k4"), {"R4": "-"})
+    fig.canvas.draw()
+    sup = fig._suptitle.get_window_extent()
+    for ax in fig.axes:
+        assert (ax.get_xlabel(), ax.get_ylabel(), ax.get_zlabel()) == ("X0 [-]", "Y0 [-]",
+                                                                       "Z0 [-]")
+        title = ax.title.get_window_extent()
+        assert title.y1 < sup.y0 or title.x1 < sup.x0 or title.x0 > sup.x1  # apart
+        assert _inside(fig, ax.zaxis.label) and _inside(fig, ax.title)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+
+
+def test_norm_of_a_matrix_is_frobenius_and_names_share_one_namespace():
+    import bgc
+    from bgc.base.errors import ModelError
+
+    text = (ROOT / "models" / "msd.yaml").read_text()
+    pos = '  position: {expr: "q(spring)", unit: m}'
+    assert pos in text
+    eq = bgc.equations(text.replace(pos, pos + '\n  nrm: "norm([[1, 2], [3, q(spring)]])"'))
+    (nrm,) = [o.rhs for o in eq.outputs if str(o.lhs) == "nrm"]
+    q = [s for s in nrm.free_symbols][0]
+    for v in (0.0, 0.5, -2.0):  # the Frobenius norm, by numpy
+        assert float(nrm.subs(q, v)) == pytest.approx(np.linalg.norm([[1, 2], [3, v]], "fro"))
+    with pytest.raises(ModelError, match="already an element at line") as e:
+        bgc.equations(text.replace(pos, pos + '\n  mass: "1"'))
+    assert "one namespace" in str(e.value)
