@@ -214,3 +214,40 @@ def test_norm_of_a_matrix_is_frobenius_and_names_share_one_namespace():
     with pytest.raises(ModelError, match="already an element at line") as e:
         bgc.equations(text.replace(pos, pos + '\n  mass: "1"'))
     assert "one namespace" in str(e.value)
+
+
+CONTACT = """\
+bgc: 1
+name: contact
+description: a mass pushed onto a stiff wall (stiff only once it touches)
+parameters:
+  m: {value: 1.0, unit: kg}
+  F: {value: 1.0, unit: N}
+elements:
+  push: {type: Se, effort: "F"}
+  j: {type: "1"}
+  mass: {type: I, inertia: "m"}
+  wall: {type: C, effort: "where(q > 0.05, 1.0e7 * (q - 0.05), 0)"}
+bonds: [[push, j], [j, mass], [j, wall]]
+outputs:
+  x: {expr: "q(wall)", unit: m}
+"""
+
+
+def test_accuracy_judges_stiffness_along_the_run(tmp_path, monkeypatch):
+    """Free flight until x = 0.05 m (t = 0.32 s), then a 1e7 N/m wall: the Jacobian at t0 has
+    eigenvalues 0 (index 0), on the wall sqrt(1e7) = 3162 1/s (index 3162 over 1 s): stiff."""
+    from bgc.studies.accuracy import STIFF_THRESHOLD, prepare, is_stiff
+
+    monkeypatch.setenv("BGC_CACHE_DIR", str(tmp_path / "cache"))
+    (tmp_path / "contact.yaml").write_text(CONTACT)
+    scene = tmp_path / "s.yaml"
+    scene.write_text("bgc_scene: 1\nmodel: contact.yaml\nduration: 1.0\n"
+                     "solver: {rtol: 1.0e-6, atol: 1.0e-9}\n")
+    setup = prepare(str(scene))
+    x0 = setup.module.initial_state().reshape(-1)
+    J0 = np.asarray(setup.module.jacobian(0.0, x0)).reshape(2, 2)
+    assert np.max(np.abs(np.linalg.eigvals(J0))) == 0.0  # t0 alone says: not stiff
+    stiff, index = is_stiff(setup)
+    assert stiff and index > STIFF_THRESHOLD
+    assert index == pytest.approx(np.sqrt(1e7) * 1.0, rel=1e-6)
