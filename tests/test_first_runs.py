@@ -251,3 +251,60 @@ def test_accuracy_judges_stiffness_along_the_run(tmp_path, monkeypatch):
     stiff, index = is_stiff(setup)
     assert stiff and index > STIFF_THRESHOLD
     assert index == pytest.approx(np.sqrt(1e7) * 1.0, rel=1e-6)
+
+
+# ---------------------------------------------------------------------------------------------
+# Linearisation: an initial guess, unstable modes said, the Bode range
+
+
+def test_linearize_takes_an_initial_guess():
+    """The pendulum has two equilibria: hanging (theta = 0, modes +/- j sqrt(g/l)) and upright
+    (theta = pi, modes +/- sqrt(g/l)); x0 chooses which one Newton finds."""
+    import bgc
+    from bgc.linear import unstable_modes
+
+    path = str(ROOT / "models" / "pendulum.yaml")
+    mod = bgc.compile(path)
+    k = list(mod.STATE_NAMES).index("gravity.q")
+    w = np.sqrt(9.81 / 1.0)
+    for theta, stable in ((0.4, True), (2.8, False)):
+        x0 = np.zeros(len(mod.STATE_NAMES))
+        x0[k] = theta
+        lin = bgc.linearize(mod, x0=x0)
+        assert float(lin.x[k]) == pytest.approx(0.0 if stable else np.pi, abs=1e-9)
+        lam = np.linalg.eigvals(lin.A)
+        if stable:
+            np.testing.assert_allclose(sorted(lam.imag), [-w, w], rtol=1e-9)
+            assert not unstable_modes(lin.A)
+        else:
+            np.testing.assert_allclose(sorted(lam.real), [-w, w], rtol=1e-9)
+            assert [v.real for v in unstable_modes(lin.A)] == pytest.approx([w], rel=1e-9)
+
+
+def test_bode_range_ignores_near_zero_eigenvalues():
+    from bgc.linear import bode_range
+
+    # a free integrator (eigenvalue 0, and one at round-off) beside a 10 rad/s oscillator
+    A = np.array([[0.0, 0, 0, 0], [0, -1e-19, 0, 0], [0, 0, 0, 1], [0, 0, -100.0, -1]])
+    lo, hi = bode_range(A)
+    f = 10.0 / (2 * np.pi)
+    assert lo == pytest.approx(f / 100) and hi == pytest.approx(f * 100)
+
+
+def test_linearize_cli_warns_of_unstable_modes_and_takes_a_freq_range(tmp_path):
+    """msd with a negative stiffness: the equilibrium F0/k is unstable, lambda = -1 + sqrt(101)
+    (lambda^2 + (c/m) lambda + k/m = 0 with m = 2, c = 4, k = -200)."""
+    text = (ROOT / "models" / "msd.yaml").read_text()
+    old = "k:  {value: 200.0, unit: N/m, min: 0,"
+    assert old in text
+    model = tmp_path / "neg.yaml"
+    model.write_text(text.replace(old, "k:  {value: -200.0, unit: N/m,"))
+    r = _bgc("linearize", model, "--out", tmp_path / "lin", "--bode", "F:position",
+             "--freq-range", "0.01", "100", cache_dir=tmp_path / "c")
+    assert r.returncode == 0, r.stderr
+    lam = -1 + np.sqrt(101)
+    assert "warning: 1 unstable mode(s)" in r.stderr and f"{lam:+.3g}" in r.stderr
+    assert (tmp_path / "lin" / "bode_F_position.png").stat().st_size > 1000
+    bad = _bgc("linearize", model, "--out", tmp_path / "lin", "--bode", "F:position",
+               "--freq-range", "100", "1", cache_dir=tmp_path / "c")
+    assert bad.returncode == 2 and "--freq-range" in bad.stderr

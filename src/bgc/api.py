@@ -324,21 +324,23 @@ class Linearization:
     statespace: object = None
 
 
-def linearize(model, at="equilibrium", p=None, u=None) -> Linearization:
+def linearize(model, at="equilibrium", p=None, u=None, x0=None) -> Linearization:
     """Linearise a model (path, text or a :class:`CompiledModel`) at its equilibrium (inputs
-    held at their values at t = 0) or at a time ``at`` reached by a run from x0."""
+    held at their values at t = 0; Newton starts from ``x0``, default the initial state) or
+    at a time ``at`` reached by a run from the initial state (or ``x0``)."""
     from bgc.linear import modes, to_statespace
 
     mod = model if isinstance(model, CompiledModel) else compile(model)
     if at == "equilibrium":
         t = 0.0
-        x, info = mod.equilibrium(u=u, p=p)
+        x, info = mod.equilibrium(u=u, p=p, x0=x0)
         if not info.converged:
             raise ModelError(None, f"no equilibrium found (max |dx/dt| = {info.residual:.3g})")
     else:
         t = float(at)
-        x = mod.initial_state(p) if t == 0 else mod.simulate(
-            (0.0, t), t_eval=[t], p=p, rtol=1e-8, atol=1e-10).x[..., -1]
+        start = mod.initial_state(p) if x0 is None else x0
+        x = start if t == 0 else mod.simulate(
+            (0.0, t), t_eval=[t], p=p, x0=start, rtol=1e-8, atol=1e-10).x[..., -1]
     A, B, C, D = mod.linearize(t, x, u, p)
     try:
         ss = to_statespace(mod, A, B, C, D)

@@ -69,6 +69,29 @@ def to_statespace(module, A, B, C, D):
                       outputs=list(module.OUTPUT_LABELS))
 
 
+#: Eigenvalues below this fraction of the largest |eigenvalue| are taken as zero (rigid-body
+#: modes, integrators, round-off) when the Bode plot chooses its frequencies.
+NEAR_ZERO = 1e-9
+
+
+def bode_range(A) -> tuple[float, float]:
+    """The frequencies (Hz) a Bode plot shows by default: two decades either side of the
+    natural frequencies of A's modes, ignoring eigenvalues that are zero up to round-off (a
+    free integrator or a rigid-body mode would otherwise start the axis at 1e-21 Hz)."""
+    wn = np.abs(np.linalg.eigvals(np.asarray(A, dtype=float))) if np.size(A) else np.zeros(0)
+    wn = wn[np.isfinite(wn)]
+    top = float(wn.max()) if wn.size else 0.0
+    wn = wn[wn > NEAR_ZERO * top] if top > 0 else np.array([2 * np.pi])
+    return float(wn.min() / (2 * np.pi) / 100), float(wn.max() / (2 * np.pi) * 100)
+
+
+def unstable_modes(A, tol: float = 1e-9) -> list[complex]:
+    """The eigenvalues of A with a positive real part (beyond round-off): growing modes."""
+    lam = np.linalg.eigvals(np.asarray(A, dtype=float)) if np.size(A) else np.zeros(0)
+    scale = max(float(np.max(np.abs(lam))) if lam.size else 0.0, 1.0)
+    return [complex(v) for v in lam if v.real > tol * scale and v.imag >= 0]
+
+
 def bode_plot(path, lin, i_in, i_out, in_label, out_label, in_unit="", out_unit="",
               f_range=None) -> None:
     """Magnitude (dB) and phase (degrees) against frequency (Hz, logarithmic) as a PNG."""
@@ -83,9 +106,7 @@ def bode_plot(path, lin, i_in, i_out, in_label, out_label, in_unit="", out_unit=
 
     A = np.asarray(lin[0])
     if f_range is None:
-        wn = np.abs(np.linalg.eigvals(A)) if A.size else np.array([1.0])
-        wn = wn[wn > 0] if np.any(wn > 0) else np.array([1.0])
-        f_range = (wn.min() / (2 * np.pi) / 100, wn.max() / (2 * np.pi) * 100)
+        f_range = bode_range(A)
     f = np.logspace(np.log10(f_range[0]), np.log10(f_range[1]), 400)
     H = frequency_response(*lin, i_in, i_out, 2 * np.pi * f)
     with np.errstate(divide="ignore"):

@@ -442,8 +442,11 @@ def _load_target(path, prog):
 @click.option("--bode", multiple=True, metavar="IN:OUT",
               help="a Bode plot of input IN to output OUT (names as in INPUT_LABELS, "
                    "OUTPUT_LABELS); repeatable; needs --out")
+@click.option("--freq-range", nargs=2, type=POSITIVE, default=None, metavar="FMIN FMAX",
+              help="the Bode plots' frequencies in Hz (default: two decades around the modes' "
+                   "natural frequencies, near-zero eigenvalues ignored)")
 @click.option("-q", "--quiet", is_flag=True)
-def linearize_cmd(target, at, out, bode, quiet):
+def linearize_cmd(target, at, out, bode, freq_range, quiet):
     """Linearise SCENE_OR_MODEL: eigenvalues with natural frequencies and damping ratios and
     the states that dominate each mode; matrices and Bode plots with --out."""
     from bgc.linear import bode_plot, modes
@@ -465,6 +468,7 @@ def linearize_cmd(target, at, out, bode, quiet):
         if not info.converged:
             raise ModelError(None, f"no equilibrium found (max |dx/dt| = {info.residual:.3g} "
                                    "after Newton): linearise at a time instead (--at TIME)")
+        _warn_free(info, prog)
         where = "the equilibrium"
     else:
         try:
@@ -481,7 +485,11 @@ def linearize_cmd(target, at, out, bode, quiet):
         else:
             x = mod.initial_state(p)
         where = f"t = {t:g} s"
+    if freq_range is not None and not freq_range[0] < freq_range[1]:
+        raise ModelError(None, f"--freq-range {freq_range[0]:g} {freq_range[1]:g}: FMIN must "
+                               "be below FMAX")
     lin = mod.linearize(t, x, None, p)
+    _warn_unstable(lin[0], where, prog)
     ms = modes(lin[0], mod.STATE_NAMES)
     buf = io.StringIO()
     buf.write(f"linearised at {where}: {mod.N_STATES} states, {len(mod.INPUT_LABELS)} inputs, "
@@ -517,9 +525,35 @@ def linearize_cmd(target, at, out, bode, quiet):
             tmp = png.with_name(f".{png.stem}.tmp.png")
             bode_plot(tmp, lin, mod.INPUT_LABELS.index(i_name), mod.OUTPUT_LABELS.index(o_name),
                       i_name, o_name, iu.get(i_name.split("[")[0], ""),
-                      ou.get(o_name.split("[")[0], ""))
+                      ou.get(o_name.split("[")[0], ""), f_range=freq_range)
             tmp.replace(png)
             prog(f"wrote {png}")
+
+
+def _warn_free(info, say) -> None:
+    """A warning when the equilibrium is not isolated: directions along which no stiffness
+    holds the state (they keep the initial state's values, which the model's geometry may not
+    agree with: a closing spring's deflection and the angles it ties together)."""
+    free = [d for d in (info.free or []) if d]
+    if free:
+        names = ", ".join(sorted({nm for d in free for nm in d})[:6])
+        say(f"warning: the equilibrium is not isolated: {len(free)} free direction(s) ("
+            f"{names}) keep their initial values; check they agree with the model's geometry, "
+            "or start from a consistent state (bgc.linearize(..., x0=...))")
+
+
+def _warn_unstable(A, where, say) -> None:
+    """A warning line when the linearisation has growing modes (an equilibrium that is not
+    stable, or not an equilibrium the model can hold)."""
+    from bgc.linear import unstable_modes
+
+    grow = unstable_modes(A)
+    if grow:
+        lam = ", ".join(f"{v.real:+.3g}" + (f"+/-{v.imag:.3g}j" if v.imag > 0 else "")
+                        for v in grow[:4])
+        say(f"warning: {len(grow)} unstable mode(s) at {where} (eigenvalue {lam} 1/s): the "
+            "state grows away from it; check that it is the equilibrium you meant (an initial "
+            "guess: bgc.linearize(..., x0=...))")
 
 
 @main.command("equations")
