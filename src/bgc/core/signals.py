@@ -13,7 +13,7 @@ import math
 
 import sympy as sp
 
-from bgc.core.equations import T
+from bgc.core.eqtypes import T
 
 def _values(eq) -> dict:
     """The parameters' values (symbol -> sympy number), derived parameters included."""
