@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 
-def _mpl():
+def pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
@@ -45,22 +45,22 @@ def _components(name, arr):
     return out
 
 
-def _plain(text) -> str:
+def plain_text(text) -> str:
     """Text from a model or scene shown as it is written: matplotlib would read ``$...$`` as
     mathtext (and fail on a malformed formula), so every dollar sign is escaped."""
     return str(text).replace("$", r"\$")
 
 
 def _label(labels, k, default):
-    return _plain(labels[k] if k < len(labels) else default)
+    return plain_text(labels[k] if k < len(labels) else default)
 
 
 def _with_unit(label, unit):
-    return f"{_plain(label)} [{_plain(unit)}]" if unit else _plain(label)
+    return f"{plain_text(label)} [{plain_text(unit)}]" if unit else plain_text(label)
 
 
 def plot_time(t, y, names, path, title="", labels=(), units=None):
-    plt = _mpl()
+    plt = pyplot()
     fig, axes = plt.subplots(len(names), 1, sharex=True, squeeze=False,
                              figsize=(7.5, 1.2 + 1.75 * len(names)))
     for k, (name, ax) in enumerate(zip(names, axes[:, 0])):
@@ -71,7 +71,7 @@ def plot_time(t, y, names, path, title="", labels=(), units=None):
         if len(comps) > 1:
             ax.legend(loc="best", fontsize=7, ncol=min(len(comps), 3))
     axes[-1, 0].set_xlabel("t [s]")
-    fig.suptitle(_plain(title or ", ".join(names)))
+    fig.suptitle(plain_text(title or ", ".join(names)))
     fig.tight_layout()
     fig.savefig(path, format="png")
     plt.close(fig)
@@ -99,7 +99,7 @@ def figure_path3d(t, y, names, title="", labels=(), units=None):
     """The path3d figure (not yet saved): a 3-D view and the view from above. Earlier paths
     are drawn over later ones (the last, usually the actual path, is the widest and lies
     underneath, half transparent), so a path that follows another closely stays visible."""
-    plt = _mpl()
+    plt = pyplot()
     fig = plt.figure(figsize=(11.5, 5.4))
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     top = fig.add_subplot(1, 2, 2)
@@ -123,7 +123,7 @@ def figure_path3d(t, y, names, title="", labels=(), units=None):
     top.set_ylabel(_with_unit("Y0", u))
     top.set_title("seen from above (dots: start)")
     top.legend(loc="best", fontsize=8)  # on the flat view: no 3-D line hides an entry
-    fig.suptitle(_plain(title or "path"))
+    fig.suptitle(plain_text(title or "path"))
     fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.94))
     return fig
 
@@ -138,7 +138,7 @@ def _axes_3d(ax, unit):
 
 
 def plot_path3d(t, y, names, path, title="", labels=(), units=None):
-    plt = _mpl()
+    plt = pyplot()
     fig = figure_path3d(t, y, names, title, labels, units)
     fig.savefig(path, format="png")
     plt.close(fig)
@@ -147,7 +147,7 @@ def plot_path3d(t, y, names, path, title="", labels=(), units=None):
 def figure_loci(t, y, names, title="", labels=(), units=None):
     """The loci figure (not yet saved): the tips of the three columns of a rotation matrix
     (unit vectors: dimensionless, "[-]" unless the output has a unit)."""
-    plt = _mpl()
+    plt = pyplot()
     (name,) = names[:1]
     R = np.asarray(y[name])
     fig = plt.figure(figsize=(13, 5.0))
@@ -161,16 +161,16 @@ def figure_loci(t, y, names, title="", labels=(), units=None):
         ax.scatter([v[0, -1]], [v[1, -1]], [v[2, -1]], color="red", s=14, label="end")
         _equal_3d(ax, v)
         _axes_3d(ax, unit)
-        ax.set_title(_plain(f"unit vector {cols[c]}\n(column {c + 1} of {name})"), fontsize=9)
+        ax.set_title(plain_text(f"unit vector {cols[c]}\n(column {c + 1} of {name})"), fontsize=9)
         ax.legend(fontsize=7, loc="upper left")
-    fig.suptitle(_plain(title or f"loci of the unit vectors of {name}"))
+    fig.suptitle(plain_text(title or f"loci of the unit vectors of {name}"))
     fig.subplots_adjust(left=0.02, right=0.96, bottom=0.04, top=0.80, wspace=0.15)
     return fig
 
 
 def plot_loci(t, y, names, path, title="", labels=(), units=None):
     """Loci of the columns of a rotation matrix output (unit vectors)."""
-    plt = _mpl()
+    plt = pyplot()
     fig = figure_loci(t, y, names, title, labels, units)
     fig.savefig(path, format="png")
     plt.close(fig)
