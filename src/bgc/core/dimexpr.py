@@ -96,7 +96,7 @@ class DimEval:
         ``T - 293.15``, ``[l / 2, 0, 1]``), and when all are numbers the result is
         dimensionless."""
         out = ANY
-        dims = [n for n in args if not is_number(n)]
+        dims = [n for n in args if not _numbers_only(n)]
         for a in dims:
             out = self.same(a, out, self.visit(a), how)
         if len(dims) < len(args) and out is ANY and any(_constant(n) != 0 for n in args):
@@ -204,3 +204,11 @@ def _constant(node) -> Fraction | None:
         return a * b if isinstance(node.op, ast.Mult) else a + b if isinstance(
             node.op, ast.Add) else a - b
     return None
+
+
+def _numbers_only(node) -> bool:
+    """A number, or a (nested) list of numbers only: it takes its neighbours' dimension
+    (``[[1, 2], [3, q]]``)."""
+    if isinstance(node, (ast.List, ast.Tuple)):
+        return all(_numbers_only(e) for e in node.elts)
+    return is_number(node)
