@@ -197,7 +197,7 @@ def build_library(srcdir: Path, files: list[str], cache=None, jobs: int | None =
     """Compile the model's C files in srcdir (in parallel), link them with the runtime's
     objects into srcdir/LIB_NAME. Raises CompilerMissing without a compiler."""
     identity()
-    srcdir = Path(srcdir)
+    srcdir = Path(srcdir).resolve()  # the compiler runs in srcdir: a relative path would not
     jobs = jobs or os.cpu_count() or 1
     fl = list(flags())
     inc = str(runtime_sources()[0].parent) if runtime_sources() else str(srcdir)
