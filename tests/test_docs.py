@@ -4,7 +4,12 @@ and docs/architecture.md names every module of src/bgc and nothing that does not
 from __future__ import annotations
 
 import ast
+import importlib.util
+import os
 import re
+import shlex
+import shutil
+import subprocess
 import sys
 from pathlib import Path
 
@@ -199,6 +204,68 @@ def test_source_paths_in_the_docs_exist():
             if "*" not in p and "<" not in p and not (ROOT / p).exists():
                 bad.append(f"{md.relative_to(ROOT)}: {p}")
     assert not bad, "paths that do not exist:\n" + "\n".join(bad)
+
+
+def readme_commands() -> list[str]:
+    """Every `bgc ...` command line of the README's shell blocks (the set-up line's last
+    command included, run as `bgc`)."""
+    text = README.read_text(encoding="utf-8")
+    out = []
+    for block in re.findall(r"```sh\n(.*?)```", text, flags=re.DOTALL):
+        for line in block.strip().splitlines():
+            line = line.split("&&")[-1].strip().removeprefix(".venv/bin/")
+            if line.startswith("bgc "):
+                out.append(line)
+    return out
+
+
+SLOW = ("bgc accuracy", "bgc sweep", "3r2s")  # a minute each on a loaded machine
+
+
+def _needs(line: str):
+    """Why a README command cannot run here (a C compiler, FMPy, Dask), or None."""
+    cc = shlex.split(os.environ.get("CC", "cc"))[:1]
+    if ("--target c" in line or "export" in line) and not (cc and shutil.which(cc[0])):
+        return "no C compiler"
+    if "export" in line and importlib.util.find_spec("fmpy") is None:
+        return "FMPy is not installed"
+    if "sweep" in line and importlib.util.find_spec("dask") is None:
+        return "Dask is not installed"
+    return None
+
+
+@pytest.mark.parametrize("line", [pytest.param(c, marks=[pytest.mark.slow] if any(
+    s in c for s in SLOW) else []) for c in readme_commands()])
+def test_readme_command_runs(line, tmp_path):
+    """Each command line of the README, as written, from a fresh folder that holds the
+    repository's models (a fresh clone's root): exit status 0, no traceback."""
+    why = _needs(line)
+    if why:
+        pytest.skip(why)
+    (tmp_path / "models").symlink_to(ROOT / "models")
+    env = dict(os.environ, PYTHONPATH=str(SRC) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    r = subprocess.run([sys.executable, "-m", "bgc", *shlex.split(line)[1:]], cwd=tmp_path,
+                       env=env, capture_output=True, text=True, timeout=600,
+                       stdin=subprocess.DEVNULL, check=False)
+    assert r.returncode == 0, f"{line}: exit {r.returncode}\n{r.stderr[-2000:]}"
+    assert "Traceback" not in r.stderr
+
+
+def test_readme_lists_every_command():
+    """The tour shows each command of `bgc --help` with an example."""
+    lines = readme_commands()
+    for cmd in ("compile", "check", "graph", "simulate", "explain", "equations", "linearize",
+                "accuracy", "sweep", "export", "examples", "cache"):
+        assert any(c.split()[1] == cmd for c in lines), f"no example of bgc {cmd}"
+
+
+def test_readme_python_example_runs():
+    block = re.findall(r"```python\n(.*?)```", README.read_text(encoding="utf-8"), re.DOTALL)[0]
+    env = dict(os.environ, PYTHONPATH=str(SRC) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    r = subprocess.run([sys.executable, "-c", block], cwd=ROOT, env=env, capture_output=True,
+                       text=True, timeout=600, check=False)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split("\n")[:2] == ["0.05", "('mass.p', 'spring.q')"]
 
 
 if __name__ == "__main__":  # a quick look: python tests/test_docs.py
