@@ -221,7 +221,7 @@ def build_library(srcdir: Path, files: list[str], cache=None, jobs: int | None =
     objects (the compile cache's, when given) into srcdir/lib_name. Raises CompilerMissing
     without a compiler, CompilerFailed (at ``coord``) when it refuses the sources."""
     identity()
-    srcdir = Path(srcdir)
+    srcdir = Path(srcdir).resolve()  # the compiler runs in srcdir: a relative path would not
     jobs = jobs or os.cpu_count() or 1
     fl = list(flags())
     inc = str(runtime_sources()[0].parent) if runtime_sources() else str(srcdir)
