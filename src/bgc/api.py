@@ -36,6 +36,15 @@ def _model(src):
     return parse_file(src)
 
 
+def _check_types(src, scene=None) -> None:
+    """The documented TypeError for a model that is neither a path nor YAML text (bytes, a
+    dict, ...), and for a scene that is not a path."""
+    if not isinstance(src, (str, Path)):
+        raise TypeError(f"a model is a path or YAML text, not {type(src).__name__}")
+    if scene is not None and not isinstance(scene, (str, Path)):
+        raise TypeError(f"a scene is a path, not {type(scene).__name__}")
+
+
 def _through_cache(path, scene, target, name, build):
     """(compiled or None, module) through the compile cache (bgc.run.cache and bgc.backends.load,
     when this bgc has them: ``backends.load`` reads a hit without compiling), else
@@ -61,6 +70,7 @@ def compile(path_or_text, scene=None, target: str = "numpy") -> "CompiledModel":
     the loaded module wrapped in a :class:`CompiledModel` (attributes go to the module)."""
     from bgc.run.driver import compile_model
 
+    _check_types(path_or_text, scene)
     try:
         from bgc.backends.load import BACKENDS as targets
     except ImportError:

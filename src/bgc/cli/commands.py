@@ -170,8 +170,11 @@ def compile_cmd(model, output, scene, target, no_cache, quiet, strict_causality)
 
         if output is None:
             raise ModelError(None, "--target c writes a folder: give it with -o OUTDIR")
+        from bgc.base.reach import run_inputs
+
         cbuild.identity()  # a clear message without a compiler
-        path = backends.write_c(c, output, None if no_cache else cache_mod.Cache(), prog)
+        path = backends.write_c(c, output, None if no_cache else cache_mod.Cache(), prog,
+                                run_inputs(model, scene))
         prog(f"wrote {output}/ (C sources, {path.name}, {cbuild.LIB_NAME}): "
              f"{len(c.equations.states)} states, {len(c.equations.jacobian)} Jacobian entries")
         return
@@ -313,7 +316,9 @@ def simulate_cmd(scene, out, plot_dir, method, rtol, atol, max_wall, backend, no
     if out:  # refused before the run, not after it (the imports are known after it)
         check_output(out, _model_inputs(scene, sc.model_path, follow=False), "--out")
     if plot_dir is not None:
-        check_folder(plot_dir, "--plot")
+        from bgc.base.outdirs import out_folder
+
+        check_folder(out_folder(plot_dir, "--plot", create=False), "--plot")
     res = run_scene(sc, progress=prog, method=method, rtol=rtol, max_wall=max_wall,
                     atol=atol, backend=backend, use_cache=not no_cache,
                     strict_causality=strict_causality)
@@ -393,10 +398,10 @@ def _load_target(path, prog):
     from bgc.format.scene import parse_scene
     from bgc.run.driver import compile_model
 
-    try:
-        head = Path(path).read_text(encoding="utf-8")[:4096]
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ModelError(None, f"cannot read {path}: {exc}") from None
+    from bgc.base.limits import LIMITS
+    from bgc.base.safeio import read_text_bounded  # regular files only, never blocking
+
+    head = read_text_bounded(path, None, "model or scene file", LIMITS.model_bytes)[:4096]
     if "bgc_scene" in head:
         from bgc.run.runner import compile_scene, runtime_params
 
@@ -422,7 +427,7 @@ def _load_target(path, prog):
 def linearize_cmd(target, at, out, bode, quiet):
     """Linearise SCENE_OR_MODEL: eigenvalues with natural frequencies and damping ratios and
     the states that dominate each mode; matrices and Bode plots with --out."""
-    from bgc.linear import bode_plot, modes
+    from bgc.linear import modes
 
     prog = _Progress(quiet)
     mod, p, t0, sc = _load_target(target, prog)
@@ -434,6 +439,13 @@ def linearize_cmd(target, at, out, bode, quiet):
                                    f"{', '.join(mod.INPUT_LABELS) or '(no inputs)'} and OUT "
                                    f"one of {', '.join(mod.OUTPUT_LABELS)}")
         pairs.append((i_name, o_name))
+    if pairs and not out:
+        raise ModelError(None, "--bode needs --out DIR for its plots")
+    plan = None
+    if out:  # refused before anything is computed
+        from bgc.cli.outputs import check_linear
+
+        plan = check_linear(out, mod, pairs, target, sc)
     if at == "equilibrium":
         t = t0
         prog("finding the equilibrium")
@@ -471,31 +483,10 @@ def linearize_cmd(target, at, out, bode, quiet):
         zeta = "-" if md.wn == 0 else f"{md.zeta:.3f}"  # a zero eigenvalue has none
         buf.write(f"{ev:>30}  {md.wn:11.4g}  {md.hz:10.4g}  {zeta:>8}  {dom}\n")
     click.echo(buf.getvalue(), nl=False)
-    if pairs and not out:
-        raise ModelError(None, "--bode needs --out DIR for its plots")
-    if out:
-        d = Path(out)
-        d.mkdir(parents=True, exist_ok=True)
-        name = getattr(mod, "__name__", "model").removeprefix("bgc_generated_")
-        npz = d / f"{name}_linear.npz"
-        data = io.BytesIO()
-        np.savez(data, A=lin[0], B=lin[1], C=lin[2], D=lin[3], t=t, x=x,
-                 states=np.array(mod.STATE_NAMES), inputs=np.array(mod.INPUT_LABELS, dtype=str),
-                 outputs=np.array(mod.OUTPUT_LABELS),
-                 eigenvalues=np.linalg.eigvals(lin[0]))
-        tmp = npz.with_name(f".{npz.name}.tmp")
-        tmp.write_bytes(data.getvalue())
-        tmp.replace(npz)
-        prog(f"wrote {npz}")
-        iu, ou = dict(getattr(mod, "INPUT_UNITS", {})), dict(getattr(mod, "OUTPUT_UNITS", {}))
-        for i_name, o_name in pairs:
-            png = d / f"bode_{i_name}_{o_name}.png".replace("[", "_").replace("]", "")
-            tmp = png.with_name(f".{png.stem}.tmp.png")
-            bode_plot(tmp, lin, mod.INPUT_LABELS.index(i_name), mod.OUTPUT_LABELS.index(o_name),
-                      i_name, o_name, iu.get(i_name.split("[")[0], ""),
-                      ou.get(o_name.split("[")[0], ""))
-            tmp.replace(png)
-            prog(f"wrote {png}")
+    if plan is not None:
+        from bgc.cli.outputs import write_linear
+
+        write_linear(plan, mod, lin, t, x, prog)
 
 
 @main.command("equations")
@@ -526,17 +517,19 @@ def equations_cmd(model, latex, explicit):
 def examples_cmd(directory):
     """Copy the example models and scenes (and the format reference) into DIRECTORY; nothing
     that already exists there is overwritten (then nothing is copied)."""
-    import shutil
+    from bgc.base.outdirs import check_in, copy_file, out_folder
 
     files = _example_files()
-    dest = Path(directory)
-    clash = [rel for rel in files if (dest / rel).exists()]
+    dest = out_folder(directory, "examples", create=False)
+    for rel in files:  # a link on the way or at a file's place: refused before any copy
+        check_in(dest, rel, None, "examples")
+    clash = [rel for rel in files if os.path.lexists(dest / rel)]
     if clash:
         raise ModelError(None, f"{dest}: {len(clash)} file(s) exist already (e.g. {clash[0]}); "
                                "nothing copied: choose an empty or new directory")
+    dest = out_folder(directory, "examples")
     for rel, src in files.items():
-        (dest / rel).parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(src, dest / rel)
+        copy_file(src, dest, rel, None, "examples")
     click.echo(f"copied {len(files)} files to {dest} (try: bgc simulate "
                f"{dest / 'models' / 'scenes' / 'msd_step.yaml'} --plot figs/)")
 

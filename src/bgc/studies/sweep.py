@@ -42,6 +42,7 @@ import dataclasses
 import hashlib
 import json
 import math
+import os
 import sys
 import time
 import uuid
@@ -352,6 +353,7 @@ class Prepared:
     c_files: dict = field(default_factory=dict)  # C file name -> text
     c_wrapper: str = ""  # the C wrapper module's text
     c_key: str = ""  # their compile-cache key on the client's machine (backends.c_key)
+    inputs: object = None  # the run's inputs (bgc.base.outfiles.Inputs): no output replaces one
 
     @property
     def n(self) -> int:
@@ -486,6 +488,9 @@ def prepare(scene_path, progress=None, backend: str | None = None) -> Prepared:
                     {e.label: e.name for e in spec.entries if e.kind == "param"}, states,
                     samples(spec), outs, {o: tuple(mod.OUTPUT_SHAPES[o]) for o in outs},
                     dict(mod.PARAM_UNITS), spec, c_files=files, c_wrapper=wrapper, c_key=ckey)
+    from bgc.base.reach import run_inputs
+
+    prep.inputs = run_inputs(scene.model_path, scene_path)
     if backend == "c":
         load(prep, progress)  # built once here: the workers on this machine find it cached
     return prep
@@ -688,14 +693,18 @@ class SweepMismatch(ModelError):
 
 
 def open_or_create(prep: Prepared, out, chunk: int, restart: bool = False) -> list[bool]:
-    """The store at out, created if missing; its completion record (one flag per chunk)."""
-    import shutil
+    """The store at out, created if missing; its completion record (one flag per chunk).
 
+    The store is a folder bgc marks as its own (bgc.base.outdirs.MARKER); ``restart`` empties
+    only such a folder, and in it only the store's own entries (the Zarr metadata files and
+    array folders): never a folder bgc did not make, nor anything else in it."""
     import xarray as xr
 
+    from bgc.base.outdirs import mark_folder, remove_marked
+
     digest = prep.digest(chunk)
-    out = Path(out)
-    if out.exists() and not restart:
+    out = check_store(out)
+    if out.exists() and not restart and _zarr_entries(out):
         try:
             old = xr.open_zarr(out, consolidated=None)
             h = old.attrs.get("bgc_sweep_hash")
@@ -709,10 +718,42 @@ def open_or_create(prep: Prepared, out, chunk: int, restart: bool = False) -> li
                                       "to discard them, or write to a new --out")
         return done
     if out.exists():
-        shutil.rmtree(out)
-    _skeleton(prep, chunk, digest).to_zarr(out, compute=False, mode="w", zarr_format=2,
+        remove_marked(out, STORE_KIND, _zarr_own, prep.inputs, "--out")
+    mark_folder(out, STORE_KIND, prep.inputs, "--out")
+    _skeleton(prep, chunk, digest).to_zarr(out, compute=False, mode="a", zarr_format=2,
                                            consolidated=True)
     return [False] * len(_chunks(prep.n, chunk))
+
+
+def check_store(out) -> Path:
+    """``--out`` as a store: missing, an empty folder or a store bgc made (marked), else an
+    error (before anything runs)."""
+    from bgc.base.outdirs import marked_as, out_folder
+
+    out = out_folder(out, "--out", create=False)
+    if out.exists() and marked_as(out) != STORE_KIND and os.listdir(out):
+        raise ModelError(None, f"--out {str(out)!r} exists and is not a sweep store bgc made "
+                               "(it has no marker file): name a new or empty folder; bgc "
+                               "never empties a folder it did not make")
+    return out
+
+
+#: The marker's word for a sweep store (bgc.base.outdirs.mark_folder).
+STORE_KIND = "bgc sweep store"
+_ZARR_FILES = (".zattrs", ".zgroup", ".zmetadata", "zarr.json")
+
+
+def _zarr_own(name: str, path: Path) -> bool:
+    """Whether an entry of a store folder is the store's own: a Zarr metadata file, or a
+    folder (not a link) holding a Zarr array's metadata."""
+    if name in _ZARR_FILES:
+        return True
+    return path.is_dir() and not path.is_symlink() and any(
+        (path / f).is_file() for f in (".zarray", ".zattrs", "zarr.json"))
+
+
+def _zarr_entries(out: Path) -> bool:
+    return any((out / f).exists() for f in _ZARR_FILES)
 
 
 def _write_chunk(out, res: dict, k: int, prep: Prepared):
@@ -871,9 +912,12 @@ def plot_sweep(prep: Prepared, ds, out_dir) -> list:
     fan of its trajectories (stat: fan). Failed instances are left out."""
     from bgc.run.plots import _mpl, _plain
 
+    import io
+
+    from bgc.base.outdirs import out_folder, write_in
+
     plt = _mpl()
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = out_folder(out_dir, "--plot")
     spec = prep.spec
     outs = spec.plot_outputs or prep.outputs[:3]
     ok = ds["status"].values == 0
@@ -925,8 +969,9 @@ def plot_sweep(prep: Prepared, ds, out_dir) -> list:
             fig.suptitle(_plain(f"{prep.scene_name}: {spec.plot_stat} {o} against the swept "
                                 "values" + (" (red: failed instances)" if (~ok).any() else "")))
         fig.tight_layout()
-        path = out_dir / f"{prep.scene_name}_sweep_{o}.png"
-        fig.savefig(path)
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png")
         plt.close(fig)
-        files.append(path)
+        files.append(write_in(out_dir, f"{prep.scene_name}_sweep_{o}.png", buf.getvalue(),
+                              prep.inputs, "--plot"))
     return files

@@ -193,11 +193,13 @@ def _runtime_objects(cache, jobs: int, tmpdir) -> list[Path]:
     return sorted(d.glob("*.o"))
 
 
-def build_library(srcdir: Path, files: list[str], cache=None, jobs: int | None = None) -> Path:
+def build_library(srcdir: Path, files: list[str], cache=None, jobs: int | None = None,
+                  inputs=None) -> Path:
     """Compile the model's C files in srcdir (in parallel), link them with the runtime's
-    objects into srcdir/LIB_NAME. Raises CompilerMissing without a compiler."""
+    objects into srcdir/LIB_NAME (through the checked writer: never over ``inputs``, a link
+    or anything but a regular file). Raises CompilerMissing without a compiler."""
     identity()
-    srcdir = Path(srcdir)
+    srcdir = Path(srcdir).absolute()  # the compiler runs in srcdir: a relative path breaks
     jobs = jobs or os.cpu_count() or 1
     fl = list(flags())
     inc = str(runtime_sources()[0].parent) if runtime_sources() else str(srcdir)
@@ -216,10 +218,13 @@ def build_library(srcdir: Path, files: list[str], cache=None, jobs: int | None =
                                      str(objdir / (Path(f).stem + ".o"))], srcdir),
                            objdir / (Path(f).stem + ".o"))[1], files))
             rt_objs = rt.result()
-        tmp = srcdir / f".{LIB_NAME}.tmp{os.getpid()}"
-        _cc(fl + ["-shared", "-o", str(tmp)] + [str(o) for o in objs + rt_objs] + ["-lm"],
+        lib = objdir / LIB_NAME  # linked in bgc's own temporary folder, then written checked
+        _cc(fl + ["-shared", "-o", str(lib)] + [str(o) for o in objs + rt_objs] + ["-lm"],
             srcdir)
-        os.replace(tmp, srcdir / LIB_NAME)
+        from bgc.base.outfiles import write_output
+        from bgc.base.safeio import read_bytes
+
+        write_output(srcdir / LIB_NAME, read_bytes(lib, 1 << 30), inputs, "-o")
     finally:
         shutil.rmtree(objdir, ignore_errors=True)
     return srcdir / LIB_NAME
