@@ -410,8 +410,9 @@ def _output_times(t0, t1, t_eval, dt):
         return None
     size = t_eval.size if hasattr(t_eval, "size") else len(t_eval) if hasattr(
         t_eval, "__len__") else 1
-    if size > MAX_OUTPUT_SAMPLES:
-        raise ValueError(f"t_eval has {size} times, more than the limit of {MAX_OUTPUT_SAMPLES}")
+    if size > MAX_OUTPUT_SAMPLES + 1:  # (the samples of a dt and the span's start)
+        raise ValueError(f"t_eval has {size} times, more than the limit of "
+                         f"{MAX_OUTPUT_SAMPLES + 1}")
     # sorted, duplicates dropped (np.unique would import numpy.ma: 20 ms of a warm run)
     t = np.sort(np.asarray(t_eval, dtype=float).ravel())
     t = t[np.concatenate(([True], t[1:] != t[:-1]))] if t.size else t

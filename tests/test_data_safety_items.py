@@ -357,7 +357,7 @@ def msd():
     (dict(dt=0.0), "dt must be a positive"),
     (dict(dt=float("nan")), "dt must be a positive"),
     (dict(dt=1e-12, t_span=(0.0, 1000.0)), "limit of 1000000"),
-    (dict(t_eval=range(10 ** 9)), "limit of 1000000"),
+    (dict(t_eval=range(10 ** 9)), "limit of 1000001"),
     (dict(p={"m": np.broadcast_to(2.0, (10 ** 9,))}), "limit of 1000000"),
     (dict(t_span=(0.0, float("inf")), dt=0.1), "not finite"),
 ])
@@ -387,3 +387,89 @@ def test_missing_column_message_never_echoes_the_file(tmp_path, monkeypatch):
     r = cli("simulate", proj / "scene.yaml", "-q", "--no-cache")
     assert r.exit_code == 2 and "no column 'time'" in r.output, r.output
     assert "secret" not in r.output and "root:x" not in r.output
+
+
+# -- the property: a warm run equals the --no-cache run, whatever changed ------------------------
+
+def _reached_tree(root: Path) -> Path:
+    """S/scene.yaml reaches its model, import and table through the link S/lib -> ../A."""
+    _linked_pair(root, 7.0)
+    (root / "S").mkdir()
+    (root / "S" / "lib").symlink_to("../A")
+    scene = root / "S" / "scene.yaml"
+    scene.write_text(SCENE.replace("model: model.yaml", "model: lib/model.yaml")
+                     .replace("table: force.csv", "table: lib/force.csv"))
+    return scene
+
+
+def _change(root: Path, op: str, value: float) -> None:
+    lib = root / "S" / "lib"
+    here = lib.resolve()
+    if op == "repoint":
+        lib.unlink()
+        lib.symlink_to("../B" if here.name == "A" else "../A")
+    elif op == "swap folders":
+        (root / "A").rename(root / "T")
+        (root / "B").rename(root / "A")
+        (root / "T").rename(root / "B")
+    elif op == "edit model":
+        (here / "model.yaml").write_text(MODEL.replace("m: 2.0", f"m: {value}"))
+    elif op == "edit import":
+        (here / "parts.yaml").write_text(PARTS.replace("k: 1.0", f"k: {value}"))
+    elif op == "edit table":
+        (here / "force.csv").write_text(f"time,F\n0,0\n0.5,{value}\n1,1\n")
+    elif op == "link the table":
+        other = root / ("B" if here.name == "A" else "A") / "force.csv"
+        (here / "force.csv").unlink()
+        (here / "force.csv").symlink_to(other)
+
+
+@pytest.mark.slow
+def test_warm_run_equals_the_no_cache_run_after_any_change():
+    import shutil
+    import tempfile
+
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+
+    ops = st.lists(st.tuples(st.sampled_from(["repoint", "swap folders", "edit model",
+                                              "edit import", "edit table", "link the table"]),
+                             st.floats(0.5, 9.0).map(lambda v: round(v, 3))),
+                   min_size=1, max_size=3)
+
+    @settings(max_examples=6, deadline=None, derandomize=True,
+              suppress_health_check=list(HealthCheck))
+    @given(ops)
+    def check(changes):
+        root = Path(tempfile.mkdtemp(prefix="bgc-prop-"))
+        try:
+            scene, cache = _reached_tree(root), root / "cache"
+            assert bgc("simulate", scene, "-q", cache=cache).returncode == 0
+            for op, value in changes:
+                _change(root, op, value)
+            warm = bgc("simulate", scene, "--out", root / "w.npz", cache=cache)
+            cold = bgc("simulate", scene, "--out", root / "c.npz", "--no-cache", cache=cache)
+            assert warm.returncode == cold.returncode, (warm.stderr, cold.stderr)
+            if cold.returncode == 0:
+                w, c = np.load(root / "w.npz"), np.load(root / "c.npz")
+                for k in c.files:
+                    np.testing.assert_array_equal(w[k], c[k])
+        finally:
+            shutil.rmtree(root, ignore_errors=True)
+
+    check()
+
+
+@pytest.mark.parametrize("target", ["numpy", "c"])
+def test_api_result_size_is_bounded(tmp_path, monkeypatch, target):
+    """A batch and a grid each within their limits whose product is not: a ValueError that
+    says the limit, before anything is allocated (the C wrapper's own step loop too)."""
+    if target == "c":
+        _c()
+    monkeypatch.setenv("BGC_CACHE_DIR", str(tmp_path / "cache"))
+    import bgc
+
+    m = bgc.compile(ROOT / "models" / "msd.yaml", target=target)
+    with pytest.raises(ValueError, match="more than the limit of 500000000"):
+        m.simulate((0.0, 1.0), dt=1e-5, p={"m": np.ones(10_000)})
+    assert m.simulate((0.0, 1.0), dt=0.1, p={"m": np.ones(3)}).x.shape == (2, 3, 11)

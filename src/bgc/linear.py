@@ -71,7 +71,8 @@ def to_statespace(module, A, B, C, D):
 
 def bode_plot(path, lin, i_in, i_out, in_label, out_label, in_unit="", out_unit="",
               f_range=None) -> None:
-    """Magnitude (dB) and phase (degrees) against frequency (Hz, logarithmic) as a PNG."""
+    """Magnitude (dB) and phase (degrees) against frequency (Hz, logarithmic) as a PNG, to
+    ``path`` (written by bgc's checked writer) or a binary file object."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -102,5 +103,14 @@ def bode_plot(path, lin, i_in, i_out, in_label, out_label, in_unit="", out_unit=
     a2.grid(True, which="both", alpha=0.3)
     a1.set_title(_plain(f"Bode: {in_label} -> {out_label}"))
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    if hasattr(path, "write"):  # a file object the caller opened
+        fig.savefig(path, dpi=100, format="png")
+    else:  # a path: through the checked writer (never a link, a device or a folder; atomic)
+        import io
+
+        from bgc.base.outfiles import write_output
+
+        buf = io.BytesIO()
+        fig.savefig(buf, dpi=100, format="png")
+        write_output(path, buf.getvalue(), None, "bode plot")
     plt.close(fig)
