@@ -19,8 +19,8 @@ from pathlib import Path
 
 from bgc.base.outfiles import Inputs, OutputError, _kind, _reason, write_output
 
-__all__ = ["MARKER", "out_folder", "sub_folder", "check_in", "write_in", "copy_file", "mark_folder",
-           "marked_as", "remove_marked", "inside"]
+__all__ = ["MARKER", "check_in", "copy_file", "inside", "mark_folder", "marked_as", "out_folder",
+           "remove_marked", "sub_folder", "write_in"]
 
 #: The marker of a folder bgc made and may remove (its first line says which command).
 MARKER = ".bgc-output"

@@ -45,7 +45,7 @@ def register(main_group):
         """Run SCENE's sweep: batched simulations on Dask, results in a Zarr store."""
         say = Progress(quiet)
 
-        from bgc.studies.sweep import check_store
+        from bgc.studies.sweep_store import check_store
 
         check_store(out)  # a folder bgc did not make: refused before anything runs
         say(f"compiling {scene}")

@@ -190,8 +190,10 @@ def _discard(path: str, why: str) -> None:
 
 
 def _finite(v, positive: bool = False) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and v == v and \
-        abs(v) != float("inf") and (v > 0 or not positive)
+    import math
+
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and \
+        (v > 0 or not positive)
 
 
 def _invalid(rec) -> str | None:

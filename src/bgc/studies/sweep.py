@@ -42,7 +42,6 @@ import dataclasses
 import hashlib
 import json
 import math
-import os
 import sys
 import time
 import uuid
@@ -701,6 +700,7 @@ def open_or_create(prep: Prepared, out, chunk: int, restart: bool = False) -> li
     import xarray as xr
 
     from bgc.base.outdirs import mark_folder, remove_marked
+    from bgc.studies.sweep_store import STORE_KIND, _zarr_entries, _zarr_own, check_store
 
     digest = prep.digest(chunk)
     out = check_store(out)
@@ -723,37 +723,6 @@ def open_or_create(prep: Prepared, out, chunk: int, restart: bool = False) -> li
     _skeleton(prep, chunk, digest).to_zarr(out, compute=False, mode="a", zarr_format=2,
                                            consolidated=True)
     return [False] * len(_chunks(prep.n, chunk))
-
-
-def check_store(out) -> Path:
-    """``--out`` as a store: missing, an empty folder or a store bgc made (marked), else an
-    error (before anything runs)."""
-    from bgc.base.outdirs import marked_as, out_folder
-
-    out = out_folder(out, "--out", create=False)
-    if out.exists() and marked_as(out) != STORE_KIND and os.listdir(out):
-        raise ModelError(None, f"--out {str(out)!r} exists and is not a sweep store bgc made "
-                               "(it has no marker file): name a new or empty folder; bgc "
-                               "never empties a folder it did not make")
-    return out
-
-
-#: The marker's word for a sweep store (bgc.base.outdirs.mark_folder).
-STORE_KIND = "bgc sweep store"
-_ZARR_FILES = (".zattrs", ".zgroup", ".zmetadata", "zarr.json")
-
-
-def _zarr_own(name: str, path: Path) -> bool:
-    """Whether an entry of a store folder is the store's own: a Zarr metadata file, or a
-    folder (not a link) holding a Zarr array's metadata."""
-    if name in _ZARR_FILES:
-        return True
-    return path.is_dir() and not path.is_symlink() and any(
-        (path / f).is_file() for f in (".zarray", ".zattrs", "zarr.json"))
-
-
-def _zarr_entries(out: Path) -> bool:
-    return any((out / f).exists() for f in _ZARR_FILES)
 
 
 def _write_chunk(out, res: dict, k: int, prep: Prepared):
