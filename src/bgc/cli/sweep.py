@@ -32,7 +32,10 @@ def register(main_group):
                   help="instances per task (one vectorised simulate call)")
     @click.option("--plot", "plot_dir", type=click.Path(file_okay=False), default=None,
                   help="write overview PNGs here")
-    @click.option("--restart", is_flag=True, help="discard a store made for another sweep")
+    @click.option("--restart", is_flag=True,
+                  help="discard the results in a store bgc made (marked by its .bgc-output "
+                       "file) for another sweep; nothing else in it, and no other folder, is "
+                       "ever removed")
     @click.option("--max-wall", type=click.FloatRange(min=0.0, min_open=True), default=None,
                   help="seconds per simulate call before it is stopped (recorded as failed)")
     @click.option("--backend", type=click.Choice(("c", "numpy")), default=None,

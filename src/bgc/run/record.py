@@ -16,8 +16,12 @@ missing file, another compiler, an option or spelling it does not know, ``--plot
 fails numerically is diagnosed by the full way's code (its located message, exit status 1).
 
 The record key: bgc's version, a stamp of bgc's sources and templates (name, size, mtime),
-Python's version, the installed sympy, the scene's absolute path and bytes, the options that
-shape the run, and ``CC`` and ``PATH`` (which compiler). Records are marshal data in the
+Python's version, the installed sympy, the scene's absolute and resolved paths and bytes, the
+options that shape the run, and ``CC`` and ``PATH`` (which compiler). Each file the run read
+is kept as reached (the path the parser opened), as resolved and by the digest of its bytes:
+a replay needs all three to agree (bgc.base.reach, read with the bounded reader), so a
+re-pointed link or a moved folder goes the full way. A record that cannot be decoded or whose
+fields are out of range is discarded with a note. Records are marshal data in the
 checked cache directory (``<cache>/run``), each written to a temporary file and renamed over
 its place, so a reader sees a whole record or none, and the newest run's record wins.
 """
