@@ -51,6 +51,11 @@ def register(main_group):
         from bgc.studies.sweep_store import check_store
 
         check_store(out)  # a folder bgc did not make: refused before anything runs
+        if plot_dir:
+            from bgc.base.outdirs import out_folder
+            from bgc.base.outfiles import check_folder
+
+            check_folder(out_folder(plot_dir, "--plot", create=False), "--plot")
         say(f"compiling {scene}")
         prep = prepare(scene, say, backend)
         prep.max_wall = max_wall
