@@ -185,8 +185,8 @@ def load(store, key: str) -> dict | None:
 
 def _discard(path: str, why: str) -> None:
     """A corrupt record: removed (the full way runs and writes a new one), with a note."""
-    print(f"note: discarded a corrupt run record ({why}); running the scene the full way",
-          file=sys.stderr)
+    print(f"note: discarded a corrupt record of an earlier run ({why}); running the scene the "
+          "full way", file=sys.stderr)
     try:
         os.unlink(path)
     except OSError:
