@@ -66,6 +66,8 @@ def _must_be_folder(st, what: str, text: str) -> None:
     if stat.S_ISLNK(st.st_mode):
         raise OutputError(what, text, "is a symbolic link; bgc does not write through links: "
                                       "name the folder itself")
+    if stat.S_ISREG(st.st_mode):
+        raise OutputError(what, text, "exists and is not a folder")
     if not stat.S_ISDIR(st.st_mode):
         raise OutputError(what, text, f"is {_kind(st.st_mode)}, not a folder")
 
