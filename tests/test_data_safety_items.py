@@ -66,7 +66,7 @@ def test_sweep_restart_never_empties_a_folder_bgc_did_not_make(tmp_path, monkeyp
 
 def test_restart_removes_only_the_stores_own_entries(tmp_path):
     from bgc.base.outdirs import MARKER, mark_folder, remove_marked
-    from bgc.studies.sweep_store import STORE_KIND, _zarr_own
+    from bgc.studies.sweep_folder import STORE_KIND, _zarr_own
 
     store = mark_folder(tmp_path / "r.zarr", STORE_KIND)
     (store / ".zgroup").write_text("{}")

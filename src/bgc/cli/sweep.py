@@ -6,15 +6,10 @@ from __future__ import annotations
 import click
 
 from bgc.run.progress import Progress
-from bgc.studies.sweep import (
-    MAX_SAMPLES,
-    client_for,
-    close_client,
-    open_results,
-    plot_sweep,
-    prepare,
-    run_sweep,
-)
+from bgc.studies.sweep import client_for, close_client, prepare, run_sweep
+from bgc.studies.sweep_plot import plot_sweep
+from bgc.studies.sweep_spec import MAX_SAMPLES
+from bgc.studies.sweep_store import open_results
 
 
 def register(main_group):
@@ -48,7 +43,7 @@ def register(main_group):
         """Run SCENE's sweep: batched simulations on Dask, results in a Zarr store."""
         say = Progress(quiet)
 
-        from bgc.studies.sweep_store import check_store
+        from bgc.studies.sweep_folder import check_store
 
         check_store(out)  # a folder bgc did not make: refused before anything runs
         if plot_dir:
