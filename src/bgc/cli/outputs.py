@@ -40,5 +40,5 @@ def write_linear(plan: dict, mod, lin, t, x, prog):
         buf = io.BytesIO()
         bode_plot(buf, lin, mod.INPUT_LABELS.index(i_name), mod.OUTPUT_LABELS.index(o_name),
                   i_name, o_name, iu.get(i_name.split("[")[0], ""),
-                  ou.get(o_name.split("[")[0], ""))
+                  ou.get(o_name.split("[")[0], ""), f_range=plan.get("f_range"))
         prog(f"wrote {write_in(d, png, buf.getvalue(), ins, '--out')}")
