@@ -438,10 +438,21 @@ def _nonfinite(method, what, t, y, values, shape, stats):
     return err
 
 
+#: Bounds on a run's arguments (as bgc's own limits bound a scene's): output samples (dt,
+#: t_eval), instances in a batch, and values in the state trajectory (states x instances x
+#: samples, 8 bytes each).
+MAX_OUTPUT_SAMPLES = 1_000_000
+MAX_BATCH = 1_000_000
+MAX_RESULT_VALUES = 500_000_000
+
+
 def _batched(x0, p):
     """The initial state broadcast to (n, *batch): batch is what x0 and the parameters span."""
     x0 = initial_state(p) if x0 is None else np.asarray(x0, dtype=float)
     batch = np.broadcast_shapes(x0.shape[1:], _params(p)[1])
+    if int(np.prod(batch, dtype=float)) > MAX_BATCH:
+        raise ValueError(f"a batch of {int(np.prod(batch, dtype=float))} instances (shape "
+                         f"{batch}) is more than the limit of {MAX_BATCH}")
     x0 = x0.reshape((N_STATES,) + (1,) * (len(batch) + 1 - x0.ndim) + x0.shape[1:])
     return np.broadcast_to(x0, (N_STATES,) + batch), batch
 
@@ -459,10 +470,24 @@ def _flat_atol(atol, batch):
 
 def _output_times(t0, t1, t_eval, dt):
     """The output times inside the span in the direction of integration; None: every step."""
+    if not (np.isfinite(t0) and np.isfinite(t1)):
+        raise ValueError(f"t_span ({t0:g}, {t1:g}) is not finite")
     if t_eval is None and dt is not None:
+        dt = float(dt)
+        if not (dt > 0 and np.isfinite(dt)):
+            raise ValueError(f"dt must be a positive, finite step in seconds, not {dt!r}")
+        if not abs(t1 - t0) / dt <= MAX_OUTPUT_SAMPLES:
+            raise ValueError(f"dt = {dt:g} s over {abs(t1 - t0):g} s asks for "
+                             f"{abs(t1 - t0) / dt:.3g} output samples, more than the limit of "
+                             f"{MAX_OUTPUT_SAMPLES}")
         t_eval = np.linspace(t0, t1, int(round(abs(t1 - t0) / dt)) + 1)
     if t_eval is None:
         return None
+    size = t_eval.size if hasattr(t_eval, "size") else len(t_eval) if hasattr(
+        t_eval, "__len__") else 1
+    if size > MAX_OUTPUT_SAMPLES + 1:  # (the samples of a dt and the span's start)
+        raise ValueError(f"t_eval has {size} times, more than the limit of "
+                         f"{MAX_OUTPUT_SAMPLES + 1}")
     # sorted, duplicates dropped (np.unique would import numpy.ma: 20 ms of a warm run)
     t = np.sort(np.asarray(t_eval, dtype=float).ravel())
     t = t[np.concatenate(([True], t[1:] != t[:-1]))] if t.size else t
@@ -898,7 +923,12 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
             raise _nonfinite(method, "initial state", float(t_span[0]), y, y, shape, stats)
         atol = _flat_atol(atol, batch)
         t0, t1 = float(t_span[0]), float(t_span[1])
-        path = _Trajectory(t0, t1, y, _output_times(t0, t1, t_eval, dt))
+        times = _output_times(t0, t1, t_eval, dt)
+        if times is not None and y.size * times.size > MAX_RESULT_VALUES:
+            raise ValueError(f"the result would hold {y.size * times.size} values (states x "
+                             f"instances x output times), more than the limit of "
+                             f"{MAX_RESULT_VALUES}")
+        path = _Trajectory(t0, t1, y, times)
         # a table input that is not smooth at its knots (linear, previous) adds them (unless u
         # replaces that input)
         breakpoints = tuple(breakpoints) + tuple(

@@ -35,6 +35,15 @@ def _model(src):
     return parse_file(src)
 
 
+def _check_types(src, scene=None) -> None:
+    """The documented TypeError for a model that is neither a path nor YAML text (bytes, a
+    dict, ...), and for a scene that is not a path."""
+    if not isinstance(src, (str, Path)):
+        raise TypeError(f"a model is a path or YAML text, not {type(src).__name__}")
+    if scene is not None and not isinstance(scene, (str, Path)):
+        raise TypeError(f"a scene is a path, not {type(scene).__name__}")
+
+
 def compile(path_or_text, scene=None, target: str = "numpy") -> "CompiledModel":  # noqa: A001
     """Compile a model (path or YAML text), optionally specialised to a scene file, and return
     the loaded module wrapped in a :class:`CompiledModel` (attributes go to the module).
@@ -42,6 +51,7 @@ def compile(path_or_text, scene=None, target: str = "numpy") -> "CompiledModel":
     from bgc.backends.load import BACKENDS as targets
     from bgc.run.driver import build
 
+    _check_types(path_or_text, scene)
     if target not in targets:
         raise ModelError(None, f"unknown target {target!r} (one of {', '.join(targets)})")
     path = None if _is_text(path_or_text) else path_or_text

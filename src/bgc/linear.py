@@ -94,7 +94,8 @@ def unstable_modes(A, tol: float = 1e-9) -> list[complex]:
 
 def bode_plot(path, lin, i_in, i_out, in_label, out_label, in_unit="", out_unit="",
               f_range=None) -> None:
-    """Magnitude (dB) and phase (degrees) against frequency (Hz, logarithmic) as a PNG."""
+    """Magnitude (dB) and phase (degrees) against frequency (Hz, logarithmic) as a PNG, to
+    ``path`` (written by bgc's checked writer) or a binary file object."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -123,7 +124,16 @@ def bode_plot(path, lin, i_in, i_out, in_label, out_label, in_unit="", out_unit=
     a2.grid(True, which="both", alpha=0.3)
     a1.set_title(plain_text(f"Bode: {in_label} -> {out_label}"))
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    if hasattr(path, "write"):  # a file object the caller opened
+        fig.savefig(path, dpi=100, format="png")
+    else:  # a path: through the checked writer (never a link, a device or a folder; atomic)
+        import io
+
+        from bgc.base.outfiles import write_output
+
+        buf = io.BytesIO()
+        fig.savefig(buf, dpi=100, format="png")
+        write_output(path, buf.getvalue(), None, "bode plot")
     plt.close(fig)
 
 
@@ -133,14 +143,10 @@ def bode_plot(path, lin, i_in, i_out, in_label, out_label, in_unit="", out_unit=
 def load_target(path, progress=None):
     """(module, run-time parameters, start time, scene or None) of a scene file (its
     specialised module, as `bgc simulate` runs it) or a model file (t0 = 0)."""
-    from pathlib import Path
+    from bgc.base.limits import LIMITS
+    from bgc.base.safeio import read_text_bounded  # regular files only, never blocking
 
-    from bgc.base.errors import ModelError
-
-    try:
-        head = Path(path).read_text(encoding="utf-8")[:4096]
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ModelError(None, f"cannot read {path}: {exc}") from None
+    head = read_text_bounded(path, None, "model or scene file", LIMITS.model_bytes)[:4096]
     from bgc.run.driver import build
 
     if "bgc_scene" in head:

@@ -23,6 +23,7 @@ TABLE_MAX_STEP: dict
 _PARAM_NDIM: dict
 C_LIBRARY: str
 C_DIGEST: str
+MAX_RESULT_VALUES: int
 N_EVENTS = 0  # a hybrid model's numpy part defines these (templates/numpy/events.py.j2)
 EVENT_NAMES = EVENT_WHERE = ()
 _C_NP = _C_NNZ = _C_NOUT = _C_NWS = 0
@@ -275,6 +276,10 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
     times = _output_times(t0, t1, t_eval, dt)
     if times is None:
         times = np.linspace(t0, t1, 1001)
+    if N_STATES * nb * times.size > MAX_RESULT_VALUES:
+        raise ValueError(f"the result would hold {N_STATES * nb * times.size} values (states x "
+                         f"instances x output times), more than the limit of "
+                         f"{MAX_RESULT_VALUES}")
     times = np.ascontiguousarray(times, dtype=float)
     a = np.asarray(atol, dtype=float)
     if a.ndim == 0:

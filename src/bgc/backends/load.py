@@ -15,6 +15,7 @@ from bgc.base import BACKENDS  # noqa: F401 (the one list, re-exported)
 
 MODULE_FILE = "module.py"
 CODE_FILE = "module.code"
+ENTRY_BYTES = 256 << 20  # the largest module (text or code) read from a cache entry
 
 
 def c_files(compiled) -> tuple[dict, str]:
@@ -29,27 +30,29 @@ def c_files(compiled) -> tuple[dict, str]:
     return dict(csrc.files), wrapper
 
 
-def write_c(compiled, outdir, cache=None, progress=None) -> Path:
+def write_c(compiled, outdir, cache=None, progress=None, inputs=None) -> Path:
     """Write the C sources, the runtime's sources, the wrapper (``<name>.py``) and the built
-    library into outdir; returns the wrapper's path."""
+    library into outdir; returns the wrapper's path. Every file through the checked writer
+    (bgc.base.outdirs): never over ``inputs`` (the run's model, imports, scene), never through
+    a link (a linked ``runtime/`` is refused), never over anything but a regular file."""
     from bgc.backends.c import build as cbuild
-    from bgc.base.outfiles import write_output
+    from bgc.base.outdirs import check_in, copy_file, out_folder, write_in
 
     say = progress or (lambda msg: None)
-    out = Path(outdir)
-    out.mkdir(parents=True, exist_ok=True)
     files, wrapper = c_files(compiled)
+    names = [*files, f"{compiled.model.name}.py", cbuild.LIB_NAME,
+             *(f"runtime/{f.name}" for f in cbuild.runtime_sources() + cbuild.runtime_headers())]
+    out = out_folder(outdir, "-o", create=False)
+    for name in names:  # every refusal before anything is written
+        check_in(out, name, inputs, "-o")
+    out = out_folder(outdir, "-o")
     for name, text in files.items():
-        write_output(out / name, text)
-    rt = out / "runtime"
-    rt.mkdir(exist_ok=True)
+        write_in(out, name, text, inputs, "-o")
     for f in cbuild.runtime_sources() + cbuild.runtime_headers():
-        shutil.copyfile(f, rt / f.name)
+        copy_file(f, out, f"runtime/{f.name}", inputs, "-o")
     say(f"building the C library ({len(files)} model units)")
-    cbuild.build_library(out, sorted(files), cache=cache)
-    path = out / f"{compiled.model.name}.py"
-    write_output(path, wrapper)
-    return path
+    cbuild.build_library(out, sorted(files), cache=cache, inputs=inputs)
+    return write_in(out, f"{compiled.model.name}.py", wrapper, inputs, "-o")
 
 
 def _code_file(tmp: Path, text: str, name: str) -> None:
@@ -141,13 +144,15 @@ def load_entry(entry: Path, backend: str, name: str, trusted: bool = False):
     entry is in a checked cache directory and was checked when written; its compiled code
     (module.code) is used as it is."""
     entry = Path(entry)
-    text = (entry / MODULE_FILE).read_text(encoding="utf-8")
+    from bgc.base.safeio import read_bytes  # regular files only, never blocking
+
+    text = read_bytes(entry / MODULE_FILE, ENTRY_BYTES).decode("utf-8")
     code = None
     if trusted and (entry / CODE_FILE).is_file():
         import marshal
 
         try:
-            code = marshal.loads((entry / CODE_FILE).read_bytes())
+            code = marshal.loads(read_bytes(entry / CODE_FILE, ENTRY_BYTES))
         except (ValueError, EOFError, TypeError):
             code = None
     if backend == "numpy":
@@ -212,6 +217,25 @@ class _SourceLoader:
         return self.source.encode("utf-8")
 
 
+def _cached(cache, backend: str, key: str, name: str, say):
+    """The module of the cache entry under key, or None: none there, or a corrupt one (it is
+    discarded, with a note, and the caller builds it again)."""
+    entry = cache.get(backend, key)
+    if entry is None:
+        return None
+    say(f"cache hit ({backend} {key[:12]})")
+    try:
+        return load_entry(entry, backend, name, trusted=True)
+    except Exception as exc:  # noqa: BLE001 - any failure of a cached entry: rebuild it
+        from bgc.base.errors import oneline
+
+        print(f"note: discarded a corrupt compile-cache entry ({backend} {key[:12]}: "
+              f"{oneline(type(exc).__name__ + ': ' + str(exc), 160)}); compiling it again",
+              file=sys.stderr)
+        cache.discard(backend, key)
+        return None
+
+
 def load(name: str, backend: str, key: str | None, compile_fn, cache=None, progress=None):
     """(compiled or None, module): from the cache when key hits, else compiled now.
 
@@ -219,10 +243,9 @@ def load(name: str, backend: str, key: str | None, compile_fn, cache=None, progr
     built in a temporary folder)."""
     say = progress or (lambda msg: None)
     if cache is not None and key is not None:
-        entry = cache.get(backend, key)
-        if entry is not None:
-            say(f"cache hit ({backend} {key[:12]})")
-            return None, load_entry(entry, backend, name, trusted=True)
+        mod = _cached(cache, backend, key, name, say)
+        if mod is not None:
+            return None, mod
     compiled = compile_fn()
     if backend == "numpy" and (cache is None or key is None):
         return compiled, load_module(compiled.source, name)

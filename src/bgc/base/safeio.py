@@ -29,21 +29,58 @@ def read_text_bounded(path, coord: Coord | None, what: str, limit: int) -> str:
     shown = _show(spath)
     if "\0" in spath:
         raise ModelError(where, f"cannot read {what} {shown}: the path contains a NUL byte")
-    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0)
     try:
-        fd = os.open(spath, flags)
+        data = read_bytes(spath, limit)
+    except _Refused as exc:
+        raise ModelError(where, exc.message(what, shown, limit)) from None
     except OSError as exc:
         raise ModelError(where, f"cannot read {what} {shown}: {_why(exc)}") from None
     try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        before = data[:exc.start]
+        line = before.count(b"\n") + 1
+        col = len(before[before.rfind(b"\n") + 1:].decode("utf-8", "replace")) + 1
+        raise ModelError(Coord(spath, line, col), f"{what} is not UTF-8 text "
+                                                  f"(byte 0x{data[exc.start]:02x})") from None
+
+
+class _Refused(OSError):
+    """A file that is not read: not a regular file, or larger than the limit."""
+
+    def __init__(self, kind: str, size: int = 0):
+        super().__init__(kind)
+        self.kind, self.size = kind, size
+
+    def message(self, what: str, shown: str, limit: int) -> str:
+        if self.kind == "folder":
+            return f"cannot read {what} {shown}: it is a folder"
+        if self.kind == "special":
+            return f"cannot read {what} {shown}: not a regular file (a device, FIFO or socket)"
+        size = f" ({self.size} bytes)" if self.size else ""
+        return f"{what} {shown} is larger than the limit of {limit} bytes{size}"
+
+
+def read_bytes(path, limit: int, follow: bool = True) -> bytes:
+    """The bytes of the regular file ``path``, at most ``limit`` of them: opened without
+    blocking (``O_NONBLOCK``: a FIFO's open returns at once), checked with ``fstat`` to be a
+    regular file no larger than ``limit`` before anything is read, read at most ``limit + 1``
+    bytes (a file that grows meanwhile is refused). ``follow=False``: a symbolic link as the
+    last part of the path is refused (``O_NOFOLLOW``). Raises ``OSError`` (a refusal is one
+    too, whose ``kind`` says why): every caller that only wants the bytes or nothing catches
+    ``OSError``."""
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0)
+    if not follow:
+        flags |= getattr(os, "O_NOFOLLOW", 0)
+    fd = os.open(os.fspath(path), flags)
+    try:
         st = os.fstat(fd)
         if stat.S_ISDIR(st.st_mode):
-            raise ModelError(where, f"cannot read {what} {shown}: it is a folder")
+            raise _Refused("folder")
         if not stat.S_ISREG(st.st_mode):
-            raise ModelError(where, f"cannot read {what} {shown}: not a regular file "
-                                    "(a device, FIFO or socket)")
+            raise _Refused("special")
         if st.st_size > limit:
-            raise ModelError(where, f"{what} {shown} is larger than the limit of {limit} bytes "
-                                    f"({st.st_size} bytes)")
+            raise _Refused("size", st.st_size)
         chunks, total = [], 0
         while total <= limit:
             try:
@@ -55,20 +92,10 @@ def read_text_bounded(path, coord: Coord | None, what: str, limit: int) -> str:
             chunks.append(chunk)
             total += len(chunk)
         if total > limit:  # the file grew while it was read
-            raise ModelError(where, f"{what} {shown} is larger than the limit of {limit} bytes")
-    except OSError as exc:
-        raise ModelError(where, f"cannot read {what} {shown}: {_why(exc)}") from None
+            raise _Refused("size")
     finally:
         os.close(fd)
-    data = b"".join(chunks)
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        before = data[:exc.start]
-        line = before.count(b"\n") + 1
-        col = len(before[before.rfind(b"\n") + 1:].decode("utf-8", "replace")) + 1
-        raise ModelError(Coord(spath, line, col), f"{what} is not UTF-8 text "
-                                                  f"(byte 0x{data[exc.start]:02x})") from None
+    return b"".join(chunks)
 
 
 def _why(exc: OSError) -> str:

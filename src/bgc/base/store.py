@@ -128,8 +128,29 @@ class Cache:
         self._ensure()
         import shutil
 
+        for t in TARGETS:  # a link or a file in bgc's place: said, and nothing removed
+            sub = self.path / t
+            if sub.is_symlink() or (sub.exists() and not sub.is_dir()):
+                raise UnsafeCache(f"{sub}: not a folder of the compile cache (a link or a "
+                                  "file); bgc removes only its own folders: remove it yourself")
         n = sum(self.info()["entries"].values())
         for t in TARGETS:
             if (self.path / t).is_dir():
-                shutil.rmtree(self.path / t)
+                shutil.rmtree(self.path / t)  # links inside are removed, never followed
         return n
+
+    def discard(self, target: str, key: str) -> None:
+        """Remove one entry (a corrupt one): renamed aside first, so a reader never finds it
+        half removed; nothing is followed through a link."""
+        import shutil
+
+        d = self.entry(target, key)
+        aside = d.with_name(f".discard.{key[:16]}.{os.getpid()}.{os.urandom(4).hex()}")
+        try:
+            os.replace(d, aside)
+        except OSError:
+            return
+        if aside.is_symlink() or not aside.is_dir():
+            aside.unlink()
+        else:
+            shutil.rmtree(aside, ignore_errors=True)

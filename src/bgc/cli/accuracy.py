@@ -82,7 +82,9 @@ def register(main_group):
 
         sc = parse_scene(scene)
         out = Path(out_dir or f"accuracy_{Path(sc.file).stem}")
-        check_folder(out, "--out")  # before the study, not after it
+        from bgc.base.outdirs import out_folder
+
+        check_folder(out_folder(out, "--out", create=False), "--out")  # before the study
         setup = prepare(sc, t_end=t_end, atol_scale=atol_scale, breakpoints=bps)
         inputs = model_inputs(scene, sc.model_path)  # the model has parsed: its imports
         from bgc.run.runner import check_start

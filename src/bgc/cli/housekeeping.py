@@ -3,7 +3,6 @@ compile cache's info and clear). Click commands that bgc.cli.commands adds to th
 group."""
 from __future__ import annotations
 
-from pathlib import Path
 
 import click
 
@@ -15,17 +14,21 @@ from bgc.base.errors import ModelError
 def examples_cmd(directory):
     """Copy the example models and scenes (and the format reference) into DIRECTORY; nothing
     that already exists there is overwritten (then nothing is copied)."""
-    import shutil
+    import os
+
+    from bgc.base.outdirs import check_in, copy_file, out_folder
 
     files = _example_files()
-    dest = Path(directory)
-    clash = [rel for rel in files if (dest / rel).exists()]
+    dest = out_folder(directory, "examples", create=False)
+    for rel in files:  # a link on the way or at a file's place: refused before any copy
+        check_in(dest, rel, None, "examples")
+    clash = [rel for rel in files if os.path.lexists(dest / rel)]
     if clash:
         raise ModelError(None, f"{dest}: {len(clash)} file(s) exist already (e.g. {clash[0]}); "
                                "nothing copied: choose an empty or new directory")
+    dest = out_folder(directory, "examples")
     for rel, src in files.items():
-        (dest / rel).parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(src, dest / rel)
+        copy_file(src, dest, rel, None, "examples")
     click.echo(f"copied {len(files)} files to {dest} (try: bgc simulate "
                f"{dest / 'models' / 'scenes' / 'msd_step.yaml'} --plot figs/)")
 

@@ -54,7 +54,10 @@ def compile_cmd(model, output, scene, target, no_cache, quiet, strict_causality)
         if output is None:
             raise ModelError(None, "--target c writes a folder: give it with -o OUTDIR")
         cbuild.identity()  # a clear message without a compiler
-        path = backends.write_c(c, output, None if no_cache else cache_mod.Cache(), prog)
+        from bgc.base.reach import run_inputs
+
+        path = backends.write_c(c, output, None if no_cache else cache_mod.Cache(), prog,
+                                run_inputs(model, scene))
         prog(f"wrote {output}/ (C sources, {path.name}, {cbuild.LIB_NAME}): "
              f"{len(c.equations.states)} states, {len(c.equations.jacobian)} Jacobian entries")
         return

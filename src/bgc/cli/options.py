@@ -46,16 +46,16 @@ RTOL = finite(0.0, 1.0, lo_open=True, hi_open=True)
 
 def model_inputs(*paths, follow: bool = True):
     """The inputs of this run that no output may replace: the given files (models, scenes)
-    and, with ``follow``, the files the models import (only once bgc's parser has read them:
+    and, with ``follow``, the files the models import and the tables they and the scenes read (only once bgc's parser has read them:
     the imports are found by reading the files again)."""
     from bgc.base.outfiles import Inputs
-    from bgc.base.outfiles import model_inputs as imported
+    from bgc.base.reach import reached_files
 
     ins = Inputs()
     for p in paths:
         if p is None:
             continue
         ins.add(p)
-        for f in imported(p) if follow else ():
-            ins.add(f)
+        for f in reached_files(p, partial=True) or () if follow else ():
+            ins.add(f.path)  # its imports and tables (bounded reads)
     return ins

@@ -3,7 +3,6 @@ bgc.cli.commands adds to the `bgc` group; what they run is imported inside them.
 from __future__ import annotations
 
 import io
-from pathlib import Path
 
 import click
 import numpy as np
@@ -55,7 +54,9 @@ def simulate_cmd(scene, t_end, max_steps, out, plot_dir, method, rtol, atol, max
     if out:  # refused before the run, not after it (the imports are known after it)
         check_output(out, model_inputs(scene, sc.model_path, follow=False), "--out")
     if plot_dir is not None:
-        check_folder(plot_dir, "--plot")
+        from bgc.base.outdirs import out_folder
+
+        check_folder(out_folder(plot_dir, "--plot", create=False), "--plot")
     res = run_scene(sc, progress=prog, method=method, rtol=rtol, max_wall=max_wall,
                     atol=atol, backend=backend, use_cache=not no_cache,
                     strict_causality=strict_causality, max_steps=max_steps)
@@ -173,7 +174,7 @@ def _load_target(path, prog):
 def linearize_cmd(target, at, out, bode, freq_range, quiet):
     """Linearise SCENE_OR_MODEL: eigenvalues with natural frequencies and damping ratios and
     the states that dominate each mode; matrices and Bode plots with --out."""
-    from bgc.linear import bode_plot, modes, operating_point
+    from bgc.linear import modes, operating_point
 
     prog = Progress(quiet)
     mod, p, t0, sc = _load_target(target, prog)
@@ -185,6 +186,13 @@ def linearize_cmd(target, at, out, bode, freq_range, quiet):
                                    f"{', '.join(mod.INPUT_LABELS) or '(no inputs)'} and OUT "
                                    f"one of {', '.join(mod.OUTPUT_LABELS)}")
         pairs.append((i_name, o_name))
+    if pairs and not out:
+        raise ModelError(None, "--bode needs --out DIR for its plots")
+    plan = None
+    if out:  # refused before anything is computed
+        from bgc.cli.outputs import check_linear
+
+        plan = check_linear(out, mod, pairs, target, sc)
     t, x, where = operating_point(mod, at, p, None, t0, prog, " after Newton): linearise at "
                                   "a time instead (--at TIME)",
                                   on_equilibrium=lambda info: _warn_free(info, prog))
@@ -206,31 +214,11 @@ def linearize_cmd(target, at, out, bode, freq_range, quiet):
         zeta = "-" if md.wn == 0 else f"{md.zeta:.3f}"  # a zero eigenvalue has none
         buf.write(f"{ev:>30}  {md.wn:11.4g}  {md.hz:10.4g}  {zeta:>8}  {dom}\n")
     click.echo(buf.getvalue(), nl=False)
-    if pairs and not out:
-        raise ModelError(None, "--bode needs --out DIR for its plots")
-    if out:
-        d = Path(out)
-        d.mkdir(parents=True, exist_ok=True)
-        name = getattr(mod, "__name__", "model").removeprefix("bgc_generated_")
-        npz = d / f"{name}_linear.npz"
-        data = io.BytesIO()
-        np.savez(data, A=lin[0], B=lin[1], C=lin[2], D=lin[3], t=t, x=x,
-                 states=np.array(mod.STATE_NAMES), inputs=np.array(mod.INPUT_LABELS, dtype=str),
-                 outputs=np.array(mod.OUTPUT_LABELS),
-                 eigenvalues=np.linalg.eigvals(lin[0]))
-        tmp = npz.with_name(f".{npz.name}.tmp")
-        tmp.write_bytes(data.getvalue())
-        tmp.replace(npz)
-        prog(f"wrote {npz}")
-        iu, ou = dict(getattr(mod, "INPUT_UNITS", {})), dict(getattr(mod, "OUTPUT_UNITS", {}))
-        for i_name, o_name in pairs:
-            png = d / f"bode_{i_name}_{o_name}.png".replace("[", "_").replace("]", "")
-            tmp = png.with_name(f".{png.stem}.tmp.png")
-            bode_plot(tmp, lin, mod.INPUT_LABELS.index(i_name), mod.OUTPUT_LABELS.index(o_name),
-                      i_name, o_name, iu.get(i_name.split("[")[0], ""),
-                      ou.get(o_name.split("[")[0], ""), f_range=freq_range)
-            tmp.replace(png)
-            prog(f"wrote {png}")
+    if plan is not None:
+        from bgc.cli.outputs import write_linear
+
+        plan["f_range"] = freq_range
+        write_linear(plan, mod, lin, t, x, prog)
 
 
 def _warn_free(info, say) -> None:

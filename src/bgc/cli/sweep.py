@@ -27,7 +27,10 @@ def register(main_group):
                   help="instances per task (one vectorised simulate call)")
     @click.option("--plot", "plot_dir", type=click.Path(file_okay=False), default=None,
                   help="write overview PNGs here")
-    @click.option("--restart", is_flag=True, help="discard a store made for another sweep")
+    @click.option("--restart", is_flag=True,
+                  help="discard the results in a store bgc made (marked by its .bgc-output "
+                       "file) for another sweep; nothing else in it, and no other folder, is "
+                       "ever removed")
     @click.option("--max-wall", type=click.FloatRange(min=0.0, min_open=True), default=None,
                   help="seconds per simulate call before it is stopped (recorded as failed)")
     @click.option("--backend", type=click.Choice(("c", "numpy")), default=None,
@@ -40,6 +43,14 @@ def register(main_group):
         """Run SCENE's sweep: batched simulations on Dask, results in a Zarr store."""
         say = Progress(quiet)
 
+        from bgc.studies.sweep_folder import check_store
+
+        check_store(out)  # a folder bgc did not make: refused before anything runs
+        if plot_dir:
+            from bgc.base.outdirs import out_folder
+            from bgc.base.outfiles import check_folder
+
+            check_folder(out_folder(plot_dir, "--plot", create=False), "--plot")
         say(f"compiling {scene}")
         prep = prepare(scene, say, backend)
         prep.max_wall = max_wall

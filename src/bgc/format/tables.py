@@ -107,13 +107,11 @@ def load_csv(base: Path, rel: str, columns, coord: Coord, what: str):
     for c in cols:
         if isinstance(c, str):
             if header is None or c not in header:
-                from bgc.base.errors import (
-                    oneline,  # the file is untrusted: show little of it
-                )
-
-                shown = oneline(", ".join(h[:24] for h in header[:8]), 120) if header else "none"
-                raise ModelError(coord, f"{what}: table {rel!r} has no column {c!r} "
-                                        f"(header: {shown})")
+                # only what the model wrote: the file may be any file (through '..' or a
+                # link), and its first line is not the model's to show
+                where_ = "its first line is not a header" if header is None else \
+                    "no cell of its header line is that name"
+                raise ModelError(coord, f"{what}: table {rel!r} has no column {c!r} ({where_})")
             idx.append(header.index(c))
         else:
             idx.append(c)

@@ -20,87 +20,15 @@ from bgc.base.store import TARGETS, Cache, UnsafeCache, root  # noqa: F401 (the 
 # ---------------------------------------------------------------------------------------------
 # Keys
 
-def _table_refs(doc) -> list[str]:
-    """Every ``table: FILE`` value in a loaded YAML document (inputs given as data), found
-    without recursion; a superset of what the parser reads is harmless in a key."""
-    out, todo = [], [doc]
-    while todo:
-        node = todo.pop()
-        if isinstance(node, dict):
-            if isinstance(node.get("table"), str):
-                out.append(node["table"])
-            todo.extend(node.values())
-        elif isinstance(node, list):
-            todo.extend(node)
-    return out
-
-
 def model_files(path, scene_path=None) -> list[tuple[str, bytes]] | None:
     """The model file, every file it imports (recursively) and every table file (CSV) the
     model, its imports and the scene name, as (resolved path, bytes): what a compile reads
-    (the scene itself apart). None when they cannot all be read (the compile then reports the
-    error, uncached)."""
-    import yaml  # noqa: F401 (parse.py imports it anyway)
+    (the scene itself apart), read with the bounded reader (bgc.base.reach). None when they
+    cannot all be read (the compile then reports the error, uncached)."""
+    from bgc.base.reach import reached_files
 
-    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
-    out: list[tuple[str, bytes]] = []
-    seen: set[str] = set()
-
-    def load(data: bytes, word: bytes, doc):
-        # a file that never says "imports" (or "table") has none: no need to parse it
-        if doc is None and word in data:
-            doc = yaml.load(data, Loader=loader)  # noqa: S506 (CSafeLoader or SafeLoader)
-        return doc
-
-    def tables(p: Path, data: bytes, doc) -> bool:
-        doc = load(data, b"table", doc)
-        for rel in _table_refs(doc):
-            tp = p.parent / rel
-            rt = str(tp.resolve())
-            if rt in seen:
-                continue
-            seen.add(rt)
-            try:
-                out.append((rt, tp.read_bytes()))
-            except OSError:
-                return False
-        return True
-
-    def visit(p: Path) -> bool:
-        rp = str(p.resolve())
-        if rp in seen:
-            return True
-        seen.add(rp)
-        try:
-            data = p.read_bytes()
-            doc = load(data, b"imports", None)
-            out.append((rp, data))
-            if not tables(p, data, doc):
-                return False
-        except (OSError, yaml.YAMLError, UnicodeDecodeError, ValueError, RecursionError):
-            return False
-        imports = doc.get("imports") if isinstance(doc, dict) else None
-        if imports is None:
-            return True
-        if not isinstance(imports, list):
-            return False
-        for item in imports:
-            if not (isinstance(item, dict) and isinstance(item.get("file"), str)):
-                return False
-            if not visit(p.parent / item["file"]):
-                return False
-        return True
-
-    if not visit(Path(path)):
-        return None
-    if scene_path is not None:
-        sp = Path(scene_path)
-        try:
-            if not tables(sp, sp.read_bytes(), None):
-                return None
-        except (OSError, yaml.YAMLError, UnicodeDecodeError, ValueError, RecursionError):
-            return None
-    return out
+    files = reached_files(path, scene_path)
+    return None if files is None else [(r.resolved, r.data) for r in files]
 
 
 def tool_versions() -> str:
@@ -128,8 +56,10 @@ def _code_digest() -> str:
     from bgc.base.paths import code_files
 
     h = hashlib.sha256()
+    from bgc.base.safeio import read_bytes
+
     for name, path in code_files():
-        h.update(name.encode() + b"\0" + Path(path).read_bytes() + b"\0")
+        h.update(name.encode() + b"\0" + read_bytes(path, 64 << 20) + b"\0")
     return h.hexdigest()
 
 
@@ -139,22 +69,26 @@ def key(target: str, model_path, scene_path=None, extra: str = "") -> str | None
 
 
 def key_inputs(target: str, model_path, scene_path=None, extra: str = ""):
-    """(key or None, the (path, bytes) it digested, the scene's bytes or None): a run record
-    (bgc.run.record) keeps the digests of exactly the bytes the key was made of."""
+    """(key or None, the files it digested (bgc.base.reach.Reached: the path as reached, the
+    resolved path, the bytes), the scene's bytes or None): a run record (bgc.run.record)
+    keeps the paths and digests of exactly the bytes the key was made of."""
     import hashlib
 
-    files = model_files(model_path, scene_path)
+    from bgc.base.reach import MAX_BYTES, reached_files
+    from bgc.base.safeio import read_bytes
+
+    files = reached_files(model_path, scene_path)
     if files is None:
         return None, [], None
     h = hashlib.sha256()
     h.update(f"bgc {__version__}\0{tool_versions()}\0{target}\0{extra}\0".encode())
     h.update(_code_digest().encode())
-    for name, data in files:  # models, imports and tables (by file name: keys do not move)
-        h.update(b"model\0" + Path(name).name.encode() + b"\0" + data + b"\0")
+    for f in files:  # models, imports and tables (by file name: keys do not move)
+        h.update(b"model\0" + Path(f.resolved).name.encode("utf-8", "surrogateescape") + b"\0" + f.data + b"\0")
     scene = None
     if scene_path is not None:
         try:
-            scene = Path(scene_path).read_bytes()
+            scene = read_bytes(scene_path, MAX_BYTES)
         except OSError:
             return None, [], None
         h.update(b"scene\0" + scene)

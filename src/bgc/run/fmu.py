@@ -10,9 +10,14 @@ from bgc.base.errors import ModelError
 
 def export_fmu(model_path, out, scene_path=None, kind: str = "both", progress=None) -> Path:
     """Compile MODEL (or SCENE's specialised model) and write the FMU to out (atomically)."""
+    from bgc.base.outfiles import check_output
+    from bgc.base.reach import run_inputs
+
     say = progress or (lambda msg: None)
     if kind not in KINDS:
         raise ModelError(None, f"unknown FMU kind {kind!r}: one of {', '.join(KINDS)}")
+    ins = run_inputs(model_path, scene_path)
+    check_output(out, ins, "--fmu")  # refused before anything is compiled
     scene = None
     if scene_path is not None:
         from bgc.format.scene import parse_scene
@@ -30,4 +35,5 @@ def export_fmu(model_path, out, scene_path=None, kind: str = "both", progress=No
     from bgc.base.store import Cache
 
     # the C runtime's objects from the compile cache, as `bgc compile --target c` builds them
-    return package_fmu(compiled, out, scene, kind, progress, Cache())
+    return package_fmu(compiled, out, scene, kind, progress, Cache(),
+                       inputs=run_inputs(model_path, scene_path))

@@ -233,9 +233,10 @@ def render_plots(scene, t, y, units=None) -> list[tuple[str, bytes]]:
 def write_plots(scene, t, y, outdir, inputs=None, rendered=None, units=None) -> list[Path]:
     """The scene's plots as PNGs in ``outdir`` (created if missing), each through the checked
     writer (bgc.base.outfiles). ``rendered``: the figures of :func:`render_plots`, if drawn."""
-    from bgc.base.outfiles import prepare_folder, write_output
+    from bgc.base.outdirs import out_folder
+    from bgc.base.outfiles import write_output
 
     figures = render_plots(scene, t, y, units) if rendered is None else rendered
-    outdir = prepare_folder(outdir, "--plot")
+    outdir = out_folder(outdir, "--plot")  # a folder, not a link to one
     return [write_output(_name(outdir, fname), data, inputs, "plot")
             for fname, data in figures]

@@ -16,8 +16,12 @@ missing file, another compiler, an option or spelling it does not know, ``--plot
 fails numerically is diagnosed by the full way's code (its located message, exit status 1).
 
 The record key: bgc's version, a stamp of bgc's sources and templates (name, size, mtime),
-Python's version, the installed sympy, the scene's absolute path and bytes, the options that
-shape the run, and ``CC`` and ``PATH`` (which compiler). Records are marshal data in the
+Python's version, the installed sympy, the scene's absolute and resolved paths and bytes, the
+options that shape the run, and ``CC`` and ``PATH`` (which compiler). Each file the run read
+is kept as reached (the path the parser opened), as resolved and by the digest of its bytes:
+a replay needs all three to agree (bgc.base.reach, read with the bounded reader), so a
+re-pointed link or a moved folder goes the full way. A record that cannot be decoded or whose
+fields are out of range is discarded with a note. Records are marshal data in the
 checked cache directory (``<cache>/run``), each written to a temporary file and renamed over
 its place, so a reader sees a whole record or none, and the newest run's record wins.
 """
@@ -34,6 +38,8 @@ from bgc.base import __version__
 
 #: Record format; bump when the record's fields change.
 FORMAT = 2
+#: The largest scene a replay reads (larger ones go the full way, which refuses them).
+SCENE_BYTES = 16 << 20
 TARGET = "run"
 
 #: `bgc simulate` options a record replays: (name, takes a value). Output options (``--out``,
@@ -92,7 +98,8 @@ def record_key(scene_path: str, scene_bytes: bytes, options: str) -> str:
 
     h = _blake()
     for part in (f"bgc run record {FORMAT}", __version__, sys.version, tool_versions(),
-                 code_stamp(), os.path.abspath(scene_path), options,
+                 code_stamp(), os.path.abspath(scene_path), os.path.realpath(scene_path),
+                 options,
                  os.environ.get("CC", ""), os.environ.get("PATH", "")):
         h.update(part.encode("utf-8", "surrogateescape") + b"\0")
     h.update(scene_bytes)
@@ -161,13 +168,78 @@ def load(store, key: str) -> dict | None:
             return None
         for sub in (store.path, store.path / TARGET, Path(p).parent):
             check_dir(Path(sub))
-        with open(p, "rb") as fh:
-            rec = marshal.loads(fh.read())
-    except (OSError, ValueError, EOFError, TypeError, UnsafeCache):
+        from bgc.base.safeio import read_bytes
+
+        data = read_bytes(p, 64 << 20, follow=False)
+    except (OSError, UnsafeCache):
         return None
-    if not isinstance(rec, dict) or rec.get("format") != FORMAT:
+    try:
+        rec = marshal.loads(data)
+        why = None if isinstance(rec, dict) and rec.get("format") != FORMAT else _invalid(rec)
+    except (ValueError, EOFError, TypeError, RecursionError, MemoryError) as exc:
+        why = f"{type(exc).__name__}"
+    if why is not None:
+        _discard(p, why)
+        return None
+    if rec.get("format") != FORMAT:
         return None
     return rec
+
+
+def _discard(path: str, why: str) -> None:
+    """A corrupt record: removed (the full way runs and writes a new one), with a note."""
+    print(f"note: discarded a corrupt record of an earlier run ({why}); running the scene the "
+          "full way", file=sys.stderr)
+    try:
+        os.unlink(path)
+    except OSError:
+        pass
+
+
+def _finite(v, positive: bool = False) -> bool:
+    import math
+
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and \
+        (v > 0 or not positive)
+
+
+def _invalid(rec) -> str | None:
+    """Why a decoded record cannot be replayed (None: it can): every field has the type and
+    range the full way writes, so a damaged record never reaches the module's simulate."""
+    from bgc.base.limits import LIMITS
+
+    if not isinstance(rec, dict):
+        return "not a record"
+    run = rec.get("run")
+    if not isinstance(run, dict):
+        return "no run arguments"
+    span = run.get("t_span")
+    if not (isinstance(span, list) and len(span) == 2 and all(_finite(v) for v in span)
+            and span[1] > span[0]):
+        return "bad t_span"
+    dt = run.get("dt")
+    if dt is not None and not (_finite(dt, True) and
+                               (span[1] - span[0]) / dt <= LIMITS.output_samples):
+        return "bad dt"
+    for k in ("rtol", "atol"):
+        if not _finite(run.get(k), True):
+            return f"bad {k}"
+    ms, mw = run.get("max_step"), run.get("max_wall")
+    if not (isinstance(ms, (int, float)) and ms > 0) or not (mw is None or _finite(mw, True)):
+        return "bad max_step or max_wall"
+    if not isinstance(run.get("method"), str) or not isinstance(run.get("breakpoints"), list):
+        return "bad method or breakpoints"
+    files = rec.get("files")
+    if not (isinstance(files, list) and all(
+            isinstance(f, list) and len(f) == 3 and all(isinstance(x, str) for x in f)
+            for f in files)):
+        return "bad file list"
+    for k in ("backend", "key", "name", "scene_name", "scene_digest"):
+        if not isinstance(rec.get(k), str):
+            return f"bad {k}"
+    if rec["backend"] not in ("numpy", "c") or not isinstance(rec.get("inputs"), list):
+        return "bad backend or inputs"
+    return None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -181,11 +253,12 @@ def keep(scene_path, options: str, result) -> bool:
 
     if result.cache_entry is None or result.run_args is None:
         return False
+    from bgc.base.safeio import read_bytes
+
     backend, mkey, files, scene_bytes = result.cache_entry
     try:
-        with open(scene_path, "rb") as fh:
-            if scene_bytes is None or fh.read() != scene_bytes:
-                return False
+        if scene_bytes is None or read_bytes(scene_path, SCENE_BYTES) != scene_bytes:
+            return False
     except OSError:
         return False
     comp = None
@@ -195,8 +268,8 @@ def keep(scene_path, options: str, result) -> bool:
         comp = cbuild._stamp(tuple(cbuild.compiler()))
         if comp is None:
             return False
-    rec = {"format": FORMAT, "files": [[p, digest(b)] for p, b in files],
-           "scene_digest": digest(scene_bytes), "inputs": [p for p, _ in files],
+    rec = {"format": FORMAT, "files": [[f.path, f.resolved, digest(f.data)] for f in files],
+           "scene_digest": digest(scene_bytes), "inputs": [f.resolved for f in files],
            "backend": backend, "key": mkey, "name": result.module_name, "compiler": comp,
            "scene_name": result.scene.name, "run": result.run_args}
     try:  # a record is an optimisation: a file of bgc's that vanished meanwhile skips it
@@ -257,11 +330,9 @@ def replay(argv: list[str]) -> int | None:
     t0 = time.perf_counter()
     scene = opts["scene"]
     try:
-        st = os.stat(scene)
-        if not stat.S_ISREG(st.st_mode) or st.st_size > (16 << 20):
-            return None
-        with open(scene, "rb") as fh:
-            scene_bytes = fh.read()
+        from bgc.base.safeio import read_bytes
+
+        scene_bytes = read_bytes(scene, SCENE_BYTES)  # regular files only, never blocking
         from bgc.run.cache import Cache
 
         store = Cache()
@@ -270,12 +341,8 @@ def replay(argv: list[str]) -> int | None:
                                opts.get("strict_causality", False), opts.get("t_end"),
                                opts.get("max_steps"))
         rec = load(store, record_key(scene, scene_bytes, options))
-        if rec is None or rec["scene_digest"] != digest(scene_bytes):
+        if rec is None or rec["scene_digest"] != digest(scene_bytes) or not unchanged(rec):
             return None
-        for path, dg in rec["files"]:
-            with open(path, "rb") as fh:
-                if digest(fh.read()) != dg:
-                    return None
         backend = rec["backend"]
         if backend == "c":
             from bgc.backends.c import build as cbuild
@@ -302,6 +369,19 @@ def replay(argv: list[str]) -> int | None:
         if isinstance(exc, ModelError):
             return None
         raise
+
+
+def unchanged(rec: dict) -> bool:
+    """Whether every file the record names is still what the run read: reached by the same
+    path, resolving to the same file (a re-pointed link or a moved folder is a change), with
+    the same bytes (read with the bounded reader)."""
+    from bgc.base.reach import MAX_BYTES
+    from bgc.base.safeio import read_bytes
+
+    for path, resolved, dg in rec["files"]:
+        if os.path.realpath(path) != resolved or digest(read_bytes(path, MAX_BYTES)) != dg:
+            return False
+    return True
 
 
 def _run(rec: dict, opts: dict, store, entry, scene: str, t0: float) -> int | None:

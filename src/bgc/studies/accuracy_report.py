@@ -229,7 +229,9 @@ def plot_study(st: Study, out_dir, inputs=None) -> list:
 
 
 def write_all(st: Study, out_dir, inputs=None) -> list:
-    out_dir = Path(out_dir)
+    from bgc.base.outdirs import out_folder
+
+    out_dir = out_folder(out_dir, "--out")  # a folder, not a link to one
     imgs = plot_study(st, out_dir, inputs)
     csvf = out_dir / f"{st.setup.name}_runs.csv"
     md = out_dir / f"{st.setup.name}_accuracy.md"

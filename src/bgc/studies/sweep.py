@@ -102,6 +102,7 @@ class Prepared:
     c_files: dict = field(default_factory=dict)  # C file name -> text
     c_wrapper: str = ""  # the C wrapper module's text
     c_key: str = ""  # their compile-cache key on the client's machine (backends.c_key)
+    inputs: object = None  # the run's inputs (bgc.base.outfiles.Inputs): no output replaces one
 
     @property
     def n(self) -> int:
@@ -238,6 +239,9 @@ def prepare(scene_path, progress=None, backend: str | None = None) -> Prepared:
                     dict(mod.PARAM_UNITS), spec, c_files=files, c_wrapper=wrapper, c_key=ckey)
     if backend == "c":
         load(prep, progress)  # built once here: the workers on this machine find it cached
+    from bgc.base.reach import run_inputs
+
+    prep.inputs = run_inputs(scene.model_path, scene_path)
     return prep
 
 

@@ -2,7 +2,6 @@
 each swept quantity (a statistic per sample, or the fan of every run over time)."""
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 
@@ -12,9 +11,12 @@ def plot_sweep(prep, ds, out_dir) -> list:
     fan of its trajectories (stat: fan). Failed instances are left out."""
     from bgc.run.plots import plain_text, pyplot
 
+    import io
+
+    from bgc.base.outdirs import out_folder, write_in
+
     plt = pyplot()
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = out_folder(out_dir, "--plot")  # a folder, not a link to one
     spec = prep.spec
     outs = spec.plot_outputs or prep.outputs[:3]
     ok = ds["status"].values == 0
@@ -67,8 +69,9 @@ def plot_sweep(prep, ds, out_dir) -> list:
             fig.suptitle(plain_text(f"{prep.scene_name}: {spec.plot_stat} {o} against the swept "
                                 "values" + (" (red: failed instances)" if (~ok).any() else "")))
         fig.tight_layout()
-        path = out_dir / f"{prep.scene_name}_sweep_{o}.png"
-        fig.savefig(path)
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png")
         plt.close(fig)
-        files.append(path)
+        files.append(write_in(out_dir, f"{prep.scene_name}_sweep_{o}.png", buf.getvalue(),
+                              getattr(prep, "inputs", None), "--plot"))
     return files

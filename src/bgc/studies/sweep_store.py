@@ -6,7 +6,6 @@ a store made for another sweep is refused. ``prep`` below is a
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 
@@ -61,14 +60,21 @@ class SweepMismatch(ModelError):
 
 
 def open_or_create(prep, out, chunk: int, restart: bool = False) -> list[bool]:
-    """The store at out, created if missing; its completion record (one flag per chunk)."""
-    import shutil
+    """The store at out, created if missing; its completion record (one flag per chunk).
 
+    The store is a folder bgc marks as its own (bgc.base.outdirs.MARKER); ``restart`` empties
+    only such a folder, and in it only the store's own entries (the Zarr metadata files and
+    array folders): never a folder bgc did not make, nor anything else in it
+    (bgc.studies.sweep_folder)."""
     import xarray as xr
 
+    from bgc.base.outdirs import mark_folder, remove_marked
+    from bgc.studies.sweep_folder import STORE_KIND, _zarr_entries, _zarr_own, check_store
+
     digest = prep.digest(chunk)
-    out = Path(out)
-    if out.exists() and not restart:
+    out = check_store(out)
+    inputs = getattr(prep, "inputs", None)
+    if out.exists() and not restart and _zarr_entries(out):
         try:
             old = xr.open_zarr(out, consolidated=None)
             h = old.attrs.get("bgc_sweep_hash")
@@ -82,8 +88,9 @@ def open_or_create(prep, out, chunk: int, restart: bool = False) -> list[bool]:
                                       "to discard them, or write to a new --out")
         return done
     if out.exists():
-        shutil.rmtree(out)
-    _skeleton(prep, chunk, digest).to_zarr(out, compute=False, mode="w", zarr_format=2,
+        remove_marked(out, STORE_KIND, _zarr_own, inputs, "--out")
+    mark_folder(out, STORE_KIND, inputs, "--out")
+    _skeleton(prep, chunk, digest).to_zarr(out, compute=False, mode="a", zarr_format=2,
                                            consolidated=True)
     return [False] * len(chunk_bounds(prep.n, chunk))
 

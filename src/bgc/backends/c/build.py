@@ -215,11 +215,14 @@ def _runtime_objects(cache, jobs: int, tmpdir, coord=None) -> list[Path]:
 
 
 def build_library(srcdir: Path, files: list[str], cache=None, jobs: int | None = None,
-                  extra: tuple[str, ...] = (), lib_name: str = LIB_NAME, coord=None) -> Path:
+                  extra: tuple[str, ...] = (), lib_name: str = LIB_NAME, coord=None,
+                  inputs=None) -> Path:
     """Compile the model's C files in srcdir (in parallel) with :func:`flags` (and ``extra``,
     for these files only: the FMU's ``-fvisibility=hidden``), link them with the runtime's
     objects (the compile cache's, when given) into srcdir/lib_name. Raises CompilerMissing
-    without a compiler, CompilerFailed (at ``coord``) when it refuses the sources."""
+    without a compiler, CompilerFailed (at ``coord``) when it refuses the sources. The
+    library goes through the checked writer: never over ``inputs``, a link or anything but
+    a regular file."""
     identity()
     srcdir = Path(srcdir).resolve()  # the compiler runs in srcdir: a relative path would not
     jobs = jobs or os.cpu_count() or 1
@@ -241,10 +244,13 @@ def build_library(srcdir: Path, files: list[str], cache=None, jobs: int | None =
                                srcdir, coord),
                            objdir / (Path(f).stem + ".o"))[1], files))
             rt_objs = rt.result()
-        tmp = srcdir / f".{lib_name}.tmp{os.getpid()}"
-        _cc(fl + ["-shared", "-o", str(tmp)] + [str(o) for o in objs + rt_objs] + ["-lm"],
+        lib = objdir / lib_name  # linked in bgc's own temporary folder, then written checked
+        _cc(fl + ["-shared", "-o", str(lib)] + [str(o) for o in objs + rt_objs] + ["-lm"],
             srcdir, coord)
-        os.replace(tmp, srcdir / lib_name)
+        from bgc.base.outfiles import write_output
+        from bgc.base.safeio import read_bytes
+
+        write_output(srcdir / lib_name, read_bytes(lib, 1 << 30), inputs, "-o")
     finally:
         shutil.rmtree(objdir, ignore_errors=True)
     return srcdir / lib_name

@@ -132,6 +132,9 @@ def model_description(compiled, spec: FmuSpec, scene=None, kind: str = "both",
             ET.SubElement(iu, "Unknown", {"index": str(i),
                                           "dependencies": " ".join(map(str, deps))})
     ET.indent(root, space="  ")
+    from bgc.backends.fmu.xmltext import clean_tree
+
+    clean_tree(root)  # the one door: only characters XML 1.0 can hold
     buf = io.BytesIO()
     ET.ElementTree(root).write(buf, encoding="UTF-8", xml_declaration=True)
     return buf.getvalue() + b"\n"
@@ -287,17 +290,33 @@ def build_binary(src: Path, cfiles: list[str], out: Path, cache=None, coord=None
     os.replace(lib, out)
 
 
+def _zip(entries) -> bytes:
+    """The FMU's bytes: a zip of (name, data), with fixed dates and modes (reproducible)."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
+        for name, data in entries:
+            zi = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
+            zi.compress_type = zipfile.ZIP_DEFLATED
+            zi.external_attr = 0o644 << 16
+            zf.writestr(zi, data)
+    return buf.getvalue()
+
+
 def package_fmu(compiled, out, scene=None, kind: str = "both", progress=None,
-                cache=None) -> Path:
+                cache=None, inputs=None) -> Path:
     """The FMU of a compiled model (specialised to ``scene`` when given), written to ``out``
-    atomically: its description, C sources and built binary in one zip (the C runtime's
-    objects from ``cache``, a bgc.base.store.Cache, when given)."""
+    through the checked writer (bgc.base.outfiles: never over an input of the run, given as
+    ``inputs``, a link or anything but a regular file; atomic): its description, C sources
+    and built binary in one zip (the C runtime's objects from ``cache``, a
+    bgc.base.store.Cache, when given)."""
+    from bgc.base.outfiles import check_output, write_output
+
+    check_output(out, inputs, "--fmu")  # before anything is built
     say = progress or (lambda msg: None)
     if kind not in KINDS:
         raise ModelError(None, f"unknown FMU kind {kind!r}: one of {', '.join(KINDS)}")
     fmi_headers_dir()  # fail early without FMPy's headers
     spec = build_spec(compiled, scene, kind)
-    out = Path(out)
     work = Path(tempfile.mkdtemp(prefix="bgc-fmu-"))
     try:
         src = work / "sources"
@@ -313,21 +332,9 @@ def package_fmu(compiled, out, scene=None, kind: str = "both", progress=None,
         for f in sorted(src.iterdir()):
             entries.append((f"sources/{f.name}", f.read_bytes()))
         entries.append((f"binaries/{platform_dir()}/{libname}", lib.read_bytes()))
-        out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = out.with_name(f".{out.name}.tmp{os.getpid()}")
-        try:
-            with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
-                for name, data in entries:
-                    zi = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
-                    zi.compress_type = zipfile.ZIP_DEFLATED
-                    zi.external_attr = 0o644 << 16
-                    zf.writestr(zi, data)
-            os.replace(tmp, out)
-        finally:
-            if tmp.exists():
-                tmp.unlink()
+        write_output(out, _zip(entries), inputs, "--fmu")  # checked, atomic
     finally:
         shutil.rmtree(work, ignore_errors=True)
     say(f"wrote {out}: {spec.n} states, {spec.np} parameters, {spec.nu} inputs, "
         f"{spec.nout} outputs")
-    return out
+    return Path(out)
