@@ -46,7 +46,7 @@ _MODEL_TOP = {
                "JAC_SPARSITY", "_P0", "X0", "INPUT_LABELS", "OUTPUT_LABELS", "_TABLES",
                "TABLE_BREAKPOINTS", "TABLE_MAX_STEP", "OUTPUT_UNITS", "INPUT_UNITS",
                "_NEWTON_WARM", "RHS_USES_T"},
-    "FunctionDef": {"_unpack", "_params", "_inputs", "initial_state", "rhs", "jacobian",
+    "FunctionDef": {"_unpack", "_floats", "_params", "_inputs", "initial_state", "rhs", "jacobian",
                     "outputs", "input_jacobian", "output_jacobian", "_bgc_linsolve"},
     "ClassDef": {"_Unpacked"},
 }
