@@ -30,13 +30,36 @@ def c_files(compiled) -> tuple[dict, str]:
 
 def write_c(compiled, outdir, cache=None, progress=None) -> Path:
     """Write the C sources, the runtime's sources, the wrapper (``<name>.py``) and the built
-    library into outdir; returns the wrapper's path."""
+    library into outdir; returns the wrapper's path. Built in a folder of its own inside
+    outdir and moved into place once the library is built: a compiler that fails leaves
+    nothing (and no outdir that was not there)."""
+    import os
+    import tempfile
+
+    out = Path(outdir)
+    made = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=".bgc-c-", dir=out))
+    try:
+        path = _write_c_into(compiled, stage, cache, progress)
+        for p in sorted(stage.iterdir()):
+            if p.is_dir() and (out / p.name).is_dir():
+                shutil.rmtree(out / p.name)
+            os.replace(p, out / p.name)
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        if made:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+    shutil.rmtree(stage, ignore_errors=True)
+    return out / path.name
+
+
+def _write_c_into(compiled, out: Path, cache=None, progress=None) -> Path:
     from bgc.backends.c import build as cbuild
     from bgc.base.outfiles import write_output
 
     say = progress or (lambda msg: None)
-    out = Path(outdir)
-    out.mkdir(parents=True, exist_ok=True)
     files, wrapper = c_files(compiled)
     for name, text in files.items():
         write_output(out / name, text)

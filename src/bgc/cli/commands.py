@@ -403,7 +403,10 @@ def _load_target(path, prog):
         sc = parse_scene(path)
         _, mod = compile_scene(sc, prog)
         return mod, runtime_params(sc, mod), sc.t_span[0], sc
+    from bgc.run.runner import check_module_start
+
     c = compile_model(parse_file(path), prog)
+    check_module_start(c)  # a zero mass, a root of a negative parameter: located here
     return load_module(c.source, c.model.name), None, 0.0, None
 
 
@@ -425,7 +428,11 @@ def linearize_cmd(target, at, out, bode, quiet):
     from bgc.linear import bode_plot, modes
 
     prog = _Progress(quiet)
+    from bgc.base.errors import Coord
+    from bgc.cli import guards
+
     mod, p, t0, sc = _load_target(target, prog)
+    coord = sc.coord if sc is not None and getattr(sc, "coord", None) else Coord(str(target), 1, 1)
     pairs = []
     for spec in bode:
         i_name, sep, o_name = spec.partition(":")
@@ -437,7 +444,7 @@ def linearize_cmd(target, at, out, bode, quiet):
     if at == "equilibrium":
         t = t0
         prog("finding the equilibrium")
-        x, info = mod.equilibrium(p=p, t=t)
+        x, info = guards.equilibrium(mod, p, t, coord)
         if not info.converged:
             raise ModelError(None, f"no equilibrium found (max |dx/dt| = {info.residual:.3g} "
                                    "after Newton): linearise at a time instead (--at TIME)")
@@ -457,7 +464,7 @@ def linearize_cmd(target, at, out, bode, quiet):
         else:
             x = mod.initial_state(p)
         where = f"t = {t:g} s"
-    lin = mod.linearize(t, x, None, p)
+    lin = guards.linearization(mod, t, x, p, coord, where)
     ms = modes(lin[0], mod.STATE_NAMES)
     buf = io.StringIO()
     buf.write(f"linearised at {where}: {mod.N_STATES} states, {len(mod.INPUT_LABELS)} inputs, "

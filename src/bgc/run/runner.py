@@ -99,7 +99,7 @@ def _scene_module(scene: Scene, progress=None, backend: str = "numpy", use_cache
         from bgc.backends.c import build as cbuild
 
         if not cbuild.available():
-            say(f"no C compiler ({' '.join(cbuild.compiler())!r} cannot run; set CC): "
+            say(f"no C compiler ({cbuild.cc_text()!r} cannot run; set CC): "
                 "using the numpy backend")
             backend = "numpy"
         elif not cbuild.runtime_sources():
@@ -119,7 +119,7 @@ def _scene_module(scene: Scene, progress=None, backend: str = "numpy", use_cache
         try:
             _, mod = backends.load(name, backend, key, compile_fn, store, progress)
         except ModelError as exc:
-            if backend != "c" or type(exc).__name__ != "CUnsupported":
+            if backend != "c" or type(exc).__name__ not in ("CUnsupported", "CompilerFailed"):
                 raise
             say(f"{exc.message}: using the numpy backend")
             return _scene_module(scene, progress, "numpy", use_cache, strict_causality)

@@ -409,7 +409,7 @@ def choose_backend(compiled, backend=None, progress=None):
     from bgc.backends.c.printer import CUnsupported
 
     if not cbuild.available():
-        say(f"no C compiler ({' '.join(cbuild.compiler())!r} cannot run; set CC): using the "
+        say(f"no C compiler ({cbuild.cc_text()!r} cannot run; set CC): using the "
             "numpy backend")
         return "numpy", {}, "", ""
     if not cbuild.runtime_sources():

@@ -28,9 +28,23 @@ class CompilerMissing(ModelError):
         super().__init__(None, message)
 
 
+class CompilerFailed(CompilerMissing):
+    """A compiler that runs but cannot build bgc's C code (a wrong CC): as no compiler, the
+    command says so in one line and falls back to numpy where it can."""
+
+
+def cc_text() -> str:
+    """The compiler command as set (CC, else cc), for messages: never fails."""
+    return os.environ.get("CC", "").strip() or "cc"
+
+
 def compiler() -> list[str]:
     cc = os.environ.get("CC", "").strip() or "cc"
-    return shlex.split(cc)
+    try:
+        return shlex.split(cc)
+    except ValueError as exc:  # an unbalanced quote
+        raise CompilerMissing(f"no C compiler: CC={cc!r} cannot be split into a command "
+                              f"({exc}); set CC, or use the numpy backend") from None
 
 
 def _run_version(cc: tuple[str, ...]) -> str:
@@ -164,10 +178,17 @@ def runtime_key() -> str:
 def _cc(args: list[str], cwd: Path) -> None:
     import subprocess
 
-    r = subprocess.run(compiler() + args, cwd=cwd, capture_output=True, text=True)
+    try:
+        r = subprocess.run(compiler() + args, cwd=cwd, capture_output=True, text=True,
+                           errors="replace")
+    except OSError as exc:
+        raise CompilerFailed(f"the C compiler {' '.join(compiler())!r} cannot run ({exc}); "
+                             "set CC, or use the numpy backend") from None
     if r.returncode != 0:
-        raise RuntimeError(f"the C compiler failed ({' '.join(compiler() + args)}):\n"
-                           f"{r.stderr[-4000:]}")
+        first = next((ln.strip() for ln in r.stderr.splitlines() if "error" in ln.lower()),
+                     (r.stderr.strip().splitlines() or [f"exit status {r.returncode}"])[0])
+        raise CompilerFailed(f"the C compiler {' '.join(compiler())!r} failed on bgc's C code "
+                             f"({first[:200]}); set CC, or use the numpy backend")
 
 
 def _runtime_objects(cache, jobs: int, tmpdir) -> list[Path]:
@@ -178,6 +199,7 @@ def _runtime_objects(cache, jobs: int, tmpdir) -> list[Path]:
     def build(tmp: Path):
         from concurrent.futures import ThreadPoolExecutor
 
+        tmp = Path(tmp).resolve()  # the compiler runs in tmp (a relative BGC_CACHE_DIR too)
         inc = runtime_sources()[0].parent if runtime_sources() else tmp
         srcs = runtime_sources()
         with ThreadPoolExecutor(max_workers=jobs) as ex:
@@ -197,7 +219,7 @@ def build_library(srcdir: Path, files: list[str], cache=None, jobs: int | None =
     """Compile the model's C files in srcdir (in parallel), link them with the runtime's
     objects into srcdir/LIB_NAME. Raises CompilerMissing without a compiler."""
     identity()
-    srcdir = Path(srcdir)
+    srcdir = Path(srcdir).resolve()  # the compiler runs in srcdir: every path absolute
     jobs = jobs or os.cpu_count() or 1
     fl = list(flags())
     inc = str(runtime_sources()[0].parent) if runtime_sources() else str(srcdir)

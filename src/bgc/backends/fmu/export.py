@@ -508,6 +508,13 @@ def write_sources(compiled, spec, scene, kind, dest: Path) -> list[str]:
 _RUNTIME_OBJS: dict = {}
 
 
+def _first_error(stderr: str) -> str:
+    """The compiler's first error line, for a one-line message."""
+    lines = stderr.strip().splitlines()
+    return next((ln.strip() for ln in lines if "error" in ln.lower()),
+                lines[0].strip() if lines else "no message")[:200]
+
+
 def build_binary(src: Path, cfiles: list[str], out: Path) -> None:
     """Compile the sources with the system C compiler into the shared library out."""
     from bgc.backends.c import build as cbuild
@@ -523,7 +530,8 @@ def build_binary(src: Path, cfiles: list[str], out: Path) -> None:
             r = subprocess.run(cc + fl + ["-c", str(src / f), "-o", str(o)],
                                capture_output=True, text=True)
             if r.returncode != 0:
-                raise RuntimeError(f"the C compiler failed on {f}:\n{r.stderr[-4000:]}")
+                raise cbuild.CompilerFailed(f"the C compiler {' '.join(cc)!r} failed on the "
+                                            f"FMU's {f} ({_first_error(r.stderr)}); set CC")
             return o
 
         # the runtime's objects do not change from one model to the next: once per process
@@ -539,7 +547,8 @@ def build_binary(src: Path, cfiles: list[str], out: Path) -> None:
         r = subprocess.run(cc + ["-shared", "-fPIC", "-o", str(out)] + [str(o) for o in objs]
                            + ["-lm"], capture_output=True, text=True)
         if r.returncode != 0:
-            raise RuntimeError(f"linking the FMU's library failed:\n{r.stderr[-4000:]}")
+            raise cbuild.CompilerFailed(f"linking the FMU's library failed "
+                                        f"({_first_error(r.stderr)}); set CC")
     finally:
         shutil.rmtree(objdir, ignore_errors=True)
 
