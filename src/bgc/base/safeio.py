@@ -29,6 +29,28 @@ def read_text_bounded(path, coord: Coord | None, what: str, limit: int) -> str:
     shown = _show(spath)
     if "\0" in spath:
         raise ModelError(where, f"cannot read {what} {shown}: the path contains a NUL byte")
+    data = _read_bounded(spath, where, shown, what, limit)
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        before = data[:exc.start]
+        line = before.count(b"\n") + 1
+        col = len(before[before.rfind(b"\n") + 1:].decode("utf-8", "replace")) + 1
+        raise ModelError(Coord(spath, line, col), f"{what} is not UTF-8 text "
+                                                  f"(byte 0x{data[exc.start]:02x})") from None
+
+
+def read_bytes_bounded(path, what: str, limit: int) -> bytes:
+    """The bytes of the regular file ``path``, at most ``limit`` of them: a ModelError (at the
+    file's first character) for a folder, FIFO, device, or a file over the limit. For readers
+    that digest files (the compile cache's key) before any parser has checked them."""
+    spath = os.fspath(path)
+    if "\0" in spath:
+        raise ModelError(Coord(spath, 1, 1), f"cannot read {what}: the path contains a NUL byte")
+    return _read_bounded(spath, Coord(spath, 1, 1), _show(spath), what, limit)
+
+
+def _read_bounded(spath: str, where: Coord, shown: str, what: str, limit: int) -> bytes:
     flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0)
     try:
         fd = os.open(spath, flags)
@@ -60,15 +82,7 @@ def read_text_bounded(path, coord: Coord | None, what: str, limit: int) -> str:
         raise ModelError(where, f"cannot read {what} {shown}: {_why(exc)}") from None
     finally:
         os.close(fd)
-    data = b"".join(chunks)
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        before = data[:exc.start]
-        line = before.count(b"\n") + 1
-        col = len(before[before.rfind(b"\n") + 1:].decode("utf-8", "replace")) + 1
-        raise ModelError(Coord(spath, line, col), f"{what} is not UTF-8 text "
-                                                  f"(byte 0x{data[exc.start]:02x})") from None
+    return b"".join(chunks)
 
 
 def _why(exc: OSError) -> str:

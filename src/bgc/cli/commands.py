@@ -393,10 +393,10 @@ def _load_target(path, prog):
     from bgc.format.scene import parse_scene
     from bgc.run.driver import compile_model
 
-    try:
-        head = Path(path).read_text(encoding="utf-8")[:4096]
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ModelError(None, f"cannot read {path}: {exc}") from None
+    from bgc.base.limits import LIMITS
+    from bgc.base.safeio import read_text_bounded
+
+    head = read_text_bounded(path, None, "model or scene file", LIMITS.model_bytes)[:4096]
     if "bgc_scene" in head:
         from bgc.run.runner import compile_scene, runtime_params
 

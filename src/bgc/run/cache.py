@@ -15,10 +15,22 @@ import sys
 from pathlib import Path
 
 from bgc.base import __version__
+from bgc.base.errors import ModelError
+from bgc.base.limits import LIMITS
+from bgc.base.safeio import read_bytes_bounded
 from bgc.base.store import TARGETS, Cache, UnsafeCache, root  # noqa: F401 (the cache's face)
 
 # ---------------------------------------------------------------------------------------------
 # Keys
+
+_TABLE_BYTES = 16 * 1024 * 1024  # bgc.format.tables.MAX_BYTES
+
+
+def _small(path, limit: int) -> bytes:
+    """A file's bytes, size-checked before reading (a 10 GB sparse model, a FIFO): a
+    ModelError the callers turn into "no key" (the compile then reports it, located)."""
+    return read_bytes_bounded(path, "file", limit)
+
 
 def _table_refs(doc) -> list[str]:
     """Every ``table: FILE`` value in a loaded YAML document (inputs given as data), found
@@ -61,8 +73,8 @@ def model_files(path, scene_path=None) -> list[tuple[str, bytes]] | None:
                 continue
             seen.add(rt)
             try:
-                out.append((rt, tp.read_bytes()))
-            except OSError:
+                out.append((rt, _small(tp, _TABLE_BYTES)))
+            except (OSError, ModelError):
                 return False
         return True
 
@@ -72,12 +84,13 @@ def model_files(path, scene_path=None) -> list[tuple[str, bytes]] | None:
             return True
         seen.add(rp)
         try:
-            data = p.read_bytes()
+            data = _small(p, LIMITS.model_bytes)
             doc = load(data, b"imports", None)
             out.append((rp, data))
             if not tables(p, data, doc):
                 return False
-        except (OSError, yaml.YAMLError, UnicodeDecodeError, ValueError, RecursionError):
+        except (OSError, ModelError, yaml.YAMLError, UnicodeDecodeError, ValueError,
+                RecursionError):
             return False
         imports = doc.get("imports") if isinstance(doc, dict) else None
         if imports is None:
@@ -96,9 +109,10 @@ def model_files(path, scene_path=None) -> list[tuple[str, bytes]] | None:
     if scene_path is not None:
         sp = Path(scene_path)
         try:
-            if not tables(sp, sp.read_bytes(), None):
+            if not tables(sp, _small(sp, LIMITS.scene_bytes), None):
                 return None
-        except (OSError, yaml.YAMLError, UnicodeDecodeError, ValueError, RecursionError):
+        except (OSError, ModelError, yaml.YAMLError, UnicodeDecodeError, ValueError,
+                RecursionError):
             return None
     return out
 
@@ -154,8 +168,8 @@ def key_inputs(target: str, model_path, scene_path=None, extra: str = ""):
     scene = None
     if scene_path is not None:
         try:
-            scene = Path(scene_path).read_bytes()
-        except OSError:
+            scene = _small(scene_path, LIMITS.scene_bytes)
+        except (OSError, ModelError):
             return None, [], None
         h.update(b"scene\0" + scene)
     if target == "c":

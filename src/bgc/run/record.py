@@ -167,6 +167,18 @@ def load(store, key: str) -> dict | None:
     return rec
 
 
+def _same_file(path, dg) -> bool:
+    """The file still has the digest dg (read only while it is a regular file no larger than
+    a model, an import or a table may be: a swapped-in 10 GB file is simply not the same)."""
+    from bgc.base.errors import ModelError
+    from bgc.base.safeio import read_bytes_bounded
+
+    try:
+        return digest(read_bytes_bounded(path, "file", 16 << 20)) == dg
+    except ModelError:
+        return False
+
+
 # ---------------------------------------------------------------------------------------------
 # Writing a record (the full way, after a successful run)
 
@@ -267,9 +279,8 @@ def replay(argv: list[str]) -> int | None:
         if rec is None or rec["scene_digest"] != digest(scene_bytes):
             return None
         for path, dg in rec["files"]:
-            with open(path, "rb") as fh:
-                if digest(fh.read()) != dg:
-                    return None
+            if not _same_file(path, dg):
+                return None
         backend = rec["backend"]
         if backend == "c":
             from bgc.backends.c import build as cbuild

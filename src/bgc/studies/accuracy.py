@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from bgc.base.errors import ModelError, SimulationFailed
+from bgc.base.limits import LIMITS
 
 METHODS = ("RK45", "DOP853", "Radau", "BDF", "LSODA", "Rodas4")
 # the C backend's integrators (the whole step loop in the scene's compiled library)
@@ -450,12 +451,18 @@ def parse_tols(text: str) -> tuple:
                 raise ValueError
             ka, kb = round(-math.log10(a)), round(-math.log10(b))
             step = 1 if kb >= ka else -1
-            return tuple(10.0 ** -k for k in range(ka, kb + step, step))
-        tols = tuple(float(s) for s in text.split(",") if s.strip())
+            tols = tuple(10.0 ** -k for k in range(ka, kb + step, step))
+        else:
+            tols = tuple(float(s) for s in text.split(",") if s.strip())
     except ValueError:
         raise ModelError(None, f"--tols {text!r}: give 1e-3:1e-10 or a comma list") from None
     if not tols or not all(0 < t < 1 for t in tols):
         raise ModelError(None, f"--tols {text!r}: tolerances lie strictly between 0 and 1")
+    low = LIMITS.min_rtol
+    if any(t < low * (1 - 1e-9) for t in tols):
+        raise ModelError(None, f"--tols {text!r}: {min(tols):g} is below {low:g}, the smallest "
+                               "relative tolerance double precision resolves (a scene's rtol "
+                               "has the same bound)")
     return tols
 
 

@@ -52,6 +52,8 @@ from pathlib import Path
 import numpy as np
 
 from bgc.base.errors import Coord, ModelError
+from bgc.base.limits import LIMITS
+from bgc.base.safeio import read_text_bounded
 
 MAX_SAMPLES = 1_000_000
 GRIDS = ("linspace", "logspace", "values")
@@ -102,10 +104,7 @@ def parse_sweep(path) -> SweepSpec | None:
     from bgc.format.reader import Reader, require
 
     path = str(path)
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ModelError(Coord(path, 1, 1), f"cannot read scene file: {exc}") from None
+    text = read_text_bounded(path, None, "scene file", LIMITS.scene_bytes)
     r = Reader(path, text)
     root = r.compose()
     if root is None:
@@ -389,7 +388,7 @@ def solver_backend(path) -> str | None:
     from bgc.format.reader import Reader
 
     path = str(path)
-    r = Reader(path, Path(path).read_text(encoding="utf-8"))
+    r = Reader(path, read_text_bounded(path, None, "scene file", LIMITS.scene_bytes))
     top = r.mapping(r.compose(), "the scene")
     if "solver" not in top:
         return None
