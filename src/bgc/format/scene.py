@@ -312,7 +312,12 @@ def check_rtol(v: float, where: Coord | None, what: str) -> float:
 
 
 def apply_scene(model: Model, scene: Scene) -> Model:
-    """The model with the scene's input signals in place of the input defaults."""
+    """The model with the scene's input signals in place of the input defaults (and the
+    scene's parameter values checked against the parameters' shapes)."""
+    top = {p.name: p for p in model.body.params}
+    for k, (v, coord) in scene.params.items():
+        if k in top and not isinstance(top[k].value, Expr):
+            _check_value_shape(k, v, top[k], coord)
     names = {i.name for i in model.inputs}
     for iname, (_, coord) in scene.inputs.items():
         if iname not in names:
@@ -364,9 +369,6 @@ def scene_model(scene: Scene) -> Model:
     model = apply_scene(parse_file(scene.model_path), scene)
     values = {k: v for k, (v, _) in scene.params.items()}
     top = {p.name: p for p in model.body.params}
-    for k, (v, coord) in scene.params.items():
-        if k in top and not isinstance(top[k].value, Expr):
-            _check_value_shape(k, v, top[k], coord)
     if not any(k in top and not isinstance(top[k].value, Expr) for k in values):
         return model
     params = tuple(dataclasses.replace(p, value=values[p.name])
