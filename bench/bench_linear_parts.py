@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
 import bgc.backends.numpy.printer as emit  # noqa: E402
-from bgc.core.equations import LinearParts, linear_parts  # noqa: E402
+from bgc.core.forward import LinearParts, linear_parts  # noqa: E402
 from bgc.run.driver import compile_file  # noqa: E402
 
 

@@ -83,10 +83,10 @@ def chain_yaml(n: int, compliant: bool = False, k: float = 1.0e6, r: float = 10.
            f"description: planar chain of {n} rods with {kind} revolute joints, gravity, joint "
            "friction and a torque at the pivot", "", "parameters:", "  g: {value: 9.81, unit: m/s^2}"]
     for i in range(n):
-        out += [f"  m{i + 1}: {{value: {MASS[i]}, unit: kg}}",
-                f"  l{i + 1}: {{value: {LENGTH[i]}, unit: m}}",
-                f"  th{i + 1}_0: {{value: {TH0[i]}, unit: rad}}",
-                f"  w{i + 1}_0: {{value: {W0[i]}, unit: rad/s}}",
+        out += [f"  m{i + 1}: {{value: {MASS[i % len(MASS)]}, unit: kg}}",
+                f"  l{i + 1}: {{value: {LENGTH[i % len(LENGTH)]}, unit: m}}",
+                f"  th{i + 1}_0: {{value: {TH0[i % len(TH0)]}, unit: rad}}",
+                f"  w{i + 1}_0: {{value: {W0[i % len(W0)]}, unit: rad/s}}",
                 f"  c{i + 1}: {{value: 0.05, unit: N*m*s/rad, description: joint {i + 1} friction}}"]
     if compliant:
         out += [f"  k_j: {{value: {float(k)!r}, unit: N/m, description: joint stiffness}}",
@@ -104,7 +104,8 @@ def chain_yaml(n: int, compliant: bool = False, k: float = 1.0e6, r: float = 10.
 
     vx = vy = 0.0  # velocity of rod i's proximal end in the initial state
     for i in range(1, n + 1):
-        th, w, L = TH0[i - 1], W0[i - 1], LENGTH[i - 1]
+        j = (i - 1) % len(TH0)  # longer chains repeat the three rods
+        th, w, L = TH0[j], W0[j], LENGTH[j]
         cx, cy = vx - L / 2 * w * math.sin(th), vy + L / 2 * w * math.cos(th)
         vx, vy = vx - L * w * math.sin(th), vy + L * w * math.cos(th)
         init = f", vx0: {cx!r}, vy0: {cy!r}" if compliant else ""

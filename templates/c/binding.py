@@ -34,7 +34,8 @@ import threading as _threading
 
 _np_rhs, _np_jacobian, _np_outputs, _np_initial_state, _np_simulate = (
     rhs, jacobian, outputs, initial_state, simulate)
-C_METHODS = {"Rodas4": 0, "Radau": 1}  # the methods whose step loop runs in C
+C_METHODS = {"Rodas4": 0, "Radau": 1, "DOP853": 2}  # the methods whose step loop runs in C
+_EXPLICIT = ("DOP853",)  # C methods that need no Jacobian
 _C_STATUS = {1: "non-finite value", 2: "too many steps", 3: "step size too small",
              4: "wall time exceeded", 5: "singular iteration matrix", 6: "model failure",
              7: "bad arguments"}
@@ -236,8 +237,8 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
              stiff_check=True, max_wall=None, h0=0.0, nthreads=None):
     """Integrate over t_span; returns SimResult (t, x, y) as the numpy module's simulate.
 
-    method "Rodas4" or "Radau" (Radau IIA of order 5): the whole step loop runs in C, one call
-    per run; a batch (parameters or x0 spanning a batch shape) integrates each instance with
+    method "Rodas4", "Radau" (Radau IIA of order 5) or "DOP853" (explicit, order 8, for
+    non-stiff models): the whole step loop runs in C, one call per run; a batch (parameters or x0 spanning a batch shape) integrates each instance with
     its own step size, spread over nthreads threads (default: every CPU) when the library has
     OpenMP. max_steps counts steps per instance. Other methods, input overrides u and
     jac=False run in the numpy module's Python step loop (with the compiled rhs and Jacobian
@@ -245,7 +246,7 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
     (the C loop writes output times only, not every step). Statistics in result.stats: nfev,
     njev, nlu, nsteps (accepted steps), nrejected, nstiff, summed over a batch.
     """
-    if method not in C_METHODS or u is not None or not jac:
+    if method not in C_METHODS or u is not None or (not jac and method not in _EXPLICIT):
         return _np_simulate(t_span, t_eval=t_eval, method=method, rtol=rtol, atol=atol, p=p,
                             u=u, x0=x0, dt=dt, breakpoints=breakpoints, jac=jac,
                             max_step=max_step, max_steps=max_steps, stiff_check=stiff_check,

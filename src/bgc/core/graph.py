@@ -14,9 +14,9 @@ import networkx as nx
 
 from bgc.base.errors import Coord, ModelError
 from bgc.base.limits import LIMITS
-from bgc.format.expr import Expr
 from bgc.format.parse import ELEMENT_TYPES as _TYPES
 from bgc.format.parse import JUNCTIONS, STORAGE, TWO_PORTS, Body, Component, Model
+from bgc.format.whitelist import Expr
 
 MAX_DEPTH = LIMITS.component_depth
 

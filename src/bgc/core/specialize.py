@@ -27,18 +27,21 @@ Three passes, each reported in the generated module's header:
 
 A plan that changes nothing (no effect off, no parameter folded, outputs omitted or all of
 them with nothing to slice) gives the full model byte for byte.
+
+The removal of pass 1 is graph surgery of its own and lives in bgc.core.effects; this module
+holds the plan, the causality after the removal, and passes 2 and 3.
 """
 from __future__ import annotations
 
-import ast
 import dataclasses
 from dataclasses import dataclass, field
 
 from bgc.base.errors import Coord, ModelError
 from bgc.core.causality import Causality, assign_causality, derivative_message
-from bgc.core.equations import Equations
-from bgc.core.graph import BondGraph, FlatBond, join
-from bgc.format.expr import BOND_FUNCTIONS, Expr, dotted_path
+from bgc.core.effects import Refs, Removal, remove_effects
+from bgc.core.eqtypes import Equations
+from bgc.core.graph import BondGraph
+from bgc.format.whitelist import Expr
 
 
 @dataclass(frozen=True)
@@ -59,262 +62,8 @@ class Plan:
         return not self.effects_off and not self.fold and not self.outputs
 
 
-@dataclass(frozen=True)
-class Removal:
-    graph: BondGraph
-    removed: dict  # element id -> reason
-    removed_states: dict  # aux state id -> reason
-    zero: dict  # removed element or bond id -> cardinality: reads of it give zero
-    zero_sources: tuple[str, ...]  # junctions left with one bond, now zero sources
-    merged: dict  # junction id -> the bond that replaces it and its two bonds
-    notes: tuple[str, ...]
-
-
 # ---------------------------------------------------------------------------------------------
-# What expressions refer to
-
-
-def _raw_refs(expr: Expr) -> set[tuple[str, ...]]:
-    """Dotted paths an expression names: values and the arguments of e/f/p/q/power."""
-    out: set[tuple[str, ...]] = set()
-    stack = [expr.tree()]
-    while stack:
-        node = stack.pop()
-        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) \
-                and node.func.id in BOND_FUNCTIONS:
-            p = dotted_path(node.args[0]) if node.args else None
-            if p is not None:
-                out.add(p)
-            continue
-        if isinstance(node, ast.Call):
-            stack.extend(node.args)
-            continue
-        p = dotted_path(node)
-        if p is not None:
-            if len(p) > 1 and p[-1] == "T":
-                p = p[:-1]
-            out.add(p)
-            continue
-        stack.extend(ast.iter_child_nodes(node))
-    return out
-
-
-class _Refs:
-    """Resolves the names of a bond graph's expressions to flat ids (elements, bonds, states,
-    inputs), following component parameters bound to expressions of the parent scope."""
-
-    def __init__(self, bg: BondGraph):
-        self.bg = bg
-        self.memo: dict = {}
-
-    def of(self, expr: Expr, scope: tuple[str, ...], depth: int = 0) -> set[str]:
-        out: set[str] = set()
-        try:
-            paths = _raw_refs(expr)
-        except ModelError:
-            return out
-        for p in paths:
-            out |= self._resolve(scope, p, depth)
-        return out
-
-    def _resolve(self, scope, path, depth) -> set[str]:
-        sc = self.bg.scopes.get(scope)
-        if sc is None or depth > 16:
-            return set()
-        kind = sc.names.get(path[0])
-        if kind is None:
-            return set()
-        if kind == "instance":
-            return self._resolve(scope + (path[0],), path[1:], depth) if len(path) > 1 else set()
-        if len(path) != 1:
-            return set()
-        if kind == "param":
-            b = sc.bindings.get(path[0])
-            if b is not None and b.kind == "expr":
-                key = (scope, path[0])
-                if key not in self.memo:
-                    self.memo[key] = set()  # guards a cycle (reported by the equations stage)
-                    self.memo[key] = self.of(b.target, b.scope, depth + 1)
-                return self.memo[key]
-            return set()
-        return {join(scope, path[0])}
-
-    def everywhere(self) -> set[str]:
-        """Every id any expression of the graph names."""
-        bg = self.bg
-        out: set[str] = set()
-        for el in bg.elements:
-            if el.law is not None:
-                out |= self.of(el.law[1], el.scope)
-        for st in bg.states:
-            out |= self.of(st.derivative, st.scope)
-        for o in bg.model.body.outputs:
-            out |= self.of(o.expr, ())
-        for inp in bg.model.inputs:
-            out |= self.of(inp.default, ())
-        for sc in bg.scopes.values():
-            for b in sc.bindings.values():
-                if b.kind == "expr":
-                    out |= self.of(b.target, b.scope)
-        return out
-
-
-def known_effects(bg: BondGraph) -> set[str]:
-    out = set()
-    for el in bg.elements:
-        out.update(el.effects)
-    for st in bg.states:
-        out.update(st.effects)
-    return out
-
-
-def _zero_text(n: int) -> str:
-    return "0" if n == 1 else "[" + ", ".join(["0"] * n) + "]"
-
-
-# ---------------------------------------------------------------------------------------------
-# Pass 1: effects
-
-
-def remove_effects(bg: BondGraph, off: frozenset, coord=None) -> Removal:
-    """The bond graph without the elements of the effects turned off."""
-    if not off:
-        return Removal(bg, {}, {}, {}, (), {}, ())
-    effects = known_effects(bg)
-    unknown = sorted(set(off) - effects)
-    if unknown:
-        raise ModelError(coord, f"the model has no effect {unknown[0]!r} "
-                                f"(effects: {', '.join(sorted(effects)) or 'none'})")
-    removed: dict[str, str] = {}
-    for el in bg.elements:
-        hit = [e for e in el.effects if e in off]
-        if hit:
-            removed[el.id] = f"effect {hit[0]!r} off"
-    origin: dict[str, set] = {eid: {why.split("'")[1]} for eid, why in removed.items()}
-    kind = {el.id: el.type for el in bg.elements}
-    touched: set[str] = set()  # junctions that lost a bond
-
-    def live(eid):
-        return [b for b in bg.bonds_of(eid) if b.src not in removed and b.dst not in removed]
-
-    def cause(eid):
-        """The effects behind the removal of an element's dead neighbours."""
-        acc = set()
-        for b in bg.bonds_of(eid):
-            for x in (b.src, b.dst):
-                acc |= origin.get(x, set()) if x != eid else set()
-        origin[eid] = acc
-        return ", ".join(repr(e) for e in sorted(acc))
-
-    changed = True
-    while changed:
-        changed = False
-        for el in bg.elements:
-            if el.id in removed:
-                continue
-            lv = live(el.id)
-            if len(lv) < len(bg.bonds_of(el.id)):
-                touched.add(el.id)
-            t = kind[el.id]
-            why = None
-            if t in ("0", "1"):
-                if not lv:
-                    why = f"left without bonds by {cause(el.id)}"
-                elif len(lv) == 1:
-                    b = lv[0]
-                    other = b.dst if b.src == el.id else b.src
-                    if kind[other] == t:
-                        # a zero source of the neighbour's own kind: nothing to it
-                        why = f"left with one bond by {cause(el.id)}"
-                    else:
-                        kind[el.id] = "Se" if t == "1" else "Sf"
-                        changed = True
-                        continue
-            elif t in ("TF", "GY", "MTF", "MGY"):
-                if len(lv) < 2:
-                    why = f"left with one port by {cause(el.id)}"
-            elif not lv:
-                why = f"left unconnected by {cause(el.id)}"
-            elif t != el.type:  # a junction turned zero source: alone with another, both go
-                b = lv[0]
-                other = b.dst if b.src == el.id else b.src
-                if kind[other] != bg.element(other).type:
-                    why = f"left with one bond by {cause(el.id)}"
-            if why:
-                removed[el.id] = why
-                changed = True
-    zero: dict[str, int] = {}
-    for eid in removed:
-        bonds = bg.bonds_of(eid)
-        zero[eid] = bonds[0].n if bonds else 1
-    for b in bg.bonds:
-        if b.src in removed or b.dst in removed:
-            zero[b.id] = b.n
-    states = {}
-    for st in bg.states:
-        hit = [e for e in st.effects if e in off]
-        if hit:
-            states[st.id] = f"effect {hit[0]!r} off"
-
-    # The remaining graph: zero sources in place of one-bond junctions, straight-through
-    # two-bond junctions merged into one bond.
-    sources = tuple(eid for eid, t in kind.items() if eid not in removed and t != bg.element(eid).type)
-    elements = []
-    for el in bg.elements:
-        if el.id in removed:
-            continue
-        if el.id in sources:
-            n = live(el.id)[0].n
-            key = "effort" if kind[el.id] == "Se" else "flow"
-            el = dataclasses.replace(el, type=kind[el.id],
-                                     law=(key, Expr(_zero_text(n), el.coord)))
-        elements.append(el)
-    bonds = [b for b in bg.bonds if b.id not in zero]
-    named = _Refs(bg).everywhere()
-    merged: dict[str, tuple[str, str, str]] = {}
-    for jid in sorted(touched, key=lambda j: [e.id for e in bg.elements].index(j)):
-        if jid in removed or jid in sources or kind[jid] not in ("0", "1"):
-            continue
-        lv = [b for b in bonds if jid in (b.src, b.dst)]
-        if len(lv) != 2 or jid in named or any(b.id in named for b in lv):
-            continue
-        ins = [b for b in lv if b.dst == jid]
-        outs = [b for b in lv if b.src == jid]
-        if len(ins) != 1 or len(outs) != 1:
-            continue  # both bonds in (or out): a sign flip, not a plain connection
-        bi, bo = ins[0], outs[0]
-        if bi.src == bo.dst:
-            continue
-        new = FlatBond(bi.id, bi.src, bo.dst, bi.n, bi.coord, bi.index)
-        bonds = [new if b.id == bi.id else b for b in bonds if b.id != bo.id]
-        elements = [e for e in elements if e.id != jid]
-        merged[jid] = (bi.id, bi.id, bo.id)
-    kept_states = tuple(s for s in bg.states if s.id not in states)
-    g = bg.graph.copy()
-    g.remove_nodes_from(list(removed) + list(merged))
-    for b in bonds:
-        if not g.has_edge(b.src, b.dst, key=b.id):
-            g.add_edge(b.src, b.dst, key=b.id, n=b.n)
-    new_bg = BondGraph(bg.model, bg.params, tuple(elements), tuple(bonds), kept_states,
-                       bg.scopes, g)
-    notes = []
-    by_reason: dict[str, list[str]] = {}
-    for eid, why in removed.items():
-        by_reason.setdefault(why, []).append(eid)
-    for why, ids in by_reason.items():
-        notes.append(f"removed ({why}): {', '.join(ids)}")
-    if states:
-        for why in sorted(set(states.values())):
-            notes.append(f"removed auxiliary states ({why}): "
-                         + ", ".join(s for s, w in states.items() if w == why))
-    for eid in sources:
-        t0 = bg.element(eid).type
-        notes.append(f"{t0}-junction {eid} left with one bond: a zero "
-                     f"{'effort' if t0 == '1' else 'flow'} source ({kind[eid]})")
-    if merged:
-        notes.append("junctions left with two bonds, replaced by one bond: "
-                     + ", ".join(f"{j} ({b1} + {b2} -> {nb})" for j, (nb, b1, b2) in merged.items()))
-    return Removal(new_bg, removed, states, zero, sources, merged, tuple(notes))
+# Pass 1: effects (the removal itself is bgc.core.effects'), causality after the removal
 
 
 def recausal(full: BondGraph, full_caus: Causality, rem: Removal, plan: Plan
@@ -395,7 +144,7 @@ def select_outputs(full: BondGraph, rem: Removal, plan: Plan) -> tuple[BondGraph
             raise ModelError(c, f"output {w!r} is listed twice")
         seen.add(w)
     wanted = set(plan.outputs) if plan.outputs else set(names)
-    refs = _Refs(full)
+    refs = Refs(full)
     if rem.removed_states:  # what stays must not read a removed auxiliary state
         readers = [(f"{el.type} {el.id!r}", el.law[1], el.scope) for el in rem.graph.elements
                    if el.law is not None]
@@ -567,7 +316,7 @@ def slice_outputs(eq: Equations) -> tuple[Equations, tuple, dict]:
 
 def state_owners(bg: BondGraph, caus: Causality) -> list[tuple[str, str]]:
     """(state name as in STATE_NAMES, owning element or state id), in the module's order."""
-    from bgc.core.equations import _state_label
+    from bgc.core.eqtypes import state_label
 
     out = []
     for el in bg.elements:
@@ -579,7 +328,7 @@ def state_owners(bg: BondGraph, caus: Causality) -> list[tuple[str, str]]:
         size = 1
         for d in st.shape:
             size *= d
-        out += [(_state_label(st.id, st.shape, k), st.id) for k in range(size)]
+        out += [(state_label(st.id, st.shape, k), st.id) for k in range(size)]
     return out
 
 

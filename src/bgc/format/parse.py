@@ -16,7 +16,6 @@ from bgc.base.errors import Coord, ModelError
 from bgc.base.limits import LIMITS
 from bgc.base.safeio import read_text_bounded
 from bgc.format import tables as _tables
-from bgc.format.expr import Expr
 from bgc.format.reader import (  # noqa: F401
     IDENT,
     MAX_YAML_DEPTH,
@@ -28,6 +27,7 @@ from bgc.format.reader import (  # noqa: F401
     require,
     short,
 )
+from bgc.format.whitelist import Expr
 
 ELEMENT_TYPES = ("Se", "Sf", "C", "I", "R", "TF", "GY", "MTF", "MGY", "0", "1")
 

@@ -12,7 +12,7 @@ import yaml
 
 from bgc.base.errors import Coord, ModelError
 from bgc.base.limits import LIMITS
-from bgc.format.expr import BOND_FUNCTIONS, FUNCTIONS, Expr, check
+from bgc.format.whitelist import BOND_FUNCTIONS, FUNCTIONS, Expr, check
 
 IDENT = re.compile(r"[A-Za-z][A-Za-z0-9_]*")  # always used with fullmatch
 #: Names a model may not give a parameter, input, state or effect: the expression language's

@@ -16,9 +16,9 @@ from bgc.base.errors import Coord, ModelError
 from bgc.base.limits import LIMITS
 from bgc.base.safeio import read_text_bounded
 from bgc.format import tables as _tables
-from bgc.format.expr import Expr
 from bgc.format.parse import Model, parse_file
 from bgc.format.reader import Reader, check_name, param_value, require
+from bgc.format.whitelist import Expr
 
 METHODS = ("Radau", "BDF", "LSODA", "RK45", "RK23", "DOP853", "Rodas4")
 PLOT_KINDS = ("time", "path3d", "loci")
@@ -81,36 +81,76 @@ def parse_scene(path: str | Path) -> Scene:
     name = Path(path).stem
     if "name" in top:
         name = check_name(r.string(top["name"][1], "name"), r.coord(top["name"][1]), "scene")
+    model_path = _model_path(r, top, path)
+    t0, t1 = _span(r, top, root)
+    params = _parameters(r, top)
+    inputs = _inputs(r, top)
+    outputs, output_coords = _outputs(r, top)
+    method, rtol, atol, dt, max_step, backend = _solver(r, top, t1 - t0)
+    bps = ()
+    if "breakpoints" in top:
+        items = r.seq(top["breakpoints"][1], "breakpoints")
+        if len(items) > LIMITS.breakpoints:
+            raise ModelError(r.coord(items[LIMITS.breakpoints]), f"more than "
+                                                                 f"{LIMITS.breakpoints} "
+                                                                 "breakpoints (the limit)")
+        bps = tuple(_a_time(r, b, "breakpoint") for b in items)
+    plots = _plots(r, top, outputs, output_coords)
+    effects = _effects(r, top)
+    desc = r.string(top["description"][1], "description") if "description" in top else ""
+    free = _free(r, top, params)
+    initial, initial_coord = None, None
+    if "initial" in top:
+        initial, initial_coord = _initial(r, top["initial"][1]), r.coord(top["initial"][0])
+    return Scene(path, name, model_path, (t0, t1), params, inputs, outputs, method, rtol, atol,
+                 dt, max_step, bps, tuple(plots), effects, desc, r.coord(root),
+                 hashlib.sha256(text.encode()).hexdigest()[:16], free, output_coords,
+                 r.coord(top["model"][1]), initial, initial_coord,
+                 backend)
+
+
+def _model_path(r: Reader, top: dict, path: str) -> str:
+    """model: the model file, relative to the scene's folder; it must exist."""
     model_rel = r.string(top["model"][1], "model")
     if "\0" in model_rel:
         raise ModelError(r.coord(top["model"][1]), "the model's path contains a NUL byte")
     model_path = str(Path(path).parent / model_rel)
     if not Path(model_path).is_file():
         raise ModelError(r.coord(top["model"][1]), f"model file {model_rel!r} does not exist")
+    return model_path
+
+
+def _a_time(r: Reader, node, what: str) -> float:
+    """A time, within the limit of times."""
     tmax = LIMITS.time_magnitude
+    v = r.number(node, what)
+    if abs(v) > tmax:
+        raise ModelError(r.coord(node), f"{what}: {v:g} s is beyond the limit of times "
+                                        f"(|t| <= {tmax:g} s)")
+    return v
 
-    def a_time(node, what):
-        v = r.number(node, what)
-        if abs(v) > tmax:
-            raise ModelError(r.coord(node), f"{what}: {v:g} s is beyond the limit of times "
-                                            f"(|t| <= {tmax:g} s)")
-        return v
 
+def _span(r: Reader, top: dict, root) -> tuple[float, float]:
+    """duration or t_span: the start and the end."""
     if "t_span" in top:
         span_node = top["t_span"][1]
         span = r.seq(span_node, "t_span")
         if len(span) != 2:
             raise ModelError(r.coord(span_node), "t_span is [start, end]")
-        t0, t1 = (a_time(s, "t_span") for s in span)
+        t0, t1 = (_a_time(r, s, "t_span") for s in span)
     elif "duration" in top:
         span_node = top["duration"][1]
-        t0, t1 = 0.0, a_time(span_node, "duration")
+        t0, t1 = 0.0, _a_time(r, span_node, "duration")
     else:
         raise ModelError(r.coord(root), "the scene: give duration or t_span")
     if not t1 > t0:
         raise ModelError(r.coord(span_node), f"the scene: the end time {t1:g} is not after "
                                              f"the start {t0:g}")
-    length = t1 - t0
+    return t0, t1
+
+
+def _parameters(r: Reader, top: dict) -> dict:
+    """parameters: dotted id -> (number or matrix, Coord of its key)."""
     params = {}
     if "parameters" in top:
         for pname, (kn, vn) in r.mapping(top["parameters"][1], "parameters").items():
@@ -122,6 +162,11 @@ def parse_scene(path: str | Path) -> Scene:
                 raise ModelError(r.coord(vn), f"scene parameter {pname!r} must be a number or "
                                               "a matrix")
             params[pname] = (v, r.coord(kn))
+    return params
+
+
+def _inputs(r: Reader, top: dict) -> dict:
+    """inputs: name -> (an expression or a table, Coord of its key)."""
     inputs = {}
     if "inputs" in top:
         for iname, (kn, vn) in r.mapping(top["inputs"][1], "inputs").items():
@@ -130,6 +175,11 @@ def parse_scene(path: str | Path) -> Scene:
                 inputs[iname] = (_tables.read_table(r, vn, f"input {iname!r}"), r.coord(kn))
                 continue
             inputs[iname] = (r.expr(vn, f"input {iname!r}"), r.coord(kn))
+    return inputs
+
+
+def _outputs(r: Reader, top: dict) -> tuple[tuple[str, ...], dict]:
+    """outputs: the names asked for (empty: all), and the Coord of each."""
     outputs, output_coords = (), {}
     if "outputs" in top:
         for o in r.seq(top["outputs"][1], "outputs"):
@@ -141,6 +191,11 @@ def parse_scene(path: str | Path) -> Scene:
             raise ModelError(r.coord(top["outputs"][1]), "outputs: list at least one output "
                                                          "(leave the key out for all of them)")
         outputs = tuple(output_coords)
+    return outputs, output_coords
+
+
+def _solver(r: Reader, top: dict, length: float) -> tuple:
+    """solver: (method, rtol, atol, dt, max_step, backend), each checked against the span."""
     method, rtol, atol, dt, max_step = "Radau", 1e-6, 1e-9, None, float("inf")
     backend = "numpy"
     if "solver" in top:
@@ -159,21 +214,7 @@ def parse_scene(path: str | Path) -> Scene:
                                                            f"(one of {', '.join(METHODS)})")
         for key in ("rtol", "atol", "dt", "max_step"):
             if key in sm:
-                v = r.number(sm[key][1], key)  # finite, within 10**300
-                where = r.coord(sm[key][1])
-                if not v > 0:
-                    raise ModelError(where, f"solver {key} must be positive")
-                if key == "rtol":
-                    check_rtol(v, where, "solver rtol")
-                if key == "dt" and length / v + 1 > LIMITS.output_samples:
-                    raise ModelError(where, f"solver dt {v:g} over {length:g} s gives "
-                                            f"{length / v + 1:.0f} output samples, more than "
-                                            f"the limit of {LIMITS.output_samples}")
-                if key == "max_step" and v < length * LIMITS.min_step_fraction:
-                    raise ModelError(where, f"solver max_step {v:g} is below the limit of "
-                                            f"{LIMITS.min_step_fraction:g} times the span "
-                                            f"({length * LIMITS.min_step_fraction:g} s): the "
-                                            "run would not end")
+                v = _solver_number(r, sm, key, length)
                 if key == "rtol":
                     rtol = v
                 elif key == "atol":
@@ -182,14 +223,31 @@ def parse_scene(path: str | Path) -> Scene:
                     dt = v
                 else:
                     max_step = v
-    bps = ()
-    if "breakpoints" in top:
-        items = r.seq(top["breakpoints"][1], "breakpoints")
-        if len(items) > LIMITS.breakpoints:
-            raise ModelError(r.coord(items[LIMITS.breakpoints]), f"more than "
-                                                                 f"{LIMITS.breakpoints} "
-                                                                 "breakpoints (the limit)")
-        bps = tuple(a_time(b, "breakpoint") for b in items)
+    return method, rtol, atol, dt, max_step, backend
+
+
+def _solver_number(r: Reader, sm: dict, key: str, length: float) -> float:
+    """solver rtol, atol, dt or max_step: positive, and within the limits for the span."""
+    v = r.number(sm[key][1], key)  # finite, within 10**300
+    where = r.coord(sm[key][1])
+    if not v > 0:
+        raise ModelError(where, f"solver {key} must be positive")
+    if key == "rtol":
+        check_rtol(v, where, "solver rtol")
+    if key == "dt" and length / v + 1 > LIMITS.output_samples:
+        raise ModelError(where, f"solver dt {v:g} over {length:g} s gives "
+                                f"{length / v + 1:.0f} output samples, more than "
+                                f"the limit of {LIMITS.output_samples}")
+    if key == "max_step" and v < length * LIMITS.min_step_fraction:
+        raise ModelError(where, f"solver max_step {v:g} is below the limit of "
+                                f"{LIMITS.min_step_fraction:g} times the span "
+                                f"({length * LIMITS.min_step_fraction:g} s): the "
+                                "run would not end")
+    return v
+
+
+def _plots(r: Reader, top: dict, outputs: tuple, output_coords: dict) -> list:
+    """plots: each a kind, the outputs it shows (among the scene's), a title and labels."""
     plots = []
     if "plots" in top:
         for pn in r.seq(top["plots"][1], "plots"):
@@ -209,6 +267,11 @@ def parse_scene(path: str | Path) -> Scene:
                     raise ModelError(r.coord(on), f"plot: output {o!r} is not among the "
                                                   f"scene's outputs ({', '.join(outputs)})")
             plots.append(Plot(kind, outs, title, r.coord(pn), labels))
+    return plots
+
+
+def _effects(r: Reader, top: dict) -> dict:
+    """effects: name -> (on, Coord of its key)."""
     effects = {}
     if "effects" in top:
         for ename, (kn, vn) in r.mapping(top["effects"][1], "effects").items():
@@ -217,7 +280,11 @@ def parse_scene(path: str | Path) -> Scene:
             if not isinstance(v, bool):
                 raise ModelError(r.coord(vn), f"effect {ename!r}: write on or off (true/false)")
             effects[ename] = (v, r.coord(kn))
-    desc = r.string(top["description"][1], "description") if "description" in top else ""
+    return effects
+
+
+def _free(r: Reader, top: dict, params: dict) -> tuple[str, ...]:
+    """free: scene parameters that stay parameters of the module (each set by the scene)."""
     free = ()
     if "free" in top:
         free = tuple(r.string(f, "free parameter") for f in r.seq(top["free"][1], "free"))
@@ -227,14 +294,7 @@ def parse_scene(path: str | Path) -> Scene:
                                               "parameters (free keeps a scene value tunable)")
             if f in free[:k]:
                 raise ModelError(r.coord(fn), f"free parameter {f!r} is listed twice")
-    initial, initial_coord = None, None
-    if "initial" in top:
-        initial, initial_coord = _initial(r, top["initial"][1]), r.coord(top["initial"][0])
-    return Scene(path, name, model_path, (t0, t1), params, inputs, outputs, method, rtol, atol,
-                 dt, max_step, bps, tuple(plots), effects, desc, r.coord(root),
-                 hashlib.sha256(text.encode()).hexdigest()[:16], free, output_coords,
-                 r.coord(top["model"][1]), initial, initial_coord,
-                 backend)
+    return free
 
 
 def _initial(r: Reader, node):

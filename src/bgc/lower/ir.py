@@ -15,7 +15,7 @@ import networkx as nx
 import sympy as sp
 
 from bgc.core import fastsym
-from bgc.core.equations import Assignment, Equations, prune, schedule
+from bgc.core.eqtypes import Assignment, Equations, prune, schedule
 
 
 @dataclass(frozen=True)

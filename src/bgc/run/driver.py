@@ -14,13 +14,12 @@ from bgc.core.causality import (
     derivative_message,
     fixed_r_culprit,
 )
+from bgc.core.effects import known_effects, remove_effects
 from bgc.core.equations import Equations, derive
 from bgc.core.graph import BondGraph, build_graph
 from bgc.core.specialize import (
     Plan,
-    known_effects,
     recausal,
-    remove_effects,
     select_outputs,
     slice_outputs,
     state_owners,

@@ -414,7 +414,7 @@ def nonfinite_culprit(c, mod, exc, p=None):
         if j is None or not (a.expr.free_symbols & dep):
             continue
         dep.add(a.symbol)
-        from bgc.core.equations import _clean
+        from bgc.core.eqtypes import clean_derivative as _clean
 
         for s in sorted(a.expr.free_symbols & dep, key=str):
             try:

@@ -88,5 +88,6 @@ double bgc_min_step(double t);
 
 int bgc_rodas4_segment(bgc_ctx *c, double a, double b, double *y);
 int bgc_radau5_segment(bgc_ctx *c, double a, double b, double *y);
+int bgc_dop853_segment(bgc_ctx *c, double a, double b, double *y);
 
 #endif

@@ -40,7 +40,10 @@ int bgc_fail(bgc_ctx *c, int status, double t, const char *fmt, ...)
     return status;
 }
 
-static const char *method_name(int method) { return method == BGC_RADAU5 ? "Radau5" : "Rodas4"; }
+static const char *method_name(int method)
+{
+    return method == BGC_RADAU5 ? "Radau5" : method == BGC_DOP853 ? "DOP853" : "Rodas4";
+}
 
 double bgc_min_step(double t) { return 10.0 * fabs(nextafter(t, INFINITY) - t); }
 
@@ -220,7 +223,8 @@ int bgc_integrate_ex(const bgc_model *m, const double *p, double t0, double t1,
     const char *bad = NULL;
     if (!m || !opt || !st || !x0 || m->n < 0 || m->nnz < 0 || !m->rhs || !m->jac)
         bad = "missing model, options or state";
-    else if (opt->method != BGC_RODAS4 && opt->method != BGC_RADAU5) bad = "unknown method";
+    else if (opt->method != BGC_RODAS4 && opt->method != BGC_RADAU5 && opt->method != BGC_DOP853)
+        bad = "unknown method";
     else if (!(opt->rtol > 0) || !isfinite(opt->rtol)) bad = "rtol must be positive";
     else if (!opt->atol || (opt->atol_len != 1 && opt->atol_len != m->n)) bad = "atol: give 1 or n values";
     else if (!(t1 >= t0) || !isfinite(t0) || !isfinite(t1)) bad = "the span must have t1 >= t0 (finite)";
@@ -278,7 +282,8 @@ int bgc_integrate_ex(const bgc_model *m, const double *p, double t0, double t1,
         c.lo = a;
         c.hi = nextafter(b, a);
         status = opt->method == BGC_RADAU5 ? bgc_radau5_segment(&c, a, b, y)
-                                          : bgc_rodas4_segment(&c, a, b, y);
+                 : opt->method == BGC_DOP853 ? bgc_dop853_segment(&c, a, b, y)
+                 : bgc_rodas4_segment(&c, a, b, y);
     }
     free(cuts); free(y); free(c.ws);
     if (status == BGC_REJECT)  /* not expected: accepted states are finite */

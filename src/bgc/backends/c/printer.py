@@ -243,7 +243,7 @@ class CFunction:
 
 def _parts(name: str, fn, printer: CPrinter, ctx: "_Ctx", limit: int = PART_LINES
            ) -> CFunction:
-    from bgc.core.equations import LinSolve, NewtonSolve
+    from bgc.core.eqtypes import LinSolve, NewtonSolve
 
     items = [(ln.target, ln.expr, ln.comment, -1) for ln in fn.lines]
     items += [(None, r, "", k) for k, (_, r) in enumerate(fn.results)]
@@ -319,7 +319,7 @@ def _solve_line(tgt, e, why, export, n, printer, ctx, lus: dict) -> CLine:
     """The C line of a numeric solve's result (an array of n values). Solves with the same
     matrix in one part (the Jacobian's columns through a solve: d(A^-1 b) = A^-1 (db - dA x))
     share one LU."""
-    from bgc.core.equations import LinSolve, NewtonSolve
+    from bgc.core.eqtypes import LinSolve, NewtonSolve
 
     target = c_name(str(tgt))
     if isinstance(e, LinSolve):
@@ -392,7 +392,7 @@ class _Ctx:
         """What a singular numeric solve says: derivative causality's system (named by its
         unknowns and the elements it runs through), the same system's solves for the
         Jacobian, or a Newton loop's Jacobian at its solution."""
-        from bgc.core.equations import LinSolve, LinSolveEntry
+        from bgc.core.eqtypes import LinSolve, LinSolveEntry
 
         if self._lin_msgs is None:
             eq = self._eq
@@ -440,7 +440,7 @@ class CUnsupported(ModelError):
 def has_solves(eq) -> bool:
     """Does the model solve equations numerically (numeric linear solves of derivative
     causality, Newton loops of nonlinear algebraic loops)?"""
-    from bgc.core.equations import LinSolve, LinSolveEntry, NewtonSolve
+    from bgc.core.eqtypes import LinSolve, LinSolveEntry, NewtonSolve
 
     kinds = (LinSolve, LinSolveEntry, NewtonSolve)
     return bool(getattr(eq, "newton", ())) or any(

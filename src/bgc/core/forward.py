@@ -1,0 +1,241 @@
+"""Forward-mode differentiation along the causal assignments: the state Jacobian, and the
+linearisation's B, C and D.
+
+Derivatives are propagated assignment by assignment (the chain rule), never by differentiating
+an expanded right-hand side; every non-trivial entry becomes a new intermediate, so each
+emitted expression stays as small as one assignment's. Linear solves and Newton loops are
+differentiated through (one more solve per column).
+"""
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import sympy as sp
+
+from bgc.core import fastsym
+from bgc.core.eqtypes import (
+    Assignment,
+    Equations,
+    LinSolve,
+    LinSolveEntry,
+    NewtonSolve,
+    clean_derivative,
+    is_trivial,
+    prune,
+    real_symbol,
+)
+
+
+def jacobian(kept: list[Assignment], state_vars, derivatives, nloops=()):
+    """Forward-mode Jacobian d(derivatives)/dx along the causal assignments."""
+    return forward_mode(kept, {sv.symbol: j for j, sv in enumerate(state_vars)},
+                        list(derivatives), "_d", nloops)
+
+
+def forward_mode(kept: list[Assignment], seeds: dict, finals: list, prefix: str = "_d",
+                 nloops=()):
+    """Forward-mode derivatives of ``finals`` with respect to the seed symbols (symbol ->
+    column) along the causal assignments ``kept``: the state Jacobian (seeds: the states) and
+    the linearisation's B, C, D (seeds: inputs or states; finals: derivatives or outputs).
+
+    D[v] maps a column j to dv/d(seed j). Non-trivial entries become new intermediates
+    (``<prefix><k>``), so every emitted expression stays as small as one assignment's; linear
+    solves and Newton loops are differentiated through (one more solve per column). Only the
+    assignments the finals depend on are visited (linear in model size).
+    """
+    sweep = _Sweep(kept, seeds, prefix, nloops)
+    used = prune(finals, kept, lambda a: (  # a Newton loop's own assignments feed it
+        nloops[int(a.expr.args[0])].rest if isinstance(a.expr, NewtonSolve) else ()))
+    for a in used:
+        sweep.step(a)
+    out = {}
+    for i, expr in enumerate(finals):
+        for j, v in sweep.grad(expr).items():
+            out[(i, j)] = v
+    return out, sweep.jac_assign
+
+
+class _Sweep:
+    """One forward sweep: ``D[v]`` maps a column j to dv/d(seed j); ``jac_assign`` collects
+    the new intermediates in the order they are made."""
+
+    def __init__(self, kept: list[Assignment], seeds: dict, prefix: str, nloops):
+        self.D: dict[sp.Symbol, dict[int, object]] = {s: {j: sp.Integer(1)}
+                                                      for s, j in seeds.items()}
+        self.jac_assign: list[Assignment] = []
+        self.counter = itertools.count()
+        self.prefix = prefix
+        self.nloops = nloops
+        self.bridge = fastsym.Bridge() if fastsym.available() else None
+        self.solves: dict = {}  # LinSolve result symbol -> {state index: symbol of its derivative}
+        self.kept_map = {a.symbol: a for a in kept}
+
+    def new(self, expr) -> sp.Symbol:
+        """A new intermediate ``<prefix><k>`` assigned ``expr``."""
+        s = real_symbol(f"{self.prefix}{next(self.counter)}")
+        self.jac_assign.append(Assignment(s, expr, ""))
+        return s
+
+    def grad(self, expr) -> dict[int, object]:
+        D, bridge = self.D, self.bridge
+        syms = sorted((s for s in expr.free_symbols if D.get(s)), key=str)  # deterministic
+        if not syms:
+            return {}
+        parts = fastsym.partials(bridge, expr, syms) if bridge is not None else None
+        if parts is not None:  # symengine: same algebra, a hundred times faster
+            acc_se: dict[int, object] = {}
+            for s, partial in parts.items():
+                for j, dj in D[s].items():
+                    term = partial * bridge.to_se(dj)
+                    acc_se[j] = acc_se[j] + term if j in acc_se else term
+            return {j: bridge.from_se(v) for j, v in acc_se.items() if v != 0}
+        acc: dict[int, object] = {}
+        for s in syms:
+            partial = clean_derivative(sp.diff(expr, s))
+            if partial == 0:
+                continue
+            for j, dj in D[s].items():
+                term = partial * dj
+                acc[j] = acc[j] + term if j in acc else term
+        return {j: v for j, v in acc.items() if v != 0}
+
+    def local(self, seed: dict, exprs_of, order, outer: bool):
+        """Forward mode over the loop's variables with the tear variables seeded."""
+        D = self.D
+        Dl = dict(seed)
+        for s in order:
+            a = self.kept_map.get(s)
+            if a is None:
+                continue
+            acc: dict = {}
+            for d in a.expr.free_symbols:
+                ds = Dl.get(d) if d in Dl else (D.get(d) if outer else None)
+                if not ds:
+                    continue
+                part = clean_derivative(sp.diff(a.expr, d))
+                if part == 0:
+                    continue
+                for j, dj in ds.items():
+                    acc[j] = acc[j] + part * dj if j in acc else part * dj
+            dv = {}
+            for j, v in sorted(acc.items()):
+                if v == 0:
+                    continue
+                dv[j] = v if is_trivial(v) else self.new(v)
+            Dl[s] = dv
+        out = []
+        for e in exprs_of:
+            acc = {}
+            for d in e.free_symbols:
+                ds = Dl.get(d) if d in Dl else (D.get(d) if outer else None)
+                if not ds:
+                    continue
+                part = clean_derivative(sp.diff(e, d))
+                for j, dj in ds.items():
+                    acc[j] = acc[j] + part * dj if j in acc else part * dj
+            out.append({j: v for j, v in acc.items() if v != 0})
+        return out
+
+    def step(self, a: Assignment) -> None:
+        """Differentiate one assignment (in causal order)."""
+        if isinstance(a.expr, NewtonSolve):
+            self.newton(a)
+        elif isinstance(a.expr, LinSolve):
+            self.linsolve(a)
+        elif isinstance(a.expr, LinSolveEntry):
+            X, i = a.expr.args
+            dv = {}
+            for j, s in self.solves.get(X, {}).items():
+                dv[j] = self.new(LinSolveEntry(s, i))
+            if dv:
+                self.D[a.symbol] = dv
+        else:
+            g = self.grad(a.expr)
+            if not g:
+                return
+            dv = {}
+            for j, v in sorted(g.items()):
+                dv[j] = v if is_trivial(v) else self.new(v)
+            self.D[a.symbol] = dv
+
+    def newton(self, a: Assignment) -> None:
+        """Implicit function theorem at the solution: (I - dg/dz) dz = dg/dx (z held)."""
+        nl = self.nloops[int(a.expr.args[0])]
+        n = len(nl.tear)
+        gx = self.local({t: {} for t in nl.tear}, nl.g, nl.rest, True)
+        gz = self.local({t: {i: sp.Integer(1)} for i, t in enumerate(nl.tear)}, nl.g, nl.rest,
+                        False)
+        A = [(1 if i == k else 0) - gz[i].get(k, 0) for i in range(n) for k in range(n)]
+        self.solves[a.symbol] = {}
+        for j in sorted(set().union(*gx)):
+            s = self.new(LinSolve(n, *A, *[gx[i].get(j, 0) for i in range(n)]))
+            self.solves[a.symbol][j] = s
+
+    def linsolve(self, a: Assignment) -> None:
+        """d(A^-1 b) = A^-1 (db - dA x): one more solve with the same matrix per column."""
+        n = int(a.expr.args[0])
+        A, b = a.expr.args[1:1 + n * n], a.expr.args[1 + n * n:]
+        x = [LinSolveEntry(a.symbol, i) for i in range(n)]
+        gA, gb = [self.grad(v) for v in A], [self.grad(v) for v in b]
+        cols = sorted(set().union(*gA, *gb))
+        self.solves[a.symbol] = {}
+        for j in cols:
+            r = [gb[i].get(j, 0) - sum((gA[i * n + k].get(j, 0) * x[k] for k in range(n)),
+                                       sp.Integer(0)) for i in range(n)]
+            self.solves[a.symbol][j] = self.new(LinSolve(n, *A, *r))
+
+
+# ---------------------------------------------------------------------------------------------
+# Linearisation: the derivatives of rhs with respect to the inputs (B) and of the outputs with
+# respect to the states and the inputs (C, D), in forward mode along the same assignments as
+# the state Jacobian. Computed on demand (emit asks for them), so derive() is unchanged.
+
+
+@dataclass(frozen=True)
+class LinearParts:
+    """Nonzero entries of B = d(rhs)/du, C = d(y)/dx, D = d(y)/du, keyed (row, column), with
+    the forward-mode intermediates each needs. Inputs are flattened in INPUT_NAMES order (a
+    vector input contributes its components in order), outputs in OUTPUT_NAMES order (each
+    output's components in row-major order)."""
+
+    B: dict
+    B_assignments: tuple[Assignment, ...]
+    C: dict
+    D: dict
+    CD_assignments: tuple[Assignment, ...]
+    input_labels: tuple[str, ...]
+    output_labels: tuple[str, ...]
+
+
+def _label(name: str, shape, k: int) -> str:
+    if not shape:
+        return name
+    if len(shape) == 1:
+        return f"{name}[{k}]"
+    return f"{name}[{k // shape[1]},{k % shape[1]}]"
+
+
+def linear_parts(eq: Equations) -> LinearParts:
+    """B, C and D of the linearisation (A is ``eq.jacobian``)."""
+    useeds = {}
+    ilabels = []
+    for iv in eq.inputs:
+        for k, s in enumerate(iv.symbols):
+            useeds[s] = len(ilabels)
+            ilabels.append(_label(iv.name, iv.shape, k))
+    xseeds = {sv.symbol: j for j, sv in enumerate(eq.states)}
+    youts, olabels = [], []
+    for name, shp, vals in eq.outputs:
+        for k, v in enumerate(vals):
+            youts.append(v)
+            olabels.append(_label(name, shp, k))
+    kept = list(eq.assignments)
+    nloops = tuple(getattr(eq, "newton", ()))
+    B, b_assign = forward_mode(kept, useeds, list(eq.derivatives), "_du", nloops)
+    C, c_assign = forward_mode(kept, xseeds, youts, "_dx", nloops)
+    D, d_assign = forward_mode(kept, useeds, youts, "_du", nloops)
+    # B's and D's intermediates share a prefix: they live in different generated functions
+    # except D's, which sits beside C's (prefix _dx): no clash inside one function.
+    return LinearParts(B, tuple(b_assign), C, D, tuple(c_assign) + tuple(d_assign),
+                       tuple(ilabels), tuple(olabels))
