@@ -77,9 +77,7 @@ def bode_plot(path, lin, i_in, i_out, in_label, out_label, in_unit="", out_unit=
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from bgc.run.plots import (
-        _plain,  # model text shown as written (no mathtext from a "$")
-    )
+    from bgc.run.plots import plain_text  # model text as written (no mathtext from a "$")
 
     A = np.asarray(lin[0])
     if f_range is None:
@@ -94,13 +92,13 @@ def bode_plot(path, lin, i_in, i_out, in_label, out_label, in_unit="", out_unit=
     fig, (a1, a2) = plt.subplots(2, 1, sharex=True, figsize=(7, 6))
     ref = f" re 1 {out_unit}/{in_unit}" if out_unit and in_unit else ""
     a1.semilogx(f, mag)
-    a1.set_ylabel(_plain(f"|{out_label}/{in_label}| [dB{ref}]"))
+    a1.set_ylabel(plain_text(f"|{out_label}/{in_label}| [dB{ref}]"))
     a1.grid(True, which="both", alpha=0.3)
     a2.semilogx(f, phase)
     a2.set_ylabel("phase [deg]")
     a2.set_xlabel("frequency [Hz]")
     a2.grid(True, which="both", alpha=0.3)
-    a1.set_title(_plain(f"Bode: {in_label} -> {out_label}"))
+    a1.set_title(plain_text(f"Bode: {in_label} -> {out_label}"))
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

@@ -13,18 +13,9 @@ import numpy as np
 from bgc.base.errors import ModelError
 from bgc.cli.options import POSITIVE, RTOL, finite, model_inputs
 from bgc.run.progress import Progress
-from bgc.studies.accuracy import (
-    C_METHODS,
-    FD_JACOBIAN,
-    METHODS,
-    c_available,
-    cheapest,
-    parse_methods,
-    parse_tols,
-    prepare,
-    study,
-    write_all,
-)
+from bgc.studies.accuracy import parse_methods, parse_tols, study
+from bgc.studies.accuracy_report import cheapest, write_all
+from bgc.studies.runs import C_METHODS, FD_JACOBIAN, METHODS, c_available, prepare
 
 _DEFAULT_METHODS = ",".join(METHODS + C_METHODS)
 

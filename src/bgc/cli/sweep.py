@@ -6,15 +6,10 @@ from __future__ import annotations
 import click
 
 from bgc.run.progress import Progress
-from bgc.studies.sweep import (
-    MAX_SAMPLES,
-    client_for,
-    close_client,
-    open_results,
-    plot_sweep,
-    prepare,
-    run_sweep,
-)
+from bgc.studies.sweep import client_for, close_client, prepare, run_sweep
+from bgc.studies.sweep_plot import plot_sweep
+from bgc.studies.sweep_spec import MAX_SAMPLES
+from bgc.studies.sweep_store import open_results
 
 
 def register(main_group):

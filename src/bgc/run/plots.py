@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 
-def _mpl():
+def pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
@@ -45,22 +45,22 @@ def _components(name, arr):
     return out
 
 
-def _plain(text) -> str:
+def plain_text(text) -> str:
     """Text from a model or scene shown as it is written: matplotlib would read ``$...$`` as
     mathtext (and fail on a malformed formula), so every dollar sign is escaped."""
     return str(text).replace("$", r"\$")
 
 
 def _label(labels, k, default):
-    return _plain(labels[k] if k < len(labels) else default)
+    return plain_text(labels[k] if k < len(labels) else default)
 
 
 def _with_unit(label, unit):
-    return f"{_plain(label)} [{_plain(unit)}]" if unit else _plain(label)
+    return f"{plain_text(label)} [{plain_text(unit)}]" if unit else plain_text(label)
 
 
 def plot_time(t, y, names, path, title="", labels=(), units=None):
-    plt = _mpl()
+    plt = pyplot()
     fig, axes = plt.subplots(len(names), 1, sharex=True, squeeze=False,
                              figsize=(7.5, 1.2 + 1.75 * len(names)))
     for k, (name, ax) in enumerate(zip(names, axes[:, 0])):
@@ -71,7 +71,7 @@ def plot_time(t, y, names, path, title="", labels=(), units=None):
         if len(comps) > 1:
             ax.legend(loc="best", fontsize=7, ncol=min(len(comps), 3))
     axes[-1, 0].set_xlabel("t [s]")
-    fig.suptitle(_plain(title or ", ".join(names)))
+    fig.suptitle(plain_text(title or ", ".join(names)))
     fig.tight_layout()
     fig.savefig(path, format="png")
     plt.close(fig)
@@ -95,7 +95,7 @@ _STYLES = ["--", ":", "-", "-."]
 
 
 def plot_path3d(t, y, names, path, title="", labels=(), units=None):
-    plt = _mpl()
+    plt = pyplot()
     fig = plt.figure(figsize=(11, 5))
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     top = fig.add_subplot(1, 2, 2)
@@ -118,7 +118,7 @@ def plot_path3d(t, y, names, path, title="", labels=(), units=None):
     top.set_xlabel(_with_unit("X0", u))
     top.set_ylabel(_with_unit("Y0", u))
     top.set_title("seen from above (dots: start)")
-    fig.suptitle(_plain(title or "path"))
+    fig.suptitle(plain_text(title or "path"))
     fig.tight_layout()
     fig.savefig(path, format="png")
     plt.close(fig)
@@ -126,7 +126,7 @@ def plot_path3d(t, y, names, path, title="", labels=(), units=None):
 
 def plot_loci(t, y, names, path, title="", labels=(), units=None):
     """Loci of the columns of a rotation matrix output (unit vectors)."""
-    plt = _mpl()
+    plt = pyplot()
     (name,) = names[:1]
     R = np.asarray(y[name])
     fig = plt.figure(figsize=(12, 4.4))
@@ -141,9 +141,9 @@ def plot_loci(t, y, names, path, title="", labels=(), units=None):
         ax.set_xlabel("X0")
         ax.set_ylabel("Y0")
         ax.set_zlabel("Z0")
-        ax.set_title(_plain(f"unit vector {cols[c]} (column {c + 1} of {name})"))
+        ax.set_title(plain_text(f"unit vector {cols[c]} (column {c + 1} of {name})"))
         ax.legend(fontsize=7)
-    fig.suptitle(_plain(title or f"loci of the unit vectors of {name}"))
+    fig.suptitle(plain_text(title or f"loci of the unit vectors of {name}"))
     fig.tight_layout()
     fig.savefig(path, format="png")
     plt.close(fig)

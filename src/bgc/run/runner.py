@@ -414,11 +414,11 @@ def nonfinite_culprit(c, mod, exc, p=None):
         if j is None or not (a.expr.free_symbols & dep):
             continue
         dep.add(a.symbol)
-        from bgc.core.eqtypes import clean_derivative as _clean
+        from bgc.core.eqtypes import clean_derivative
 
         for s in sorted(a.expr.free_symbols & dep, key=str):
             try:
-                d = _clean(sp.diff(a.expr, s))
+                d = clean_derivative(sp.diff(a.expr, s))
             except Exception:  # noqa: BLE001
                 continue
             if not _finite(_num(d, vals)):

@@ -41,7 +41,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import math
 import sys
 import time
 import uuid
@@ -51,273 +50,27 @@ from pathlib import Path
 
 import numpy as np
 
-from bgc.base.errors import Coord, ModelError
+from bgc.base.errors import ModelError
 from bgc.base.limits import LIMITS
 from bgc.base.safeio import read_text_bounded
-
-MAX_SAMPLES = 1_000_000
-GRIDS = ("linspace", "logspace", "values")
-RANDOM = ("uniform", "normal", "loguniform")
-COMBINE = ("cross", "zip")
-SAMPLE_METHODS = ("lhs", "random")
-STATS = ("nfev", "njev", "nlu", "nsteps")
-MESSAGE_WIDTH = 240  # characters of a failure message kept in the store
-PLOT_STATS = ("final", "max", "min", "fan")
-
-
-@dataclass(frozen=True)
-class Entry:
-    """One swept quantity: kind 'param' or 'state', its name, its rule and arguments."""
-
-    kind: str
-    name: str
-    rule: str
-    args: tuple
-    coord: Coord
-
-    @property
-    def label(self) -> str:
-        """Its coordinate name in the results (states: x0_<name>)."""
-        return self.name if self.kind == "param" else f"x0_{self.name}"
-
-
-@dataclass(frozen=True)
-class SweepSpec:
-    entries: tuple[Entry, ...]
-    combine: str = "cross"
-    samples: int | None = None
-    method: str = "lhs"
-    seed: int = 0
-    coord: Coord | None = None
-    plot_outputs: tuple[str, ...] = ()
-    plot_stat: str = "final"
-    plot_units: dict = field(default_factory=dict)
-    plot_coord: Coord | None = None
-
-
-# ---------------------------------------------------------------------------------------------
-# parsing
-
-
-def parse_sweep(path) -> SweepSpec | None:
-    """The scene file's ``sweep:`` section (None when it has none), validated with places."""
-    from bgc.format.reader import Reader, require
-
-    path = str(path)
-    text = read_text_bounded(path, None, "scene file", LIMITS.scene_bytes)
-    r = Reader(path, text)
-    root = r.compose()
-    if root is None:
-        raise ModelError(Coord(path, 1, 1), "the scene file is empty")
-    top = r.mapping(root, "the scene")
-    if "sweep" not in top:
-        return None
-    kn, node = top["sweep"]
-    sm = r.mapping(node, "sweep")
-    require(r, sm, node, ("parameters", "initial", "combine", "samples", "method", "seed",
-                           "plot"), "sweep")
-    entries = []
-    for key, kind in (("parameters", "param"), ("initial", "state")):
-        if key not in sm:
-            continue
-        for name, (ekn, evn) in r.mapping(sm[key][1], f"sweep {key}").items():
-            entries.append(_entry(r, kind, name, ekn, evn))
-    if not entries:
-        raise ModelError(r.coord(node), "sweep: name at least one parameter (parameters:) or "
-                                        "initial state (initial:) to sweep")
-    combine = "cross"
-    if "combine" in sm:
-        combine = r.string(sm["combine"][1], "combine")
-        if combine not in COMBINE:
-            raise ModelError(r.coord(sm["combine"][1]), f"sweep combine {combine!r}: one of "
-                                                        f"{', '.join(COMBINE)}")
-    randoms = [e for e in entries if e.rule in RANDOM]
-    samples = None
-    if "samples" in sm:
-        samples = r.integer(sm["samples"][1], "samples")
-        if not 1 <= samples <= MAX_SAMPLES:
-            raise ModelError(r.coord(sm["samples"][1]), f"sweep samples must lie in 1.."
-                                                        f"{MAX_SAMPLES}")
-        if not randoms:
-            raise ModelError(r.coord(sm["samples"][1]), "sweep samples: no entry is random "
-                                                        "(uniform, normal, loguniform)")
-    elif randoms:
-        raise ModelError(randoms[0].coord, f"sweep {randoms[0].name!r} is random: give the "
-                                           "number of samples (sweep samples: N)")
-    method = "lhs"
-    if "method" in sm:
-        method = r.string(sm["method"][1], "method")
-        if method not in SAMPLE_METHODS:
-            raise ModelError(r.coord(sm["method"][1]), f"sweep method {method!r}: one of "
-                                                       f"{', '.join(SAMPLE_METHODS)}")
-    seed = 0
-    if "seed" in sm:
-        seed = r.integer(sm["seed"][1], "seed")
-        if seed < 0:
-            raise ModelError(r.coord(sm["seed"][1]), "sweep seed must be a whole number >= 0")
-    plot_outputs, plot_stat, units, pcoord = (), "final", {}, None
-    if "plot" in sm:
-        pn = sm["plot"][1]
-        pcoord = r.coord(pn)
-        pm = r.mapping(pn, "sweep plot")
-        require(r, pm, pn, ("outputs", "stat", "units"), "sweep plot")
-        if "outputs" in pm:
-            plot_outputs = tuple(r.string(o, "output") for o in r.seq(pm["outputs"][1],
-                                                                        "outputs"))
-        if "stat" in pm:
-            plot_stat = r.string(pm["stat"][1], "stat")
-            if plot_stat not in PLOT_STATS:
-                raise ModelError(r.coord(pm["stat"][1]), f"sweep plot stat {plot_stat!r}: one "
-                                                         f"of {', '.join(PLOT_STATS)}")
-        if "units" in pm:
-            for un, (ukn, uvn) in r.mapping(pm["units"][1], "units").items():
-                units[un] = r.string(uvn, f"unit of {un!r}")
-    spec = SweepSpec(tuple(entries), combine, samples, method, seed, r.coord(kn),
-                     plot_outputs, plot_stat, units, pcoord)
-    n = _count(spec)
-    if n > MAX_SAMPLES:
-        raise ModelError(r.coord(kn), f"sweep: {n} samples, more than the limit "
-                                      f"{MAX_SAMPLES}")
-    return spec
-
-
-def _entry(r, kind, name, kn, vn) -> Entry:
-    from bgc.format.reader import check_name
-
-    where = r.coord(kn)
-    for part in name.split("."):
-        check_name(part, where, "parameter" if kind == "param" else "state",
-                   allow_reserved=True)
-    what = f"sweep {name!r}"
-    m = r.mapping(vn, what)
-    rules = [k for k in m if k in GRIDS + RANDOM]
-    unknown = [k for k in m if k not in GRIDS + RANDOM]
-    if unknown:
-        raise ModelError(r.coord(m[unknown[0]][0]), f"{what}: unknown rule {unknown[0]!r} "
-                                                    f"(one of {', '.join(GRIDS + RANDOM)})")
-    if len(rules) != 1:
-        raise ModelError(r.coord(vn), f"{what}: give exactly one of "
-                                      f"{', '.join(GRIDS + RANDOM)}")
-    rule = rules[0]
-    rn = m[rule][1]
-    rc = r.coord(rn)
-    items = r.seq(rn, f"{what} {rule}")
-    if rule == "values":
-        vals = tuple(r.number(v, f"{what} value") for v in items)
-        if not vals:
-            raise ModelError(rc, f"{what}: values is an empty list")
-        if len(vals) > MAX_SAMPLES:
-            raise ModelError(rc, f"{what}: more than {MAX_SAMPLES} values")
-        args = vals
-    elif rule in ("linspace", "logspace"):
-        if len(items) != 3:
-            raise ModelError(rc, f"{what}: {rule} is [start, stop, count]")
-        a, b = (r.number(v, f"{what} {rule}") for v in items[:2])
-        cnt = r.integer(items[2], f"{what} {rule} count")
-        if not 1 <= cnt <= MAX_SAMPLES:
-            raise ModelError(r.coord(items[2]), f"{what}: the count must lie in 1..{MAX_SAMPLES}")
-        if rule == "logspace" and not (a > 0 and b > 0):
-            raise ModelError(rc, f"{what}: logspace needs positive start and stop (the values "
-                                 "themselves, spaced evenly in log)")
-        args = (a, b, cnt)
-    else:
-        if len(items) != 2:
-            form = "[mu, sigma]" if rule == "normal" else "[low, high]"
-            raise ModelError(rc, f"{what}: {rule} is {form}")
-        a, b = (r.number(v, f"{what} {rule}") for v in items)
-        if rule == "normal" and not b > 0:
-            raise ModelError(rc, f"{what}: normal's sigma must be positive")
-        if rule != "normal" and not b > a:
-            raise ModelError(rc, f"{what}: {rule} needs low < high")
-        if rule == "loguniform" and not a > 0:
-            raise ModelError(rc, f"{what}: loguniform needs a positive lower bound")
-        args = (a, b)
-    for v in args:
-        if not math.isfinite(v):
-            raise ModelError(rc, f"{what}: values must be finite")
-    return Entry(kind, name, rule, args, where)
-
-
-def _axes(spec: SweepSpec):
-    """The axes to combine, in order: (entries, length); the random entries form one axis at
-    the place of the first of them."""
-    axes, rand_done = [], False
-    for e in spec.entries:
-        if e.rule in RANDOM:
-            if not rand_done:
-                axes.append(([x for x in spec.entries if x.rule in RANDOM], spec.samples))
-                rand_done = True
-            continue
-        n = len(e.args) if e.rule == "values" else e.args[2]
-        axes.append(([e], n))
-    return axes
-
-
-def _count(spec: SweepSpec) -> int:
-    axes = _axes(spec)
-    if spec.combine == "zip":
-        lens = {n for _, n in axes}
-        if len(lens) > 1:
-            desc = ", ".join(f"{'+'.join(e.name for e in es)}: {n}" for es, n in axes)
-            raise ModelError(spec.coord, f"sweep combine zip: the axes differ in length "
-                                         f"({desc})")
-        return axes[0][1]
-    return math.prod(n for _, n in axes)
-
-
-def _grid(e: Entry) -> np.ndarray:
-    if e.rule == "values":
-        return np.array(e.args, dtype=float)
-    a, b, n = e.args
-    return np.linspace(a, b, n) if e.rule == "linspace" else np.geomspace(a, b, n)
-
-
-def _random_block(entries, n, method, seed) -> np.ndarray:
-    """(n, len(entries)) samples: a Latin hypercube (each variable's range cut into n equally
-    likely strata, one sample in each, strata paired at random) or plain random draws, mapped
-    through each distribution's inverse CDF."""
-    from scipy.special import ndtri
-
-    rng = np.random.default_rng(seed)
-    d = len(entries)
-    if method == "lhs":
-        u = (np.stack([rng.permutation(n) for _ in range(d)], axis=1) + rng.random((n, d))) / n
-    else:
-        u = rng.random((n, d))
-    u = np.clip(u, np.finfo(float).tiny, 1 - np.finfo(float).epsneg)
-    out = np.empty((n, d))
-    for k, e in enumerate(entries):
-        a, b = e.args
-        if e.rule == "uniform":
-            out[:, k] = a + (b - a) * u[:, k]
-        elif e.rule == "loguniform":
-            out[:, k] = np.exp(np.log(a) + (np.log(b) - np.log(a)) * u[:, k])
-        else:
-            out[:, k] = a + b * ndtri(u[:, k])
-    return out
-
-
-def samples(spec: SweepSpec) -> dict:
-    """label -> array of the swept values, one per sample (in the order of the entries)."""
-    axes = _axes(spec)
-    cols = []  # per axis: (entries, (len, n_entries) values)
-    for es, n in axes:
-        if es[0].rule in RANDOM:
-            cols.append((es, _random_block(es, n, spec.method, spec.seed)))
-        else:
-            cols.append((es, _grid(es[0])[:, None]))
-    total = _count(spec)
-    if spec.combine == "zip":
-        idx = [np.arange(total)] * len(cols)
-    else:
-        grids = np.meshgrid(*[np.arange(len(v)) for _, v in cols], indexing="ij")
-        idx = [g.ravel() for g in grids]
-    out = {}
-    for (es, vals), ix in zip(cols, idx):
-        for k, e in enumerate(es):
-            out[e.label] = vals[ix, k]
-    return {e.label: out[e.label] for e in spec.entries}
-
+from bgc.studies.sweep_plot import plot_sweep  # noqa: F401 (bgc.studies.sweep.plot_sweep)
+from bgc.studies.sweep_spec import (  # noqa: F401 (the section's names, as sweep.*)
+    MAX_SAMPLES,
+    Entry,
+    SweepSpec,
+    parse_sweep,
+    samples,
+)
+from bgc.studies.sweep_store import (  # noqa: F401 (the store's names, as sweep.*)
+    MESSAGE_WIDTH,
+    STATS,
+    SweepMismatch,
+    chunk_bounds,
+    consolidate,
+    open_or_create,
+    open_results,
+    write_chunk,
+)
 
 # ---------------------------------------------------------------------------------------------
 # preparing: the scene's module with every swept parameter kept as a parameter
@@ -639,103 +392,6 @@ def run_chunk(prep: Prepared, a: int, b: int, slots: dict | None = None) -> dict
 
 
 # ---------------------------------------------------------------------------------------------
-# the store
-
-
-def _chunks(n: int, chunk: int) -> list[tuple[int, int]]:
-    return [(a, min(a + chunk, n)) for a in range(0, n, chunk)]
-
-
-def _skeleton(prep: Prepared, chunk: int, digest: str):
-    """The dataset with lazy placeholders (written as metadata only) and the coordinates."""
-    import dask.array as da
-    import xarray as xr
-
-    n = prep.n
-    nt = int(round(abs(prep.t_span[1] - prep.t_span[0]) / prep.dt)) + 1
-    t = np.linspace(prep.t_span[0], prep.t_span[1], nt)
-    data = {}
-    for o in prep.outputs:
-        shp = prep.output_shapes[o]
-        dims = ("sample",) + tuple(f"{o}_dim{k}" for k in range(len(shp))) + ("time",)
-        data[o] = (dims, da.full((n,) + shp + (nt,), np.nan, chunks=(chunk,) + shp + (nt,)))
-    for k in STATS:
-        data[k] = ("sample", da.zeros(n, dtype=np.int64, chunks=chunk))
-    data["status"] = ("sample", da.full(n, -1, dtype=np.int8, chunks=chunk))
-    data["message"] = ("sample", da.full(n, "", dtype=f"<U{MESSAGE_WIDTH}", chunks=chunk))
-    data["batch"] = ("sample", da.zeros(n, dtype=np.int32, chunks=chunk))
-    data["chunk_wall"] = ("sample", da.full(n, np.nan, chunks=chunk))
-    nc = len(_chunks(n, chunk))
-    data["chunk_done"] = ("chunk", np.zeros(nc, dtype=bool))
-    coords = {"time": ("time", t, {"units": "s"}), "sample": np.arange(n)}
-    for label, v in prep.values.items():
-        unit = prep.param_units.get(prep.params.get(label, ""), "")
-        coords[label] = ("sample", v, {"units": unit} if unit else {})
-    ds = xr.Dataset(data, coords=coords)
-    ds["status"].attrs["meaning"] = "-1 not run, 0 ok, 1 failed (see message)"
-    ds["batch"].attrs["meaning"] = ("instances integrated together (their solver statistics "
-                                    "are the batch's)")
-    ds.attrs.update({"bgc_sweep_hash": digest, "scene": prep.scene_name, "chunk": chunk,
-                     "backend": prep.backend,
-                     "method": prep.method, "rtol": prep.rtol, "atol": prep.atol,
-                     "swept": json.dumps(list(prep.values))})
-    return ds
-
-
-class SweepMismatch(ModelError):
-    """The store holds another sweep's results."""
-
-
-def open_or_create(prep: Prepared, out, chunk: int, restart: bool = False) -> list[bool]:
-    """The store at out, created if missing; its completion record (one flag per chunk)."""
-    import shutil
-
-    import xarray as xr
-
-    digest = prep.digest(chunk)
-    out = Path(out)
-    if out.exists() and not restart:
-        try:
-            old = xr.open_zarr(out, consolidated=None)
-            h = old.attrs.get("bgc_sweep_hash")
-            done = [bool(v) for v in old["chunk_done"].values] if "chunk_done" in old else None
-        except Exception as exc:  # noqa: BLE001
-            raise ModelError(None, f"{out} exists and is not a readable sweep store ({exc}); "
-                                   "remove it or pass --restart") from None
-        if h != digest:
-            raise SweepMismatch(None, f"{out} holds the results of another sweep (the scene, "
-                                      "its sweep, the model or --chunk changed): pass --restart "
-                                      "to discard them, or write to a new --out")
-        return done
-    if out.exists():
-        shutil.rmtree(out)
-    _skeleton(prep, chunk, digest).to_zarr(out, compute=False, mode="w", zarr_format=2,
-                                           consolidated=True)
-    return [False] * len(_chunks(prep.n, chunk))
-
-
-def _write_chunk(out, res: dict, k: int, prep: Prepared):
-    import xarray as xr
-
-    a, b = res["a"], res["b"]
-    data = {}
-    for o in prep.outputs:
-        shp = prep.output_shapes[o]
-        dims = ("sample",) + tuple(f"{o}_dim{j}" for j in range(len(shp))) + ("time",)
-        data[o] = (dims, res["y"][o])
-    for s in STATS:
-        data[s] = ("sample", res["stats"][s])
-    data["status"] = ("sample", res["status"])
-    data["message"] = ("sample", res["message"])
-    data["batch"] = ("sample", res["batch"])
-    data["chunk_wall"] = ("sample", np.full(b - a, res["wall"]))
-    xr.Dataset(data).to_zarr(out, region={"sample": slice(a, b)}, consolidated=False)
-    # the completion record last: a chunk counts as done only once its data are written
-    xr.Dataset({"chunk_done": ("chunk", np.array([True]))}).to_zarr(
-        out, region={"chunk": slice(k, k + 1)}, consolidated=False)
-
-
-# ---------------------------------------------------------------------------------------------
 # the engine
 
 
@@ -811,7 +467,7 @@ def run_sweep(prep: Prepared, out, client, chunk: int = 16, restart: bool = Fals
     if chunk < 1:
         raise ModelError(None, "--chunk must be at least 1")
     t0 = time.perf_counter()
-    spans = _chunks(prep.n, chunk)
+    spans = chunk_bounds(prep.n, chunk)
     done = open_or_create(prep, out, chunk, restart)
     todo = [k for k, d in enumerate(done) if not d]
     counter = _Counter(len(spans), prep.n, quiet)
@@ -829,7 +485,7 @@ def run_sweep(prep: Prepared, out, client, chunk: int = 16, restart: bool = Fals
             for fut in as_completed(futures):
                 k = futures[fut]
                 res = fut.result()
-                _write_chunk(out, res, k, prep)
+                write_chunk(out, res, k, prep)
                 computed += 1
                 ndone += 1
                 inst += res["b"] - res["a"]
@@ -843,89 +499,6 @@ def run_sweep(prep: Prepared, out, client, chunk: int = 16, restart: bool = Fals
             counter.end()
     else:
         counter.end()
-    _consolidate(out)
+    consolidate(out)
     return SweepReport(str(out), prep.n, len(spans), computed, len(spans) - len(todo), failed,
                        time.perf_counter() - t0)
-
-
-def _consolidate(out):
-    import zarr
-
-    zarr.consolidate_metadata(str(out))
-
-
-def open_results(out):
-    """The results as an xarray Dataset (loaded lazily from the store)."""
-    import xarray as xr
-
-    return xr.open_zarr(out, consolidated=None)
-
-
-# ---------------------------------------------------------------------------------------------
-# overview plot
-
-
-def plot_sweep(prep: Prepared, ds, out_dir) -> list:
-    """PNGs: each chosen output's final value (or max/min) against each swept quantity, or a
-    fan of its trajectories (stat: fan). Failed instances are left out."""
-    from bgc.run.plots import _mpl, _plain
-
-    plt = _mpl()
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    spec = prep.spec
-    outs = spec.plot_outputs or prep.outputs[:3]
-    ok = ds["status"].values == 0
-    files = []
-
-    def ylab(o, comp):
-        u = spec.plot_units.get(o)
-        return _plain(f"{comp} [{u}]" if u else f"{comp} [units not given: sweep plot units]")
-
-    def xlab(label):
-        pid = prep.params.get(label)
-        u = prep.param_units.get(pid, "") if pid else ""
-        return _plain(f"{label} [{u}]" if u else (f"{label} [as the state]" if pid is None
-                                                  else f"{label} [-]"))
-
-    for o in outs:
-        arr = ds[o].values  # (S, *shape, T)
-        comps = arr.reshape(arr.shape[0], -1, arr.shape[-1])
-        names = [o] if comps.shape[1] == 1 else [f"{o}[{j}]" for j in range(comps.shape[1])]
-        if spec.plot_stat == "fan":
-            fig, ax = plt.subplots(figsize=(7.2, 4.4))
-            t = ds["time"].values
-            for j, nm in enumerate(names[:3]):
-                for s in np.nonzero(ok)[0]:
-                    ax.plot(t, comps[s, j], lw=0.7, alpha=0.5,
-                            color=f"C{j}", label=nm if s == np.nonzero(ok)[0][0] else None)
-            ax.set_xlabel("time [s]")
-            ax.set_ylabel(ylab(o, o))
-            ax.set_title(_plain(f"{prep.scene_name}: {o}, {int(ok.sum())} instances"))
-            ax.legend(fontsize=8)
-        else:
-            labels = list(prep.values)
-            fig, axes = plt.subplots(1, len(labels), squeeze=False,
-                                     figsize=(3.6 * len(labels) + 1, 3.8))
-            red = {"final": lambda v: v[..., -1], "max": lambda v: np.max(v, axis=-1),
-                   "min": lambda v: np.min(v, axis=-1)}[spec.plot_stat]
-            vals = red(comps)
-            for ax, label in zip(axes[0], labels):
-                x = ds[label].values
-                for j, nm in enumerate(names[:6]):
-                    ax.plot(x[ok], vals[ok, j], "o", ms=3.5, alpha=0.7, label=nm)
-                if (~ok).any():
-                    for xv in x[~ok]:
-                        ax.axvline(xv, color="r", lw=0.6, alpha=0.4)
-                ax.set_xlabel(xlab(label))
-                ax.set_ylabel(ylab(o, f"{spec.plot_stat} {o}"))
-                if len(names) > 1:
-                    ax.legend(fontsize=7)
-            fig.suptitle(_plain(f"{prep.scene_name}: {spec.plot_stat} {o} against the swept "
-                                "values" + (" (red: failed instances)" if (~ok).any() else "")))
-        fig.tight_layout()
-        path = out_dir / f"{prep.scene_name}_sweep_{o}.png"
-        fig.savefig(path)
-        plt.close(fig)
-        files.append(path)
-    return files

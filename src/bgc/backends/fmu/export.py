@@ -9,11 +9,13 @@ platform under ``binaries/<platform>/``.
 The model functions of an FMU differ from the C backend's in one respect: the inputs are
 values in the parameter vector (set through fmi2SetReal) instead of compiled default
 expressions; an input nobody has set follows its default signal (:mod:`templates/c/fmu`).
+The variables, their value references and the model structure are
+:func:`bgc.backends.fmu.spec.build_spec`'s; the C model's parts are the C backend's
+(:mod:`bgc.backends.c.parts`), printed from the lowered functions.
 """
 from __future__ import annotations
 
 import atexit
-import hashlib
 import io
 import os
 import platform
@@ -21,15 +23,14 @@ import re
 import shutil
 import subprocess
 import tempfile
-import uuid
 import xml.etree.ElementTree as ET
 import zipfile
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
 from pathlib import Path
 
 import sympy as sp
 
+from bgc.backends.fmu.spec import FmuSpec, build_spec, flat_names  # noqa: F401 (as export.*)
 from bgc.base import __version__
 from bgc.base.errors import ModelError
 from bgc.core.equations import T
@@ -37,230 +38,9 @@ from bgc.core.equations import T
 KINDS = ("me", "cs", "both")
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 GLUE_DIR = "c/fmu"
-#: uuid5 namespace of bgc's FMU GUIDs
-_GUID_NS = uuid.UUID("6f1d2c9e-5b0a-4c1e-9d0f-b9c0f3a1e2d4")
 _STRUCTURED = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\[[0-9]+(,[0-9]+)*\])?"
                          r"(\.[A-Za-z_][A-Za-z0-9_]*(\[[0-9]+(,[0-9]+)*\])?)*")
 _METHODS = {"Rodas4": 0, "Radau": 1}  # BGC_RODAS4, BGC_RADAU5; other methods run Radau5
-
-
-@dataclass(frozen=True)
-class Var:
-    name: str
-    vr: int
-    causality: str
-    variability: str
-    initial: str | None = None
-    start: float | None = None
-    unit: str = ""
-    description: str = ""
-    derivative: int | None = None  # 1-based index of the state variable
-
-
-@dataclass(frozen=True)
-class FmuSpec:
-    """What the XML and the C model share: variables and value references, in one order."""
-    model_identifier: str
-    guid: str
-    variables: tuple[Var, ...]
-    n: int
-    np: int
-    nu: int
-    nout: int
-    param_start: tuple[float, ...]
-    param_tunable: tuple[int, ...]
-    input_start: tuple[float, ...]
-    state_deps: tuple[tuple[int, ...], ...]  # derivative i -> variable indices (1-based)
-    output_deps: tuple[tuple[int, ...], ...]
-    initial_deps: tuple[tuple[int, tuple[int, ...]], ...]  # (index, dependencies), by index
-
-
-def flat_names(name: str, shape: tuple[int, ...]) -> list[str]:
-    """FMI scalar names of a value: ``name``, ``name[i]`` or ``name[i,j]`` (1-based)."""
-    if not shape:
-        return [name]
-    if len(shape) == 1:
-        return [f"{name}[{i + 1}]" for i in range(shape[0])]
-    return [f"{name}[{i + 1},{j + 1}]" for i in range(shape[0]) for j in range(shape[1])]
-
-
-def _flat_values(v) -> list[float]:
-    if isinstance(v, (tuple, list)):
-        out = []
-        for r in v:
-            out += _flat_values(r)
-        return out
-    return [float(v)]
-
-
-def _deps(fn, state_syms, input_syms, extra=None) -> list[set]:
-    """For each result of a lowered function, the states and inputs (as ('x', i) / ('u', k))
-    it depends on, through the function's definitions; ``extra`` adds symbols of other
-    kinds (symbol -> set), e.g. parameters as ('p', k)."""
-    base = {s: {("x", i)} for i, s in enumerate(state_syms)}
-    base.update({s: {("u", k)} for k, s in enumerate(input_syms)})
-    base.update(extra or {})
-    known: dict = {}
-
-    def of(expr):
-        out = set()
-        for s in expr.free_symbols:
-            if s in known:
-                out |= known[s]
-            elif s in base:
-                out |= base[s]
-        return out
-
-    for ln in fn.lines:
-        known[ln.target] = of(ln.expr)
-    return [of(r) for _, r in fn.results]
-
-
-def _param_base(eq, psyms) -> dict:
-    """symbol -> {('p', k)}: the parameters, and the derived parameters through their
-    definitions."""
-    base = {s: {("p", k)} for k, s in enumerate(psyms)}
-    for a in eq.derived:
-        d = set()
-        for s in a.expr.free_symbols:
-            d |= base.get(s, set())
-        base[a.symbol] = d
-    return base
-
-
-def _numeric(expr, values: dict) -> float:
-    v = sp.sympify(expr).xreplace(values)
-    try:
-        return float(sp.N(v))
-    except TypeError:
-        raise ModelError(None, f"cannot evaluate the start value {expr} numerically") from None
-
-
-def build_spec(compiled, scene=None, kind: str = "both") -> FmuSpec:
-    low = compiled.lowered
-    eq = compiled.equations
-    ident = compiled.model.name + (f"_{scene.name}" if scene is not None else "")
-    ident = re.sub(r"[^A-Za-z0-9_]", "_", ident)
-    if not ident or ident[0].isdigit():
-        ident = "m_" + ident
-    n = len(eq.states)
-    # parameter start values: the model's (the scene's top-level values are already in),
-    # then the scene's free parameters
-    overrides = {}
-    if scene is not None:
-        from bgc.format.scene import free_values
-
-        overrides = free_values(scene)
-    pstart, punits, pdesc, pnames, psyms = [], [], [], [], []
-    for pv in eq.params:
-        vals = _flat_values(overrides.get(pv.id, pv.value))
-        if len(vals) != len(pv.symbols):
-            raise ModelError(None, f"parameter {pv.id!r}: {len(vals)} values for "
-                                   f"{len(pv.symbols)} entries")
-        pstart += vals
-        names = flat_names(pv.id, tuple(pv.shape))
-        pnames += names
-        punits += [pv.unit] * len(names)
-        pdesc += [pv.description] * len(names)
-        psyms += list(pv.symbols)
-    # fixed: parameters the initial state depends on (directly or through derived ones)
-    init_syms = set()
-    for sv in eq.states:
-        init_syms |= sp.sympify(sv.initial).free_symbols
-    for a in reversed(eq.derived):
-        if a.symbol in init_syms:
-            init_syms |= a.expr.free_symbols
-    ptun = [0 if s in init_syms else 1 for s in psyms]
-    values = {s: sp.Float(v) for s, v in zip(psyms, pstart)}
-    for a in eq.derived:
-        values[a.symbol] = sp.Float(_numeric(a.expr, values))
-    t0 = scene.t_span[0] if scene is not None else 0.0
-    values[T] = sp.Float(t0)
-    model_inputs = {i.name: i for i in compiled.model.inputs}
-    inames, iunits, istart, isyms = [], [], [], []
-    for iv in eq.inputs:
-        names = flat_names(iv.name, tuple(iv.shape))
-        inames += names
-        unit = model_inputs[iv.name].unit if iv.name in model_inputs else ""
-        iunits += [unit] * len(names)
-        istart += [_numeric(d, values) for d in iv.default]
-        isyms += list(iv.symbols)
-    onames, ounits = [], []
-    out_unit = {o.name: o.unit for o in compiled.model.body.outputs}  # {expr, unit} outputs
-    for name, shape, vals in eq.outputs:
-        onames += flat_names(name, tuple(shape))
-        ounits += [out_unit.get(name, "")] * len(flat_names(name, tuple(shape)))
-    snames = [sv.name for sv in eq.states]
-    nu, npar, nout = len(inames), len(pnames), len(onames)
-    vr_p, vr_u, vr_y = 2 * n, 2 * n + npar, 2 * n + npar + nu
-    # FMI indices (1-based) in ModelVariables order: states, derivatives, params, inputs, outputs
-    idx_x = [i + 1 for i in range(n)]
-    idx_u = [vr_u + k + 1 for k in range(nu)]
-    state_syms = [sv.symbol for sv in eq.states]
-    rhs_deps = _deps(low.rhs, state_syms, isyms)
-    jac_cols: list[set] = [set() for _ in range(n)]
-    for r, col in low.jac_keys:
-        jac_cols[r].add(col)
-    sdeps = []
-    for i in range(n):
-        d = sorted({idx_x[j] for j in jac_cols[i]}
-                   | {idx_u[k] for (kind_, k) in rhs_deps[i] if kind_ == "u"})
-        sdeps.append(tuple(d))
-    out_deps = _deps(low.outs, state_syms, isyms)
-    odeps = [tuple(sorted(idx_x[k] if kind_ == "x" else idx_u[k] for kind_, k in d))
-             for d in out_deps]
-    # InitialUnknowns: in terms of what is known at initialisation, the parameters and the
-    # inputs (the states are calculated from parameters)
-    pbase = _param_base(eq, psyms)
-    idx_p = [vr_p + k + 1 for k in range(npar)]
-
-    def known(kind_, k):
-        return idx_p[k] if kind_ == "p" else idx_u[k]
-
-    init_x = [{known(*d) for d in ds} for ds in _deps(low.init, state_syms, isyms, pbase)]
-
-    def at_init(ds):
-        out = set()
-        for kind_, k in ds:
-            out |= init_x[k] if kind_ == "x" else {known(kind_, k)}
-        return tuple(sorted(out))
-
-    initial = {idx_x[i]: tuple(sorted(init_x[i])) for i in range(n)}
-    for i, ds in enumerate(_deps(low.rhs, state_syms, isyms, pbase)):
-        initial[n + i + 1] = at_init(ds)
-    for k, ds in enumerate(_deps(low.outs, state_syms, isyms, pbase)):
-        initial[vr_y + k + 1] = at_init(ds)
-    variables = []
-    for i, s in enumerate(snames):
-        variables.append(Var(s, i, "local", "continuous", "calculated"))
-    for i, s in enumerate(snames):
-        variables.append(Var(f"der({s})", n + i, "local", "continuous", "calculated",
-                             derivative=i + 1))
-    for k, nm in enumerate(pnames):
-        variables.append(Var(nm, vr_p + k, "parameter", "tunable" if ptun[k] else "fixed",
-                             "exact", pstart[k], punits[k], pdesc[k]))
-    for k, nm in enumerate(inames):
-        variables.append(Var(nm, vr_u + k, "input", "continuous", None, istart[k], iunits[k]))
-    for k, nm in enumerate(onames):
-        variables.append(Var(nm, vr_y + k, "output", "continuous", "calculated",
-                             unit=ounits[k]))
-    seen: dict = {}
-    for v in variables:
-        if v.name in seen:
-            raise ModelError(None, f"two FMI variables would be named {v.name!r}: rename the "
-                                   "parameter, input or output")
-        seen[v.name] = v
-    for v in pstart + istart:
-        if v != v or v in (float("inf"), float("-inf")):
-            raise ModelError(None, "a parameter or input start value is not finite")
-    h = hashlib.sha256()
-    for part in (compiled.model.source_hash, getattr(scene, "source_hash", "") or "",
-                 __version__, kind, ident, compiled.source):
-        h.update(str(part).encode("utf-8") + b"\0")
-    guid = "{" + str(uuid.uuid5(_GUID_NS, h.hexdigest())) + "}"
-    return FmuSpec(ident, guid, tuple(variables), n, npar, nu, nout, tuple(pstart),
-                   tuple(ptun), tuple(istart), tuple(sdeps), tuple(odeps),
-                   tuple(sorted(initial.items())))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -273,7 +53,6 @@ def _g(v: float) -> str:
 
 def model_description(compiled, spec: FmuSpec, scene=None, kind: str = "both",
                       sources: tuple[str, ...] = ()) -> bytes:
-    eq = compiled.equations
     desc = compiled.model.description or ""
     naming = "structured" if all(_STRUCTURED.fullmatch(v.name) or (
         v.name.startswith("der(") and _STRUCTURED.fullmatch(v.name[4:-1]))
@@ -363,25 +142,11 @@ def model_description(compiled, spec: FmuSpec, scene=None, kind: str = "both",
 # C sources
 
 
-class _FmuCtx:
-    """The C backend's part context with the inputs moved into the parameter vector."""
-
-    def __init__(self, low):
-        eq = low.eq
-        self.input_syms_fmu = [s for iv in eq.inputs for s in iv.symbols]
-        self.param_syms = ([s for pv in eq.params for s in pv.symbols]
-                           + [d.target for d in low.derived] + self.input_syms_fmu)
-        self.state_syms = [sv.symbol for sv in eq.states]
-        self.input_syms = []
-        self.input_default = {}
-        self.table_of = {}  # inputs are values in the parameter vector, tables included
-        self.newton = ()  # refused before (render_sources)
-
-
 def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> dict[str, str]:
     """The FMU's generated C files (name -> text): bgc_fmu_model.c, the parts and the
     configuration header."""
-    from bgc.backends.c.printer import CPrinter, _env, _parts, c_name, has_solves
+    from bgc.backends.c.parts import UNIT_PARTS, PartContext, cut_parts
+    from bgc.backends.c.printer import CPrinter, c_name, has_solves, template_env
     from bgc.base.paths import templates_dir
 
     low = compiled.lowered
@@ -394,8 +159,8 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
         raise ModelError(None, f"model {eq.name!r}: the FMU export does not support table "
                                f"inputs yet (input {tabs[0]!r})")
     printer = CPrinter()
-    ctx = _FmuCtx(low)
-    fns = {name: _parts(name, fn, printer, ctx) for name, fn in
+    ctx = PartContext.inputs_as_params(low)  # the inputs are values in the parameter vector
+    fns = {name: cut_parts(name, fn, printer, ctx) for name, fn in
            (("rhs", low.rhs), ("jac", low.jac), ("outputs", low.outs), ("init", low.init))}
     syms = ctx.param_syms + ctx.state_syms
     cnames = [c_name(str(s)) for s in syms]
@@ -404,7 +169,7 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
         raise AssertionError("two model identifiers map to one C name")
     n_par = sum(len(pv.symbols) for pv in eq.params)
     nd = len(low.derived)
-    assert n_par == spec.np and len(ctx.input_syms_fmu) == spec.nu
+    assert n_par == spec.np and len(ctx.param_syms) - n_par - nd == spec.nu
     index = {s: k for k, s in enumerate(ctx.param_syms)}
     defaults = [d for iv in eq.inputs for d in iv.default]
     used = set()
@@ -422,10 +187,8 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
                      for j, ln in enumerate(low.derived)]
     has_t = int(fns["rhs"].uses_t or fns["jac"].uses_t or T in used)
     all_parts = [p for f in fns.values() for p in f.parts]
-    from bgc.backends.c.printer import UNIT_PARTS
-
     units = [all_parts[i:i + UNIT_PARTS] for i in range(0, len(all_parts), UNIT_PARTS)]
-    env = _env()
+    env = template_env()
     m = compiled.model
     common = dict(name=eq.name, version=__version__, source=Path(m.file).name,
                   source_hash=m.source_hash, description=m.description,

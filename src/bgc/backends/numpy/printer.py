@@ -293,7 +293,7 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
                        "symbols": [str(s) for s in pv.symbols], "default": _pyrepr(pv.value),
                        "unit": pv.unit, "description": pv.description})
     imports = sorted(m for m in printer.module_imports if m and m != "numpy")
-    env = jinja2.Environment(loader=_loader(), keep_trailing_newline=True,
+    env = jinja2.Environment(loader=template_loader(), keep_trailing_newline=True,
                              trim_blocks=True, lstrip_blocks=True,
                              undefined=jinja2.StrictUndefined, autoescape=False)
     env.filters.update(lit=lit, oneline=oneline, comment=comment, docstring=docstring)
@@ -331,5 +331,6 @@ def _identifiers(eq: Equations):
         yield str(a.symbol)
 
 
-def _loader():
+def template_loader():
+    """The jinja loader of bgc's templates (every backend's)."""
     return jinja2.FileSystemLoader(str(templates_dir()))

@@ -1,0 +1,261 @@
+"""A lowered function's body cut into C functions ("parts") of bounded size (bgc.backends.c).
+
+Long bodies are cut into parts of at most :data:`PART_LINES` lines, each its own C function,
+and the parts are spread over translation units of :data:`UNIT_PARTS` parts so that ``gcc
+-O2`` stays fast and the units build in parallel; values that cross from one part to a later
+one travel through a scratch array. :class:`PartContext` says where each symbol lives (the
+parameter vector, the state, an input's default, a table, a numeric solve); the C backend and
+the FMU export print the same parts from it."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import sympy as sp
+
+from bgc.backends.c.cexpr import CPrinter, c_name
+from bgc.core.equations import T
+from bgc.lower.ir import Lowered
+
+#: lines (definitions plus results) per generated C function, and functions per unit
+PART_LINES = 250
+UNIT_PARTS = 4
+
+
+@dataclass(frozen=True)
+class CLine:
+    target: str  # a local (const double NAME = ...) or an output slot ("" then)
+    code: str
+    comment: str = ""
+    out: int = -1  # result slot, or -1
+    export: int = -1  # scratch slot the value is stored to for later parts, or -1
+    # numeric solves: kind "linsolve" (x = A^-1 b: a = A's entries row-major, b = b's),
+    # "newton" (code: the loop function's call arguments; ws: its warm start's offset in the
+    # instance workspace) or "alias" (another solve's result under a second name); size: the
+    # result's length; fail: the failure code the part returns
+    kind: str = ""
+    size: int = 0
+    a: tuple = ()
+    b: tuple = ()
+    ws: int = 0
+    fail: int = 0
+    lu: str = ""  # linsolve: the LU (a local of the part) it solves with
+    factor: bool = False  # linsolve: this line factors A into lu (the first with this A)
+
+
+@dataclass(frozen=True)
+class Part:
+    name: str  # C function name
+    params: tuple[tuple[str, int], ...]  # (C name, index into p)
+    inputs: tuple[tuple[str, str], ...]  # (C name, C expression of t and parameters)
+    states: tuple[tuple[str, int], ...]  # (C name, index into x)
+    imports: tuple[tuple[str, int], ...]  # (C name, scratch slot)
+    lines: tuple[CLine, ...]
+    vimports: tuple[tuple[str, int], ...] = ()  # solve results: (C name, first scratch slot)
+    tables: tuple[tuple[str, int, int], ...] = ()  # table inputs: (C name, table, fail code)
+    fallible: bool = False  # holds a numeric solve or a table that may fail: returns int
+    newton: bool = False  # calls a Newton loop's function
+
+
+@dataclass(frozen=True)
+class CFunction:
+    name: str  # rhs, jac, outputs, init
+    parts: tuple[Part, ...]
+    nscratch: int
+    nout: int
+    uses_t: bool
+
+
+def cut_parts(name: str, fn, printer: CPrinter, ctx: PartContext, limit: int = PART_LINES
+              ) -> CFunction:
+    from bgc.core.eqtypes import LinSolve, NewtonSolve
+
+    items = [(ln.target, ln.expr, ln.comment, -1) for ln in fn.lines]
+    items += [(None, r, "", k) for k, (_, r) in enumerate(fn.results)]
+    # the results of numeric solves are arrays: their lengths
+    vsize: dict = {}
+    for tgt, e, _, _ in items:
+        if isinstance(e, LinSolve):
+            vsize[tgt] = int(e.args[0])
+        elif isinstance(e, NewtonSolve):
+            vsize[tgt] = len(ctx.newton[int(e.args[0])].tear)
+        elif isinstance(e, sp.Symbol) and e in vsize:
+            vsize[tgt] = vsize[e]
+    defined_in: dict = {}  # symbol -> part index
+    chunks = [items[i:i + limit] for i in range(0, len(items), limit)] or [[]]
+    for ci, chunk in enumerate(chunks):
+        for tgt, _, _, _ in chunk:
+            if tgt is not None:
+                defined_in[tgt] = ci
+    frees = [[e.free_symbols for _, e, _, _ in chunk] for chunk in chunks]
+    # which definitions a later part needs: those get a scratch slot (a solve: one per entry)
+    slots: dict = {}
+    for ci, chunk in enumerate(chunks):
+        for fs in frees[ci]:
+            for s in fs:
+                if s in defined_in and defined_in[s] < ci and s not in slots:
+                    slots[s] = None
+    order = sorted(slots, key=lambda s: (defined_in[s], str(s)))
+    slots, nslot = {}, 0
+    for s in order:
+        slots[s] = nslot
+        nslot += vsize.get(s, 1)
+    parts = []
+    uses_t = False
+    for ci, chunk in enumerate(chunks):
+        used = set().union(*frees[ci]) if frees[ci] else set()
+        # inputs used (directly); their defaults bring t and parameters; a table input is
+        # its table's function of t
+        inputs = [s for s in ctx.input_syms if s in used and s not in ctx.table_of]
+        tabs = tuple((c_name(str(s)), ctx.table_of[s], ctx.table_fail(ctx.table_of[s]))
+                     for s in ctx.input_syms if s in used and s in ctx.table_of)
+        need_p = set(used)
+        for s in inputs:
+            need_p |= ctx.input_default[s].free_symbols
+        uses_t = uses_t or T in need_p or bool(tabs)
+        params = tuple((c_name(str(s)), k) for k, s in enumerate(ctx.param_syms) if s in need_p)
+        ins = tuple((c_name(str(s)), printer.doprint(ctx.input_default[s])) for s in inputs)
+        states = tuple((c_name(str(s)), k) for k, s in enumerate(ctx.state_syms) if s in used)
+        imports = tuple((c_name(str(s)), slots[s]) for s in order
+                        if s in used and defined_in[s] < ci and s not in vsize)
+        vimports = tuple((c_name(str(s)), slots[s]) for s in order
+                         if s in used and defined_in[s] < ci and s in vsize)
+        lines = []
+        fallible, newton = any(f for _, _, f in tabs), False
+        lus: dict = {}  # A's entries -> the part's LU of it (one factorisation per matrix)
+        for tgt, e, why, k in chunk:
+            if tgt is not None and tgt in vsize:
+                lines.append(_solve_line(tgt, e, why, slots.get(tgt, -1), vsize[tgt], printer,
+                                         ctx, lus))
+                fallible = True
+                newton = newton or isinstance(e, NewtonSolve)
+                continue
+            code = printer.doprint(e)
+            if tgt is None:
+                lines.append(CLine("", code, "", k))
+            else:
+                lines.append(CLine(c_name(str(tgt)), code, why, -1, slots.get(tgt, -1)))
+        parts.append(Part(f"bgcm_{name}_{ci}", params, ins, states, imports, tuple(lines),
+                          vimports, tabs, fallible, newton))
+    return CFunction(name, tuple(parts), nslot, len(fn.results), uses_t)
+
+
+def _solve_line(tgt, e, why, export, n, printer, ctx, lus: dict) -> CLine:
+    """The C line of a numeric solve's result (an array of n values). Solves with the same
+    matrix in one part (the Jacobian's columns through a solve: d(A^-1 b) = A^-1 (db - dA x))
+    share one LU."""
+    from bgc.core.eqtypes import LinSolve, NewtonSolve
+
+    target = c_name(str(tgt))
+    if isinstance(e, LinSolve):
+        a = tuple(printer.doprint(v) for v in e.args[1:1 + n * n])
+        b = tuple(printer.doprint(v) for v in e.args[1 + n * n:])
+        factor = a not in lus
+        if factor:
+            lus[a] = f"bgc_lu{len(lus)}"
+        return CLine(target, "", why, -1, export, "linsolve", n, a if factor else (), b, 0,
+                     ctx.fail_code(ctx.linsolve_message(e)), lus[a], factor)
+    if isinstance(e, NewtonSolve):
+        k = int(e.args[0])
+        args = ", ".join(printer.doprint(v) for v in e.args[1:])
+        return CLine(target, f"bgcm_newton_{k}({args}{', ' if args else ''}"
+                             f"bgc_ws ? bgc_ws + {ctx.newton_ws[k]} : NULL, {target})",
+                     why, -1, export, "newton", n, (), (), ctx.newton_ws[k],
+                     ctx.fail_code(ctx.newton_message(k)))
+    return CLine(target, c_name(str(e)), why, -1, export, "alias", n)
+
+
+class PartContext:
+    """Where the parts find each symbol: the parameter vector (parameters, then the derived
+    ones), the state, the inputs (their defaults or tables), numeric solves; and the failure
+    codes and messages the parts return."""
+
+    def __init__(self, low: Lowered):
+        eq = low.eq
+        self.param_syms = [s for pv in eq.params for s in pv.symbols] + [d.target
+                                                                          for d in low.derived]
+        self.state_syms = [sv.symbol for sv in eq.states]
+        self.input_syms = [s for iv in eq.inputs for s in iv.symbols]
+        self.input_default = {s: d for iv in eq.inputs for s, d in zip(iv.symbols, iv.default)}
+        # numeric solves: Newton loops (their warm starts' offsets in the instance
+        # workspace) and the failure codes the model functions return (1-based, the index
+        # of their message in fail_messages)
+        self.newton = tuple(getattr(eq, "newton", ()))
+        self.newton_ws, off = [], 0
+        for nl in self.newton:
+            self.newton_ws.append(off)
+            off += len(nl.tear)
+        self.nws = off
+        self.fail_messages: list[str] = []
+        self._eq = eq
+        self._lin_msgs = None
+        # table inputs: input symbol -> table index; the tables (bgc.format.tables.Table, input name)
+        self.tables = [(iv.table, iv.name) for iv in eq.inputs
+                       if getattr(iv, "table", None) is not None]
+        self.table_of = {}
+        k = 0
+        for iv in eq.inputs:
+            if getattr(iv, "table", None) is not None:
+                for s in iv.symbols:
+                    self.table_of[s] = k
+                k += 1
+
+    @classmethod
+    def inputs_as_params(cls, low: Lowered) -> PartContext:
+        """The FMU's context: every input is a value in the parameter vector, after the
+        derived parameters (set through fmi2SetReal), so that no part reads an input's default
+        or a table. (The FMU export refuses numeric solves and tables before printing.)"""
+        ctx = cls(low)
+        ctx.param_syms = ctx.param_syms + ctx.input_syms
+        ctx.input_syms, ctx.input_default, ctx.table_of, ctx.newton = [], {}, {}, ()
+        return ctx
+
+    def table_fail(self, k: int) -> int:
+        """The failure code of table k outside its knots (extrapolate: error), else 0."""
+        tb, name = self.tables[k]
+        if tb.extrapolate != "error":
+            return 0
+        return self.fail_code(f"input {name!r}: t is outside its table [{tb.t[0]:g}, "
+                              f"{tb.t[-1]:g}] (extrapolate: error)")
+
+    def fail_code(self, message: str) -> int:
+        if message not in self.fail_messages:
+            self.fail_messages.append(message)
+        return self.fail_messages.index(message) + 1
+
+    def newton_message(self, k: int) -> str:
+        # exactly the numpy module's message (templates/numpy/module.py.j2)
+        return self.newton[k].where + " did not converge (Newton, 50 iterations)"
+
+    def linsolve_message(self, e) -> str:
+        """What a singular numeric solve says: derivative causality's system (named by its
+        unknowns and the elements it runs through), the same system's solves for the
+        Jacobian, or a Newton loop's Jacobian at its solution."""
+        from bgc.core.eqtypes import LinSolve, LinSolveEntry
+
+        if self._lin_msgs is None:
+            eq = self._eq
+            tears: dict = {}
+            for a in eq.assignments:
+                if isinstance(a.expr, LinSolveEntry):
+                    tears.setdefault(a.expr.args[0], []).append(str(a.symbol).lstrip("_"))
+            self._lin_msgs = {}
+            for a in eq.assignments:
+                if not isinstance(a.expr, LinSolve):
+                    continue
+                n = int(a.expr.args[0])
+                names = ", ".join(tears.get(a.symbol, ()))
+                through = ""
+                for note in eq.loops:
+                    if f"({names})" in note and ", through " in note:
+                        through = " through " + note.split(", through ", 1)[1]
+                        break
+                self._lin_msgs[tuple(a.expr.args[1:1 + n * n])] = (
+                    f"derivative causality: the linear system in {n} unknown(s) ({names})"
+                    f"{through} is singular")
+        n = int(e.args[0])
+        msg = self._lin_msgs.get(tuple(e.args[1:1 + n * n]))
+        if msg is not None:
+            return msg
+        loops = "; ".join(nl.where for nl in self.newton)
+        return ("the Jacobian through a nonlinear algebraic loop: the loop's linear system "
+                f"(I - dg/dz) is singular at its solution ({loops})")
