@@ -361,7 +361,7 @@ class _Builder:
         for x in (v, *v.args) if isinstance(v, sp.Mul) else (v,):
             if isinstance(x, sp.Pow) and x.exp.is_Number and abs(x.exp) > LIMITS.power_exponent:
                 raise self.err(node, f"a chain of powers makes the exponent "
-                                     f"{_short(str(x.exp))}, larger than "
+                                     f"{short_text(str(x.exp))}, larger than "
                                      f"{LIMITS.power_exponent} in magnitude (the limit of "
                                      "exponents)")
         return v
