@@ -39,14 +39,17 @@ class Model(C.Structure):
     _fields_ = [("n", C.c_int), ("np", C.c_int), ("nnz", C.c_int), ("jac_row", INTP),
                 ("jac_col", INTP), ("rhs", RHS), ("jac", RHS), ("has_time_inputs", C.c_int),
                 ("lu", C.POINTER(LuPlan)), ("nws", C.c_int), ("rhs_ws", C.c_void_p),
-                ("jac_ws", C.c_void_p)]
+                ("jac_ws", C.c_void_p), ("nev", C.c_int), ("guards", C.c_void_p),
+                ("reset", C.c_void_p), ("ev_dir", INTP)]
 
 
 class Options(C.Structure):
     _fields_ = [("method", C.c_int), ("rtol", C.c_double), ("atol", DBLP),
                 ("atol_len", C.c_int), ("h0", C.c_double), ("max_step", C.c_double),
                 ("max_steps", C.c_long), ("max_wall", C.c_double), ("t_out", DBLP),
-                ("n_out", C.c_int), ("breaks", DBLP), ("n_breaks", C.c_int)]
+                ("n_out", C.c_int), ("breaks", DBLP), ("n_breaks", C.c_int),
+                ("ev_log", DBLP), ("ev_cap", C.c_int), ("ev_count", INTP),
+                ("max_events", C.c_int), ("zeno_window", C.c_double)]
 
 
 class Stats(C.Structure):

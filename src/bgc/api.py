@@ -16,7 +16,6 @@ from pathlib import Path
 from bgc.base.errors import Coord, ModelError
 
 BgcError = ModelError
-TARGETS = ("numpy",)
 
 
 def _is_text(src) -> bool:
@@ -36,63 +35,27 @@ def _model(src):
     return parse_file(src)
 
 
-def _through_cache(path, scene, target, name, build):
-    """(compiled or None, module) through the compile cache (bgc.run.cache and bgc.backends.load,
-    when this bgc has them: ``backends.load`` reads a hit without compiling), else
-    (compiled, module) compiled now and loaded from memory."""
-    from bgc.backends.load import load_module
-
-    try:
-        from bgc.backends import load as backends
-        from bgc.run import cache
-    except ImportError:
-        backends = cache = None
-    if backends is not None and hasattr(backends, "load") and hasattr(cache, "key"):
-        key = None if path is None else cache.key(target, path, scene)
-        return backends.load(name, target, key, build, cache.Cache() if key else None)
-    if target != "numpy":
-        raise ModelError(None, f"unknown target {target!r} (this bgc has: numpy)")
-    compiled = build()
-    return compiled, load_module(compiled.source, name)
-
-
 def compile(path_or_text, scene=None, target: str = "numpy") -> "CompiledModel":  # noqa: A001
     """Compile a model (path or YAML text), optionally specialised to a scene file, and return
-    the loaded module wrapped in a :class:`CompiledModel` (attributes go to the module)."""
-    from bgc.run.driver import compile_model
+    the loaded module wrapped in a :class:`CompiledModel` (attributes go to the module).
+    A model file goes through the compile cache (bgc.run.driver.build, as `bgc simulate`)."""
+    from bgc.backends.load import BACKENDS as targets
+    from bgc.run.driver import build
 
-    try:
-        from bgc.backends.load import BACKENDS as targets
-    except ImportError:
-        targets = TARGETS
     if target not in targets:
         raise ModelError(None, f"unknown target {target!r} (one of {', '.join(targets)})")
     path = None if _is_text(path_or_text) else path_or_text
     if path is not None and not Path(path).is_file():
         raise ModelError(Coord(str(path), 1, 1), "model file does not exist")
+    sc = None
     if scene is not None:
-        from bgc.core.graph import build_graph
-        from bgc.core.specialize import plan_for
-        from bgc.format.scene import apply_scene, check_outputs, parse_scene
+        from bgc.format.scene import parse_scene
+        from bgc.run.driver import check_scene_for
 
         sc = parse_scene(scene)
-        if _is_text(path_or_text) or Path(sc.model_path).resolve() != Path(
-                path_or_text).resolve():
-            raise ModelError(sc.model_coord, f"the scene is for {sc.model_path}, not "
-                                             f"{'the text given' if _is_text(path_or_text) else path_or_text}")
-
-        def build():
-            m = apply_scene(_model(path_or_text), sc)
-            c = compile_model(m, None, plan_for(sc, build_graph(m).params))
-            check_outputs(sc, [o[0] for o in c.equations.outputs])
-            return c
-        name = f"{Path(path).stem}_{sc.name}"
-    else:
-        def build():
-            return compile_model(_model(path_or_text))
-        name = Path(path).stem if path is not None else "string"
-    c, mod = _through_cache(path, scene, target, name, build)
-    return CompiledModel(mod, c, path_or_text)
+        check_scene_for(sc, path, "the text given" if path is None else path_or_text)
+    b = build(path if path is not None else _model(path_or_text), sc, target)
+    return CompiledModel(b.module, b.compiled, path_or_text, sc)
 
 
 class CompiledModel:
@@ -101,10 +64,11 @@ class CompiledModel:
     module itself, ``.source`` its text, ``.compiled`` bgc's record of the compilation. In
     Jupyter it shows a summary and the bond graph (SVG, when Graphviz is installed)."""
 
-    def __init__(self, module, compiled=None, origin=None):
+    def __init__(self, module, compiled=None, origin=None, scene=None):
         self.module = module
         self.compiled = compiled  # None when the module came from the compile cache
         self.origin = origin  # the path or text it was compiled from
+        self.scene = scene  # the scene (bgc.format.scene.Scene) it was specialised to, or None
 
     @property
     def source(self) -> str:
@@ -211,17 +175,16 @@ class CheckResult:
         return _html(f"bgc check {self.model}", rows, svg)
 
 
-def check(path_or_text) -> CheckResult:
-    """Causality per bond, causal forms, states, loops and warnings of a model, as data.
-    Derivative causality is reported in ``diagnostics`` (not raised); other errors raise."""
-    from bgc.core.causality import assign_causality, derivative_message
+def check(path_or_text, strict_causality: bool = False) -> CheckResult:
+    """Causality per bond, causal forms, states, loops and warnings of a model, as data: what
+    `bgc check` reports (bgc.run.driver.check_model). Derivative causality the model refuses
+    (``causality: strict``, or ``strict_causality``) is reported in ``diagnostics`` (not
+    raised); other errors raise."""
     from bgc.core.draw import to_dot
-    from bgc.core.equations import derive
-    from bgc.core.graph import build_graph
+    from bgc.run.driver import check_model
 
-    m = _model(path_or_text)
-    bg = build_graph(m)
-    caus = assign_causality(bg, allow_derivative=True)
+    chk = check_model(_model(path_or_text), strict_causality)
+    m, bg, caus, eqs = chk.model, chk.graph, chk.causality, chk.equations
     bonds = []
     for b in bg.bonds:
         setter = caus.effort_by[b.id]
@@ -230,14 +193,15 @@ def check(path_or_text) -> CheckResult:
     forms = {el.id: caus.form(bg, el) for el in bg.elements
              if el.type in ("I", "C", "R", "TF", "MTF", "GY", "MGY")}
     diagnostics, loops, states = (), (), ()
-    if caus.derivative:
-        diagnostics = (derivative_message(bg, caus),)
+    warnings = tuple(caus.warnings)
+    if chk.error is not None:
+        diagnostics = (chk.error.message,)
     else:
-        eqs = derive(bg, caus)
         loops = tuple(eqs.loops)
         states = tuple(sv.name for sv in eqs.states)
+        warnings = tuple(eqs.warnings)
     return CheckResult(m.name, tuple(bonds), forms, states, not caus.derivative,
-                       tuple(caus.derivative), loops, tuple(caus.warnings), diagnostics,
+                       tuple(caus.derivative), loops, warnings, diagnostics,
                        to_dot(bg, caus))
 
 
@@ -321,21 +285,31 @@ class Linearization:
 
 
 def linearize(model, at="equilibrium", p=None, u=None) -> Linearization:
-    """Linearise a model (path, text or a :class:`CompiledModel`) at its equilibrium (inputs
-    held at their values at t = 0) or at a time ``at`` reached by a run from x0."""
-    from bgc.linear import modes, to_statespace
+    """Linearise a model (path, text or a :class:`CompiledModel`) or a scene file at its
+    equilibrium (inputs held at their values at the start) or at a time ``at`` reached by a
+    run from x0. The start is t = 0 for a model, the scene's start (and its parameter
+    values) for a scene or a model compiled for one: where `bgc linearize` linearises."""
+    from bgc.linear import (
+        load_target,
+        modes,
+        operating_point,
+        scene_start,
+        to_statespace,
+    )
 
-    mod = model if isinstance(model, CompiledModel) else compile(model)
-    if at == "equilibrium":
-        t = 0.0
-        x, info = mod.equilibrium(u=u, p=p)
-        if not info.converged:
-            raise ModelError(None, f"no equilibrium found (max |dx/dt| = {info.residual:.3g})")
+    pv, t0 = None, 0.0
+    if isinstance(model, CompiledModel):
+        mod = model
+        if model.scene is not None:
+            pv, t0, _ = scene_start(model.scene, model.module)
+    elif not _is_text(model) and isinstance(model, (str, Path)) and Path(model).is_file():
+        mod, pv, t0, _ = load_target(model)
     else:
-        t = float(at)
-        x = mod.initial_state(p) if t == 0 else mod.simulate(
-            (0.0, t), t_eval=[t], p=p, rtol=1e-8, atol=1e-10).x[..., -1]
-    A, B, C, D = mod.linearize(t, x, u, p)
+        mod = compile(model)
+    if p is not None:
+        pv = {**(pv or {}), **p}
+    t, x, _ = operating_point(mod, at, pv, u, t0, hint=")")
+    A, B, C, D = mod.linearize(t, x, u, pv)
     try:
         ss = to_statespace(mod, A, B, C, D)
     except ImportError:

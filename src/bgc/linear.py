@@ -77,7 +77,9 @@ def bode_plot(path, lin, i_in, i_out, in_label, out_label, in_unit="", out_unit=
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from bgc.run.plots import plain_text  # model text as written (no mathtext from a "$")
+    from bgc.run.plots import (
+        plain_text,  # model text as written (no mathtext from a "$")
+    )
 
     A = np.asarray(lin[0])
     if f_range is None:
@@ -102,3 +104,68 @@ def bode_plot(path, lin, i_in, i_out, in_label, out_label, in_unit="", out_unit=
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+# ---------------------------------------------------------------------------------------------
+# Where to linearise: one answer for `bgc linearize` and bgc.linearize
+
+def load_target(path, progress=None):
+    """(module, run-time parameters, start time, scene or None) of a scene file (its
+    specialised module, as `bgc simulate` runs it) or a model file (t0 = 0)."""
+    from pathlib import Path
+
+    from bgc.base.errors import ModelError
+
+    from bgc.base.limits import LIMITS
+    from bgc.base.safeio import read_text_bounded
+
+    head = read_text_bounded(path, None, "model or scene file", LIMITS.model_bytes)[:4096]
+    from bgc.run.driver import build
+
+    if "bgc_scene" in head:
+        from bgc.format.scene import parse_scene
+
+        sc = parse_scene(path)
+        mod = build(scene=sc, progress=progress).module  # numpy, through the cache
+        return (mod,) + scene_start(sc, mod)
+    b = build(path, None, "numpy", progress=progress)
+    if b.compiled is not None:  # compiled now: a zero mass, a root of a negative parameter
+        from bgc.run.runner import check_module_start
+
+        check_module_start(b.compiled)
+    return b.module, None, 0.0, None
+
+
+def scene_start(scene, mod) -> tuple:
+    """(run-time parameters, start time, scene): where a scene's runs start."""
+    from bgc.run.runner import runtime_params
+
+    return runtime_params(scene, mod), scene.t_span[0], scene
+
+
+def operating_point(mod, at, p=None, u=None, t0: float = 0.0, progress=None,
+                    hint: str = "") -> tuple:
+    """(t, x, words) of the operating point ``at``: "equilibrium" (inputs held at their values
+    at t0) or a time, the state a run from the initial state at t0 reaches then."""
+    from bgc.base.errors import ModelError
+
+    say = progress or (lambda msg: None)
+    if at == "equilibrium":
+        say("finding the equilibrium")
+        x, info = mod.equilibrium(u=u, p=p, t=t0)
+        if not info.converged:
+            raise ModelError(None, f"no equilibrium found (max |dx/dt| = {info.residual:.3g}"
+                                   f"{hint}")
+        return t0, x, "the equilibrium"
+    try:
+        t = float(at)
+    except (TypeError, ValueError):
+        raise ModelError(None, f"--at {at!r}: 'equilibrium' or a time in seconds") from None
+    if t == t0:
+        return t, mod.initial_state(p), f"t = {t:g} s"
+    say(f"simulating to t = {t:g} s")
+    try:
+        res = mod.simulate((t0, t), t_eval=[t], p=p, rtol=1e-8, atol=1e-10)
+    except mod.SimulationError as exc:
+        raise ModelError(None, f"simulation to t = {t:g} failed: {exc}") from None
+    return t, res.x[..., -1], f"t = {t:g} s"

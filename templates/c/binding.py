@@ -23,6 +23,8 @@ TABLE_MAX_STEP: dict
 _PARAM_NDIM: dict
 C_LIBRARY: str
 C_DIGEST: str
+N_EVENTS = 0  # a hybrid model's numpy part defines these (templates/numpy/events.py.j2)
+EVENT_NAMES = EVENT_WHERE = ()
 _C_NP = _C_NNZ = _C_NOUT = _C_NWS = 0
 rhs = jacobian = outputs = initial_state = simulate = _params = _batched = None
 _output_times = _error = SimResult = SimulationError = None
@@ -38,7 +40,9 @@ C_METHODS = {"Rodas4": 0, "Radau": 1, "DOP853": 2}  # the methods whose step loo
 _EXPLICIT = ("DOP853",)  # C methods that need no Jacobian
 _C_STATUS = {1: "non-finite value", 2: "too many steps", 3: "step size too small",
              4: "wall time exceeded", 5: "singular iteration matrix", 6: "model failure",
-             7: "bad arguments"}
+             7: "bad arguments", 8: "Zeno behaviour or chattering"}
+_EV_CAP = 4096  # event log rows per instance and run (a run with more runs again, larger)
+_N_EV = globals().get("N_EVENTS", 0)  # a hybrid model's events (its numpy part defines them)
 _LIB = None
 _DP = _ct.c_void_p  # arrays are passed by address (ndarray.ctypes.data)
 _JAC_ROWS, _JAC_COLS = np.nonzero(JAC_SPARSITY)
@@ -68,6 +72,8 @@ def _bind(path):
         _ct.c_int, _ct.c_double, _DP, _ct.c_int, _ct.c_double, _ct.c_double, _ct.c_long,
         _ct.c_double, _DP, _ct.c_int, _DP, _ct.c_int, _ct.c_int, _DP, _DP, _ct.c_double,
         _ct.c_double, _DP, _DP, _ct.c_char_p, _ct.c_int]
+    if _N_EV:  # a hybrid model: the event log, counts and Zeno guard
+        lib.bgcm_simulate.argtypes += [_DP, _ct.c_int, _DP, _ct.c_int, _ct.c_double]
     info = (_ct.c_int * 6)()
     lib.bgcm_info(info)
     sizes = (info[0], info[1], info[2], info[3], info[5])
@@ -234,7 +240,8 @@ def initial_state(p=None):
 
 def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, u=None,
              x0=None, dt=None, breakpoints=(), jac=True, max_step=np.inf, max_steps=50_000,
-             stiff_check=True, max_wall=None, h0=0.0, nthreads=None):
+             stiff_check=True, max_wall=None, h0=0.0, nthreads=None, max_events=20,
+             zeno_window=None):
     """Integrate over t_span; returns SimResult (t, x, y) as the numpy module's simulate.
 
     method "Rodas4", "Radau" (Radau IIA of order 5) or "DOP853" (explicit, order 8, for
@@ -244,13 +251,16 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
     jac=False run in the numpy module's Python step loop (with the compiled rhs and Jacobian
     where they apply). Without t_eval and dt the output times are 1001 uniform points
     (the C loop writes output times only, not every step). Statistics in result.stats: nfev,
-    njev, nlu, nsteps (accepted steps), nrejected, nstiff, summed over a batch.
+    njev, nlu, nsteps (accepted steps), nrejected, nstiff, summed over a batch. A hybrid
+    model's events are located in C, each instance on its own (result.events, stats["nevents"],
+    max_events and zeno_window: as the numpy module's simulate).
     """
     if method not in C_METHODS or u is not None or (not jac and method not in _EXPLICIT):
+        kw = dict(max_events=max_events, zeno_window=zeno_window) if _N_EV else {}
         return _np_simulate(t_span, t_eval=t_eval, method=method, rtol=rtol, atol=atol, p=p,
                             u=u, x0=x0, dt=dt, breakpoints=breakpoints, jac=jac,
                             max_step=max_step, max_steps=max_steps, stiff_check=stiff_check,
-                            max_wall=max_wall)
+                            max_wall=max_wall, **kw)
     t0, t1 = float(t_span[0]), float(t_span[1])
     if not t1 > t0:
         raise ValueError("the C integrators run forward in time: give t_span with t1 > t0")
@@ -286,11 +296,23 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
     wall = 0.0 if max_wall is None else float(max_wall)
     ms = float(max_step) if np.isfinite(max_step) else 0.0
     threads = int(nthreads or _os.cpu_count() or 1)
-    _lib().bgcm_simulate(C_METHODS[method], float(rtol), _ptr(A), len(A), float(h0), ms,
-                         int(max_steps), wall, _ptr(times), len(times), _ptr(bps), nbps, nb,
-                         _ptr(P), _ptr(X0), t0, t1, _ptr(Y), _ptr(S), msg, threads)
+    args = (C_METHODS[method], float(rtol), _ptr(A), len(A), float(h0), ms, int(max_steps), wall,
+            _ptr(times), len(times), _ptr(bps), nbps, nb, _ptr(P), _ptr(X0), t0, t1, _ptr(Y),
+            _ptr(S), msg, threads)
+    cap, log = _EV_CAP, None
+    while _N_EV:  # the log: nb x cap rows (t, event, x before, x after)
+        log, counts = np.zeros((nb, cap, 2 * N_STATES + 2)), np.zeros(nb, dtype=np.intc)
+        window = 1e-6 * (t1 - t0) if zeno_window is None else float(zeno_window)
+        _lib().bgcm_simulate(*args, _ptr(log), cap, _ptr(counts), int(max_events), window)
+        if counts.max(initial=0) <= cap:
+            break
+        cap = int(counts.max())
+    if not _N_EV:
+        _lib().bgcm_simulate(*args)
     stats = {"nfev": int(S[:, 3].sum()), "njev": int(S[:, 4].sum()), "nlu": int(S[:, 5].sum()),
              "nsteps": int(S[:, 1].sum()), "nrejected": int(S[:, 2].sum()), "nstiff": 0}
+    if _N_EV:
+        stats["nevents"] = int(counts.sum())
     failed = np.nonzero(S[:, 6])[0]
     if failed.size:
         k = int(failed[0])
@@ -303,7 +325,22 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
     pt = None if p is None else {
         name: np.asarray(v)[..., None] if np.ndim(v) > _PARAM_NDIM[name] else v
         for name, v in p.items()}
-    return SimResult(times, X, outputs(times, X, pt), stats)
+    res = SimResult(times, X, outputs(times, X, pt), stats)
+    if _N_EV:
+        res.events = _event_log(log, counts, batch)
+    return res
+
+
+def _event_log(log, counts, batch):
+    """(t, event name, instance index, x before, x after) of every instance, in time order."""
+    rows = []
+    for k in range(len(counts)):
+        index = tuple(int(i) for i in np.unravel_index(k, batch)) if batch else ()
+        for r in log[k, :counts[k]]:
+            rows.append((r[0], EVENT_NAMES[int(r[1])], index, r[2:2 + N_STATES].copy(),
+                         r[2 + N_STATES:].copy()))
+    rows.sort(key=lambda row: (row[0], row[2]))
+    return rows
 
 
 def _c_message(method, S, failed, raw, batch):
@@ -319,6 +356,10 @@ def _c_message(method, S, failed, raw, batch):
         what = "right-hand side" if where == 0 else "Jacobian row"
         return (f"{method} failed at t = {t:.6g}: non-finite value in the {what} of state "
                 f"{STATE_NAMES[bad]!r}{inst}")
+    if status == 8 and 0 <= bad < _N_EV:  # the Zeno guard: located at the event
+        rest = raw.decode("utf-8", "replace").split(": ", 1)[-1]
+        return (f"{EVENT_WHERE[bad]}: event {EVENT_NAMES[bad]!r} at t = {t:.9g}: {rest}; raise "
+                f"max_events or change the model{inst}")
     if status == 6 and where == 2 and bad > 0:  # a numeric solve failed: located first
         return f"{_fail_message(bad)} ({method}, at t = {t:.6g}){inst}"
     detail = raw.decode("utf-8", "replace") or _C_STATUS.get(status, f"status {status}")

@@ -11,7 +11,8 @@ import shutil
 import sys
 from pathlib import Path
 
-BACKENDS = ("numpy", "c")
+from bgc.base import BACKENDS  # noqa: F401 (the one list, re-exported)
+
 MODULE_FILE = "module.py"
 CODE_FILE = "module.code"
 

@@ -33,6 +33,20 @@ def runtime_source(backend: str = _TEMPLATES) -> str:
     return body.strip("\n")
 
 
+_EVENTS_MARK = "# ==== bgc numpy events runtime: copied below this line ====\n"
+
+
+@functools.lru_cache(maxsize=None)
+def events_runtime_source() -> str:
+    """The part of templates/numpy/events.py copied after the runtime into the module of a
+    model with events (its simulate locates the events; a model without events never has it)."""
+    text = (templates_dir() / _TEMPLATES / "events.py").read_text(encoding="utf-8")
+    head, sep, body = text.partition(_EVENTS_MARK)
+    if not sep:
+        raise AssertionError(f"events.py has no marker line {_EVENTS_MARK!r}")
+    return body.strip("\n")
+
+
 # ---------------------------------------------------------------------------------------------
 # The skeleton check: after rendering, the module's top-level statements must be exactly the
 # template's. Model text can only ever appear inside literals; if escaping were ever wrong, a
@@ -45,9 +59,11 @@ _MODEL_TOP = {
                "PARAM_UNITS", "_PARAM_NDIM", "INPUT_NAMES", "OUTPUT_NAMES", "OUTPUT_SHAPES",
                "JAC_SPARSITY", "_P0", "X0", "INPUT_LABELS", "OUTPUT_LABELS", "_TABLES",
                "TABLE_BREAKPOINTS", "TABLE_MAX_STEP", "OUTPUT_UNITS", "INPUT_UNITS",
-               "_NEWTON_WARM", "RHS_USES_T"},
+               "_NEWTON_WARM", "RHS_USES_T", "N_EVENTS", "EVENT_NAMES", "EVENT_DIRECTIONS",
+               "EVENT_WHERE", "MODE_NAMES", "_RESETS"},
     "FunctionDef": {"_unpack", "_floats", "_params", "_inputs", "initial_state", "rhs", "jacobian",
-                    "outputs", "input_jacobian", "output_jacobian", "_bgc_linsolve"},
+                    "outputs", "input_jacobian", "output_jacobian", "_bgc_linsolve",
+                    "event_values", "apply_event"},
     "ClassDef": {"_Unpacked"},
 }
 
@@ -91,6 +107,8 @@ def check_skeleton(text: str, backend: str = _TEMPLATES) -> None:
 def _check_skeleton(text: str, backend: str) -> None:
     runtime = runtime_source(backend)
     body = text.rstrip("\n")  # (a C wrapper continues after the module: see check_wrapper)
+    if backend == _TEMPLATES and "\nEVENT_NAMES = (" in body:  # a hybrid model's events
+        runtime += "\n\n\n" + events_runtime_source()
     if not body.endswith("\n\n\n" + runtime):  # the runtime, verbatim, at the end
         raise SkeletonError(f"the runtime part differs from templates/{backend}/runtime.py")
     try:  # the model part must parse on its own: nothing in it can reach into the runtime
@@ -113,7 +131,7 @@ def _check_skeleton(text: str, backend: str) -> None:
         kind, names = _top_names(node)
         allowed = _MODEL_TOP.get(kind, set())
         if kind == "FunctionDef":  # one Newton solver per nonlinear algebraic loop
-            allowed = allowed | {n for n in names if re.fullmatch(r"_newton_[0-9]+", n)}
+            allowed = allowed | {n for n in names if re.fullmatch(r"_(newton|reset)_[0-9]+", n)}
         if not names or not names <= allowed:
             raise SkeletonError(f"unexpected top-level {kind} {sorted(names)} at line "
                                 f"{getattr(node, 'lineno', '?')}")

@@ -6,3 +6,7 @@ and the safe on-disk store behind the compile cache and run records (``store``).
 imports a third-party package at module level, so a warm run's replay can use it.
 """
 __version__ = "0.1.0"
+
+#: The backends a scene (``solver: {backend: ...}``), a command (``--backend``, ``--target``)
+#: or ``bgc.compile(target=...)`` may name, written once (bgc.backends has one folder each).
+BACKENDS = ("numpy", "c")

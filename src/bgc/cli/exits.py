@@ -10,7 +10,6 @@ import click
 
 from bgc.base.errors import ModelError
 
-
 #: Exit statuses (README, "Errors"): 0 ok; 1 the simulation failed (numerically, or was
 #: stopped); 2 a model, scene or usage error; 3 an internal error of bgc.
 EXIT_FAILED_RUN, EXIT_USER, EXIT_INTERNAL = 1, 2, 3

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import click
 
+from bgc.base import BACKENDS
 from bgc.base.errors import ModelError
 from bgc.cli.exits import fail
 from bgc.cli.options import model_inputs
@@ -21,7 +22,7 @@ from bgc.run.progress import Progress
               "--scene: ./<name>_<scene>.py)")
 @click.option("--scene", type=click.Path(dir_okay=False),
               help="specialise for this scene (its signals, effects, parameters, outputs)")
-@click.option("--target", type=click.Choice(("numpy", "c")), default="numpy", show_default=True,
+@click.option("--target", type=click.Choice(BACKENDS), default="numpy", show_default=True,
               help="numpy: one Python module; c: C sources, a wrapper module and the built "
                    "library in the folder -o")
 @click.option("--no-cache", is_flag=True, help="do not use the compile cache (C runtime objects)")
@@ -32,27 +33,19 @@ from bgc.run.progress import Progress
 def compile_cmd(model, output, scene, target, no_cache, quiet, strict_causality):
     """Compile MODEL.yaml into a Python module (or, --target c, C sources and a library)."""
     from bgc.base.outfiles import write_output
-    from bgc.format.parse import parse_file
-    from bgc.run.driver import compile_model
+    from bgc.run.driver import compile_source
 
     prog = Progress(quiet)
-    prog("parsing")
+    sc = None
     if scene:
-        from bgc.core.graph import build_graph
-        from bgc.core.specialize import plan_for
-        from bgc.format.scene import apply_scene, check_outputs, parse_scene
+        from bgc.format.scene import parse_scene
 
+        prog("parsing")
         sc = parse_scene(scene)
-        if Path(sc.model_path).resolve() != Path(model).resolve():
-            raise ModelError(sc.model_coord, f"the scene is for {sc.model_path}, not {model}")
-        m = apply_scene(parse_file(model), sc)
-        c = compile_model(m, prog, plan_for(sc, build_graph(m).params),
-                          strict_causality=strict_causality)
-        check_outputs(sc, [o[0] for o in c.equations.outputs])
-        if output is None:
-            output = Path(f"{c.model.name}_{sc.name}.py")
-    else:
-        c = compile_model(parse_file(model), prog, strict_causality=strict_causality)
+    # the scene's module is the one `bgc simulate` runs: bgc.run.driver's one scene compile
+    c = compile_source(model, sc, prog, strict_causality)
+    if sc is not None and output is None:
+        output = Path(f"{c.model.name}_{sc.name}.py")
     if target == "c":
         from bgc.backends import load as backends
         from bgc.backends.c import build as cbuild
@@ -90,22 +83,13 @@ def _default_output(model: Path, name: str) -> Path:
                    "eliminating the dependent storage elements")
 def check_cmd(model, strict_causality):
     """Check MODEL.yaml completely (up to the equations) and list causality, states, warnings."""
-    from bgc.core.causality import assign_causality
-    from bgc.core.equations import derive
-    from bgc.core.graph import build_graph
     from bgc.format.parse import parse_file
+    from bgc.run.driver import check_model
 
-    m = parse_file(model)
-    bg = build_graph(m)
-    strict = strict_causality or m.strict_causality
-    caus = assign_causality(bg, allow_derivative=not strict)
-    if caus.derivative:
-        from bgc.core.causality import fixed_r_culprit
-
-        culprit = fixed_r_culprit(bg, caus)
-        if culprit is not None:
-            raise ModelError(culprit[0], culprit[1])
-    eqs = derive(bg, caus, newton=not strict)  # everything built and checked, as in compile
+    chk = check_model(parse_file(model), strict_causality)  # as bgc.check() and compile check
+    if chk.error is not None:
+        raise chk.error
+    m, bg, caus, eqs = chk.model, chk.graph, chk.causality, chk.equations
     out = io.StringIO()
     out.write(f"model {m.name}: {len(bg.elements)} elements, {len(bg.bonds)} bonds\n\n")
     out.write("causality (the stroke is at the end that receives the effort):\n")

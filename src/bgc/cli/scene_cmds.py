@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from bgc.base import BACKENDS
 from bgc.base.errors import ModelError
 from bgc.cli.options import POSITIVE, model_inputs
 from bgc.format.scene import METHODS as SOLVER_METHODS
@@ -26,7 +27,7 @@ from bgc.run.progress import Progress
               help="absolute tolerance (default: the scene's solver atol)")
 @click.option("--max-wall", type=POSITIVE, default=None,
               help="stop with an error once the integration has taken this many seconds")
-@click.option("--backend", type=click.Choice(("numpy", "c")), default=None,
+@click.option("--backend", type=click.Choice(BACKENDS), default=None,
               help="numpy module, or C (the step loop in a compiled library); default: the "
                    "scene's solver backend, else numpy")
 @click.option("--no-cache", is_flag=True, help="compile afresh, without the compile cache")
@@ -60,8 +61,10 @@ def simulate_cmd(scene, out, plot_dir, method, rtol, atol, max_wall, backend, no
         figures = render_plots(res.scene, res.t, res.y,
                                getattr(res.module, "OUTPUT_UNITS", None))
     if out:
+        from bgc.run.event_log import event_arrays  # a hybrid model's event log
+
         buf = io.BytesIO()
-        np.savez_compressed(buf, t=res.t, **res.y)
+        np.savez_compressed(buf, t=res.t, **res.y, **event_arrays(res.events, res.x.shape[0]))
         write_output(out, buf.getvalue(), ins, "--out")
         prog(f"wrote {out}")
     if plot_dir is not None:
@@ -123,26 +126,9 @@ def explain_cmd(scene, rounds, quiet):
 
 def _load_target(path, prog):
     """A scene file (its specialised module, parameters and span) or a model file."""
-    from bgc.backends.load import load_module
-    from bgc.format.parse import parse_file
-    from bgc.format.scene import parse_scene
-    from bgc.run.driver import compile_model
+    from bgc.linear import load_target
 
-    from bgc.base.limits import LIMITS
-    from bgc.base.safeio import read_text_bounded
-
-    head = read_text_bounded(path, None, "model or scene file", LIMITS.model_bytes)[:4096]
-    if "bgc_scene" in head:
-        from bgc.run.runner import compile_scene, runtime_params
-
-        sc = parse_scene(path)
-        _, mod = compile_scene(sc, prog)
-        return mod, runtime_params(sc, mod), sc.t_span[0], sc
-    from bgc.run.runner import check_module_start
-
-    c = compile_model(parse_file(path), prog)
-    check_module_start(c)  # a zero mass, a root of a negative parameter: located here
-    return load_module(c.source, c.model.name), None, 0.0, None
+    return load_target(path, prog)
 
 
 @click.command("linearize", epilog="Example: bgc linearize models/quarter_car.yaml --at "
@@ -160,14 +146,10 @@ def _load_target(path, prog):
 def linearize_cmd(target, at, out, bode, quiet):
     """Linearise SCENE_OR_MODEL: eigenvalues with natural frequencies and damping ratios and
     the states that dominate each mode; matrices and Bode plots with --out."""
-    from bgc.linear import bode_plot, modes
+    from bgc.linear import bode_plot, modes, operating_point
 
     prog = Progress(quiet)
-    from bgc.base.errors import Coord
-    from bgc.cli import guards
-
     mod, p, t0, sc = _load_target(target, prog)
-    coord = sc.coord if sc is not None and getattr(sc, "coord", None) else Coord(str(target), 1, 1)
     pairs = []
     for spec in bode:
         i_name, sep, o_name = spec.partition(":")
@@ -176,29 +158,17 @@ def linearize_cmd(target, at, out, bode, quiet):
                                    f"{', '.join(mod.INPUT_LABELS) or '(no inputs)'} and OUT "
                                    f"one of {', '.join(mod.OUTPUT_LABELS)}")
         pairs.append((i_name, o_name))
-    if at == "equilibrium":
-        t = t0
-        prog("finding the equilibrium")
-        x, info = guards.equilibrium(mod, p, t, coord)
-        if not info.converged:
-            raise ModelError(None, f"no equilibrium found (max |dx/dt| = {info.residual:.3g} "
-                                   "after Newton): linearise at a time instead (--at TIME)")
-        where = "the equilibrium"
-    else:
+    from bgc.base.errors import Coord
+    from bgc.cli import guards
+
+    coord = sc.coord if sc is not None and getattr(sc, "coord", None) else Coord(str(target), 1, 1)
+    with np.errstate(all="ignore"):
         try:
-            t = float(at)
-        except ValueError:
-            raise ModelError(None, f"--at {at!r}: 'equilibrium' or a time in seconds") from None
-        if t != t0:
-            prog(f"simulating to t = {t:g} s")
-            try:
-                res = mod.simulate((t0, t), t_eval=[t], p=p, rtol=1e-8, atol=1e-10)
-            except mod.SimulationError as exc:
-                raise ModelError(None, f"simulation to t = {t:g} failed: {exc}") from None
-            x = res.x[..., -1]
-        else:
-            x = mod.initial_state(p)
-        where = f"t = {t:g} s"
+            t, x, where = operating_point(mod, at, p, None, t0, prog, " after Newton): "
+                                          "linearise at a time instead (--at TIME)")
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
+            raise ModelError(coord, f"no operating point found: the search failed ({exc}); is "
+                                    "the right-hand side finite near the initial state?") from None
     lin = guards.linearization(mod, t, x, p, coord, where)
     ms = modes(lin[0], mod.STATE_NAMES)
     buf = io.StringIO()

@@ -105,6 +105,8 @@ class Equations:
     #: form is no longer a "possible algebraic loop" once the equations are derived (any loop
     #: was found and solved, and is listed in ``loops``; or there was none)
     warnings: tuple[str, ...] = field(default=())
+    events: tuple = field(default=())  # bgc.core.events.EventEq: guards and resets
+    modes: tuple[str, ...] = field(default=())  # the states that are mode variables
 
 
 class LinSolve(sp.Function):

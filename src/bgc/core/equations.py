@@ -36,6 +36,7 @@ from bgc.core.eqtypes import (
     symbol_array,
     symbol_vector,
 )
+from bgc.core.events import build_events
 from bgc.core.forward import jacobian
 from bgc.core.graph import BondGraph, FlatElement, code_name
 from bgc.core.laws import check_value, element_equations
@@ -73,12 +74,15 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
         progress("ordering assignments")
     nloops: list = [] if newton else None
     order, loops = causal_order(bg, defs, owner, tear_sets, symbolic_max, nloops)
+    events = build_events(ctx, bg, state_vars, T) if bg.model.events else ()
     kept, subs = _inline(order, defs)
+    events = tuple(ev.replace(subs) for ev in events)
     derivatives = tuple((derivs[sv.symbol].xreplace(subs) if subs else derivs[sv.symbol])
                         for sv in state_vars)
     outputs = tuple((n, shp, tuple(e.xreplace(subs) for e in vals)) for n, shp, vals in outputs)
     ctx_derived = [ctx.derived[k] for k in ctx.derived_order]
-    _check_declared(ctx, state_vars, ctx_derived, kept, derivatives, outputs)
+    _check_declared(ctx, state_vars, ctx_derived, kept, derivatives, outputs,
+                    [e for ev in events for e in ev.exprs()])
 
     if progress:
         progress("deriving the Jacobian")
@@ -89,7 +93,8 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
     return Equations(bg.model.name, tuple(state_vars), tuple(ctx.params.values()),
                      tuple(ctx_derived), tuple(ctx.inputs[i.name] for i in bg.model.inputs),
                      tuple(kept), derivatives, outputs, jac, tuple(jac_assign), tuple(loops),
-                     warnings=standing, dependent=tuple(dependent), newton=tuple(nloops))
+                     warnings=standing, dependent=tuple(dependent), newton=tuple(nloops),
+                     events=events, modes=bg.model.modes)
 
 
 def _declare(ctx: Context) -> None:
@@ -194,9 +199,10 @@ def _inline(order: list, defs: dict) -> tuple[list, dict]:
     return kept, subs
 
 
-def _check_declared(ctx: Context, state_vars, ctx_derived, kept, derivatives, outputs) -> None:
+def _check_declared(ctx: Context, state_vars, ctx_derived, kept, derivatives, outputs,
+                    events=()) -> None:
     """Every free symbol must be declared: a state, a parameter, an input, t, or an
-    assignment."""
+    assignment (``events``: the events' guards and resets)."""
     known = {sv.symbol for sv in state_vars} | {T}
     for pv in ctx.params.values():
         known.update(pv.symbols)
@@ -206,7 +212,7 @@ def _check_declared(ctx: Context, state_vars, ctx_derived, kept, derivatives, ou
         known.update(iv.symbols)
     known.update(a.symbol for a in kept)
     for expr in itertools.chain((a.expr for a in kept), derivatives,
-                                (e for _, _, v in outputs for e in v)):
+                                (e for _, _, v in outputs for e in v), events):
         stray = expr.free_symbols - known
         if stray:
             names = ", ".join(sorted(map(str, stray)))

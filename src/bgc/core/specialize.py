@@ -271,6 +271,8 @@ def slice_outputs(eq: Equations) -> tuple[Equations, tuple, dict]:
     for _, _, vals in eq.outputs:
         for v in vals:
             need |= states_of(v)
+    for ev in eq.events:  # what an event reads and the states it sets stay
+        need |= set().union(*map(states_of, ev.exprs()), {state_syms[s] for s, _ in ev.resets})
     frontier = list(need)
     while frontier:
         i = frontier.pop()
@@ -289,7 +291,8 @@ def slice_outputs(eq: Equations) -> tuple[Equations, tuple, dict]:
     # intermediate variables: those the kept derivatives, outputs and Jacobian entries read
     # (Jacobian intermediates read assignments, never the other way round)
     wanted = set()
-    for e in list(derivatives) + list(jac.values()) + [v for _, _, vs in eq.outputs for v in vs]:
+    for e in list(derivatives) + list(jac.values()) + [v for _, _, vs in eq.outputs for v in vs] \
+            + [v for ev in eq.events for v in ev.exprs()]:
         wanted |= e.free_symbols
     jassigns = []
     for a in reversed(eq.jac_assignments):

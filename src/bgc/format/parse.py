@@ -145,6 +145,8 @@ class Model:
     source_hash: str = ""
     coord: Coord = field(default=None)  # type: ignore[assignment]
     strict_causality: bool = False  # `causality: strict`: derivative causality is an error
+    events: tuple = ()  # bgc.format.events.Event: zero crossings and time events, with actions
+    modes: tuple[str, ...] = ()  # the discrete mode variables (states whose derivative is 0)
 
     def component(self, name: str) -> Component | None:
         for c in self.components:
@@ -191,7 +193,7 @@ def parse_text(text: str, path: str = "<model>", _imports: _Imports | None = Non
         raise ModelError(Coord(path, 1, 1), "the model file is empty")
     top = r.mapping(root, "the model")
     allowed = ("bgc", "name", "description", "parameters", "inputs", "elements", "bonds",
-               "states", "outputs", "components", "imports", "causality")
+               "states", "outputs", "components", "imports", "causality", "modes", "events")
     require(r, top, root, allowed, "the model", required=("bgc", "name", "elements", "bonds"))
     strict = False
     if "causality" in top:
@@ -253,11 +255,28 @@ def parse_text(text: str, path: str = "<model>", _imports: _Imports | None = Non
             inputs.append(Input(iname, default, shape, r.coord(kn), unit))
 
     body = _body(r, top, root, "the model", is_component=False)
+    body, events, modes = _hybrid(r, top, body)
     _check_unique(body, inputs)
     return Model(name=name, file=path, body=body, inputs=tuple(inputs),
                   components=tuple(components), description=description,
                   source_hash=hashlib.sha256(text.encode()).hexdigest()[:16],
-                  coord=r.coord(root), strict_causality=strict)
+                  coord=r.coord(root), strict_causality=strict, events=events, modes=modes)
+
+
+def _hybrid(r: Reader, top: dict, body: Body):
+    """The ``modes:`` and ``events:`` sections (bgc.format.events): each mode joins the body's
+    states as a state whose derivative is zero (an event is the only thing that changes it)."""
+    from dataclasses import replace
+
+    from bgc.format import events as _events
+
+    modes = _events.read_modes(r, top["modes"][1]) if "modes" in top else ()
+    events = _events.read_events(r, top["events"][1]) if "events" in top else ()
+    states = tuple(State(m.name, (), m.initial, Expr("0", m.initial.coord), m.coord)
+                   for m in modes)
+    if states:
+        body = replace(body, states=body.states + states)
+    return body, events, tuple(m.name for m in modes)
 
 
 def _check_encodable(text: str, path: str) -> None:

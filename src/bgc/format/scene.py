@@ -12,6 +12,7 @@ from pathlib import Path
 
 import yaml
 
+from bgc.base import BACKENDS  # noqa: F401 (the one list, re-exported)
 from bgc.base.errors import Coord, ModelError
 from bgc.base.limits import LIMITS
 from bgc.base.safeio import read_text_bounded
@@ -22,7 +23,6 @@ from bgc.format.whitelist import Expr
 
 METHODS = ("Radau", "BDF", "LSODA", "RK45", "RK23", "DOP853", "Rodas4")
 PLOT_KINDS = ("time", "path3d", "loci")
-BACKENDS = ("numpy", "c")
 
 
 @dataclass(frozen=True)

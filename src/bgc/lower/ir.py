@@ -16,6 +16,7 @@ import sympy as sp
 
 from bgc.core import fastsym
 from bgc.core.eqtypes import Assignment, Equations, prune, schedule
+from bgc.core.forward import linear_parts
 
 
 @dataclass(frozen=True)
@@ -37,6 +38,17 @@ class Function:
 
 
 @dataclass(frozen=True)
+class Linear:
+    """The linearisation's B = d(rhs)/du, and C = d(y)/dx with D = d(y)/du (A is the Jacobian),
+    lowered: ``ujac`` results keyed (row, input column), ``yjac`` keyed ("C", row, col) then
+    ("D", row, col); the flat input and output labels name the columns and rows."""
+    ujac: Function
+    yjac: Function
+    input_labels: tuple[str, ...]
+    output_labels: tuple[str, ...]
+
+
+@dataclass(frozen=True)
 class Lowered:
     """Everything a printer needs about one model, in a fixed (deterministic) order."""
     eq: Equations
@@ -46,6 +58,7 @@ class Lowered:
     init: Function  # results keyed by state index (no CSE)
     jac_keys: tuple[tuple[int, int], ...]
     derived: tuple[Line, ...]  # derived parameters, in dependency order
+    linear: Linear | None = None  # B, C, D (lowered on demand: lower(..., linear=True))
 
     @property
     def n(self) -> int:
@@ -123,8 +136,24 @@ def count_ops(exprs) -> int:
     return n
 
 
-def lower(eq: Equations, progress=None) -> Lowered:
-    """The model's functions, pruned, CSE'd and scheduled (backend-neutral)."""
+def lower_linear(eq: Equations, progress=None) -> Linear:
+    """B, C and D of the linearisation (forward mode along the rhs's assignments:
+    bgc.core.equations.linear_parts), lowered like the other functions."""
+    (progress or (lambda msg: None))("emitting the linearisation's B, C, D")
+    lp = linear_parts(eq)
+    bkeys = sorted(lp.B)
+    ujac = lower_function(eq, [lp.B[k] for k in bkeys],
+                          list(eq.assignments) + list(lp.B_assignments), bkeys)
+    ckeys, dkeys = sorted(lp.C), sorted(lp.D)
+    yjac = lower_function(eq, [lp.C[k] for k in ckeys] + [lp.D[k] for k in dkeys],
+                          list(eq.assignments) + list(lp.CD_assignments),
+                          [("C",) + k for k in ckeys] + [("D",) + k for k in dkeys])
+    return Linear(ujac, yjac, lp.input_labels, lp.output_labels)
+
+
+def lower(eq: Equations, progress=None, linear: bool = True) -> Lowered:
+    """The model's functions, pruned, CSE'd and scheduled (backend-neutral); with ``linear``,
+    the linearisation's B, C, D too (every printed module has ``linearize``)."""
     say = progress or (lambda msg: None)
     n = len(eq.states)
     say("lowering rhs")
@@ -142,4 +171,5 @@ def lower(eq: Equations, progress=None) -> Lowered:
     outs = lower_function(eq, oexprs, list(eq.assignments), okeys)
     init = lower_function(eq, [sv.initial for sv in eq.states], [], list(range(n)), cse=False)
     derived = tuple(Line(a.symbol, a.expr, a.why) for a in eq.derived)
-    return Lowered(eq, rhs, jac, outs, init, tuple(jkeys), derived)
+    lin = lower_linear(eq, progress) if linear else None
+    return Lowered(eq, rhs, jac, outs, init, tuple(jkeys), derived, lin)

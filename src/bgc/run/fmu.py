@@ -16,18 +16,18 @@ def export_fmu(model_path, out, scene_path=None, kind: str = "both", progress=No
     scene = None
     if scene_path is not None:
         from bgc.format.scene import parse_scene
-        from bgc.run.runner import compile_scene
 
         scene = parse_scene(scene_path)
-        if Path(scene.model_path).resolve() != Path(model_path).resolve():
-            raise ModelError(scene.model_coord, f"the scene is for {scene.model_path}, not "
-                                                f"{model_path}")
-        say("compiling the scene's model")
-        compiled, _ = compile_scene(scene, progress)
-    else:
-        from bgc.format.parse import parse_file
-        from bgc.run.driver import compile_model
+    from bgc.run.driver import build, check_scene_for
 
+    if scene is not None:
+        check_scene_for(scene, model_path)
+        say("compiling the scene's model")
+    else:
         say("parsing")
-        compiled = compile_model(parse_file(model_path), progress)
-    return package_fmu(compiled, out, scene, kind, progress)
+    # the one compile (bgc.run.driver): the scene's module is the one `bgc simulate` runs
+    compiled = build(model_path, scene, "numpy", use_cache=False, progress=progress).compiled
+    from bgc.base.store import Cache
+
+    # the C runtime's objects from the compile cache, as `bgc compile --target c` builds them
+    return package_fmu(compiled, out, scene, kind, progress, Cache())

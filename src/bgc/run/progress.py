@@ -27,5 +27,7 @@ def summary_line(name: str, t, method: str, rtol: float, atol: float, backend: s
                  stats: dict, compile_time: float, run_time: float) -> str:
     return (f"{name}: t = {t[0]:g}..{t[-1]:g} s, {len(t)} points, {method} rtol={rtol:g} "
             f"atol={atol:g} ({backend} backend): {stats['nfev']} rhs calls, "
-            f"{stats['njev']} Jacobians, {stats.get('nlu', 0)} LU; compile {compile_time:.2f} s, "
+            f"{stats['njev']} Jacobians, {stats.get('nlu', 0)} LU"
+            + (f", {stats['nevents']} events" if "nevents" in stats else "")
+            + f"; compile {compile_time:.2f} s, "
             f"integrate {run_time:.2f} s")

@@ -342,8 +342,10 @@ def _run(rec: dict, opts: dict, store, entry, scene: str, t0: float) -> int | No
     if out:
         import io
 
+        from bgc.run.event_log import event_arrays  # a hybrid model's event log, as the full way
+
         buf = io.BytesIO()
-        np.savez_compressed(buf, t=t, **y)
+        np.savez_compressed(buf, t=t, **y, **event_arrays(getattr(res, "events", ()), x.shape[0]))
         write_output(out, buf.getvalue(), ins, "--out")
         say(f"wrote {out}")
     print(summary_line(rec["scene_name"], t, method, rtol, atol, backend, res.stats, t1 - t0,

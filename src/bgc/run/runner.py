@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -11,12 +10,10 @@ from bgc.backends.load import load_module
 from bgc.base.errors import ModelError, SimulationFailed
 from bgc.format.scene import (
     Scene,
-    check_against,
     free_values,
     initial_state,
     param_values,
     parse_scene,
-    scene_model,
 )
 
 
@@ -40,31 +37,22 @@ class SceneResult:
     module_name: str = ""
     #: the module's simulate arguments as the scene resolved them (a run record replays them)
     run_args: dict | None = None
+    #: a hybrid model's event log: (t, event, instance index, x before, x after) per event
+    events: tuple = ()
 
 
 def compile_scene(scene: Scene, progress=None, specialise: bool = True,
                   strict_causality: bool = False):
-    """The scene's module: its signals compiled in, and (by default) specialised to it.
+    """(Compiled, module) of the scene, compiled now and loaded from memory: its signals
+    compiled in, and (by default) specialised to it (bgc.run.driver.scene_compiled).
 
     ``specialise=False`` gives the scene's full model: the model with the scene's input
     signals, every effect on, every parameter and output kept."""
-    model = scene_model(scene)
-    plan = None
-    if specialise:
-        from bgc.core.graph import build_graph
-        from bgc.core.specialize import plan_for  # (the compile path: sympy, networkx)
+    from bgc.run.driver import build
 
-        plan = plan_for(scene, build_graph(model).params)
-    from bgc.run.driver import compile_model
-
-    c = compile_model(model, progress, plan, strict_causality=strict_causality)
-    with np.errstate(all="ignore"):  # X0 is computed on import: no numpy warnings
-        mod = load_module(c.source, f"{c.model.name}_{scene.name}{'' if specialise else '_full'}")
-    check_against(scene, mod)
-    from bgc.run.plots import check_plots
-
-    check_plots(scene, mod.OUTPUT_SHAPES)  # a plot that cannot be drawn: before any run
-    return c, mod
+    b = build(scene=scene, use_cache=False, strict_causality=strict_causality,
+              progress=progress, specialise=specialise)
+    return b.compiled, b.module
 
 
 def runtime_params(scene: Scene, mod) -> dict | None:
@@ -81,68 +69,27 @@ def runtime_params(scene: Scene, mod) -> dict | None:
 
 def scene_module(scene: Scene, progress=None, backend: str = "numpy", use_cache: bool = True,
                  strict_causality: bool = False):
-    """The scene's specialised module for a backend, through the compile cache: a warm run
-    imports neither sympy nor the compiler. Without a C compiler, backend "c" says so and
-    falls back to numpy. Returns (backend used, module)."""
-    backend, mod, _ = _scene_module(scene, progress, backend, use_cache, strict_causality)
-    return backend, mod
+    """The scene's specialised module for a backend, through the compile cache
+    (bgc.run.driver.build): a warm run imports neither sympy nor the compiler. Without a C
+    compiler, backend "c" says so and falls back to numpy. Returns (backend used, module)."""
+    from bgc.run.driver import build
 
-
-def _scene_module(scene: Scene, progress=None, backend: str = "numpy", use_cache: bool = True,
-                  strict_causality: bool = False):
-    """scene_module's (backend, module, cache entry as in SceneResult.cache_entry, or None)."""
-    from bgc.backends import load as backends
-    from bgc.run import cache as cache_mod
-
-    say = progress or (lambda msg: None)
-    if backend == "c":
-        from bgc.backends.c import build as cbuild
-
-        if not cbuild.available():
-            say(f"no C compiler ({cbuild.cc_text()!r} cannot run; set CC): "
-                "using the numpy backend")
-            backend = "numpy"
-        elif not cbuild.runtime_sources():
-            say("the C runtime (templates/c/runtime/*.c) is not installed: using the numpy "
-                "backend")
-            backend = "numpy"
-    store = cache_mod.Cache() if use_cache else None
-    key, files, scene_bytes = (cache_mod.key_inputs(backend, scene.model_path, scene.file,
-                                                    extra="strict" if strict_causality else "")
-                               if store is not None else (None, [], None))
-
-    def compile_fn():
-        c, _ = _compiled(scene, progress, strict_causality)
-        return c
-    name = scene_module_name(scene)
-    with np.errstate(all="ignore"):  # X0 is computed on import: no numpy warnings
-        try:
-            _, mod = backends.load(name, backend, key, compile_fn, store, progress)
-        except ModelError as exc:
-            if backend != "c" or type(exc).__name__ not in ("CUnsupported", "CompilerFailed"):
-                raise
-            say(f"{exc.message}: using the numpy backend")
-            return _scene_module(scene, progress, "numpy", use_cache, strict_causality)
-    check_against(scene, mod)
-    from bgc.run.plots import check_plots
-
-    check_plots(scene, mod.OUTPUT_SHAPES)  # a plot that cannot be drawn: before any run
-    return backend, mod, None if key is None else (backend, key, files, scene_bytes)
+    b = build(scene=scene, backend=backend, use_cache=use_cache,
+              strict_causality=strict_causality, progress=progress, fallback=True)
+    return b.backend, b.module
 
 
 def scene_module_name(scene: Scene) -> str:
-    return f"{Path(scene.model_path).stem}_{scene.name}"
+    from bgc.run.driver import module_name
+
+    return module_name(None, scene)
 
 
 def _compiled(scene: Scene, progress=None, strict_causality: bool = False):
-    from bgc.core.graph import build_graph
-    from bgc.run.driver import compile_model
+    from bgc.run.driver import scene_compiled
 
-    model = scene_model(scene)
-    from bgc.core.specialize import plan_for
-
-    return compile_model(model, progress, plan_for(scene, build_graph(model).params),
-                         strict_causality=strict_causality), model
+    c = scene_compiled(scene, progress, strict_causality=strict_causality)
+    return c, c.model
 
 
 def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=None,
@@ -150,9 +97,12 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
               strict_causality: bool = False) -> SceneResult:
     say = progress or (lambda msg: None)
     scene = path if isinstance(path, Scene) else parse_scene(path)
+    from bgc.run.driver import build
+
     t0 = time.perf_counter()
-    backend, mod, entry = _scene_module(scene, progress, backend or scene.backend, use_cache,
-                                        strict_causality)
+    built = build(scene=scene, backend=backend or scene.backend, use_cache=use_cache,
+                  strict_causality=strict_causality, progress=progress, fallback=True)
+    backend, mod, entry = built.backend, built.module, built.entry
     t1 = time.perf_counter()
     method = method or scene.method
     rtol = rtol or scene.rtol
@@ -175,11 +125,11 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
     t2 = time.perf_counter()
     t, x, y = res
     return SceneResult(scene, mod, t, x, y, res.stats, method, rtol, t1 - t0, t2 - t1,
-                       backend, atol, entry,
-                       scene_module_name(scene),
+                       backend, atol, entry, built.name,
                        dict(t_span=scene.t_span, dt=dt, method=method, rtol=rtol, atol=atol,
                             p=p, breakpoints=scene.breakpoints, x0=x0,
-                            max_step=scene.max_step, max_wall=max_wall))
+                            max_step=scene.max_step, max_wall=max_wall),
+                       tuple(getattr(res, "events", ())))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -202,26 +152,9 @@ def _num(expr, vals):
             return complex(np.nan)
         if v.has(sp.zoo, sp.oo, -sp.oo):
             return complex(-np.inf if v == -sp.oo else np.inf)
-        return _bounded_value(v)
+        return complex(v.evalf())
     except (TypeError, ValueError, ArithmeticError, AttributeError):
         return complex(np.nan)
-
-
-def _bounded_value(v) -> complex:
-    """A constant sympy expression's value in double precision with bounded work (sympy's
-    own evalf of ``exp(exp(...))`` 100 deep runs for minutes); sympy only where the value is
-    complex (to show it) or the expression holds a function the double evaluator lacks."""
-    from bgc.format.expr import NumError, numeric
-
-    try:
-        x = numeric(v)
-    except NumError as exc:
-        if str(exc) == "overflow":
-            return complex(np.inf)
-        if str(exc) == "undefined":
-            return complex(np.nan)
-        x = None  # complex: sympy shows the value (roots and logs evaluate quickly)
-    return complex(x) if x is not None else complex(v.evalf())
 
 
 def _show(expr, limit: int = 160) -> str:

@@ -158,7 +158,7 @@ def choose_backend(compiled, backend=None, progress=None):
         return "numpy", {}, "", ""
     from bgc.backends import load as backends
     from bgc.backends.c import build as cbuild
-    from bgc.backends.c.printer import CUnsupported
+    from bgc.backends.c.build import CUnsupported
 
     if not cbuild.available():
         say(f"no C compiler ({cbuild.cc_text()!r} cannot run; set CC): using the "

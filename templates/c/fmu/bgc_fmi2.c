@@ -48,6 +48,7 @@ typedef struct {
     int init_dirty;            /* derived parameters and x0 need recomputing (init mode) */
     int eval_failed;
     double *x, *dx, *p, *y, *jv, *xnew, *u;  /* u: the inputs' default values (scratch) */
+    double *side, *g;          /* events: the side of zero each guard was last on; scratch */
 } inst_t;
 
 #define MAGIC 0xB6C2F301u
@@ -158,6 +159,60 @@ static int evaluate(inst_t *c)
     return c->eval_failed;
 }
 
+/* ---- events (hybrid models) ---------------------------------------------------------------
+ * The guards are the event indicators. An event with a direction is armed while its guard is
+ * seen before it (falling: positive), by any evaluation, and fires in event mode when armed and
+ * its guard has reached zero or passed it; it is then disarmed until its guard is seen before
+ * it again. (The environment may evaluate the indicators past a crossing before it locates it:
+ * that never disarms.) An event in either direction keeps the side its guard had at the last
+ * event mode and fires when the guard has left it. */
+static int guards_now(inst_t *c)
+{
+    int bad = -1;
+    if (D->guards(t_model(c), c->x, c->p, c->g) != 0 || !all_finite(c->g, D->nev, &bad))
+        return 1;
+    for (int k = 0; k < D->nev; k++)  /* arm the events whose guards are before them */
+        if (D->ev_dir[k] != 0 && c->g[k] * D->ev_dir[k] < 0) c->side[k] = -D->ev_dir[k];
+    return 0;
+}
+
+static int events_start(inst_t *c)
+{
+    if (D->nev == 0) return 0;
+    for (int k = 0; k < D->nev; k++) c->side[k] = D->ev_dir[k];  /* disarmed */
+    if (guards_now(c)) return 1;
+    for (int k = 0; k < D->nev; k++)
+        if (D->ev_dir[k] == 0) c->side[k] = c->g[k] > 0 ? 1.0 : c->g[k] < 0 ? -1.0 : 0.0;
+    return 0;
+}
+
+/* the events that fire at the current time and state, their resets applied in declaration
+ * order: 1 when the state changed, 0 when not, -1 when a guard or a reset is not finite */
+static int events_fire(inst_t *c)
+{
+    if (D->nev == 0) return 0;
+    if (guards_now(c)) return -1;
+    int changed = 0, bad = -1;
+    for (int k = 0; k < D->nev; k++) {
+        int d = D->ev_dir[k];
+        double s = c->side[k], g = c->g[k];
+        int fire = d != 0 ? s == -d && g * d >= 0 : s != 0.0 && !(g * s > 0.0);
+        if (fire) {
+            if (D->reset(k, t_model(c), c->x, c->p, c->xnew) != 0 ||
+                    !all_finite(c->xnew, D->n, &bad))
+                return -1;
+            memcpy(c->x, c->xnew, sizeof(double) * (size_t)D->n);
+            logf_(c, fmi2OK, "logAll", "event %d at t = %.17g", k, c->t);
+            c->side[k] = d != 0 ? d : -s;
+            changed = 1;
+        } else if (d == 0 && g != 0.0) {
+            c->side[k] = g > 0 ? 1.0 : -1.0;
+        }
+    }
+    c->dirty |= changed;
+    return changed;
+}
+
 static void set_defaults(inst_t *c)
 {
     memcpy(c->p, D->param_start, sizeof(double) * (size_t)D->np);
@@ -226,6 +281,13 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     c->y = c->p + D->np_all;
     c->jv = c->y + D->nout;
     c->u = c->jv + D->nnz;
+    if (D->nev > 0 && !(c->side = calloc(2 * (size_t)D->nev, sizeof(double)))) {
+        free(mem);
+        free(c);
+        if (logger) logger(env, nm, fmi2Error, "logStatusError", "fmi2Instantiate: out of memory");
+        return NULL;
+    }
+    c->g = c->side ? c->side + D->nev : NULL;
     set_defaults(c);
     c->state = S_INSTANTIATED;
     return c;
@@ -237,6 +299,7 @@ void fmi2FreeInstance(fmi2Component comp)
     if (!c) return;
     c->magic = 0;
     free(c->x);
+    free(c->side);
     free(c);
 }
 
@@ -294,6 +357,8 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component comp)
                                    "the start");
     c->seg_end = next_break(c->t);
     c->state = c->type == fmi2ModelExchange ? S_EVENT : S_STEP_COMPLETE;
+    if (events_start(c)) return ERR(c, "fmi2ExitInitializationMode: an event indicator is not "
+                                       "finite at the start");
     return fmi2OK;
 }
 
@@ -623,10 +688,13 @@ fmi2Status fmi2NewDiscreteStates(fmi2Component comp, fmi2EventInfo *info)
     if (!info) return ERR(c, "fmi2NewDiscreteStates: eventInfo is NULL");
     c->seg_end = next_break(c->t);
     c->dirty = 1;
+    int fired = events_fire(c);
+    if (fired < 0) return ERR(c, "fmi2NewDiscreteStates: an event indicator or a reset is not "
+                                 "finite at t = %g", c->t);
     info->newDiscreteStatesNeeded = fmi2False;
     info->terminateSimulation = fmi2False;
     info->nominalsOfContinuousStatesChanged = fmi2False;
-    info->valuesOfContinuousStatesChanged = fmi2False;
+    info->valuesOfContinuousStatesChanged = fired ? fmi2True : fmi2False;
     info->nextEventTimeDefined = isfinite(c->seg_end) ? fmi2True : fmi2False;
     info->nextEventTime = isfinite(c->seg_end) ? c->seg_end : 0.0;
     return fmi2OK;
@@ -694,8 +762,14 @@ fmi2Status fmi2GetDerivatives(fmi2Component comp, fmi2Real dx[], size_t nx)
 fmi2Status fmi2GetEventIndicators(fmi2Component comp, fmi2Real ind[], size_t ni)
 {
     ENTER(comp, S_INIT | S_EVENT | S_CONT | S_TERMINATED | S_ERROR, "fmi2GetEventIndicators")
-    (void)ind;
-    if (ni != 0) return ERR(c, "fmi2GetEventIndicators: the model has no event indicators");
+    if (ni != (size_t)D->nev) return ERR(c, "fmi2GetEventIndicators: %u indicators asked for, "
+                                            "the model has %d", (unsigned)ni, D->nev);
+    if (ni == 0) return fmi2OK;
+    if (!ind) return ERR(c, "fmi2GetEventIndicators: ind is NULL");
+    if (c->init_dirty) do_init(c);
+    if (guards_now(c)) return ERR(c, "fmi2GetEventIndicators: an indicator is not finite at "
+                                     "t = %g", c->t);
+    memcpy(ind, c->g, sizeof(double) * ni);
     return fmi2OK;
 }
 

@@ -36,6 +36,13 @@ typedef struct {
     int method;                       /* BGC_RODAS4 or BGC_RADAU5 */
     double rtol, atol, max_step;
     const double *breaks; int n_breaks;   /* the scene's breakpoints (time events), sorted */
+    /* a hybrid model's events (0 and NULL without): the guards g (nev values: the event
+     * indicators), each event's direction (+1 rising, -1 falling, 0 either) and its resets
+     * (x_new: the state just after event k, from x just before; all n values) */
+    int nev;
+    int (*guards)(double t, const double *x, const double *p, double *g);
+    int (*reset)(int k, double t, const double *x, const double *p, double *x_new);
+    const int *ev_dir;
 } bgcf_desc;
 
 extern const bgcf_desc bgcf_model_desc;

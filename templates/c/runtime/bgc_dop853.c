@@ -158,13 +158,13 @@ int bgc_dop853_segment(bgc_ctx *c, double a, double b, double *y)
         h_abs *= fac;
         st->naccept++;
         c->pend_index = -1;
-        /* dense output only for a step with output times strictly inside it */
-        int inside = c->k_out < c->opt->n_out && c->opt->t_out[c->k_out] < t_new;
+        /* dense output only for a step with output times strictly inside it (or events) */
+        int inside = c->m->nev > 0 || (c->k_out < c->opt->n_out && c->opt->t_out[c->k_out] < t_new);
         if (inside && (status = dop_dense_coeffs(c, t, h, y, ynew, K, u, F))) goto done;
         memcpy(yold, y, (size_t)n * sizeof(double));
         memcpy(y, ynew, (size_t)n * sizeof(double));
         dop_dense d = {n, t, h, yold, F};
-        bgc_outputs(c, t_new, y, dop_interp, &d);
+        if ((status = bgc_step_end(c, t, t_new, y, dop_interp, &d))) goto done;
         t = t_new;
         c->xs->t_last = t;
         /* the next step's first stage: the rhs at the step's end (FSAL) */

@@ -60,6 +60,10 @@ typedef struct {
      * step then shrinks below its minimum; pend_index < 0: none since the last accepted step */
     int pend_index; double pend_t, pend_v;
     double *ws;         /* the model's per-instance workspace (m->nws doubles), or NULL */
+    /* events (bgc_events.c): sides of zero, guard values, scratch states, recent event times */
+    double *ev_mem, *ev_side, *ev_g, *ev_g2, *ev_xa, *ev_xb, *ev_recent;
+    int ev_count, ev_max;
+    double ev_window, t_restart;
 } bgc_ctx;
 
 /* rhs at the one-sided time; counts; 0, BGC_REJECT (x not finite), BGC_ERR_NONFINITE or
@@ -85,6 +89,14 @@ int bgc_out_of_time(bgc_ctx *c, double t);  /* wall-time check; fills st when ex
 int bgc_attempt(bgc_ctx *c, double t, double b, double *h_abs, double *t_new);
 int bgc_fail(bgc_ctx *c, int status, double t, const char *fmt, ...);
 double bgc_min_step(double t);
+
+/* events: a step ended at an event; the state after it is in y, its time in c->t_restart */
+#define BGC_EVENT 100
+int bgc_events_init(bgc_ctx *c, double t, const double *y);
+int bgc_events_restart(bgc_ctx *c, double t, const double *y);
+/* after an accepted step from t to t_new (y: the state at t_new, f: the step's interpolant):
+ * the output rows, and the events: 0, BGC_EVENT (y and c->t_restart updated) or a failure */
+int bgc_step_end(bgc_ctx *c, double t, double t_new, double *y, bgc_interp_fn f, void *data);
 
 int bgc_rodas4_segment(bgc_ctx *c, double a, double b, double *y);
 int bgc_radau5_segment(bgc_ctx *c, double a, double b, double *y);

@@ -260,7 +260,7 @@ int bgc_radau5_segment(bgc_ctx *c, double a, double b, double *y)
         have_prev = 1;
         memcpy(y, ynew, N * sizeof(double));
         radau_dense d = {n, t, h, yold, Zold};
-        bgc_outputs(c, t_new, y, radau_interp, &d);
+        if ((status = bgc_step_end(c, t, t_new, y, radau_interp, &d))) goto done;
         t = t_new;
         c->xs->t_last = t;
         h_abs = h_next;

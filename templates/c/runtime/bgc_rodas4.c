@@ -140,7 +140,7 @@ int bgc_rodas4_segment(bgc_ctx *c, double a, double b, double *y)
         memcpy(yold, y, (size_t)n * sizeof(double));
         memcpy(y, ynew, (size_t)n * sizeof(double));
         rodas_dense d = {n, t, h, yold, y, q};
-        bgc_outputs(c, t_new, y, rodas_interp, &d);
+        if ((status = bgc_step_end(c, t, t_new, y, rodas_interp, &d))) goto done;
         t = t_new;
         c->xs->t_last = t;
         if (t < b && (status = bgc_call_rhs(c, t, y, f))) goto done;

@@ -201,6 +201,27 @@ int bgc_integrate(const bgc_model *m, const double *p, double t0, double t1, con
     return bgc_integrate_ex(m, p, t0, t1, x0, opt, y_out, st, NULL);
 }
 
+static int method_segment(bgc_ctx *c, double a, double b, double *y)
+{
+    return c->opt->method == BGC_RADAU5 ? bgc_radau5_segment(c, a, b, y)
+           : c->opt->method == BGC_DOP853 ? bgc_dop853_segment(c, a, b, y)
+           : bgc_rodas4_segment(c, a, b, y);
+}
+
+/* one segment; a hybrid model's integrator restarts (a fresh Jacobian and LU) after each
+ * event inside it (bgc_events.c) */
+static int run_segment(bgc_ctx *c, double a, double b, double *y)
+{
+    int status = method_segment(c, a, b, y);
+    while (status == BGC_EVENT) {
+        double t = c->t_restart;
+        if (!(t < b)) return 0;
+        if ((status = bgc_events_restart(c, t, y))) return status;
+        status = method_segment(c, t, b, y);
+    }
+    return status;
+}
+
 int bgc_integrate_ex(const bgc_model *m, const double *p, double t0, double t1,
                      const double *x0, const bgc_options *opt, double *y_out, bgc_stats *st,
                      bgc_stats_ext *ext)
@@ -223,6 +244,8 @@ int bgc_integrate_ex(const bgc_model *m, const double *p, double t0, double t1,
     const char *bad = NULL;
     if (!m || !opt || !st || !x0 || m->n < 0 || m->nnz < 0 || !m->rhs || !m->jac)
         bad = "missing model, options or state";
+    else if (m->nev > 0 && (!m->guards || !m->reset || !m->ev_dir))
+        bad = "events without their functions";
     else if (opt->method != BGC_RODAS4 && opt->method != BGC_RADAU5 && opt->method != BGC_DOP853)
         bad = "unknown method";
     else if (!(opt->rtol > 0) || !isfinite(opt->rtol)) bad = "rtol must be positive";
@@ -276,16 +299,18 @@ int bgc_integrate_ex(const bgc_model *m, const double *p, double t0, double t1,
     }
     ext->n_done = c.k_out;
     int status = 0;
+    if (m->nev > 0) {
+        c.ev_window = 1e-6 * (t1 - t0);
+        status = bgc_events_init(&c, t0, y);
+    }
     for (int s = 0; s + 1 < nc && !status; s++) {
         double a = cuts[s], b = cuts[s + 1];
         if (a == b) continue;
         c.lo = a;
         c.hi = nextafter(b, a);
-        status = opt->method == BGC_RADAU5 ? bgc_radau5_segment(&c, a, b, y)
-                 : opt->method == BGC_DOP853 ? bgc_dop853_segment(&c, a, b, y)
-                 : bgc_rodas4_segment(&c, a, b, y);
+        status = run_segment(&c, a, b, y);
     }
-    free(cuts); free(y); free(c.ws);
+    free(cuts); free(y); free(c.ws); free(c.ev_mem);
     if (status == BGC_REJECT)  /* not expected: accepted states are finite */
         status = bgc_fail(&c, BGC_ERR_STEP_TOO_SMALL, ext->t_last, "%s failed at t = %.17g: "
                           "the state is not finite", method_name(opt->method), ext->t_last);
@@ -309,9 +334,13 @@ int bgc_integrate_batch(const bgc_model *m, int nb, const double *P, const doubl
 #else
     (void)nthreads;
 #endif
-    for (int k = 0; k < nb; k++)
-        bgc_integrate(m, P ? P + (size_t)k * m->np : NULL, t0, t1, X0 + (size_t)k * m->n, opt,
+    for (int k = 0; k < nb; k++) {
+        bgc_options o = *opt;  /* each instance its own event log */
+        if (o.ev_log) o.ev_log += (size_t)k * (size_t)o.ev_cap * (2 * (size_t)m->n + 2);
+        if (o.ev_count) o.ev_count += k;
+        bgc_integrate(m, P ? P + (size_t)k * m->np : NULL, t0, t1, X0 + (size_t)k * m->n, &o,
                       Y_out ? Y_out + (size_t)k * rows : NULL, st + k);
+    }
     for (int k = 0; k < nb; k++)
         if (st[k].status) return st[k].status;
     return BGC_OK;

@@ -4,7 +4,7 @@
  * a fixed sparsity pattern. See docs/c-runtime.md.
  *
  * Build: cc -O2 -std=c99 -fPIC -shared model.c bgc_runtime.c bgc_linalg.c bgc_rodas4.c
- *        bgc_radau5.c bgc_dop853.c -lm   [-fopenmp for batches over threads] */
+ *        bgc_radau5.c bgc_dop853.c bgc_events.c -lm   [-fopenmp for batches over threads] */
 #ifndef BGC_RUNTIME_H
 #define BGC_RUNTIME_H
 
@@ -54,17 +54,29 @@ typedef struct {
      * and st->bad_where is 2. */
     int nws;
     bgc_ws_fn rhs_ws, jac_ws;
+    /* optional: a hybrid model's events (nev > 0; see bgc_events.c): the guards (nev values,
+     * event k fires where guard k crosses zero in direction ev_dir[k]: +1 rising, -1 falling,
+     * 0 either) and the resets (x_new: the state just after event k from x just before) */
+    int nev;
+    int (*guards)(double t, const double *x, const double *p, double *g);
+    int (*reset)(int k, double t, const double *x, const double *p, double *x_new);
+    const int *ev_dir;
 } bgc_model;
 
 enum { BGC_RODAS4 = 0, BGC_RADAU5 = 1, BGC_DOP853 = 2 };  /* DOP853: explicit, non-stiff */
 enum { BGC_OK = 0, BGC_ERR_NONFINITE = 1, BGC_ERR_MAX_STEPS = 2, BGC_ERR_STEP_TOO_SMALL = 3,
-       BGC_ERR_WALL = 4, BGC_ERR_SINGULAR = 5, BGC_ERR_MODEL = 6, BGC_ERR_ARGS = 7 };
+       BGC_ERR_WALL = 4, BGC_ERR_SINGULAR = 5, BGC_ERR_MODEL = 6, BGC_ERR_ARGS = 7,
+       BGC_ERR_ZENO = 8 /* more than max_events events within zeno_window (bad_index: the
+                           event) */ };
 
 typedef struct {
     int method; double rtol; const double *atol; int atol_len;   /* 1 or n */
     double h0, max_step; long max_steps; double max_wall;         /* max_wall <= 0: none */
     const double *t_out; int n_out;                               /* increasing, within span */
     const double *breaks; int n_breaks;                           /* one-sided: restart there */
+    /* events: up to ev_cap log rows (t, event, x before (n), x after (n)) and the count, each
+     * optional; max_events events within zeno_window s fail the run (0: 20, 1e-6 of the span) */
+    double *ev_log; int ev_cap; int *ev_count; int max_events; double zeno_window;
 } bgc_options;
 
 typedef struct {

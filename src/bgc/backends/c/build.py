@@ -4,7 +4,8 @@ The compiler is ``$CC`` (split like a shell word list), else ``cc``; flags ``-O2
 -fPIC`` and ``-fopenmp`` when the compiler accepts it (probed once per compiler). The model's
 units and the runtime's build in parallel; the runtime's object files do not change from one
 model to the next and are kept in the compile cache under a key of their sources, the
-compiler's identity and the flags.
+compiler's identity and the flags (they are built with hidden visibility: a library exports
+only its model's functions). The FMU export builds its library here too.
 """
 from __future__ import annotations
 
@@ -17,6 +18,9 @@ from pathlib import Path
 from bgc.base.errors import ModelError
 
 CFLAGS = ("-O2", "-std=c99", "-fPIC")
+#: The runtime's objects export nothing from a library (the model's units call them inside
+#: it; the binding calls only the model's bgcm_ functions, an FMU only fmi2 functions).
+RUNTIME_FLAGS = ("-fvisibility=hidden",)
 RUNTIME_DIR = "c/runtime"
 LIB_NAME = "libmodel.so"
 
@@ -28,9 +32,15 @@ class CompilerMissing(ModelError):
         super().__init__(None, message)
 
 
-class CompilerFailed(CompilerMissing):
-    """A compiler that runs but cannot build bgc's C code (a wrong CC): as no compiler, the
-    command says so in one line and falls back to numpy where it can."""
+class CUnsupported(ModelError):
+    """The model needs something the C printer does not write yet
+    (:func:`bgc.backends.c.printer.unsupported`); here, light, so that a caller can catch it
+    without importing the printer (sympy)."""
+
+
+class CompilerFailed(ModelError):
+    """The C compiler refused the generated sources (a compiler that does not build C99, or
+    a model bgc printed wrongly): one located line with the compiler's first error."""
 
 
 def cc_text() -> str:
@@ -39,7 +49,7 @@ def cc_text() -> str:
 
 
 def compiler() -> list[str]:
-    cc = os.environ.get("CC", "").strip() or "cc"
+    cc = cc_text()
     try:
         return shlex.split(cc)
     except ValueError as exc:  # an unbalanced quote
@@ -171,40 +181,38 @@ def runtime_key() -> str:
     h = hashlib.sha256()
     for f in runtime_sources() + runtime_headers():
         h.update(f.name.encode() + b"\0" + f.read_bytes() + b"\0")
-    h.update(identity().encode() + b"\0" + " ".join(flags()).encode())
+    h.update(identity().encode() + b"\0" + " ".join(flags() + RUNTIME_FLAGS).encode())
     return h.hexdigest()[:32]
 
 
-def _cc(args: list[str], cwd: Path) -> None:
+def _cc(args: list[str], cwd: Path, coord=None) -> None:
     import subprocess
 
-    try:
-        r = subprocess.run(compiler() + args, cwd=cwd, capture_output=True, text=True,
-                           errors="replace")
-    except OSError as exc:
-        raise CompilerFailed(f"the C compiler {' '.join(compiler())!r} cannot run ({exc}); "
-                             "set CC, or use the numpy backend") from None
+    from bgc.base.errors import oneline
+
+    r = subprocess.run(compiler() + args, cwd=cwd, capture_output=True, text=True)
     if r.returncode != 0:
-        first = next((ln.strip() for ln in r.stderr.splitlines() if "error" in ln.lower()),
-                     (r.stderr.strip().splitlines() or [f"exit status {r.returncode}"])[0])
-        raise CompilerFailed(f"the C compiler {' '.join(compiler())!r} failed on bgc's C code "
-                             f"({first[:200]}); set CC, or use the numpy backend")
+        what = next((ln for ln in r.stderr.splitlines() if "error" in ln.lower()),
+                    r.stderr.strip().splitlines()[0] if r.stderr.strip() else
+                    f"exit status {r.returncode}")
+        target = args[args.index("-o") + 1] if "-o" in args else "?"
+        raise CompilerFailed(coord, f"the C compiler ({' '.join(compiler())}) failed building "
+                                    f"{Path(target).name}: {oneline(what, 300)}")
 
 
-def _runtime_objects(cache, jobs: int, tmpdir) -> list[Path]:
+def _runtime_objects(cache, jobs: int, tmpdir, coord=None) -> list[Path]:
     """The runtime's object files, compiled once per (sources, compiler, flags)."""
-    fl = list(flags())
+    fl = list(flags() + RUNTIME_FLAGS)
     key = runtime_key()
 
     def build(tmp: Path):
         from concurrent.futures import ThreadPoolExecutor
 
-        tmp = Path(tmp).resolve()  # the compiler runs in tmp (a relative BGC_CACHE_DIR too)
         inc = runtime_sources()[0].parent if runtime_sources() else tmp
         srcs = runtime_sources()
         with ThreadPoolExecutor(max_workers=jobs) as ex:
             list(ex.map(lambda s: _cc(fl + ["-I", str(inc), "-c", str(s), "-o",
-                                            str(tmp / (s.stem + ".o"))], tmp), srcs))
+                                            str(tmp / (s.stem + ".o"))], tmp, coord), srcs))
 
     if cache is not None:
         d = cache.get_or_build("c-runtime", key, build)
@@ -215,9 +223,12 @@ def _runtime_objects(cache, jobs: int, tmpdir) -> list[Path]:
     return sorted(d.glob("*.o"))
 
 
-def build_library(srcdir: Path, files: list[str], cache=None, jobs: int | None = None) -> Path:
-    """Compile the model's C files in srcdir (in parallel), link them with the runtime's
-    objects into srcdir/LIB_NAME. Raises CompilerMissing without a compiler."""
+def build_library(srcdir: Path, files: list[str], cache=None, jobs: int | None = None,
+                  extra: tuple[str, ...] = (), lib_name: str = LIB_NAME, coord=None) -> Path:
+    """Compile the model's C files in srcdir (in parallel) with :func:`flags` (and ``extra``,
+    for these files only: the FMU's ``-fvisibility=hidden``), link them with the runtime's
+    objects (the compile cache's, when given) into srcdir/lib_name. Raises CompilerMissing
+    without a compiler, CompilerFailed (at ``coord``) when it refuses the sources."""
     identity()
     srcdir = Path(srcdir).resolve()  # the compiler runs in srcdir: every path absolute
     jobs = jobs or os.cpu_count() or 1
@@ -232,16 +243,17 @@ def build_library(srcdir: Path, files: list[str], cache=None, jobs: int | None =
     objdir = Path(tempfile.mkdtemp(prefix="bgc-obj-"))
     try:
         with ThreadPoolExecutor(max_workers=jobs) as ex:
-            rt = ex.submit(_runtime_objects, cache, jobs, objdir)
+            rt = ex.submit(_runtime_objects, cache, jobs, objdir, coord)
             objs = list(ex.map(
-                lambda f: (_cc(fl + ["-I", inc, "-c", str(srcdir / f), "-o",
-                                     str(objdir / (Path(f).stem + ".o"))], srcdir),
+                lambda f: (_cc(fl + list(extra) + ["-I", inc, "-c", str(srcdir / f), "-o",
+                                                   str(objdir / (Path(f).stem + ".o"))],
+                               srcdir, coord),
                            objdir / (Path(f).stem + ".o"))[1], files))
             rt_objs = rt.result()
-        tmp = srcdir / f".{LIB_NAME}.tmp{os.getpid()}"
+        tmp = srcdir / f".{lib_name}.tmp{os.getpid()}"
         _cc(fl + ["-shared", "-o", str(tmp)] + [str(o) for o in objs + rt_objs] + ["-lm"],
-            srcdir)
-        os.replace(tmp, srcdir / LIB_NAME)
+            srcdir, coord)
+        os.replace(tmp, srcdir / lib_name)
     finally:
         shutil.rmtree(objdir, ignore_errors=True)
-    return srcdir / LIB_NAME
+    return srcdir / lib_name

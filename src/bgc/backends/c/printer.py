@@ -23,18 +23,19 @@ from dataclasses import dataclass
 
 import jinja2
 
+from bgc.backends.c.build import CUnsupported  # noqa: F401 (raised by unsupported)
 from bgc.backends.c.cexpr import (  # noqa: F401 (the C text helpers, as printer.*)
     CPrinter,
     c_comment,
     c_name,
     c_string_literal,
 )
+from bgc.backends.c.events import c_events, event_parts
 from bgc.backends.c.parts import PART_LINES, UNIT_PARTS, PartContext, cut_parts
-from bgc.backends.numpy.printer import lit, template_loader
 from bgc.backends.numpy.printer import comment as py_comment
+from bgc.backends.numpy.printer import lit, template_loader
 from bgc.backends.skeleton import WRAPPER_MARK, binding_source, check_wrapper  # noqa: F401
 from bgc.base import __version__
-from bgc.base.errors import ModelError
 from bgc.lower.ir import Lowered
 
 
@@ -46,10 +47,6 @@ class CSources:
 
     def __getitem__(self, name):
         return dict(self.files)[name]
-
-
-class CUnsupported(ModelError):
-    """The model needs something the C printer does not write yet (see :func:`unsupported`)."""
 
 
 def has_solves(eq) -> bool:
@@ -83,6 +80,7 @@ def render_c(low: Lowered, *, source: str, source_hash: str, description: str = 
     ctx = PartContext(low)
     fns = {name: cut_parts(name, fn, printer, ctx, PART_LINES) for name, fn in
            (("rhs", low.rhs), ("jac", low.jac), ("outputs", low.outs), ("init", low.init))}
+    events = c_events(eq, lambda name, fn: cut_parts(name, fn, printer, ctx, PART_LINES))
     names = [c_name(str(s)) for s in ctx.param_syms + ctx.state_syms + ctx.input_syms]
     names += [c_name(str(a.symbol)) for a in eq.assignments + eq.jac_assignments]
     for nm in names:
@@ -90,7 +88,7 @@ def render_c(low: Lowered, *, source: str, source_hash: str, description: str = 
     if len(set(c_name(str(s)) for s in ctx.param_syms + ctx.state_syms + ctx.input_syms)) != \
             len(ctx.param_syms) + len(ctx.state_syms) + len(ctx.input_syms):
         raise AssertionError("two model identifiers map to one C name")
-    all_parts = [p for f in fns.values() for p in f.parts]
+    all_parts = [p for f in fns.values() for p in f.parts] + event_parts(events)
     units = [all_parts[i:i + UNIT_PARTS] for i in range(0, len(all_parts), UNIT_PARTS)]
     env = template_env()
     common = dict(name=eq.name, version=__version__, source=source, source_hash=source_hash,
@@ -114,7 +112,7 @@ def render_c(low: Lowered, *, source: str, source_hash: str, description: str = 
                       if ctx.table_fail(k)],
         fns=fns, n=len(eq.states), np=len(ctx.param_syms), jac_keys=low.jac_keys,
         states=[sv.name for sv in eq.states], outputs=[o[0] for o in eq.outputs],
-        nout=sum(olens), all_parts=all_parts,
+        nout=sum(olens), all_parts=all_parts, events=events,
         has_t=int(fns["rhs"].uses_t or fns["jac"].uses_t), **common)
     files.insert(0, ("model.c", main))
     h = hashlib.sha256()

@@ -15,21 +15,19 @@ The variables, their value references and the model structure are
 """
 from __future__ import annotations
 
-import atexit
 import io
 import os
 import platform
 import re
 import shutil
-import subprocess
 import tempfile
 import xml.etree.ElementTree as ET
 import zipfile
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import sympy as sp
 
+from bgc.backends.c.events import c_events, event_parts
 from bgc.backends.fmu.spec import FmuSpec, build_spec, flat_names  # noqa: F401 (as export.*)
 from bgc.base import __version__
 from bgc.base.errors import ModelError
@@ -61,7 +59,8 @@ def model_description(compiled, spec: FmuSpec, scene=None, kind: str = "both",
         "fmiVersion": "2.0", "modelName": compiled.model.name + (
             f" (scene {scene.name})" if scene is not None else ""),
         "guid": spec.guid, "description": desc, "generationTool": f"bgc {__version__}",
-        "variableNamingConvention": naming, "numberOfEventIndicators": "0"})
+        "variableNamingConvention": naming,
+        "numberOfEventIndicators": str(len(compiled.equations.events))})
     caps = {"modelIdentifier": spec.model_identifier,
             "needsExecutionTool": "false", "canNotUseMemoryManagementFunctions": "true",
             "canGetAndSetFMUstate": "true", "canSerializeFMUstate": "false",
@@ -162,6 +161,8 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
     ctx = PartContext.inputs_as_params(low)  # the inputs are values in the parameter vector
     fns = {name: cut_parts(name, fn, printer, ctx) for name, fn in
            (("rhs", low.rhs), ("jac", low.jac), ("outputs", low.outs), ("init", low.init))}
+    # events: the guards are the indicators (ME); the C runtime locates them in a step (CS)
+    events = c_events(eq, lambda name, fn: cut_parts(name, fn, printer, ctx))
     syms = ctx.param_syms + ctx.state_syms
     cnames = [c_name(str(s)) for s in syms]
     if not all(nm.isidentifier() and nm.isascii() for nm in cnames) or \
@@ -186,7 +187,7 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
     derived_lines = [(c_name(str(ln.target)), printer.doprint(ln.expr), n_par + j)
                      for j, ln in enumerate(low.derived)]
     has_t = int(fns["rhs"].uses_t or fns["jac"].uses_t or T in used)
-    all_parts = [p for f in fns.values() for p in f.parts]
+    all_parts = [p for f in fns.values() for p in f.parts] + event_parts(events)
     units = [all_parts[i:i + UNIT_PARTS] for i in range(0, len(all_parts), UNIT_PARTS)]
     env = template_env()
     m = compiled.model
@@ -212,7 +213,7 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
         param_start=[_g(v) for v in spec.param_start], param_tunable=list(spec.param_tunable),
         input_start=[_g(v) for v in spec.input_start], breaks=[_g(b) for b in breaks],
         guid=spec.guid, model_identifier=spec.model_identifier, method=method,
-        rtol=_g(rtol), atol=_g(atol), max_step=_g(max_step), **common)
+        rtol=_g(rtol), atol=_g(atol), max_step=_g(max_step), events=events, **common)
     cfg = ["/* bgc FMU configuration (generated) */", "#ifndef BGC_FMU_CONFIG_H",
            "#define BGC_FMU_CONFIG_H"]
     if kind == "cs":
@@ -268,57 +269,26 @@ def write_sources(compiled, spec, scene, kind, dest: Path) -> list[str]:
     return sorted(p.name for p in dest.glob("*.c"))
 
 
-_RUNTIME_OBJS: dict = {}
-
-
-def _first_error(stderr: str) -> str:
-    """The compiler's first error line, for a one-line message."""
-    lines = stderr.strip().splitlines()
-    return next((ln.strip() for ln in lines if "error" in ln.lower()),
-                lines[0].strip() if lines else "no message")[:200]
-
-
-def build_binary(src: Path, cfiles: list[str], out: Path) -> None:
-    """Compile the sources with the system C compiler into the shared library out."""
+def build_binary(src: Path, cfiles: list[str], out: Path, cache=None, coord=None) -> None:
+    """Build the FMU's shared library ``out`` with the C backend's build
+    (bgc.backends.c.build: its flags, and the runtime's objects from the compile cache when
+    ``cache`` is given): the FMU's own units with ``-fvisibility=hidden`` (only the fmi2
+    functions are exported). A compiler that refuses the sources is one located error at
+    ``coord``."""
     from bgc.backends.c import build as cbuild
 
-    cbuild.identity()  # CompilerMissing when there is none
-    cc = cbuild.compiler()
-    fl = ["-O2", "-std=c99", "-fPIC", "-fvisibility=hidden", "-I", str(src)]
-    objdir = Path(tempfile.mkdtemp(prefix="bgc-fmu-obj-"))
     rt_names = {f.name for f in cbuild.runtime_sources()}
-    try:
-        def one(f, dest=objdir):
-            o = dest / (Path(f).stem + ".o")
-            r = subprocess.run(cc + fl + ["-c", str(src / f), "-o", str(o)],
-                               capture_output=True, text=True)
-            if r.returncode != 0:
-                raise cbuild.CompilerFailed(f"the C compiler {' '.join(cc)!r} failed on the "
-                                            f"FMU's {f} ({_first_error(r.stderr)}); set CC")
-            return o
-
-        # the runtime's objects do not change from one model to the next: once per process
-        key = (tuple(cc), cbuild.runtime_key())
-        rt = [f for f in cfiles if f in rt_names]
-        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as ex:
-            if key not in _RUNTIME_OBJS or not all(p.is_file() for p in _RUNTIME_OBJS[key]):
-                d = Path(tempfile.mkdtemp(prefix="bgc-fmu-rt-"))
-                atexit.register(shutil.rmtree, d, True)
-                _RUNTIME_OBJS[key] = list(ex.map(lambda f: one(f, d), rt))
-            objs = list(ex.map(one, [f for f in cfiles if f not in rt_names]))
-        objs += _RUNTIME_OBJS[key]
-        r = subprocess.run(cc + ["-shared", "-fPIC", "-o", str(out)] + [str(o) for o in objs]
-                           + ["-lm"], capture_output=True, text=True)
-        if r.returncode != 0:
-            raise cbuild.CompilerFailed(f"linking the FMU's library failed "
-                                        f"({_first_error(r.stderr)}); set CC")
-    finally:
-        shutil.rmtree(objdir, ignore_errors=True)
+    own = [f for f in cfiles if f not in rt_names]  # the runtime's: compiled once, cached
+    lib = cbuild.build_library(src, own, cache=cache, extra=("-fvisibility=hidden",),
+                               lib_name=out.name + ".build", coord=coord)
+    os.replace(lib, out)
 
 
-def package_fmu(compiled, out, scene=None, kind: str = "both", progress=None) -> Path:
+def package_fmu(compiled, out, scene=None, kind: str = "both", progress=None,
+                cache=None) -> Path:
     """The FMU of a compiled model (specialised to ``scene`` when given), written to ``out``
-    atomically: its description, C sources and built binary in one zip."""
+    atomically: its description, C sources and built binary in one zip (the C runtime's
+    objects from ``cache``, a bgc.base.store.Cache, when given)."""
     say = progress or (lambda msg: None)
     if kind not in KINDS:
         raise ModelError(None, f"unknown FMU kind {kind!r}: one of {', '.join(KINDS)}")
@@ -335,7 +305,7 @@ def package_fmu(compiled, out, scene=None, kind: str = "both", progress=None) ->
         libname = spec.model_identifier + _lib_suffix()
         say(f"building {libname}")
         lib = work / libname
-        build_binary(src, cfiles, lib)
+        build_binary(src, cfiles, lib, cache, compiled.model.coord)
         entries = [("modelDescription.xml", xml)]
         for f in sorted(src.iterdir()):
             entries.append((f"sources/{f.name}", f.read_bytes()))

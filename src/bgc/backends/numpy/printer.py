@@ -16,17 +16,18 @@ import jinja2
 import sympy as sp
 from sympy.printing.numpy import NumPyPrinter
 
+from bgc.backends.numpy.events import events_part
 from bgc.backends.skeleton import (  # noqa: F401 (re-exported)
     ALLOWED_IMPORTS,
     SkeletonError,
     check_skeleton,
+    events_runtime_source,
     runtime_source,
 )
 from bgc.base import __version__
 from bgc.base.errors import oneline
 from bgc.base.paths import templates_dir
 from bgc.core.eqtypes import Equations, T
-from bgc.core.forward import linear_parts
 from bgc.lower import ir as lower
 
 _IDENT_OK = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_")
@@ -224,12 +225,6 @@ def printed(fn: lower.Function, printer) -> Function:
     return Function(fn.params, fn.inputs, fn.states, lines, results, fn.ops)
 
 
-def _function(eq: Equations, printer, results: list, assigns: list, keys: list,
-              cse: bool = True) -> Function:
-    """Lower (prune, CSE, schedule: :mod:`bgc.lower.ir`) and print one generated function."""
-    return printed(lower.lower_function(eq, results, assigns, keys, cse), printer)
-
-
 def _pyrepr(v) -> str:
     if isinstance(v, tuple):
         if all(len(r) == 1 for r in v):
@@ -246,19 +241,13 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
     here unless given, so that several backends can share one lowering."""
     printer = BgcPrinter()
     n = len(eq.states)
-    say = progress or (lambda msg: None)
     low = lowered if lowered is not None else lower.lower(eq, progress)
     rhs, jac, outs = (printed(f, printer) for f in (low.rhs, low.jac, low.outs))
     jkeys = list(low.jac_keys)
-    say("emitting the linearisation's B, C, D")
-    lp = linear_parts(eq)
-    bkeys = sorted(lp.B)
-    ujac = _function(eq, printer, [lp.B[k] for k in bkeys],
-                     list(eq.assignments) + list(lp.B_assignments), bkeys)
-    ykeys = [("C",) + k for k in sorted(lp.C)] + [("D",) + k for k in sorted(lp.D)]
-    yjac = _function(eq, printer, [lp.C[k] for k in sorted(lp.C)] + [lp.D[k] for k in sorted(lp.D)],
-                     list(eq.assignments) + list(lp.CD_assignments), ykeys)
+    lin = low.linear if low.linear is not None else lower.lower_linear(eq, progress)
+    ujac, yjac = printed(lin.ujac, printer), printed(lin.yjac, printer)
     init = printed(low.init, printer)
+    events = events_part(eq, printer, printed)  # None without events: the module is unchanged
     newton = []
     for nl in eq.newton:  # nonlinear algebraic loops: a Newton solver each
         newton.append({
@@ -311,10 +300,11 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
         states=eq.states, params=params, derived=derived, inputs=inputs,
         input_params=input_params, outputs=outputs, rhs=rhs, jac=jac, outs=outs, init=init,
         jac_keys=jkeys, n=n, imports=imports, ujac=ujac, yjac=yjac,
-        tables=tables, input_labels=lp.input_labels, output_labels=lp.output_labels,
+        tables=tables, input_labels=lin.input_labels, output_labels=lin.output_labels,
         linsolve=getattr(printer, "uses_linsolve", False), newton=newton,
         all_param_symbols=[s for p in params for s in p["symbols"]] + [d.target for d in derived],
-        runtime=runtime_source(),
+        runtime=runtime_source() + (f"\n\n\n{events_runtime_source()}" if events else ""),
+        events=events,
     )
     for ident in _identifiers(eq):
         assert ident.isidentifier() and not keyword.iskeyword(ident) and set(ident) <= _IDENT_OK

@@ -1,0 +1,103 @@
+"""The model's events as equations: each event's guard g(t, x, u, p) (a zero crossing in the
+given direction; a time event ``at: T`` is g = t - T, rising) and its resets (a state's new
+value, an expression of the values just before the event). Built by
+:func:`bgc.core.equations.derive` with the same name resolution as the laws, so a guard or a
+reset may read states, modes, inputs, parameters, t and the bond variables e(), f(), p(), q().
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import sympy as sp
+
+from bgc.base.errors import Coord, ModelError
+from bgc.format.expr import Expr, shape_of
+
+
+@dataclass(frozen=True)
+class EventEq:
+    name: str
+    coord: Coord
+    guard: object  # sympy scalar: the event fires where it crosses zero
+    direction: int  # +1 rising, -1 falling, 0 either
+    resets: tuple[tuple[sp.Symbol, object], ...]  # (state symbol, new value)
+
+    def replace(self, subs: dict) -> EventEq:
+        """The same event with ``subs`` applied (derive inlines plain copies)."""
+        if not subs:
+            return self
+        return EventEq(self.name, self.coord, self.guard.xreplace(subs), self.direction,
+                       tuple((s, v.xreplace(subs)) for s, v in self.resets))
+
+    def exprs(self):
+        yield self.guard
+        for _, v in self.resets:
+            yield v
+
+
+def _flat(v) -> list:
+    return list(v) if isinstance(v, sp.MatrixBase) else [v]
+
+
+def build_events(ctx, bg, state_vars, t_symbol) -> tuple[EventEq, ...]:
+    """Every event of the model (``bg.model.events``), resolved in the model's top scope."""
+    symbols = {sv.symbol for sv in state_vars}
+    return tuple(_event(ctx, bg, ev, symbols, t_symbol) for ev in bg.model.events)
+
+
+def _event(ctx, bg, ev, symbols, t_symbol) -> EventEq:
+    what = f"event {ev.name!r}"
+    if ev.condition is not None:
+        guard = ctx.build(ev.condition, (), f"{what} condition")
+        where = ev.condition.coord
+    else:
+        guard = t_symbol - ctx.build(ev.at, (), f"{what} time", params_only=True)
+        where = ev.at.coord
+    if shape_of(guard):
+        raise ModelError(where, f"{what}: the condition must be a scalar, not of shape "
+                                f"{'x'.join(map(str, shape_of(guard)))}")
+    inputs = {s for iv in ctx.inputs.values() if iv is not None for s in iv.symbols}
+    if not guard.free_symbols & (symbols | inputs | {t_symbol}):
+        raise ModelError(where, f"{what}: the condition reads no state, input or t: it "
+                                "never crosses zero")
+    resets: dict = {}
+    for act in ev.actions:
+        target = _target(ctx, bg, act, symbols, what)
+        value = ctx.build(act.value, (), f"{what}, action on {act.label!r}")
+        if shape_of(value) != shape_of(target):
+            raise ModelError(act.value.coord, f"{what}: {act.label!r} has shape "
+                                              f"{_shape(target)}, the value {_shape(value)}")
+        for s, v in zip(_flat(target), _flat(value)):
+            if s in resets:
+                raise ModelError(act.coord, f"{what}: {act.label!r} is set twice")
+            resets[s] = v
+    return EventEq(ev.name, ev.coord, guard, ev.direction, tuple(resets.items()))
+
+
+def _shape(v) -> str:
+    shp = shape_of(v)
+    return "x".join(map(str, shp)) if shp else "scalar"
+
+
+def _target(ctx, bg, act, symbols, what):
+    """The state symbol(s) an action sets; a located error for anything that is not a state."""
+    label = act.label
+    if act.func:
+        kind = bg.scopes[()].names.get(act.path[0]) if len(act.path) == 1 else "element"
+        eid = ".".join(act.path)
+        if kind == "element" and eid not in ctx.states and _is_storage(bg, eid):
+            raise ModelError(act.coord, f"{what}: {label} has no state of its own (the "
+                                        "element is in derivative causality): reset an "
+                                        "independent one")
+    value = ctx.build(Expr(label, act.coord), (), f"{what}, action")
+    if not all(s in symbols for s in _flat(value)):
+        raise ModelError(act.coord, f"{what}: cannot assign to {label!r}: it is not a state "
+                                    "(an action sets p(X), q(X), an auxiliary state or a mode)")
+    return value
+
+
+def _is_storage(bg, eid: str) -> bool:
+    try:
+        return bg.element(eid).type in ("I", "C")
+    except KeyError:
+        return False
