@@ -190,7 +190,13 @@ def _cc(args: list[str], cwd: Path, coord=None) -> None:
 
     from bgc.base.errors import oneline
 
-    r = subprocess.run(compiler() + args, cwd=cwd, capture_output=True, text=True)
+    cc = compiler()
+    exe = shutil.which(cc[0]) if cc else None  # a relative CC (./mycc) from the caller's folder
+    try:
+        r = subprocess.run(([os.path.abspath(exe)] + cc[1:] if exe else cc) + args, cwd=cwd,
+                           capture_output=True, text=True, errors="replace")
+    except OSError as exc:
+        raise CompilerFailed(coord, f"the C compiler ({' '.join(cc)}) cannot run: {exc}") from None
     if r.returncode != 0:
         what = next((ln for ln in r.stderr.splitlines() if "error" in ln.lower()),
                     r.stderr.strip().splitlines()[0] if r.stderr.strip() else
