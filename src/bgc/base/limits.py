@@ -50,6 +50,10 @@ class Limits:
     eval_digits: int = 30
     #: Largest number of sympy operations in one built expression (after substitution).
     built_ops: int = 20_000
+    #: Longest unit string, its deepest parentheses, its largest exponent (bgc.format.units).
+    unit_chars: int = 100
+    unit_depth: int = 4
+    unit_exponent: int = 12
     # -- scenes and runs ------------------------------------------------------------------
     #: Largest magnitude of a time (start, end, breakpoint) in seconds.
     time_magnitude: float = 1e15

@@ -81,7 +81,9 @@ def _default_output(model: Path, name: str) -> Path:
 @click.option("--strict-causality", is_flag=True,
               help="refuse derivative causality (every storage element independent) instead of "
                    "eliminating the dependent storage elements")
-def check_cmd(model, strict_causality):
+@click.option("--units", "show_units", is_flag=True,
+              help="also list each bond's physical domain and the dimensions of its effort and flow")
+def check_cmd(model, strict_causality, show_units):
     """Check MODEL.yaml completely (up to the equations) and list causality, states, warnings."""
     from bgc.format.parse import parse_file
     from bgc.run.driver import check_model
@@ -124,6 +126,10 @@ def check_cmd(model, strict_causality):
         out.write(f"note: {loop}\n")
     for wmsg in eqs.warnings:  # what the equations leave standing of causality's warnings
         out.write(f"warning: {wmsg}\n")
+    if show_units:
+        from bgc.core.units import check_units
+
+        out.write("\n" + check_units(bg).text())
     click.echo(out.getvalue(), nl=False)
 
 

@@ -14,6 +14,7 @@ import networkx as nx
 
 from bgc.base.errors import Coord, ModelError
 from bgc.base.limits import LIMITS
+from bgc.core.units import check_units
 from bgc.format.parse import ELEMENT_TYPES as _TYPES
 from bgc.format.parse import JUNCTIONS, STORAGE, TWO_PORTS, Body, Component, Model
 from bgc.format.whitelist import Expr
@@ -137,6 +138,7 @@ def build_graph(model: Model) -> BondGraph:
     bg = BondGraph(model, tuple(b.params), tuple(b.elements), tuple(b.bonds), tuple(b.states),
                    b.scopes, g)
     _check(bg)
+    check_units(bg)  # dimensions: a located error where a law, unit or output disagrees
     return bg
 
 

@@ -147,6 +147,7 @@ class Model:
     strict_causality: bool = False  # `causality: strict`: derivative causality is an error
     events: tuple = ()  # bgc.format.events.Event: zero crossings and time events, with actions
     modes: tuple[str, ...] = ()  # the discrete mode variables (states whose derivative is 0)
+    strict_units: bool = False  # `units: strict`: every parameter needs a unit
 
     def component(self, name: str) -> Component | None:
         for c in self.components:
@@ -193,7 +194,8 @@ def parse_text(text: str, path: str = "<model>", _imports: _Imports | None = Non
         raise ModelError(Coord(path, 1, 1), "the model file is empty")
     top = r.mapping(root, "the model")
     allowed = ("bgc", "name", "description", "parameters", "inputs", "elements", "bonds",
-               "states", "outputs", "components", "imports", "causality", "modes", "events")
+               "states", "outputs", "components", "imports", "causality", "modes", "events",
+               "units")
     require(r, top, root, allowed, "the model", required=("bgc", "name", "elements", "bonds"))
     strict = False
     if "causality" in top:
@@ -202,6 +204,13 @@ def parse_text(text: str, path: str = "<model>", _imports: _Imports | None = Non
             raise ModelError(r.coord(top["causality"][1]), f"causality: {mode!r} is not one of "
                                                             "'strict', 'eliminate'")
         strict = mode == "strict"
+    strict_units = False
+    if "units" in top:
+        mode = r.string(top["units"][1], "units")
+        if mode not in ("strict", "check"):
+            raise ModelError(r.coord(top["units"][1]), f"units: {short(mode)} is not one of "
+                                                        "'strict', 'check'")
+        strict_units = mode == "strict"
     version = r.scalar(top["bgc"][1], "bgc")
     if isinstance(version, bool) or version != 1:
         raise ModelError(r.coord(top["bgc"][1]), f"unsupported format version {version!r} "
@@ -260,7 +269,8 @@ def parse_text(text: str, path: str = "<model>", _imports: _Imports | None = Non
     return Model(name=name, file=path, body=body, inputs=tuple(inputs),
                   components=tuple(components), description=description,
                   source_hash=hashlib.sha256(text.encode()).hexdigest()[:16],
-                  coord=r.coord(root), strict_causality=strict, events=events, modes=modes)
+                  coord=r.coord(root), strict_causality=strict, events=events, modes=modes,
+                  strict_units=strict_units)
 
 
 def _hybrid(r: Reader, top: dict, body: Body):
