@@ -150,3 +150,15 @@ def load_module_file(path):
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
+
+
+def test_power_chain_is_a_located_error_naming_the_exponent():
+    """((k**2)**2)... 150 deep: sympy merges it into k**(2**150); refused where it is written
+    (a model without units, so that no dimension check answers first)."""
+    law = "k"
+    for _ in range(150):
+        law = f"({law})**2"
+    text = BALL.replace('effort: "k*max(-q(floor), 0)"', f'effort: "{law}*q(floor)"')
+    with pytest.raises(ModelError) as err:
+        compile_model(parse_text(text, "chain.yaml"))
+    assert "chain of powers" in err.value.message and err.value.coord.line == 7
