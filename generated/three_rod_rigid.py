@@ -170,6 +170,9 @@ TABLE_BREAKPOINTS = {  # input -> the knots of its table where it is not smooth
 }
 TABLE_MAX_STEP = {  # input -> the smallest knot spacing of its smooth (pchip) table
 }
+INPUT_PERIODS = {  # input -> the shortest period (s) of its periodic signal: scenes bound the step
+    'tau': 3.141592653589793,
+}
 JAC_SPARSITY = np.zeros((6, 6), dtype=bool)
 JAC_SPARSITY[
     [0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 1, 1, 2, 2, 2, 2, 2, 2, 3, 4, 5, ],

@@ -18,7 +18,7 @@ from bgc.run.driver import compile_file
 
 ROOT = Path(__file__).resolve().parents[1]
 BALL = ROOT / "models" / "bouncing_ball.yaml"
-RECTIFIER = ROOT / "models" / "rectifier.yaml"
+RECTIFIER = ROOT / "models" / "rectifier_ideal.yaml"
 G = 9.81
 
 

@@ -382,6 +382,17 @@ def test_messages_are_capped_and_one_line():
     assert len(err.message) <= LIMITS.message_chars
 
 
+def test_advice_follows_the_message_uncut():
+    """A long first line is cut at the cap; bgc's advice follows on its own lines, whole."""
+    advice = "Do this first: " + "a" * 700 + "\nthen\x1b that."
+    err = ModelError(Coord("m.yaml", 3, 4), "y" * 10_000, advice)
+    lines = str(err).splitlines()
+    assert lines[0].startswith("m.yaml:3:4: ") and len(err.message) <= LIMITS.message_chars
+    assert lines[1] == "  Do this first: " + "a" * 700
+    assert lines[2] == "  then\\x1b that."  # made printable, not cut
+    assert len(lines) == 3
+
+
 # ---------------------------------------------------------------------------------------------
 # The bugs list
 

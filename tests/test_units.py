@@ -26,7 +26,7 @@ N = dim(kg=1, m=1, s=-2)
 
 @pytest.mark.parametrize("text, want", [
     ("N", N), ("N*s/m", dim(kg=1, s=-1)), ("N s/m", dim(kg=1, s=-1)),
-    ("kg*m^2", dim(kg=1, m=2)), ("m/s", dim(m=1, s=-1)), ("rad", dim()), ("1", dim()),
+    ("kg*m^2", dim(kg=1, m=2)), ("m/s", dim(m=1, s=-1)), ("rad", dim()), ("1", dim()), ("-", dim()),
     ("Pa", dim(kg=1, m=-1, s=-2)), ("m^3/s", dim(m=3, s=-1)), ("V", dim(kg=1, m=2, s=-3, A=-1)),
     ("A", dim(A=1)), ("Ohm", dim(kg=1, m=2, s=-3, A=-2)), ("ohm", dim(kg=1, m=2, s=-3, A=-2)),
     ("F", dim(kg=-1, m=-2, s=4, A=2)), ("H", dim(kg=1, m=2, s=-2, A=-2)),

@@ -251,8 +251,12 @@ def equations(path_or_text) -> StateEquations:
     from bgc.core.equations import T, derive
     from bgc.core.graph import build_graph
 
-    bg = build_graph(_model(path_or_text))
-    eqs = derive(bg, assign_causality(bg))
+    model = _model(path_or_text)
+    bg = build_graph(model)
+    strict = bool(getattr(model, "strict_causality", False))
+    # as compile does: rigid connections (derivative causality) eliminated, nonlinear
+    # algebraic loops solved by Newton, unless the model asks for strict causality
+    eqs = derive(bg, assign_causality(bg, allow_derivative=not strict), newton=not strict)
     states = tuple(sv.symbol for sv in eqs.states)
     assigns = tuple(sp.Eq(a.symbol, a.expr, evaluate=False) for a in eqs.assignments)
     derivs = tuple(sp.Eq(sp.Derivative(s, T), d, evaluate=False)
@@ -284,11 +288,13 @@ class Linearization:
     statespace: object = None
 
 
-def linearize(model, at="equilibrium", p=None, u=None) -> Linearization:
+def linearize(model, at="equilibrium", p=None, u=None, x0=None) -> Linearization:
     """Linearise a model (path, text or a :class:`CompiledModel`) or a scene file at its
     equilibrium (inputs held at their values at the start) or at a time ``at`` reached by a
     run from x0. The start is t = 0 for a model, the scene's start (and its parameter
-    values) for a scene or a model compiled for one: where `bgc linearize` linearises."""
+    values) for a scene or a model compiled for one: where `bgc linearize` linearises.
+    ``x0``: the equilibrium's Newton starts there (default: the initial state), or the run to
+    time ``at`` starts there."""
     from bgc.linear import (
         load_target,
         modes,
@@ -308,7 +314,7 @@ def linearize(model, at="equilibrium", p=None, u=None) -> Linearization:
         mod = compile(model)
     if p is not None:
         pv = {**(pv or {}), **p}
-    t, x, _ = operating_point(mod, at, pv, u, t0, hint=")")
+    t, x, _ = operating_point(mod, at, pv, u, t0, hint=")", x0=x0)
     A, B, C, D = mod.linearize(t, x, u, pv)
     try:
         ss = to_statespace(mod, A, B, C, D)

@@ -69,6 +69,29 @@ def to_statespace(module, A, B, C, D):
                       outputs=list(module.OUTPUT_LABELS))
 
 
+#: Eigenvalues below this fraction of the largest |eigenvalue| are taken as zero (rigid-body
+#: modes, integrators, round-off) when the Bode plot chooses its frequencies.
+NEAR_ZERO = 1e-9
+
+
+def bode_range(A) -> tuple[float, float]:
+    """The frequencies (Hz) a Bode plot shows by default: two decades either side of the
+    natural frequencies of A's modes, ignoring eigenvalues that are zero up to round-off (a
+    free integrator or a rigid-body mode would otherwise start the axis at 1e-21 Hz)."""
+    wn = np.abs(np.linalg.eigvals(np.asarray(A, dtype=float))) if np.size(A) else np.zeros(0)
+    wn = wn[np.isfinite(wn)]
+    top = float(wn.max()) if wn.size else 0.0
+    wn = wn[wn > NEAR_ZERO * top] if top > 0 else np.array([2 * np.pi])
+    return float(wn.min() / (2 * np.pi) / 100), float(wn.max() / (2 * np.pi) * 100)
+
+
+def unstable_modes(A, tol: float = 1e-9) -> list[complex]:
+    """The eigenvalues of A with a positive real part (beyond round-off): growing modes."""
+    lam = np.linalg.eigvals(np.asarray(A, dtype=float)) if np.size(A) else np.zeros(0)
+    scale = max(float(np.max(np.abs(lam))) if lam.size else 0.0, 1.0)
+    return [complex(v) for v in lam if v.real > tol * scale and v.imag >= 0]
+
+
 def bode_plot(path, lin, i_in, i_out, in_label, out_label, in_unit="", out_unit="",
               f_range=None) -> None:
     """Magnitude (dB) and phase (degrees) against frequency (Hz, logarithmic) as a PNG."""
@@ -83,9 +106,7 @@ def bode_plot(path, lin, i_in, i_out, in_label, out_label, in_unit="", out_unit=
 
     A = np.asarray(lin[0])
     if f_range is None:
-        wn = np.abs(np.linalg.eigvals(A)) if A.size else np.array([1.0])
-        wn = wn[wn > 0] if np.any(wn > 0) else np.array([1.0])
-        f_range = (wn.min() / (2 * np.pi) / 100, wn.max() / (2 * np.pi) * 100)
+        f_range = bode_range(A)
     f = np.logspace(np.log10(f_range[0]), np.log10(f_range[1]), 400)
     H = frequency_response(*lin, i_in, i_out, 2 * np.pi * f)
     with np.errstate(divide="ignore"):
@@ -144,28 +165,33 @@ def scene_start(scene, mod) -> tuple:
 
 
 def operating_point(mod, at, p=None, u=None, t0: float = 0.0, progress=None,
-                    hint: str = "") -> tuple:
+                    hint: str = "", x0=None, on_equilibrium=None) -> tuple:
     """(t, x, words) of the operating point ``at``: "equilibrium" (inputs held at their values
-    at t0) or a time, the state a run from the initial state at t0 reaches then."""
+    at t0; Newton starts from ``x0``, default the initial state) or a time, the state a run
+    from the initial state (or ``x0``) at t0 reaches then. ``on_equilibrium(info)`` sees the
+    equilibrium solver's report (free directions, residual) once it has converged."""
     from bgc.base.errors import ModelError
 
     say = progress or (lambda msg: None)
     if at == "equilibrium":
         say("finding the equilibrium")
-        x, info = mod.equilibrium(u=u, p=p, t=t0)
+        x, info = mod.equilibrium(u=u, p=p, t=t0, x0=x0)
         if not info.converged:
             raise ModelError(None, f"no equilibrium found (max |dx/dt| = {info.residual:.3g}"
                                    f"{hint}")
+        if on_equilibrium is not None:
+            on_equilibrium(info)
         return t0, x, "the equilibrium"
     try:
         t = float(at)
     except (TypeError, ValueError):
         raise ModelError(None, f"--at {at!r}: 'equilibrium' or a time in seconds") from None
+    start = mod.initial_state(p) if x0 is None else x0
     if t == t0:
-        return t, mod.initial_state(p), f"t = {t:g} s"
+        return t, start, f"t = {t:g} s"
     say(f"simulating to t = {t:g} s")
     try:
-        res = mod.simulate((t0, t), t_eval=[t], p=p, rtol=1e-8, atol=1e-10)
+        res = mod.simulate((t0, t), t_eval=[t], p=p, x0=start, rtol=1e-8, atol=1e-10)
     except mod.SimulationError as exc:
         raise ModelError(None, f"simulation to t = {t:g} failed: {exc}") from None
     return t, res.x[..., -1], f"t = {t:g} s"

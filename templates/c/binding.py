@@ -193,8 +193,9 @@ def rhs(t, x, p=None, u=None):
         if P is not None:  # one instance: the fast path
             x = np.ascontiguousarray(x)
             dx = np.empty(N_STATES)
-            _check(_lib().bgcm_eval_rhs(1, _ptr(np.array([float(t)])), 0, _ptr(x), 0, _ptr(P),
-                                        0, _ptr(dx), _warm(1)))
+            T = np.array([float(t)])  # kept alive across the call: _ptr gives a bare address
+            _check(_lib().bgcm_eval_rhs(1, _ptr(T), 0, _ptr(x), 0, _ptr(P), 0, _ptr(dx),
+                                        _warm(1)))
             return dx
     B, nb, T, st, X, sx, P, sp = _instances(t, x, p)
     DX = np.empty((nb, N_STATES))

@@ -15,6 +15,10 @@ def oneline(text, limit: int = 200) -> str:
     return s if len(s) <= limit else s[:limit - 3] + "..."
 
 
+#: The most lines of advice a ModelError carries after its message.
+ADVICE_LINES = 12
+
+
 @dataclass(frozen=True)
 class Coord:
     """A place in a source file: 1-based line and column."""
@@ -34,9 +38,13 @@ class Coord:
 
 
 class ModelError(Exception):
-    """A mistake in user input (model or scene): reported with its place, exit status 2."""
+    """A mistake in user input (model or scene): reported with its place, exit status 2.
 
-    def __init__(self, coord: Coord | None, message: str):
+    The message is one line, ``file:line:col: message``, cut at the limit of messages (user
+    text it quotes can be long). ``advice``, bgc's own text on what to do, follows on lines of
+    its own, never cut (each line made printable; at most :data:`ADVICE_LINES` lines)."""
+
+    def __init__(self, coord: Coord | None, message: str, advice: str = ""):
         from bgc.base.limits import LIMITS
 
         # One line, of bounded length, whatever user text the message quotes.
@@ -46,7 +54,11 @@ class ModelError(Exception):
             message = message[:cap - 3] + "..."
         self.coord = coord
         self.message = message
-        super().__init__(f"{coord}: {message}" if coord else message)
+        self.advice = "\n".join("  " + oneline(line.strip(), 4 * cap)
+                                for line in str(advice).splitlines()[:ADVICE_LINES]
+                                if line.strip())
+        first = f"{coord}: {message}" if coord else message
+        super().__init__(first + ("\n" + self.advice if self.advice else ""))
 
 
 class SimulationFailed(ModelError):

@@ -17,6 +17,11 @@ from bgc.run.progress import Progress
 
 @click.command("simulate")
 @click.argument("scene", type=click.Path())  # (as MODEL: bgc.base.safeio)
+@click.option("--t-end", type=float, default=None,
+              help="end time in s (default: the scene's; a model alone runs 10 s)")
+@click.option("--max-steps", type=int, default=None,
+              help="the most steps the run may take (default: the scene's solver max_steps, "
+                   "else 50000)")
 @click.option("--out", type=click.Path(), help="results .npz (t and outputs)")
 @click.option("--plot", "plot_dir", type=click.Path(), help="write PNG plots here")
 @click.option("--method", type=click.Choice(SOLVER_METHODS), default=None,
@@ -35,24 +40,25 @@ from bgc.run.progress import Progress
               help="refuse derivative causality (every storage element independent) instead of "
                    "eliminating the dependent storage elements")
 @click.option("-q", "--quiet", is_flag=True)
-def simulate_cmd(scene, out, plot_dir, method, rtol, atol, max_wall, backend, no_cache,
-                 strict_causality, quiet):
-    """Compile the scene's model (or take it from the compile cache) and simulate the scene."""
+def simulate_cmd(scene, t_end, max_steps, out, plot_dir, method, rtol, atol, max_wall, backend,
+                 no_cache, strict_causality, quiet):
+    """Compile the scene's model (or take it from the compile cache) and simulate the scene.
+    SCENE may also be a model file: it runs with its defaults for 10 s (or --t-end)."""
     from bgc.base.outfiles import check_folder, check_output, write_output
-    from bgc.format.scene import check_rtol, parse_scene
+    from bgc.format.scene import check_rtol
     from bgc.run.runner import run_scene
 
     if rtol is not None:  # finite, within the limits (bgc.base.limits): one line, exit 2
         check_rtol(rtol, None, "--rtol")
     prog = Progress(quiet)
-    sc = parse_scene(scene)
+    sc = _scene_or_model(scene, t_end, max_steps, prog)
     if out:  # refused before the run, not after it (the imports are known after it)
         check_output(out, model_inputs(scene, sc.model_path, follow=False), "--out")
     if plot_dir is not None:
         check_folder(plot_dir, "--plot")
     res = run_scene(sc, progress=prog, method=method, rtol=rtol, max_wall=max_wall,
                     atol=atol, backend=backend, use_cache=not no_cache,
-                    strict_causality=strict_causality)
+                    strict_causality=strict_causality, max_steps=max_steps)
     ins = model_inputs(scene, sc.model_path)
     figures = None
     if plot_dir is not None:  # every figure drawn before anything is written
@@ -73,11 +79,29 @@ def simulate_cmd(scene, out, plot_dir, method, rtol, atol, max_wall, backend, no
     if not no_cache:  # a later run of the same scene and options replays it (bgc.run.record)
         from bgc.run.record import keep, options_text
 
-        keep(scene, options_text(method, rtol, atol, max_wall, backend, strict_causality), res)
+        keep(scene, options_text(method, rtol, atol, max_wall, backend, strict_causality,
+                                 t_end=t_end, max_steps=max_steps), res)
     from bgc.run.progress import summary_line
 
     click.echo(summary_line(res.scene.name, res.t, res.method, res.rtol, res.atol, res.backend,
                             res.stats, res.compile_time, res.run_time))
+
+
+def _scene_or_model(path, t_end, max_steps, say):
+    """The scene file at path, or a model file as the scene of its defaults (bgc simulate
+    MODEL.yaml); --t-end and --max-steps checked (one located line each)."""
+    from bgc.format.scene import (MODEL_T_END, check_max_steps, is_model_file, model_scene,
+                                  parse_scene, with_t_end)
+
+    if max_steps is not None:
+        check_max_steps(max_steps, None, "--max-steps")
+    if is_model_file(path):
+        say(f"{path} is a model: simulating it with its defaults from 0 to "
+            f"{MODEL_T_END if t_end is None else t_end:g} s (a scene file chooses more)")
+        sc = model_scene(path)
+    else:
+        sc = parse_scene(path)
+    return sc if t_end is None else with_t_end(sc, t_end)
 
 
 @click.command("explain")
@@ -142,8 +166,11 @@ def _load_target(path, prog):
 @click.option("--bode", multiple=True, metavar="IN:OUT",
               help="a Bode plot of input IN to output OUT (names as in INPUT_LABELS, "
                    "OUTPUT_LABELS); repeatable; needs --out")
+@click.option("--freq-range", nargs=2, type=POSITIVE, default=None, metavar="FMIN FMAX",
+              help="the Bode plots' frequencies in Hz (default: two decades around the modes' "
+                   "natural frequencies, near-zero eigenvalues ignored)")
 @click.option("-q", "--quiet", is_flag=True)
-def linearize_cmd(target, at, out, bode, quiet):
+def linearize_cmd(target, at, out, bode, freq_range, quiet):
     """Linearise SCENE_OR_MODEL: eigenvalues with natural frequencies and damping ratios and
     the states that dominate each mode; matrices and Bode plots with --out."""
     from bgc.linear import bode_plot, modes, operating_point
@@ -165,11 +192,16 @@ def linearize_cmd(target, at, out, bode, quiet):
     with np.errstate(all="ignore"):
         try:
             t, x, where = operating_point(mod, at, p, None, t0, prog, " after Newton): "
-                                          "linearise at a time instead (--at TIME)")
+                                          "linearise at a time instead (--at TIME)",
+                                          on_equilibrium=lambda info: _warn_free(info, prog))
         except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
             raise ModelError(coord, f"no operating point found: the search failed ({exc}); is "
                                     "the right-hand side finite near the initial state?") from None
+    if freq_range is not None and not freq_range[0] < freq_range[1]:
+        raise ModelError(None, f"--freq-range {freq_range[0]:g} {freq_range[1]:g}: FMIN must "
+                               "be below FMAX")
     lin = guards.linearization(mod, t, x, p, coord, where)
+    _warn_unstable(lin[0], where, prog)
     ms = modes(lin[0], mod.STATE_NAMES)
     buf = io.StringIO()
     buf.write(f"linearised at {where}: {mod.N_STATES} states, {len(mod.INPUT_LABELS)} inputs, "
@@ -205,6 +237,32 @@ def linearize_cmd(target, at, out, bode, quiet):
             tmp = png.with_name(f".{png.stem}.tmp.png")
             bode_plot(tmp, lin, mod.INPUT_LABELS.index(i_name), mod.OUTPUT_LABELS.index(o_name),
                       i_name, o_name, iu.get(i_name.split("[")[0], ""),
-                      ou.get(o_name.split("[")[0], ""))
+                      ou.get(o_name.split("[")[0], ""), f_range=freq_range)
             tmp.replace(png)
             prog(f"wrote {png}")
+
+
+def _warn_free(info, say) -> None:
+    """A warning when the equilibrium is not isolated: directions along which no stiffness
+    holds the state (they keep the initial state's values, which the model's geometry may not
+    agree with: a closing spring's deflection and the angles it ties together)."""
+    free = [d for d in (info.free or []) if d]
+    if free:
+        names = ", ".join(sorted({nm for d in free for nm in d})[:6])
+        say(f"warning: the equilibrium is not isolated: {len(free)} free direction(s) ("
+            f"{names}) keep their initial values; check they agree with the model's geometry, "
+            "or start from a consistent state (bgc.linearize(..., x0=...))")
+
+
+def _warn_unstable(A, where, say) -> None:
+    """A warning line when the linearisation has growing modes (an equilibrium that is not
+    stable, or not an equilibrium the model can hold)."""
+    from bgc.linear import unstable_modes
+
+    grow = unstable_modes(A)
+    if grow:
+        lam = ", ".join(f"{v.real:+.3g}" + (f"+/-{v.imag:.3g}j" if v.imag > 0 else "")
+                        for v in grow[:4])
+        say(f"warning: {len(grow)} unstable mode(s) at {where} (eigenvalue {lam} 1/s): the "
+            "state grows away from it; check that it is the equilibrium you meant (an initial "
+            "guess: bgc.linearize(..., x0=...))")

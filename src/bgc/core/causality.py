@@ -121,10 +121,13 @@ class _Scap:
                 if n_imp > 1:
                     imp = [b for b, s in zip(bonds, states) if s]
                     origins = sorted({self.origin[b.id][0] for b in imp})
+                    what = "effort" if t == "0" else "flow"
+                    who = (f"{' and '.join(self.kind(o) for o in origins)} each impose its "
+                           f"{what}" if len(origins) > 1 else
+                           f"{self.kind(origins[0])} imposes its {what} through {len(imp)} "
+                           "bonds")
                     raise CausalConflict(el.coord, f"causal conflict at {self.kind(eid)}: "
-                                                   f"{' and '.join(self.kind(o) for o in origins)} "
-                                                   f"each impose its "
-                                                   f"{'effort' if t == '0' else 'flow'}", eid)
+                                                   f"{who}", eid)
                 if n_imp == 0 and bonds and all(st is False for st in states):
                     what = "effort" if t == "0" else "flow"
                     raise CausalConflict(el.coord, f"causal conflict at {self.kind(eid)}: every "
@@ -197,7 +200,8 @@ def assign_causality(bg: BondGraph, allow_derivative: bool = False) -> Causality
         except CausalConflict as err:
             loop = closed_loop(bg, err.at)
             if loop:
-                raise ModelError(err.coord, closed_loop_message(bg, loop, err.message)) from None
+                coord, message, advice = closed_loop_error(bg, loop, err.message)
+                raise ModelError(coord or err.coord, message, advice) from None
             if plain_err is not None:
                 raise plain_err from None
             raise
@@ -363,8 +367,9 @@ def closed_loop(bg: BondGraph, at: str) -> list[str]:
     return []
 
 
-def closed_loop_message(bg: BondGraph, loop: list[str], why: str) -> str:
-    """A closed kinematic loop: where, and the choice (one compliant coupling)."""
+def closed_loop_error(bg: BondGraph, loop: list[str], why: str):
+    """A closed kinematic loop: (where: the bond suggested for the compliant coupling, else
+    None; the message: the loop and why; the advice: how to close it)."""
     names = [x for x in loop if x != "ground"]
     # the connections between bodies on the loop: bonds whose ends lie in different instances
     joints = []
@@ -380,11 +385,19 @@ def closed_loop_message(bg: BondGraph, loop: list[str], why: str) -> str:
              else "one of its bonds")
     listed = ", ".join(names[:24]) + (f", ... ({len(names)} elements)" if len(names) > 24 else "")
     through = " (closed through the ground, its flow sources)" if "ground" in loop else ""
-    return (f"closed kinematic loop{through} through {listed}: {why}. Differentiating the "
-            "constraint cannot hold it at position level; close the loop with one compliant "
-            f"coupling, e.g. at {where}: a 0-junction with a 1-junction carrying a C (stiffness "
-            "k, say 1e6..1e8 for metal joints) in parallel with an R, in place of the rigid "
-            "connection (the `joint` component of bench/planar_chain.py; the paper's remedy)")
+    message = f"closed kinematic loop{through} through {listed}: {why}"
+    advice = ("Differentiating the constraint cannot hold it at position level.\n"
+              f"Close the loop with one compliant coupling, e.g. at {where}:\n"
+              "a 0-junction with a 1-junction carrying a C (stiffness k, say 1e6..1e8 for metal "
+              "joints) in parallel with an R, in place of the rigid connection\n"
+              "(the `joint` component of bench/planar_chain.py; the paper's remedy).")
+    return (pick.coord if pick else None), message, advice
+
+
+def closed_loop_message(bg: BondGraph, loop: list[str], why: str) -> str:
+    """The closed loop's message and advice as one text (for reports that are not errors)."""
+    _, message, advice = closed_loop_error(bg, loop, why)
+    return message + ". " + " ".join(advice.splitlines())
 
 
 def dependent_report(bg: BondGraph, caus: Causality, eqs=None) -> str:

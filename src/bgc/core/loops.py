@@ -10,6 +10,7 @@ while small, else by a numeric solve in the generated code (``LinSolve``).
 from __future__ import annotations
 
 import itertools
+import os
 
 import networkx as nx
 import sympy as sp
@@ -18,12 +19,12 @@ from bgc.base.errors import ModelError
 from bgc.core.context import Context
 from bgc.core.eqtypes import (
     SYMBOLIC_MAX,
-    T,
     Assignment,
     LinSolve,
     LinSolveEntry,
     NewtonLoop,
     NewtonSolve,
+    T,
     clean_derivative,
     is_trivial,
     real_symbol,
@@ -292,7 +293,9 @@ def _newton_loop(bg, g, defs, owner, comp, index, newton: list) -> str:
         outside |= sp.sympify(e).free_symbols - inner
     args = tuple(sorted(outside, key=str))
     c = _coord(bg, els[0])
-    where = f"{c}: " if c else ""
+    # the file's name, not its path: the message is printed into the generated module, which
+    # must not depend on where the model was compiled (as its "Source:" line)
+    where = f"{os.path.basename(c.file)}:{c.line}:{c.column}: " if c else ""
     X = real_symbol(f"_nl{k}")
     newton.append(NewtonLoop(f"_newton_{k}", tuple(tear), args, tuple(body), residual, jac,
                              tuple(G), tuple(rest),

@@ -534,8 +534,10 @@ def _check_unique(body: Body, inputs) -> dict:
         for it in items:
             if it.name in seen:
                 k0, c0 = seen[it.name]
-                raise ModelError(it.coord, f"duplicate name {it.name!r}: already a {k0} "
-                                           f"at line {c0.line}")
+                raise ModelError(it.coord, f"duplicate name {it.name!r}: already "
+                                           f"{'an' if k0[0] in 'aeiou' else 'a'} {k0} at line "
+                                           f"{c0.line} (parameters, inputs, elements, states and "
+                                           "outputs share one namespace)")
             seen[it.name] = (kind, it.coord)
     bnames: dict[str, Bond] = {}
     for b in body.bonds:

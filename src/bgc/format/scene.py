@@ -61,6 +61,7 @@ class Scene:
     initial: object = None
     initial_coord: Coord | None = None
     backend: str = "numpy"  # solver.backend: numpy, or c (the C step loop)
+    max_steps: int = 50_000  # solver.max_steps: the most steps a run may take (explicit methods)
 
 
 def parse_scene(path: str | Path) -> Scene:
@@ -86,7 +87,7 @@ def parse_scene(path: str | Path) -> Scene:
     params = _parameters(r, top)
     inputs = _inputs(r, top)
     outputs, output_coords = _outputs(r, top)
-    method, rtol, atol, dt, max_step, backend = _solver(r, top, t1 - t0)
+    method, rtol, atol, dt, max_step, backend, max_steps = _solver(r, top, t1 - t0)
     bps = ()
     if "breakpoints" in top:
         items = r.seq(top["breakpoints"][1], "breakpoints")
@@ -106,7 +107,7 @@ def parse_scene(path: str | Path) -> Scene:
                  dt, max_step, bps, tuple(plots), effects, desc, r.coord(root),
                  hashlib.sha256(text.encode()).hexdigest()[:16], free, output_coords,
                  r.coord(top["model"][1]), initial, initial_coord,
-                 backend)
+                 backend, max_steps)
 
 
 def _model_path(r: Reader, top: dict, path: str) -> str:
@@ -195,13 +196,17 @@ def _outputs(r: Reader, top: dict) -> tuple[tuple[str, ...], dict]:
 
 
 def _solver(r: Reader, top: dict, length: float) -> tuple:
-    """solver: (method, rtol, atol, dt, max_step, backend), each checked against the span."""
+    """solver: (method, rtol, atol, dt, max_step, backend, max_steps), each checked against
+    the span."""
     method, rtol, atol, dt, max_step = "Radau", 1e-6, 1e-9, None, float("inf")
-    backend = "numpy"
+    backend, max_steps = "numpy", Scene.max_steps
     if "solver" in top:
         sm = r.mapping(top["solver"][1], "solver")
-        require(r, sm, top["solver"][1], ("method", "rtol", "atol", "dt", "max_step", "backend"),
-                 "solver")
+        require(r, sm, top["solver"][1], ("method", "rtol", "atol", "dt", "max_step", "backend",
+                                           "max_steps"), "solver")
+        if "max_steps" in sm:
+            max_steps = check_max_steps(r.integer(sm["max_steps"][1], "max_steps"),
+                                        r.coord(sm["max_steps"][1]), "solver max_steps")
         if "backend" in sm:
             backend = r.string(sm["backend"][1], "backend")
             if backend not in BACKENDS:
@@ -223,7 +228,7 @@ def _solver(r: Reader, top: dict, length: float) -> tuple:
                     dt = v
                 else:
                     max_step = v
-    return method, rtol, atol, dt, max_step, backend
+    return method, rtol, atol, dt, max_step, backend, max_steps
 
 
 def _solver_number(r: Reader, sm: dict, key: str, length: float) -> float:
@@ -295,6 +300,58 @@ def _free(r: Reader, top: dict, params: dict) -> tuple[str, ...]:
             if f in free[:k]:
                 raise ModelError(r.coord(fn), f"free parameter {f!r} is listed twice")
     return free
+
+
+#: The most steps a run may be given (solver max_steps, --max-steps).
+MAX_STEPS_LIMIT = 10 ** 9
+
+#: The span `bgc simulate MODEL.yaml` runs a model over when no --t-end is given (s).
+MODEL_T_END = 10.0
+
+
+def check_max_steps(v: int, where, what: str) -> int:
+    """A step budget: a whole number from 1 to MAX_STEPS_LIMIT, else a located error."""
+    if not 1 <= v <= MAX_STEPS_LIMIT:
+        raise ModelError(where, f"{what} {v} is outside 1..{MAX_STEPS_LIMIT}")
+    return v
+
+
+def is_model_file(path) -> bool:
+    """Does the YAML file at path look like a model (a top-level ``bgc:`` key and no
+    ``bgc_scene:``)? Reading errors say False: the scene reader then reports them."""
+    try:
+        text = read_text_bounded(str(path), None, "scene file", LIMITS.scene_bytes)
+        root = Reader(str(path), text).compose()
+    except (ModelError, OSError):
+        return False
+    if not isinstance(root, yaml.MappingNode):
+        return False
+    keys = {k.value for k, _ in root.value if isinstance(k, yaml.ScalarNode)}
+    return "bgc" in keys and "bgc_scene" not in keys
+
+
+def model_scene(path, t_end: float | None = None) -> Scene:
+    """The scene `bgc simulate MODEL.yaml` runs: the model with its defaults (parameters,
+    inputs, every output), from t = 0 to t_end (default MODEL_T_END), Radau at the default
+    tolerances. The model is checked when it is compiled."""
+    path = str(path)
+    t1 = MODEL_T_END if t_end is None else t_end
+    return Scene(path, Path(path).stem, path, (0.0, float(t1)), {}, {}, (), "Radau", 1e-6, 1e-9,
+                 None, float("inf"), (), (), {}, "", Coord(path, 1, 1), "", (), {},
+                 Coord(path, 1, 1))
+
+
+def with_t_end(scene: Scene, t_end: float, where=None) -> Scene:
+    """The scene run to t_end instead of its own end (--t-end); a located error when t_end
+    is not after the start or beyond the limit of times."""
+    t0 = scene.t_span[0]
+    if not (t_end > t0 and abs(t_end) <= LIMITS.time_magnitude):
+        raise ModelError(where, f"--t-end {t_end:g} must be after the scene's start {t0:g} s "
+                                f"and within {LIMITS.time_magnitude:g} s")
+    if scene.dt and (t_end - t0) / scene.dt + 1 > LIMITS.output_samples:
+        raise ModelError(where, f"--t-end {t_end:g} with the scene's dt {scene.dt:g} gives more "
+                                f"than {LIMITS.output_samples} output samples (the limit)")
+    return dataclasses.replace(scene, t_span=(t0, float(t_end)))
 
 
 def _initial(r: Reader, node):

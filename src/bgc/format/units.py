@@ -4,7 +4,8 @@ A unit is untrusted text, read by a small tokenizer and recursive-descent parser
 ``eval``, no units library): symbols from a fixed table (``N``, ``kg``, ``Ohm``, ``rad``...),
 optionally with an SI prefix (``mm``, ``kN``, ``MPa``), joined by ``*``, ``/``, ``·`` or a
 space (``N s/m`` is ``N*s/m``), with powers ``^n`` or ``**n`` (an integer, a decimal such as
-``0.5`` or a fraction in parentheses, ``^(1/2)``) and parentheses. ``1`` is dimensionless.
+``0.5`` or a fraction in parentheses, ``^(1/2)``) and parentheses. ``1`` (or ``-`` alone) is
+dimensionless.
 Left to right: ``a/b*c`` is ``(a/b)*c``, ``a/b/c`` is ``a/(b*c)``.
 
 A dimension is a tuple of seven exponents (ints, Fractions where not whole) of :data:`BASE`
@@ -112,6 +113,8 @@ def parse_unit(text: str) -> tuple[float, Dim]:
         raise UnitError(f"unit is longer than {MAX_CHARS} characters")
     if not text.strip():
         raise UnitError("empty unit (write 1 for a dimensionless quantity)")
+    if text.strip() == "-":  # the engineers' mark of a dimensionless quantity, as 1
+        return 1.0, ZERO
     p = _Parser(_tokens(text), text)
     scale, d = p.product(0)
     if p.peek() is not None:

@@ -80,7 +80,8 @@ def plot_time(t, y, names, path, title="", labels=(), units=None):
 def _equal_3d(ax, pts):
     """Equal scales on the three axes of a 3-D plot around the points (3, N)."""
     lo, hi = pts.min(axis=1), pts.max(axis=1)
-    mid, half = (lo + hi) / 2, max(float(np.max(hi - lo)) / 2, 1e-12)
+    mid = (lo + hi) / 2  # (a path that hardly moves still gets a readable range)
+    half = max(float(np.max(hi - lo)) / 2, 1e-3 * float(np.max(np.abs(mid))), 1e-12)
     ax.set_xlim(mid[0] - half, mid[0] + half)
     ax.set_ylim(mid[1] - half, mid[1] + half)
     ax.set_zlim(mid[2] - half, mid[2] + half)
@@ -94,43 +95,64 @@ def _equal_3d(ax, pts):
 _STYLES = ["--", ":", "-", "-."]
 
 
-def plot_path3d(t, y, names, path, title="", labels=(), units=None):
+def figure_path3d(t, y, names, title="", labels=(), units=None):
+    """The path3d figure (not yet saved): a 3-D view and the view from above. Earlier paths
+    are drawn over later ones (the last, usually the actual path, is the widest and lies
+    underneath, half transparent), so a path that follows another closely stays visible."""
     plt = pyplot()
-    fig = plt.figure(figsize=(11, 5))
+    fig = plt.figure(figsize=(11.5, 5.4))
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     top = fig.add_subplot(1, 2, 2)
     for k, name in enumerate(names):
         a = np.asarray(y[name]).reshape(3, -1)
-        kw = dict(lw=1.8 if k == len(names) - 1 else 1.2, label=_label(labels, k, name))
+        last = k == len(names) - 1
+        kw = dict(lw=3.0 if last else 1.4, alpha=0.55 if last else 1.0,
+                  zorder=len(names) - k + 1, label=_label(labels, k, name))
         line, = ax.plot(a[0], a[1], a[2], _STYLES[k % 4], **kw)
         top.plot(a[0], a[1], _STYLES[k % 4], color=line.get_color(), **kw)
-        top.plot(a[0, :1], a[1, :1], "o", ms=4, color=line.get_color())
+        top.plot(a[0, :1], a[1, :1], "o", ms=4, color=line.get_color(), zorder=len(names) + 2)
     allpts = np.concatenate([np.asarray(y[n]).reshape(3, -1) for n in names], axis=1)
     _equal_3d(ax, allpts)
     u = {(units or {}).get(n, "") for n in names}
     u = u.pop() if len(u) == 1 else ""  # one unit for all paths: on the axes
-    ax.set_xlabel(_with_unit("X0", u))
-    ax.set_ylabel(_with_unit("Y0", u))
-    ax.set_zlabel(_with_unit("Z0", u))
+    u = u or "unit of the outputs"
+    _axes_3d(ax, u)
     ax.set_title("3-D view")
-    ax.legend(loc="upper left", fontsize=8)
     top.set_aspect("equal", adjustable="datalim")
     top.set_xlabel(_with_unit("X0", u))
     top.set_ylabel(_with_unit("Y0", u))
     top.set_title("seen from above (dots: start)")
+    top.legend(loc="best", fontsize=8)  # on the flat view: no 3-D line hides an entry
     fig.suptitle(plain_text(title or "path"))
-    fig.tight_layout()
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.94))
+    return fig
+
+
+def _axes_3d(ax, unit):
+    """X0, Y0, Z0 with the unit, the labels kept inside the figure (padded, smaller ticks)."""
+    ax.set_xlabel(_with_unit("X0", unit), labelpad=8)
+    ax.set_ylabel(_with_unit("Y0", unit), labelpad=8)
+    ax.set_zlabel(_with_unit("Z0", unit), labelpad=8)
+    ax.tick_params(labelsize=7)
+    ax.set_box_aspect((1, 1, 1), zoom=0.85)  # room for the z label inside the panel
+
+
+def plot_path3d(t, y, names, path, title="", labels=(), units=None):
+    plt = pyplot()
+    fig = figure_path3d(t, y, names, title, labels, units)
     fig.savefig(path, format="png")
     plt.close(fig)
 
 
-def plot_loci(t, y, names, path, title="", labels=(), units=None):
-    """Loci of the columns of a rotation matrix output (unit vectors)."""
+def figure_loci(t, y, names, title="", labels=(), units=None):
+    """The loci figure (not yet saved): the tips of the three columns of a rotation matrix
+    (unit vectors: dimensionless, "[-]" unless the output has a unit)."""
     plt = pyplot()
     (name,) = names[:1]
     R = np.asarray(y[name])
-    fig = plt.figure(figsize=(12, 4.4))
+    fig = plt.figure(figsize=(13, 5.0))
     cols = labels or ("i", "j", "k")
+    unit = (units or {}).get(name, "") or "-"
     for c in range(3):
         ax = fig.add_subplot(1, 3, c + 1, projection="3d")
         v = R[:, c, :]
@@ -138,13 +160,18 @@ def plot_loci(t, y, names, path, title="", labels=(), units=None):
         ax.scatter([v[0, 0]], [v[1, 0]], [v[2, 0]], color="green", s=14, label="start")
         ax.scatter([v[0, -1]], [v[1, -1]], [v[2, -1]], color="red", s=14, label="end")
         _equal_3d(ax, v)
-        ax.set_xlabel("X0")
-        ax.set_ylabel("Y0")
-        ax.set_zlabel("Z0")
-        ax.set_title(plain_text(f"unit vector {cols[c]} (column {c + 1} of {name})"))
-        ax.legend(fontsize=7)
+        _axes_3d(ax, unit)
+        ax.set_title(plain_text(f"unit vector {cols[c]}\n(column {c + 1} of {name})"), fontsize=9)
+        ax.legend(fontsize=7, loc="upper left")
     fig.suptitle(plain_text(title or f"loci of the unit vectors of {name}"))
-    fig.tight_layout()
+    fig.subplots_adjust(left=0.02, right=0.96, bottom=0.04, top=0.80, wspace=0.15)
+    return fig
+
+
+def plot_loci(t, y, names, path, title="", labels=(), units=None):
+    """Loci of the columns of a rotation matrix output (unit vectors)."""
+    plt = pyplot()
+    fig = figure_loci(t, y, names, title, labels, units)
     fig.savefig(path, format="png")
     plt.close(fig)
 

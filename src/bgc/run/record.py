@@ -33,14 +33,15 @@ from pathlib import Path
 from bgc.base import __version__
 
 #: Record format; bump when the record's fields change.
-FORMAT = 1
+FORMAT = 2
 TARGET = "run"
 
 #: `bgc simulate` options a record replays: (name, takes a value). Output options (``--out``,
 #: ``-q``) are not part of the key; anything else (``--plot``, ``--no-cache``, ``--help``, an
 #: unknown option) goes the full way.
 _VALUED = {"--out": "out", "--method": "method", "--rtol": "rtol", "--atol": "atol",
-           "--max-wall": "max_wall", "--backend": "backend"}
+           "--max-wall": "max_wall", "--backend": "backend", "--t-end": "t_end",
+           "--max-steps": "max_steps"}
 _FLAGS = {"-q": "quiet", "--quiet": "quiet", "--strict-causality": "strict_causality"}
 
 
@@ -77,11 +78,13 @@ def code_stamp() -> str:
     return "\n".join(out)
 
 
-def options_text(method, rtol, atol, max_wall, backend, strict_causality) -> str:
+def options_text(method, rtol, atol, max_wall, backend, strict_causality, t_end=None,
+                 max_steps=None) -> str:
     """The options that shape a run, one spelling per value (floats by repr)."""
     f = lambda v: "" if v is None else repr(float(v))  # noqa: E731
     return (f"method={method or ''};rtol={f(rtol)};atol={f(atol)};max_wall={f(max_wall)};"
-            f"backend={backend or ''};strict={bool(strict_causality)}")
+            f"backend={backend or ''};strict={bool(strict_causality)};t_end={f(t_end)};"
+            f"max_steps={'' if max_steps is None else int(max_steps)}")
 
 
 def record_key(scene_path: str, scene_bytes: bytes, options: str) -> str:
@@ -248,9 +251,11 @@ def _parse(argv: list[str]) -> dict | None:
     if not opts["scene"] or ("out" in opts and not opts["out"]):  # "--out=": the full way
         return None
     try:
-        for k in ("rtol", "atol", "max_wall"):
+        for k in ("rtol", "atol", "max_wall", "t_end"):
             if k in opts:
                 opts[k] = float(opts[k])
+        if "max_steps" in opts:
+            opts["max_steps"] = int(opts["max_steps"])
     except ValueError:
         return None
     return opts
@@ -274,7 +279,8 @@ def replay(argv: list[str]) -> int | None:
         store = Cache()
         options = options_text(opts.get("method"), opts.get("rtol"), opts.get("atol"),
                                opts.get("max_wall"), opts.get("backend"),
-                               opts.get("strict_causality", False))
+                               opts.get("strict_causality", False), opts.get("t_end"),
+                               opts.get("max_steps"))
         rec = load(store, record_key(scene, scene_bytes, options))
         if rec is None or rec["scene_digest"] != digest(scene_bytes):
             return None
@@ -334,7 +340,8 @@ def _run(rec: dict, opts: dict, store, entry, scene: str, t0: float) -> int | No
         res = mod.simulate(tuple(run["t_span"]), dt=run["dt"], method=method, rtol=rtol,
                            atol=atol, p=p, breakpoints=tuple(run["breakpoints"]),
                            x0=None if x0 is None else np.array(x0, dtype=float),
-                           max_step=run["max_step"], max_wall=run["max_wall"])
+                           max_step=run["max_step"], max_steps=run["max_steps"],
+                           max_wall=run["max_wall"])
     except mod.SimulationError as exc:
         return _failed(scene, mod, exc, p, opts)
     t2 = time.perf_counter()

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bgc.backends.load import load_module
+from bgc.run.steps import STEPS_PER_PERIOD, fastest_input, scene_max_step, stepped_over
 from bgc.base.errors import ModelError, SimulationFailed
 from bgc.format.scene import (
     Scene,
@@ -94,7 +95,7 @@ def _compiled(scene: Scene, progress=None, strict_causality: bool = False):
 
 def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=None,
               backend=None, use_cache: bool = True,
-              strict_causality: bool = False) -> SceneResult:
+              strict_causality: bool = False, max_steps: int | None = None) -> SceneResult:
     say = progress or (lambda msg: None)
     scene = path if isinstance(path, Scene) else parse_scene(path)
     from bgc.run.driver import build
@@ -110,13 +111,21 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
     from bgc.run.progress import simulating_line
 
     say(simulating_line(scene.name, method, backend, rtol, atol))
+    if backend == "c" and method not in getattr(mod, "C_METHODS", (method,)):
+        say(f"note: {method} runs in scipy's Python step loop, calling the C functions (little "
+            "faster than numpy); the C step loop runs Radau and Rodas4")
     dt = scene.dt or (scene.t_span[1] - scene.t_span[0]) / 1000
     p = runtime_params(scene, mod)
     x0 = initial_state(scene, mod, p)  # the scene's initial: values, or equilibrium
+    max_step = scene_max_step(scene, mod)
+    max_steps = scene.max_steps if max_steps is None else max_steps
+    if max_step < scene.max_step:
+        say(f"max_step {max_step:.3g} s: {STEPS_PER_PERIOD} steps per period of the input "
+            f"{fastest_input(mod)!r} (solver max_step in the scene overrides it)")
     try:
         res = mod.simulate(scene.t_span, dt=dt, method=method, rtol=rtol, atol=atol,
                            p=p, breakpoints=scene.breakpoints, x0=x0,
-                           max_step=scene.max_step, max_wall=max_wall)
+                           max_step=max_step, max_steps=max_steps, max_wall=max_wall)
     except mod.SimulationError as exc:
         # the diagnosis reads the model's equations: compiled now if the module came from
         # the cache (a failed run can afford it)
@@ -124,11 +133,14 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
         raise simulation_failed(c, mod, scene, exc, p) from None
     t2 = time.perf_counter()
     t, x, y = res
+    warning = stepped_over(mod, t, x, p, scene.breakpoints, res.stats.get("nsteps"))
+    if warning:
+        say(f"warning: {warning}")
     return SceneResult(scene, mod, t, x, y, res.stats, method, rtol, t1 - t0, t2 - t1,
                        backend, atol, entry, built.name,
                        dict(t_span=scene.t_span, dt=dt, method=method, rtol=rtol, atol=atol,
                             p=p, breakpoints=scene.breakpoints, x0=x0,
-                            max_step=scene.max_step, max_wall=max_wall),
+                            max_step=max_step, max_steps=max_steps, max_wall=max_wall),
                        tuple(getattr(res, "events", ())))
 
 

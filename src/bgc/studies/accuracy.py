@@ -8,7 +8,8 @@ What is measured (everything through the generated module's own ``simulate``):
 
 * a reference solution, computed two independent ways at ``ref_rtol`` (1e-12) with the
   analytic Jacobian: Radau and BDF when the scene is stiff, Radau and DOP853 when it is not
-  (stiff: the largest |eigenvalue| of the Jacobian at t0 times the span exceeds 1e3). Their
+  (stiff: the largest |eigenvalue| of the Jacobian, at t0 and along a loose pilot run before
+  its shortest steps and at evenly spread ones, times the span exceeds 1e3). Their
   disagreement bounds the smallest error the study can resolve;
 * for each method and tolerance (rtol; atol = rtol * atol_scale, the scene's atol/rtol ratio
   unless given): the largest error over time of every scene output, in its units; an overall,

@@ -78,7 +78,8 @@ def write_markdown(st: Study, path, images=(), inputs=None):
              f"{list(se.breakpoints) or 'none'}.\n")
     L.append(f"* Tolerances: rtol as listed, **atol = rtol x {s['atol_scale']:g}** "
              f"(the scene's atol/rtol ratio unless `--atol-scale` was given).")
-    L.append(f"* Stiffness index max|eig J(t0)| x span = {st.stiffness_index:.3g}: "
+    L.append(f"* Stiffness index max|eig J| (t0 and along a pilot run) x span = "
+             f"{st.stiffness_index:.3g}: "
              f"{'stiff' if st.stiff else 'not stiff'}.")
     L.append(f"* Reference: {s['ref_methods'][0]} at rtol {s['ref_rtol']:g}, atol "
              f"{s['ref_atol']:g}, analytic Jacobian ({st.refs[0].wall:.1f} s); checked with "

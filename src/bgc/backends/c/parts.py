@@ -21,6 +21,12 @@ PART_LINES = 250
 UNIT_PARTS = 4
 
 
+#: The end of a Newton loop's failure message (the C step loop appends the method and time).
+NEWTON_FAILURE = (" did not converge (damped Newton, 100 iterations). Check the laws' parameters"
+                  " and units for a solution there; a smaller max_step keeps the warm start"
+                  " close; a small compliance (C) or inertance (I) in the loop makes it a state")
+
+
 @dataclass(frozen=True)
 class CLine:
     target: str  # a local (const double NAME = ...) or an output slot ("" then)
@@ -223,8 +229,8 @@ class PartContext:
         return self.fail_messages.index(message) + 1
 
     def newton_message(self, k: int) -> str:
-        # exactly the numpy module's message (templates/numpy/module.py.j2)
-        return self.newton[k].where + " did not converge (Newton, 50 iterations)"
+        # the numpy module's message (templates/numpy/module.py.j2); the step loop adds when
+        return self.newton[k].where + NEWTON_FAILURE
 
     def linsolve_message(self, e) -> str:
         """What a singular numeric solve says: derivative causality's system (named by its

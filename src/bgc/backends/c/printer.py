@@ -151,6 +151,7 @@ def _newton_loops(ctx, printer) -> list[dict]:
     for k, nl in enumerate(ctx.newton):
         loops.append({
             "proto": protos[k], "n": len(nl.tear), "where": nl.where,
+            "args": [c_name(str(a)) for a in nl.args],
             "tear": [c_name(str(t)) for t in nl.tear],
             "body": [(c_name(str(sym)), printer.doprint(e)) for sym, e in nl.body],
             "residual": [printer.doprint(e) for e in nl.residual],

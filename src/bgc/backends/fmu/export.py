@@ -152,11 +152,14 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
     eq = compiled.equations
     if has_solves(eq):  # the FMU's model functions keep no per-instance workspace yet
         raise ModelError(None, f"model {eq.name!r}: the FMU export does not support numeric "
-                               "linear solves or nonlinear algebraic loops (Newton) yet")
+                               "linear solves or nonlinear algebraic loops (Newton) yet: make "
+                               "the loop a state (a small C or I in it), or run it with bgc "
+                               "simulate --backend c (docs/fmu.md)")
     tabs = [iv.name for iv in eq.inputs if getattr(iv, "table", None) is not None]
     if tabs:  # an input following its default would follow the placeholder 0, not the data
         raise ModelError(None, f"model {eq.name!r}: the FMU export does not support table "
-                               f"inputs yet (input {tabs[0]!r})")
+                               f"inputs yet (input {tabs[0]!r}): give the data to the importer "
+                               "as an input signal (docs/fmu.md)")
     printer = CPrinter()
     ctx = PartContext.inputs_as_params(low)  # the inputs are values in the parameter vector
     fns = {name: cut_parts(name, fn, printer, ctx) for name, fn in

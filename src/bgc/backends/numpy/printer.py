@@ -28,6 +28,7 @@ from bgc.base import __version__
 from bgc.base.errors import oneline
 from bgc.base.paths import templates_dir
 from bgc.core.eqtypes import Equations, T
+from bgc.core.signals import input_periods
 from bgc.lower import ir as lower
 
 _IDENT_OK = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_")
@@ -192,7 +193,8 @@ class BgcPrinter(NumPyPrinter):
 
     def _print_NewtonSolve(self, expr):
         k = int(expr.args[0])
-        return f"_newton_{k}({', '.join(self._print(a) for a in expr.args[1:])})"
+        # the first argument is the time of the call (the failure message says when)
+        return f"_newton_{k}(t, {', '.join(self._print(a) for a in expr.args[1:])})"
 
     def _print_LinSolveEntry(self, expr):
         return f"{self._print(expr.args[0])}[{int(expr.args[1])}]"
@@ -300,7 +302,8 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
         states=eq.states, params=params, derived=derived, inputs=inputs,
         input_params=input_params, outputs=outputs, rhs=rhs, jac=jac, outs=outs, init=init,
         jac_keys=jkeys, n=n, imports=imports, ujac=ujac, yjac=yjac,
-        tables=tables, input_labels=lin.input_labels, output_labels=lin.output_labels,
+        tables=tables, input_periods=input_periods(eq), input_labels=lin.input_labels,
+        output_labels=lin.output_labels,
         linsolve=getattr(printer, "uses_linsolve", False), newton=newton,
         all_param_symbols=[s for p in params for s in p["symbols"]] + [d.target for d in derived],
         runtime=runtime_source() + (f"\n\n\n{events_runtime_source()}" if events else ""),

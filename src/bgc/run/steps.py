@@ -1,0 +1,84 @@
+"""What a run's steps may miss: the step bound of a scene's periodic inputs, and the check
+after a run that its solution did not step over something its outputs show.
+
+An integrator judges its error only where its steps land. At a loose tolerance it can step over
+what happens within a fraction of an input's period (a rectifier's diode conducts for a
+millisecond of each 20 ms cycle) and return a smooth, wrong answer. A scene's periodic inputs
+therefore bound the step by default (:func:`scene_max_step`), and :func:`stepped_over` compares
+the solution with the model's own derivative along it (docs/model-format.md, "Scenes").
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+#: A periodic input bounds a scene's step to its period divided by this (docs/model-format.md).
+STEPS_PER_PERIOD = 50
+
+
+def scene_max_step(scene, mod) -> float:
+    """The step bound of a run: the scene's solver max_step when it gives one, else 1/50 of
+    the shortest period of the module's periodic inputs (INPUT_PERIODS), else none (inf)."""
+    if scene.max_step != float("inf"):
+        return scene.max_step
+    periods = getattr(mod, "INPUT_PERIODS", None) or {}
+    return min(periods.values()) / STEPS_PER_PERIOD if periods else float("inf")
+
+
+def fastest_input(mod) -> str:
+    """The periodic input with the shortest period ("" without any)."""
+    periods = getattr(mod, "INPUT_PERIODS", None) or {}
+    return min(periods, key=periods.get) if periods else ""
+
+
+def stepped_over(mod, t, x, p=None, breakpoints=(), nsteps=None) -> str | None:
+    """A warning when the run's solution misses something faster than its steps, else None.
+
+    The solution's own derivative (central differences on the output grid) is compared with
+    the model's, rhs(t, x(t)), along it: an integrator that stepped over a fast event (a diode's
+    conduction pulse, a contact) interpolates smoothly across it while the model's derivative
+    (and every output computed from it) shows the event. Where the two differ by more than half
+    the derivative's largest value over five samples in a row, away from breakpoints, and the
+    difference adds up to a twentieth of the state's range there, the run says when and for
+    which state. Only a run whose steps are on average longer than three output intervals
+    (nsteps, when given) can have stepped over something the output grid shows; shorter steps
+    and a coarse grid would only alias a fast oscillation."""
+    t = np.asarray(t, dtype=float)
+    if t.size < 5:
+        return None
+    if nsteps and (t[-1] - t[0]) / nsteps < 3 * (t[-1] - t[0]) / (t.size - 1):
+        return None
+    n, nt = np.shape(x)[0], t.size
+    X = np.asarray(x, dtype=float).reshape(n, -1, nt)
+    try:
+        with np.errstate(all="ignore"):
+            f = np.asarray(mod.rhs(t, X, p), dtype=float).reshape(n, -1, nt)
+    except Exception:  # noqa: BLE001 - a warning only: a model that cannot say, says nothing
+        return None
+    d = (X[..., 2:] - X[..., :-2]) / (t[2:] - t[:-2])
+    f = f[..., 1:-1]
+    scale = np.max(np.abs(f), axis=-1, keepdims=True)
+    bad = (np.abs(d - f) > 0.5 * scale) & (scale > 0) & np.isfinite(f)
+    tm = t[1:-1]
+    for b in breakpoints:  # a jump in an input: the difference quotient straddles it
+        bad &= ~(np.abs(tm - b) <= (t[-1] - t[0]) / (nt - 1) * 1.5)
+    # ... over 5 samples in a row, the difference of one sign (not a fast oscillation the
+    # output grid undersamples) and adding up to a twentieth of the state's range
+    w = 5
+    if bad.shape[-1] < w:
+        return None
+    def window(v):  # sums over w samples in a row
+        c = np.cumsum(np.concatenate([np.zeros(v.shape[:-1] + (1,)), v], axis=-1), axis=-1)
+        return c[..., w:] - c[..., :-w]
+    gap = (f - d) * np.gradient(tm)
+    added = np.abs(window(gap))
+    run = (window(bad.astype(float)) == w) & (added > 0.05 * np.ptp(X, axis=-1, keepdims=True)) \
+        & (added > 0.9 * window(np.abs(gap)))  # one sign: not an undersampled oscillation
+    if not run.any():
+        return None
+    i, _, k = (int(v[0]) for v in np.nonzero(run))
+    name = mod.STATE_NAMES[i] if i < len(mod.STATE_NAMES) else str(i)
+    return (f"the solution misses something faster than its steps near t = {tm[k + 1]:.6g} s: "
+            f"d{name}/dt of the model is {f.reshape(n, -1, nt - 2)[i].flat[k + 1]:.4g}, the "
+            f"solution's {d[i].flat[k + 1]:.4g} (outputs there show what the state never saw); "
+            "a smaller solver max_step resolves it")

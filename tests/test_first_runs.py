@@ -1,0 +1,310 @@
+"""What a newcomer's first runs trip over (issue 23): max_steps from a scene and from the
+command line, `bgc equations` on every model, `bgc simulate MODEL.yaml`, --t-end.
+
+References: the C step loop's own step count (a budget of 5 steps cannot cover a 5 s run that
+takes hundreds), the compiled modules' state lists (the equations must have the same states as
+the module `bgc compile` writes), and the closed form of the mass-spring-damper's static
+deflection (the run of the model alone must settle there).
+"""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bgc.backends.c import build as cbuild
+from bgc.format.scene import MODEL_T_END, is_model_file, model_scene, parse_scene
+
+ROOT = Path(__file__).resolve().parents[1]
+MODELS = sorted((ROOT / "models").glob("*.yaml"))
+HAS_C = cbuild.available() and bool(cbuild.runtime_sources())
+
+
+def _bgc(*args, cache_dir, timeout=600):
+    env = {"BGC_CACHE_DIR": str(cache_dir), "PYTHONPATH": str(ROOT / "src"),
+           "PATH": "/usr/bin:/bin"}
+    import os
+
+    env = {**os.environ, **env}
+    return subprocess.run([sys.executable, "-m", "bgc", *map(str, args)], capture_output=True,
+                          text=True, env=env, timeout=timeout, cwd=ROOT)
+
+
+def _scene(tmp_path, solver: str, model="msd.yaml") -> Path:
+    path = tmp_path / "s.yaml"
+    path.write_text(f"bgc_scene: 1\nmodel: {ROOT / 'models' / model}\nduration: 5.0\n"
+                    f"solver: {solver}\n")
+    return path
+
+
+def test_scene_max_steps_is_read_and_checked(tmp_path):
+    sc = parse_scene(_scene(tmp_path, "{method: Radau, max_steps: 123}"))
+    assert sc.max_steps == 123
+    assert parse_scene(_scene(tmp_path, "{method: Radau}")).max_steps == 50_000
+    for bad, what in (("0", "outside"), ("2.5", "whole number"), ("10000000000", "outside")):
+        from bgc.base.errors import ModelError
+
+        with pytest.raises(ModelError, match=what) as e:
+            parse_scene(_scene(tmp_path, f"{{max_steps: {bad}}}"))
+        assert e.value.coord.line == 4
+
+
+@pytest.mark.skipif(not HAS_C, reason="no C compiler")
+def test_max_steps_from_scene_and_command_line(tmp_path):
+    """The C step loop counts step attempts: 5 cannot cover the run (exit 1, the message says
+    max_steps), --max-steps 1000 on the command line overrides the scene and the run completes;
+    the record of that run replays only with the same option."""
+    scene = _scene(tmp_path, "{method: Radau, max_steps: 5, backend: c}")
+    cache = tmp_path / "cache"
+    few = _bgc("simulate", scene, cache_dir=cache)
+    assert few.returncode == 1 and "max_steps = 5" in few.stderr, few.stderr
+    many = _bgc("simulate", scene, "--max-steps", "1000", "--out", tmp_path / "a.npz",
+                cache_dir=cache)
+    assert many.returncode == 0, many.stderr
+    again = _bgc("simulate", scene, "--max-steps", "1000", "--out", tmp_path / "b.npz",
+                 cache_dir=cache)
+    assert again.returncode == 0 and "run record" in again.stderr
+    a, b = np.load(tmp_path / "a.npz"), np.load(tmp_path / "b.npz")
+    np.testing.assert_array_equal(a["position"], b["position"])
+    plain = _bgc("simulate", scene, cache_dir=cache)  # not the record of --max-steps 1000
+    assert plain.returncode == 1 and "max_steps = 5" in plain.stderr
+    bad = _bgc("simulate", scene, "--max-steps", "0", cache_dir=cache)
+    assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0
+    assert "--max-steps 0" in bad.stderr
+
+
+@pytest.mark.parametrize("path", MODELS, ids=[p.stem for p in MODELS])
+def test_equations_on_every_model(path):
+    """bgc.equations (what `bgc equations` prints) accepts every model in models/, rigid
+    connections included, with the states of the compiled golden module."""
+    import bgc
+
+    eq = bgc.equations(str(path))
+    assert len(eq.derivatives) == len(eq.states) > 0
+    golden = {}
+    for g in (ROOT / "generated").glob("*.py"):
+        text = g.read_text()
+        if f"Source: {path.name} (" in text[:500]:
+            golden = {"n": int(text.split("\nN_STATES = ", 1)[1].split("\n", 1)[0])}
+    if golden:
+        assert len(eq.states) == golden["n"]
+
+
+def test_equations_cli_on_a_rigid_model(tmp_path):
+    r = _bgc("equations", ROOT / "models" / "double_pendulum_rigid.yaml", cache_dir=tmp_path)
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    # four independent states (the rotational momenta and the angles); the translational
+    # inertias are eliminated, so they have no derivative line
+    assert sum(1 for ln in lines if ln.startswith("d") and "/dt = " in ln) == 4
+    assert not any(ln.startswith("dp_rod1__It") for ln in lines)
+
+
+def test_model_file_is_a_scene_of_its_defaults():
+    msd = ROOT / "models" / "msd.yaml"
+    assert is_model_file(msd) and not is_model_file(ROOT / "models" / "scenes" / "msd_step.yaml")
+    sc = model_scene(msd)
+    assert sc.t_span == (0.0, MODEL_T_END) and sc.model_path == str(msd) and not sc.inputs
+
+
+def test_simulate_a_model_file(tmp_path):
+    """`bgc simulate MODEL.yaml` says it is a model and runs its defaults (10 s, or --t-end):
+    the mass-spring-damper under its default force settles at F/k."""
+    import yaml
+
+    model = ROOT / "models" / "msd.yaml"
+    r = _bgc("simulate", model, "--out", tmp_path / "m.npz", cache_dir=tmp_path / "c")
+    assert r.returncode == 0, r.stderr
+    assert "is a model" in r.stderr and "10 s" in r.stderr
+    d = np.load(tmp_path / "m.npz")
+    assert d["t"][0] == 0.0 and d["t"][-1] == pytest.approx(10.0)
+    r2 = _bgc("simulate", model, "--t-end", "60", "--out", tmp_path / "n.npz",
+              cache_dir=tmp_path / "c")
+    assert r2.returncode == 0, r2.stderr
+    d = np.load(tmp_path / "n.npz")
+    assert d["t"][-1] == pytest.approx(60.0)
+    p = {k: v["value"] for k, v in yaml.safe_load(model.read_text())["parameters"].items()}
+    assert d["position"][-1] == pytest.approx(p["F0"] / p["k"], rel=1e-3)
+    bad = _bgc("simulate", model, "--t-end", "-1", cache_dir=tmp_path / "c")
+    assert bad.returncode == 2 and "--t-end" in bad.stderr
+
+
+# ---------------------------------------------------------------------------------------------
+# The quick-start's figures (bgc.run.plots), read as matplotlib objects before they are saved
+
+
+def _circle_outputs():
+    t = np.linspace(0.0, 4.0, 400)
+    w = 2 * np.pi / 4
+    desired = np.array([0.5 + 0.01 * np.cos(w * t), 0.01 * np.sin(w * t), 0.3 + 0 * t])
+    projected = desired + 1e-4
+    actual = desired + 2e-4 * np.sin(3 * w * t)
+    c, s = np.cos(w * t), np.sin(w * t)
+    R = np.array([[c, -s, 0 * t], [s, c, 0 * t], [0 * t, 0 * t, 1 + 0 * t]])
+    return t, {"p3_desired": desired, "p3_projected": projected, "p3": actual, "R4": R}
+
+
+def _inside(fig, artist):
+    """The artist's drawn extent lies within the figure (not cut at its edges)."""
+    fig.canvas.draw()
+    box, page = artist.get_window_extent(), fig.bbox
+    return box.x0 >= page.x0 - 1 and box.x1 <= page.x1 + 1 and box.y0 >= page.y0 - 1 \
+        and box.y1 <= page.y1 + 1
+
+
+def test_path3d_figure_axes_legend_and_labels():
+    from bgc.run.plots import figure_path3d
+
+    t, y = _circle_outputs()
+    units = {"p3": "m", "p3_desired": "m", "p3_projected": "m"}
+    fig = figure_path3d(t, y, ["p3_desired", "p3_projected", "p3"], "Circle: path of P3",
+                        ("desired", "projected desired", "actual"), units)
+    ax3, top = fig.axes
+    assert (ax3.get_xlabel(), ax3.get_ylabel(), ax3.get_zlabel()) == ("X0 [m]", "Y0 [m]",
+                                                                      "Z0 [m]")
+    assert (top.get_xlabel(), top.get_ylabel()) == ("X0 [m]", "Y0 [m]")
+    legend = top.get_legend()
+    assert [x.get_text() for x in legend.get_texts()] == ["desired", "projected desired",
+                                                         "actual"]
+    lines = {ln.get_label(): ln for ln in top.get_lines()}
+    # the projected path is drawn over the actual one, which is wider and half transparent
+    assert lines["projected desired"].get_zorder() > lines["actual"].get_zorder()
+    assert lines["actual"].get_alpha() < 1
+    for label in (ax3.zaxis.label, ax3.xaxis.label, top.yaxis.label):
+        assert _inside(fig, label), label.get_text()
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+
+
+def test_loci_figure_units_titles_apart_and_labels_inside():
+    from bgc.run.plots import figure_loci
+
+    t, y = _circle_outputs()
+    fig = figure_loci(t, y, ["R4"], "Circle: loci of the unit vectors of R4 (Fig. 8)",
+                      ("i4", "j4", "k4"), {"R4": "-"})
+    fig.canvas.draw()
+    sup = fig._suptitle.get_window_extent()
+    for ax in fig.axes:
+        assert (ax.get_xlabel(), ax.get_ylabel(), ax.get_zlabel()) == ("X0 [-]", "Y0 [-]",
+                                                                       "Z0 [-]")
+        title = ax.title.get_window_extent()
+        assert title.y1 < sup.y0 or title.x1 < sup.x0 or title.x0 > sup.x1  # apart
+        assert _inside(fig, ax.zaxis.label) and _inside(fig, ax.title)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+
+
+def test_norm_of_a_matrix_is_frobenius_and_names_share_one_namespace():
+    import bgc
+    from bgc.base.errors import ModelError
+
+    text = (ROOT / "models" / "msd.yaml").read_text()
+    pos = '  position: {expr: "q(spring)", unit: m}'
+    assert pos in text
+    eq = bgc.equations(text.replace(pos, pos + '\n  nrm: "norm([[1, 2], [3, q(spring)]])"'))
+    (nrm,) = [o.rhs for o in eq.outputs if str(o.lhs) == "nrm"]
+    q = [s for s in nrm.free_symbols][0]
+    for v in (0.0, 0.5, -2.0):  # the Frobenius norm, by numpy
+        assert float(nrm.subs(q, v)) == pytest.approx(np.linalg.norm([[1, 2], [3, v]], "fro"))
+    with pytest.raises(ModelError, match="already an element at line") as e:
+        bgc.equations(text.replace(pos, pos + '\n  mass: "1"'))
+    assert "one namespace" in str(e.value)
+
+
+CONTACT = """\
+bgc: 1
+name: contact
+description: a mass pushed onto a stiff wall (stiff only once it touches)
+parameters:
+  m: {value: 1.0, unit: kg}
+  F: {value: 1.0, unit: N}
+elements:
+  push: {type: Se, effort: "F"}
+  j: {type: "1"}
+  mass: {type: I, inertia: "m"}
+  wall: {type: C, effort: "where(q > 0.05, 1.0e7 * (q - 0.05), 0)"}
+bonds: [[push, j], [j, mass], [j, wall]]
+outputs:
+  x: {expr: "q(wall)", unit: m}
+"""
+
+
+def test_accuracy_judges_stiffness_along_the_run(tmp_path, monkeypatch):
+    """Free flight until x = 0.05 m (t = 0.32 s), then a 1e7 N/m wall: the Jacobian at t0 has
+    eigenvalues 0 (index 0), on the wall sqrt(1e7) = 3162 1/s (index 3162 over 1 s): stiff."""
+    from bgc.studies.accuracy import STIFF_THRESHOLD, prepare, is_stiff
+
+    monkeypatch.setenv("BGC_CACHE_DIR", str(tmp_path / "cache"))
+    (tmp_path / "contact.yaml").write_text(CONTACT)
+    scene = tmp_path / "s.yaml"
+    scene.write_text("bgc_scene: 1\nmodel: contact.yaml\nduration: 1.0\n"
+                     "solver: {rtol: 1.0e-6, atol: 1.0e-9}\n")
+    setup = prepare(str(scene))
+    x0 = setup.module.initial_state().reshape(-1)
+    J0 = np.asarray(setup.module.jacobian(0.0, x0)).reshape(2, 2)
+    assert np.max(np.abs(np.linalg.eigvals(J0))) == 0.0  # t0 alone says: not stiff
+    stiff, index = is_stiff(setup)
+    assert stiff and index > STIFF_THRESHOLD
+    assert index == pytest.approx(np.sqrt(1e7) * 1.0, rel=1e-6)
+
+
+# ---------------------------------------------------------------------------------------------
+# Linearisation: an initial guess, unstable modes said, the Bode range
+
+
+def test_linearize_takes_an_initial_guess():
+    """The pendulum has two equilibria: hanging (theta = 0, modes +/- j sqrt(g/l)) and upright
+    (theta = pi, modes +/- sqrt(g/l)); x0 chooses which one Newton finds."""
+    import bgc
+    from bgc.linear import unstable_modes
+
+    path = str(ROOT / "models" / "pendulum.yaml")
+    mod = bgc.compile(path)
+    k = list(mod.STATE_NAMES).index("gravity.q")
+    w = np.sqrt(9.81 / 1.0)
+    for theta, stable in ((0.4, True), (2.8, False)):
+        x0 = np.zeros(len(mod.STATE_NAMES))
+        x0[k] = theta
+        lin = bgc.linearize(mod, x0=x0)
+        assert float(lin.x[k]) == pytest.approx(0.0 if stable else np.pi, abs=1e-9)
+        lam = np.linalg.eigvals(lin.A)
+        if stable:
+            np.testing.assert_allclose(sorted(lam.imag), [-w, w], rtol=1e-9)
+            assert not unstable_modes(lin.A)
+        else:
+            np.testing.assert_allclose(sorted(lam.real), [-w, w], rtol=1e-9)
+            assert [v.real for v in unstable_modes(lin.A)] == pytest.approx([w], rel=1e-9)
+
+
+def test_bode_range_ignores_near_zero_eigenvalues():
+    from bgc.linear import bode_range
+
+    # a free integrator (eigenvalue 0, and one at round-off) beside a 10 rad/s oscillator
+    A = np.array([[0.0, 0, 0, 0], [0, -1e-19, 0, 0], [0, 0, 0, 1], [0, 0, -100.0, -1]])
+    lo, hi = bode_range(A)
+    f = 10.0 / (2 * np.pi)
+    assert lo == pytest.approx(f / 100) and hi == pytest.approx(f * 100)
+
+
+def test_linearize_cli_warns_of_unstable_modes_and_takes_a_freq_range(tmp_path):
+    """msd with a negative stiffness: the equilibrium F0/k is unstable, lambda = -1 + sqrt(101)
+    (lambda^2 + (c/m) lambda + k/m = 0 with m = 2, c = 4, k = -200)."""
+    text = (ROOT / "models" / "msd.yaml").read_text()
+    old = "k:  {value: 200.0, unit: N/m, min: 0,"
+    assert old in text
+    model = tmp_path / "neg.yaml"
+    model.write_text(text.replace(old, "k:  {value: -200.0, unit: N/m,"))
+    r = _bgc("linearize", model, "--out", tmp_path / "lin", "--bode", "F:position",
+             "--freq-range", "0.01", "100", cache_dir=tmp_path / "c")
+    assert r.returncode == 0, r.stderr
+    lam = -1 + np.sqrt(101)
+    assert "warning: 1 unstable mode(s)" in r.stderr and f"{lam:+.3g}" in r.stderr
+    assert (tmp_path / "lin" / "bode_F_position.png").stat().st_size > 1000
+    bad = _bgc("linearize", model, "--out", tmp_path / "lin", "--bode", "F:position",
+               "--freq-range", "100", "1", cache_dir=tmp_path / "c")
+    assert bad.returncode == 2 and "--freq-range" in bad.stderr
