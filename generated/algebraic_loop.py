@@ -84,13 +84,13 @@ JAC_SPARSITY[
 ] = True
 
 
-def _unpack(P):
+def _unpack(_P):
     """Parameter dict -> flat tuple of values (matrix entries, then derived parameters)."""
-    V0 = P['V0']
-    R1 = P['R1']
-    R2 = P['R2']
-    R3 = P['R3']
-    C1 = P['C1']
+    V0 = _P['V0']
+    R1 = _P['R1']
+    R2 = _P['R2']
+    R3 = _P['R3']
+    C1 = _P['C1']
     _vals = (V0, R1, R2, R3, C1, )
     _bshape = np.broadcast_shapes(*(np.shape(_v) for _v in _vals))
     return _vals, _bshape
@@ -101,7 +101,13 @@ class _Unpacked(tuple):
     take it in place of a dict, so simulate unpacks the overrides once, not at every call."""
 
 
-_P0 = _Unpacked(_unpack(PARAM_DEFAULTS))
+def _floats(P):
+    """Parameter values as numpy floats: a power or product that overflows gives inf (then
+    the non-finite diagnosis), where Python's float arithmetic would raise OverflowError."""
+    return {k: np.asarray(v, dtype=float) if np.ndim(v) else np.float64(v) for k, v in P.items()}
+
+
+_P0 = _Unpacked(_unpack(_floats(PARAM_DEFAULTS)))
 
 
 def _params(p, xp=np):
@@ -116,7 +122,7 @@ def _params(p, xp=np):
     unknown = set(p) - set(PARAM_DEFAULTS)
     if unknown:
         raise KeyError("unknown parameter(s): " + ", ".join(sorted(unknown)))
-    return _Unpacked(_unpack({**PARAM_DEFAULTS, **{k: np.asarray(v, dtype=float) if np.ndim(v) else v for k, v in p.items()}}))
+    return _Unpacked(_unpack(_floats({**PARAM_DEFAULTS, **p})))
 
 
 def _inputs(t, _pv, u, xp=np):
@@ -133,9 +139,9 @@ def initial_state(p=None):
     """The initial state x0 (n, *batch) from the parameters."""
     _pv, _bshape = _params(p)
 
-    x0 = np.empty((1,) + _bshape)
-    x0[0] = 0
-    return x0
+    _x0 = np.empty((1,) + _bshape)
+    _x0[0] = 0
+    return _x0
 
 
 X0 = initial_state()
@@ -165,9 +171,9 @@ def rhs(t, x, p=None, u=None):
     # load_R (R): flow = e / r (algebraic loop, solved)
     f_b6 = _c0*(u_Vs - e_b7 - _c2*_c3*u_Vs)/(1 + _c0*(R1 - _c1*_c3*R1*R1))
 
-    dx = xp.empty((1,) + np.broadcast_shapes(x.shape[1:], _bshape), device=_device(x))
-    dx[0, ...] = f_b6
-    return dx
+    _dx = xp.empty((1,) + np.broadcast_shapes(x.shape[1:], _bshape), device=_device(x))
+    _dx[0, ...] = f_b6
+    return _dx
 
 
 def jacobian(t, x, p=None, u=None):
@@ -185,10 +191,10 @@ def jacobian(t, x, p=None, u=None):
     _c1 = 1/R2
     _d1 = -_c0*_d0/(1 + _c0*(-_c1*R1*R1/(1 + _c1*R1) + R1))
 
-    J = xp.zeros((1, 1) + np.broadcast_shapes(x.shape[1:], _bshape),
+    _J = xp.zeros((1, 1) + np.broadcast_shapes(x.shape[1:], _bshape),
                  device=_device(x))
-    J[0, 0, ...] = _d1
-    return J
+    _J[0, 0, ...] = _d1
+    return _J
 
 
 def outputs(t, x, p=None, u=None):
@@ -248,9 +254,9 @@ def input_jacobian(t, x, p=None, u=None):
     _c3 = 1/(1 + _c2)
     _du0 = _c0*(1 - _c2*_c3)/(1 + _c0*(-_c1*_c3*R1*R1 + R1))
 
-    B = np.zeros((1, 1) + np.broadcast_shapes(x.shape[1:], _bshape))
-    B[0, 0] = _du0
-    return B
+    _B = np.zeros((1, 1) + np.broadcast_shapes(x.shape[1:], _bshape))
+    _B[0, 0] = _du0
+    return _B
 
 
 def output_jacobian(t, x, p=None, u=None):
@@ -286,18 +292,18 @@ def output_jacobian(t, x, p=None, u=None):
     _du3 = _c8
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
-    C = np.zeros((5, 1) + _bs)
-    D = np.zeros((5, 1) + _bs)
-    C[0, 0] = _dx0
-    C[1, 0] = _dx2
-    C[2, 0] = _dx1
-    C[3, 0] = _dx3
-    C[4, 0] = _dx4
-    D[1, 0] = _du1
-    D[2, 0] = _du0
-    D[3, 0] = _du2
-    D[4, 0] = _du3
-    return C, D
+    _C = np.zeros((5, 1) + _bs)
+    _D = np.zeros((5, 1) + _bs)
+    _C[0, 0] = _dx0
+    _C[1, 0] = _dx2
+    _C[2, 0] = _dx1
+    _C[3, 0] = _dx3
+    _C[4, 0] = _dx4
+    _D[1, 0] = _du1
+    _D[2, 0] = _du0
+    _D[3, 0] = _du2
+    _D[4, 0] = _du3
+    return _C, _D
 
 
 class SimulationError(RuntimeError):
@@ -444,6 +450,49 @@ def _nonfinite(method, what, t, y, values, shape, stats):
 MAX_OUTPUT_SAMPLES = 1_000_000
 MAX_BATCH = 1_000_000
 MAX_RESULT_VALUES = 500_000_000
+
+
+def _guard_solves(solver, method, stats, shape):
+    """Radau and BDF solve linear systems in their Newton iterations from values the rhs
+    checks never see (the iterates' combinations): a system that is not finite (a state grown
+    past the double range) stops the run with a NonFiniteError naming the state's equation,
+    as Rodas4 and the C backend do, where scipy's LU would raise ValueError."""
+    factor, solve = getattr(solver, "lu", None), getattr(solver, "solve_lu", None)
+    if factor is None or solve is None:
+        return
+
+    def checked_factor(A):
+        import scipy.sparse as sps
+
+        diag = A.diagonal() if sps.issparse(A) else np.diag(A)
+        if not _all_finite(A.data if sps.issparse(A) else A):
+            raise _newton_nonfinite(method, solver, diag, shape, _counts(stats, solver))
+        return factor(A)
+
+    def checked_solve(LU, b):
+        if not _all_finite(b):
+            raise _newton_nonfinite(method, solver, b, shape, _counts(stats, solver))
+        return solve(LU, b)
+
+    solver.lu, solver.solve_lu = checked_factor, checked_solve
+
+
+def _newton_nonfinite(method, solver, values, shape, stats):
+    """The NonFiniteError for a linear system of the Newton iteration that is not finite."""
+    nb = int(np.prod(shape[1:]))
+    bad = np.flatnonzero(~np.isfinite(np.asarray(values).ravel()))
+    k = int(bad[0]) if bad.size else 0
+    i, b = divmod(k % (N_STATES * nb), nb)
+    x = np.asarray(solver.y, dtype=float).reshape(N_STATES, nb)[:, b]
+    big = int(np.argmax(np.where(np.isfinite(x), np.abs(x), np.inf)))
+    where = f" in batch instance {b}" if nb > 1 else ""
+    part = (f"the Newton iteration is not finite in the equation of state {i} "
+            f"{STATE_NAMES[i]!r} (element {STATE_OWNERS[i]!r}): the state grows without bound "
+            f"({STATE_NAMES[big]!r} = {x[big]:g})")
+    err = _error(NonFiniteError, f"{method} failed at t = {solver.t:.6g}{where}: {part}",
+                 solver.t, stats)
+    err.where, err.index, err.x, err.instance = "rhs", i, x, b
+    return err
 
 
 def _batched(x0, p):
@@ -959,6 +1008,7 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
             solver = solver_class(
                 _flat_rhs(at, shape, p, u, stats, method), a, y, c, rtol=rtol, atol=atol,
                 max_step=max_step, **_jacobian_options(method, jac, at, shape, p, u, stats))
+            _guard_solves(solver, method, stats, shape)
             while solver.status == "running":
                 message = solver.step()
                 if solver.status == "failed":

@@ -143,24 +143,24 @@ JAC_SPARSITY[
 ] = True
 
 
-def _unpack(P):
+def _unpack(_P):
     """Parameter dict -> flat tuple of values (matrix entries, then derived parameters)."""
-    g = P['g']
-    m1 = P['m1']
-    l1 = P['l1']
-    th1_0 = P['th1_0']
-    w1_0 = P['w1_0']
-    c1 = P['c1']
-    m2 = P['m2']
-    l2 = P['l2']
-    th2_0 = P['th2_0']
-    w2_0 = P['w2_0']
-    c2 = P['c2']
-    tau0 = P['tau0']
-    rod1__vx0 = P['rod1.vx0']
-    rod1__vy0 = P['rod1.vy0']
-    rod2__vx0 = P['rod2.vx0']
-    rod2__vy0 = P['rod2.vy0']
+    g = _P['g']
+    m1 = _P['m1']
+    l1 = _P['l1']
+    th1_0 = _P['th1_0']
+    w1_0 = _P['w1_0']
+    c1 = _P['c1']
+    m2 = _P['m2']
+    l2 = _P['l2']
+    th2_0 = _P['th2_0']
+    w2_0 = _P['w2_0']
+    c2 = _P['c2']
+    tau0 = _P['tau0']
+    rod1__vx0 = _P['rod1.vx0']
+    rod1__vy0 = _P['rod1.vy0']
+    rod2__vx0 = _P['rod2.vx0']
+    rod2__vy0 = _P['rod2.vy0']
     _vals = (g, m1, l1, th1_0, w1_0, c1, m2, l2, th2_0, w2_0, c2, tau0, rod1__vx0, rod1__vy0, rod2__vx0, rod2__vy0, )
     _bshape = np.broadcast_shapes(*(np.shape(_v) for _v in _vals))
     return _vals, _bshape
@@ -171,7 +171,13 @@ class _Unpacked(tuple):
     take it in place of a dict, so simulate unpacks the overrides once, not at every call."""
 
 
-_P0 = _Unpacked(_unpack(PARAM_DEFAULTS))
+def _floats(P):
+    """Parameter values as numpy floats: a power or product that overflows gives inf (then
+    the non-finite diagnosis), where Python's float arithmetic would raise OverflowError."""
+    return {k: np.asarray(v, dtype=float) if np.ndim(v) else np.float64(v) for k, v in P.items()}
+
+
+_P0 = _Unpacked(_unpack(_floats(PARAM_DEFAULTS)))
 
 
 def _params(p, xp=np):
@@ -186,7 +192,7 @@ def _params(p, xp=np):
     unknown = set(p) - set(PARAM_DEFAULTS)
     if unknown:
         raise KeyError("unknown parameter(s): " + ", ".join(sorted(unknown)))
-    return _Unpacked(_unpack({**PARAM_DEFAULTS, **{k: np.asarray(v, dtype=float) if np.ndim(v) else v for k, v in p.items()}}))
+    return _Unpacked(_unpack(_floats({**PARAM_DEFAULTS, **p})))
 
 
 def _inputs(t, _pv, u, xp=np):
@@ -211,12 +217,12 @@ def initial_state(p=None):
     th2_0 = _pv[8]
     w2_0 = _pv[9]
 
-    x0 = np.empty((4,) + _bshape)
-    x0[0] = (1/12)*m1*w1_0*l1*l1
-    x0[1] = (1/12)*m2*w2_0*l2*l2
-    x0[2] = th1_0
-    x0[3] = th2_0
-    return x0
+    _x0 = np.empty((4,) + _bshape)
+    _x0[0] = (1/12)*m1*w1_0*l1*l1
+    _x0[1] = (1/12)*m2*w2_0*l2*l2
+    _x0[2] = th1_0
+    _x0[3] = th2_0
+    return _x0
 
 
 X0 = initial_state()
@@ -405,12 +411,12 @@ def rhs(t, x, p=None, u=None):
     # 1-junction rod1.w: effort balance
     e_rod1__b3 = _c19 - e_rod1__b4 - e_rod1__b8
 
-    dx = xp.empty((4,) + np.broadcast_shapes(x.shape[1:], _bshape), device=_device(x))
-    dx[0, ...] = e_rod1__b3
-    dx[1, ...] = e_rod2__b3
-    dx[2, ...] = f_rod1__b3
-    dx[3, ...] = f_rod2__b3
-    return dx
+    _dx = xp.empty((4,) + np.broadcast_shapes(x.shape[1:], _bshape), device=_device(x))
+    _dx[0, ...] = e_rod1__b3
+    _dx[1, ...] = e_rod2__b3
+    _dx[2, ...] = f_rod1__b3
+    _dx[3, ...] = f_rod2__b3
+    return _dx
 
 
 def jacobian(t, x, p=None, u=None):
@@ -823,19 +829,19 @@ def jacobian(t, x, p=None, u=None):
     _d179 = -_d167 - _d175
     _d180 = -_d168 - _d176
 
-    J = xp.zeros((4, 4) + np.broadcast_shapes(x.shape[1:], _bshape),
+    _J = xp.zeros((4, 4) + np.broadcast_shapes(x.shape[1:], _bshape),
                  device=_device(x))
-    J[0, 0, ...] = _d177
-    J[0, 1, ...] = _d178
-    J[0, 2, ...] = _d179
-    J[0, 3, ...] = _d180
-    J[1, 0, ...] = _d163
-    J[1, 1, ...] = _d164
-    J[1, 2, ...] = -_d161
-    J[1, 3, ...] = -_d162
-    J[2, 0, ...] = _d0
-    J[3, 1, ...] = _d2
-    return J
+    _J[0, 0, ...] = _d177
+    _J[0, 1, ...] = _d178
+    _J[0, 2, ...] = _d179
+    _J[0, 3, ...] = _d180
+    _J[1, 0, ...] = _d163
+    _J[1, 1, ...] = _d164
+    _J[1, 2, ...] = -_d161
+    _J[1, 3, ...] = -_d162
+    _J[2, 0, ...] = _d0
+    _J[3, 1, ...] = _d2
+    return _J
 
 
 def outputs(t, x, p=None, u=None):
@@ -1104,10 +1110,10 @@ def input_jacobian(t, x, p=None, u=None):
     _du22 = -_c5*_du21 + _c2*_du17
     _du23 = 1 - _du20 - _du22
 
-    B = np.zeros((4, 1) + np.broadcast_shapes(x.shape[1:], _bshape))
-    B[0, 0] = _du23
-    B[1, 0] = -_du19
-    return B
+    _B = np.zeros((4, 1) + np.broadcast_shapes(x.shape[1:], _bshape))
+    _B[0, 0] = _du23
+    _B[1, 0] = -_du19
+    return _B
 
 
 def output_jacobian(t, x, p=None, u=None):
@@ -1416,39 +1422,39 @@ def output_jacobian(t, x, p=None, u=None):
     _du5 = -m1*_du3
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
-    C = np.zeros((12, 4) + _bs)
-    D = np.zeros((12, 1) + _bs)
-    C[0, 2] = 1
-    C[1, 0] = _dx0
-    C[2, 0] = _c40
-    C[2, 2] = _c41
-    C[3, 0] = _c42
-    C[3, 2] = _c43
-    C[4, 3] = 1
-    C[5, 1] = _dx18
-    C[6, 0] = _dx12
-    C[6, 1] = -_dx19
-    C[6, 2] = _dx13
-    C[6, 3] = -_dx20
-    C[7, 0] = _dx16
-    C[7, 1] = -_dx21
-    C[7, 2] = _dx17
-    C[7, 3] = -_dx22
-    C[8, 0] = _dx10
-    C[8, 2] = _dx11
-    C[9, 0] = _dx14
-    C[9, 2] = _dx15
-    C[10, 0] = _dx119
-    C[10, 1] = _dx120
-    C[10, 2] = _dx121
-    C[10, 3] = _dx122
-    C[11, 0] = _dx123
-    C[11, 1] = _dx124
-    C[11, 2] = _dx125
-    C[11, 3] = _dx126
-    D[10, 0] = _du4
-    D[11, 0] = _du5
-    return C, D
+    _C = np.zeros((12, 4) + _bs)
+    _D = np.zeros((12, 1) + _bs)
+    _C[0, 2] = 1
+    _C[1, 0] = _dx0
+    _C[2, 0] = _c40
+    _C[2, 2] = _c41
+    _C[3, 0] = _c42
+    _C[3, 2] = _c43
+    _C[4, 3] = 1
+    _C[5, 1] = _dx18
+    _C[6, 0] = _dx12
+    _C[6, 1] = -_dx19
+    _C[6, 2] = _dx13
+    _C[6, 3] = -_dx20
+    _C[7, 0] = _dx16
+    _C[7, 1] = -_dx21
+    _C[7, 2] = _dx17
+    _C[7, 3] = -_dx22
+    _C[8, 0] = _dx10
+    _C[8, 2] = _dx11
+    _C[9, 0] = _dx14
+    _C[9, 2] = _dx15
+    _C[10, 0] = _dx119
+    _C[10, 1] = _dx120
+    _C[10, 2] = _dx121
+    _C[10, 3] = _dx122
+    _C[11, 0] = _dx123
+    _C[11, 1] = _dx124
+    _C[11, 2] = _dx125
+    _C[11, 3] = _dx126
+    _D[10, 0] = _du4
+    _D[11, 0] = _du5
+    return _C, _D
 
 
 class SimulationError(RuntimeError):
@@ -1595,6 +1601,49 @@ def _nonfinite(method, what, t, y, values, shape, stats):
 MAX_OUTPUT_SAMPLES = 1_000_000
 MAX_BATCH = 1_000_000
 MAX_RESULT_VALUES = 500_000_000
+
+
+def _guard_solves(solver, method, stats, shape):
+    """Radau and BDF solve linear systems in their Newton iterations from values the rhs
+    checks never see (the iterates' combinations): a system that is not finite (a state grown
+    past the double range) stops the run with a NonFiniteError naming the state's equation,
+    as Rodas4 and the C backend do, where scipy's LU would raise ValueError."""
+    factor, solve = getattr(solver, "lu", None), getattr(solver, "solve_lu", None)
+    if factor is None or solve is None:
+        return
+
+    def checked_factor(A):
+        import scipy.sparse as sps
+
+        diag = A.diagonal() if sps.issparse(A) else np.diag(A)
+        if not _all_finite(A.data if sps.issparse(A) else A):
+            raise _newton_nonfinite(method, solver, diag, shape, _counts(stats, solver))
+        return factor(A)
+
+    def checked_solve(LU, b):
+        if not _all_finite(b):
+            raise _newton_nonfinite(method, solver, b, shape, _counts(stats, solver))
+        return solve(LU, b)
+
+    solver.lu, solver.solve_lu = checked_factor, checked_solve
+
+
+def _newton_nonfinite(method, solver, values, shape, stats):
+    """The NonFiniteError for a linear system of the Newton iteration that is not finite."""
+    nb = int(np.prod(shape[1:]))
+    bad = np.flatnonzero(~np.isfinite(np.asarray(values).ravel()))
+    k = int(bad[0]) if bad.size else 0
+    i, b = divmod(k % (N_STATES * nb), nb)
+    x = np.asarray(solver.y, dtype=float).reshape(N_STATES, nb)[:, b]
+    big = int(np.argmax(np.where(np.isfinite(x), np.abs(x), np.inf)))
+    where = f" in batch instance {b}" if nb > 1 else ""
+    part = (f"the Newton iteration is not finite in the equation of state {i} "
+            f"{STATE_NAMES[i]!r} (element {STATE_OWNERS[i]!r}): the state grows without bound "
+            f"({STATE_NAMES[big]!r} = {x[big]:g})")
+    err = _error(NonFiniteError, f"{method} failed at t = {solver.t:.6g}{where}: {part}",
+                 solver.t, stats)
+    err.where, err.index, err.x, err.instance = "rhs", i, x, b
+    return err
 
 
 def _batched(x0, p):
@@ -2110,6 +2159,7 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
             solver = solver_class(
                 _flat_rhs(at, shape, p, u, stats, method), a, y, c, rtol=rtol, atol=atol,
                 max_step=max_step, **_jacobian_options(method, jac, at, shape, p, u, stats))
+            _guard_solves(solver, method, stats, shape)
             while solver.status == "running":
                 message = solver.step()
                 if solver.status == "failed":

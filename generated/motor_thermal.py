@@ -160,26 +160,26 @@ JAC_SPARSITY[
 ] = True
 
 
-def _unpack(P):
+def _unpack(_P):
     """Parameter dict -> flat tuple of values (matrix entries, then derived parameters)."""
-    V0 = P['V0']
-    R_a = P['R_a']
-    alpha = P['alpha']
-    L_a = P['L_a']
-    K = P['K']
-    J_m = P['J_m']
-    b_m = P['b_m']
-    N = P['N']
-    k_s = P['k_s']
-    c_s = P['c_s']
-    J_L = P['J_L']
-    b_L = P['b_L']
-    tau_L = P['tau_L']
-    eta = P['eta']
-    C_w = P['C_w']
-    R_wh = P['R_wh']
-    C_h = P['C_h']
-    R_ha = P['R_ha']
+    V0 = _P['V0']
+    R_a = _P['R_a']
+    alpha = _P['alpha']
+    L_a = _P['L_a']
+    K = _P['K']
+    J_m = _P['J_m']
+    b_m = _P['b_m']
+    N = _P['N']
+    k_s = _P['k_s']
+    c_s = _P['c_s']
+    J_L = _P['J_L']
+    b_L = _P['b_L']
+    tau_L = _P['tau_L']
+    eta = _P['eta']
+    C_w = _P['C_w']
+    R_wh = _P['R_wh']
+    C_h = _P['C_h']
+    R_ha = _P['R_ha']
     _vals = (V0, R_a, alpha, L_a, K, J_m, b_m, N, k_s, c_s, J_L, b_L, tau_L, eta, C_w, R_wh, C_h, R_ha, )
     _bshape = np.broadcast_shapes(*(np.shape(_v) for _v in _vals))
     return _vals, _bshape
@@ -190,7 +190,13 @@ class _Unpacked(tuple):
     take it in place of a dict, so simulate unpacks the overrides once, not at every call."""
 
 
-_P0 = _Unpacked(_unpack(PARAM_DEFAULTS))
+def _floats(P):
+    """Parameter values as numpy floats: a power or product that overflows gives inf (then
+    the non-finite diagnosis), where Python's float arithmetic would raise OverflowError."""
+    return {k: np.asarray(v, dtype=float) if np.ndim(v) else np.float64(v) for k, v in P.items()}
+
+
+_P0 = _Unpacked(_unpack(_floats(PARAM_DEFAULTS)))
 
 
 def _params(p, xp=np):
@@ -205,7 +211,7 @@ def _params(p, xp=np):
     unknown = set(p) - set(PARAM_DEFAULTS)
     if unknown:
         raise KeyError("unknown parameter(s): " + ", ".join(sorted(unknown)))
-    return _Unpacked(_unpack({**PARAM_DEFAULTS, **{k: np.asarray(v, dtype=float) if np.ndim(v) else v for k, v in p.items()}}))
+    return _Unpacked(_unpack(_floats({**PARAM_DEFAULTS, **p})))
 
 
 def _inputs(t, _pv, u, xp=np):
@@ -227,16 +233,16 @@ def initial_state(p=None):
     """The initial state x0 (n, *batch) from the parameters."""
     _pv, _bshape = _params(p)
 
-    x0 = np.empty((8,) + _bshape)
-    x0[0] = 0
-    x0[1] = 0
-    x0[2] = 0
-    x0[3] = 0
-    x0[4] = 0
-    x0[5] = 0
-    x0[6] = 0
-    x0[7] = 0
-    return x0
+    _x0 = np.empty((8,) + _bshape)
+    _x0[0] = 0
+    _x0[1] = 0
+    _x0[2] = 0
+    _x0[3] = 0
+    _x0[4] = 0
+    _x0[5] = 0
+    _x0[6] = 0
+    _x0[7] = 0
+    return _x0
 
 
 X0 = initial_state()
@@ -322,16 +328,16 @@ def rhs(t, x, p=None, u=None):
     # 0-junction housing_T: flow balance
     f_b14 = f_b12 - f_b15
 
-    dx = xp.empty((8,) + np.broadcast_shapes(x.shape[1:], _bshape), device=_device(x))
-    dx[0, ...] = e_b3
-    dx[1, ...] = e_b6
-    dx[2, ...] = f_drivetrain__b3
-    dx[3, ...] = e_drivetrain__b7
-    dx[4, ...] = f_b10
-    dx[5, ...] = f_b14
-    dx[6, ...] = f_drivetrain__b7
-    dx[7, ...] = _c0
-    return dx
+    _dx = xp.empty((8,) + np.broadcast_shapes(x.shape[1:], _bshape), device=_device(x))
+    _dx[0, ...] = e_b3
+    _dx[1, ...] = e_b6
+    _dx[2, ...] = f_drivetrain__b3
+    _dx[3, ...] = e_drivetrain__b7
+    _dx[4, ...] = f_b10
+    _dx[5, ...] = f_b14
+    _dx[6, ...] = f_drivetrain__b7
+    _dx[7, ...] = _c0
+    return _dx
 
 
 def jacobian(t, x, p=None, u=None):
@@ -397,29 +403,29 @@ def jacobian(t, x, p=None, u=None):
     _d24 = _d20/R_ha
     _d25 = -_d24 + _d22
 
-    J = xp.zeros((8, 8) + np.broadcast_shapes(x.shape[1:], _bshape),
+    _J = xp.zeros((8, 8) + np.broadcast_shapes(x.shape[1:], _bshape),
                  device=_device(x))
-    J[0, 0, ...] = -_d16
-    J[0, 1, ...] = -_d3
-    J[0, 4, ...] = -_d17
-    J[1, 0, ...] = _d1
-    J[1, 1, ...] = _d12
-    J[1, 2, ...] = -_d10
-    J[1, 3, ...] = -_d11
-    J[2, 1, ...] = _d5
-    J[2, 3, ...] = -_d6
-    J[3, 1, ...] = _d7
-    J[3, 2, ...] = k_s
-    J[3, 3, ...] = _d14
-    J[4, 0, ...] = _d18
-    J[4, 4, ...] = _d23
-    J[4, 5, ...] = -_d22
-    J[5, 4, ...] = _d21
-    J[5, 5, ...] = _d25
-    J[6, 3, ...] = _d6
-    J[7, 0, ...] = _c4 + _c3
-    J[7, 4, ...] = _c5
-    return J
+    _J[0, 0, ...] = -_d16
+    _J[0, 1, ...] = -_d3
+    _J[0, 4, ...] = -_d17
+    _J[1, 0, ...] = _d1
+    _J[1, 1, ...] = _d12
+    _J[1, 2, ...] = -_d10
+    _J[1, 3, ...] = -_d11
+    _J[2, 1, ...] = _d5
+    _J[2, 3, ...] = -_d6
+    _J[3, 1, ...] = _d7
+    _J[3, 2, ...] = k_s
+    _J[3, 3, ...] = _d14
+    _J[4, 0, ...] = _d18
+    _J[4, 4, ...] = _d23
+    _J[4, 5, ...] = -_d22
+    _J[5, 4, ...] = _d21
+    _J[5, 5, ...] = _d25
+    _J[6, 3, ...] = _d6
+    _J[7, 0, ...] = _c4 + _c3
+    _J[7, 4, ...] = _c5
+    return _J
 
 
 def outputs(t, x, p=None, u=None):
@@ -477,10 +483,10 @@ def input_jacobian(t, x, p=None, u=None):
 
     x = np.asarray(x, dtype=float)
 
-    B = np.zeros((8, 2) + np.broadcast_shapes(x.shape[1:], _bshape))
-    B[0, 0] = 1
-    B[3, 1] = -1
-    return B
+    _B = np.zeros((8, 2) + np.broadcast_shapes(x.shape[1:], _bshape))
+    _B[0, 0] = 1
+    _B[3, 1] = -1
+    return _B
 
 
 def output_jacobian(t, x, p=None, u=None):
@@ -519,21 +525,21 @@ def output_jacobian(t, x, p=None, u=None):
     _dx6 = 1/C_h
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
-    C = np.zeros((10, 8) + _bs)
-    D = np.zeros((10, 2) + _bs)
-    C[0, 0] = _dx0
-    C[1, 1] = _dx1
-    C[2, 3] = _dx2
-    C[3, 6] = 1
-    C[4, 2] = k_s
-    C[5, 0] = u_V*_dx0
-    C[6, 0] = e_b2*_dx0 + f_b3*_dx4
-    C[6, 4] = f_b3*_dx5
-    C[7, 7] = 1
-    C[8, 4] = _dx3
-    C[9, 5] = _dx6
-    D[5, 0] = f_b3
-    return C, D
+    _C = np.zeros((10, 8) + _bs)
+    _D = np.zeros((10, 2) + _bs)
+    _C[0, 0] = _dx0
+    _C[1, 1] = _dx1
+    _C[2, 3] = _dx2
+    _C[3, 6] = 1
+    _C[4, 2] = k_s
+    _C[5, 0] = u_V*_dx0
+    _C[6, 0] = e_b2*_dx0 + f_b3*_dx4
+    _C[6, 4] = f_b3*_dx5
+    _C[7, 7] = 1
+    _C[8, 4] = _dx3
+    _C[9, 5] = _dx6
+    _D[5, 0] = f_b3
+    return _C, _D
 
 
 class SimulationError(RuntimeError):
@@ -680,6 +686,49 @@ def _nonfinite(method, what, t, y, values, shape, stats):
 MAX_OUTPUT_SAMPLES = 1_000_000
 MAX_BATCH = 1_000_000
 MAX_RESULT_VALUES = 500_000_000
+
+
+def _guard_solves(solver, method, stats, shape):
+    """Radau and BDF solve linear systems in their Newton iterations from values the rhs
+    checks never see (the iterates' combinations): a system that is not finite (a state grown
+    past the double range) stops the run with a NonFiniteError naming the state's equation,
+    as Rodas4 and the C backend do, where scipy's LU would raise ValueError."""
+    factor, solve = getattr(solver, "lu", None), getattr(solver, "solve_lu", None)
+    if factor is None or solve is None:
+        return
+
+    def checked_factor(A):
+        import scipy.sparse as sps
+
+        diag = A.diagonal() if sps.issparse(A) else np.diag(A)
+        if not _all_finite(A.data if sps.issparse(A) else A):
+            raise _newton_nonfinite(method, solver, diag, shape, _counts(stats, solver))
+        return factor(A)
+
+    def checked_solve(LU, b):
+        if not _all_finite(b):
+            raise _newton_nonfinite(method, solver, b, shape, _counts(stats, solver))
+        return solve(LU, b)
+
+    solver.lu, solver.solve_lu = checked_factor, checked_solve
+
+
+def _newton_nonfinite(method, solver, values, shape, stats):
+    """The NonFiniteError for a linear system of the Newton iteration that is not finite."""
+    nb = int(np.prod(shape[1:]))
+    bad = np.flatnonzero(~np.isfinite(np.asarray(values).ravel()))
+    k = int(bad[0]) if bad.size else 0
+    i, b = divmod(k % (N_STATES * nb), nb)
+    x = np.asarray(solver.y, dtype=float).reshape(N_STATES, nb)[:, b]
+    big = int(np.argmax(np.where(np.isfinite(x), np.abs(x), np.inf)))
+    where = f" in batch instance {b}" if nb > 1 else ""
+    part = (f"the Newton iteration is not finite in the equation of state {i} "
+            f"{STATE_NAMES[i]!r} (element {STATE_OWNERS[i]!r}): the state grows without bound "
+            f"({STATE_NAMES[big]!r} = {x[big]:g})")
+    err = _error(NonFiniteError, f"{method} failed at t = {solver.t:.6g}{where}: {part}",
+                 solver.t, stats)
+    err.where, err.index, err.x, err.instance = "rhs", i, x, b
+    return err
 
 
 def _batched(x0, p):
@@ -1195,6 +1244,7 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
             solver = solver_class(
                 _flat_rhs(at, shape, p, u, stats, method), a, y, c, rtol=rtol, atol=atol,
                 max_step=max_step, **_jacobian_options(method, jac, at, shape, p, u, stats))
+            _guard_solves(solver, method, stats, shape)
             while solver.status == "running":
                 message = solver.step()
                 if solver.status == "failed":

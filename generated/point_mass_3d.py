@@ -87,11 +87,11 @@ JAC_SPARSITY[
 ] = True
 
 
-def _unpack(P):
+def _unpack(_P):
     """Parameter dict -> flat tuple of values (matrix entries, then derived parameters)."""
-    m = P['m']
-    g = P['g']
-    _m = np.asarray(P['K'], dtype=float)
+    m = _P['m']
+    g = _P['g']
+    _m = np.asarray(_P['K'], dtype=float)
     K_0_0 = _m[0, 0]
     K_0_1 = _m[0, 1]
     K_0_2 = _m[0, 2]
@@ -101,7 +101,7 @@ def _unpack(P):
     K_2_0 = _m[2, 0]
     K_2_1 = _m[2, 1]
     K_2_2 = _m[2, 2]
-    _m = np.asarray(P['D'], dtype=float)
+    _m = np.asarray(_P['D'], dtype=float)
     D_0_0 = _m[0, 0]
     D_0_1 = _m[0, 1]
     D_0_2 = _m[0, 2]
@@ -121,7 +121,13 @@ class _Unpacked(tuple):
     take it in place of a dict, so simulate unpacks the overrides once, not at every call."""
 
 
-_P0 = _Unpacked(_unpack(PARAM_DEFAULTS))
+def _floats(P):
+    """Parameter values as numpy floats: a power or product that overflows gives inf (then
+    the non-finite diagnosis), where Python's float arithmetic would raise OverflowError."""
+    return {k: np.asarray(v, dtype=float) if np.ndim(v) else np.float64(v) for k, v in P.items()}
+
+
+_P0 = _Unpacked(_unpack(_floats(PARAM_DEFAULTS)))
 
 
 def _params(p, xp=np):
@@ -136,21 +142,21 @@ def _params(p, xp=np):
     unknown = set(p) - set(PARAM_DEFAULTS)
     if unknown:
         raise KeyError("unknown parameter(s): " + ", ".join(sorted(unknown)))
-    return _Unpacked(_unpack({**PARAM_DEFAULTS, **{k: np.asarray(v, dtype=float) if np.ndim(v) else v for k, v in p.items()}}))
+    return _Unpacked(_unpack(_floats({**PARAM_DEFAULTS, **p})))
 
 
 def initial_state(p=None):
     """The initial state x0 (n, *batch) from the parameters."""
     _pv, _bshape = _params(p)
 
-    x0 = np.empty((6,) + _bshape)
-    x0[0] = 0
-    x0[1] = 0
-    x0[2] = 0
-    x0[3] = 0
-    x0[4] = 0
-    x0[5] = 0
-    return x0
+    _x0 = np.empty((6,) + _bshape)
+    _x0[0] = 0
+    _x0[1] = 0
+    _x0[2] = 0
+    _x0[3] = 0
+    _x0[4] = 0
+    _x0[5] = 0
+    return _x0
 
 
 X0 = initial_state()
@@ -213,14 +219,14 @@ def rhs(t, x, p=None, u=None):
     # 1-junction v: effort balance
     e_b2_2 = e_b1_2 - e_b3_2 - e_b4_2
 
-    dx = xp.empty((6,) + np.broadcast_shapes(x.shape[1:], _bshape), device=_device(x))
-    dx[0, ...] = e_b2_0
-    dx[1, ...] = e_b2_1
-    dx[2, ...] = e_b2_2
-    dx[3, ...] = f_b2_0
-    dx[4, ...] = f_b2_1
-    dx[5, ...] = f_b2_2
-    return dx
+    _dx = xp.empty((6,) + np.broadcast_shapes(x.shape[1:], _bshape), device=_device(x))
+    _dx[0, ...] = e_b2_0
+    _dx[1, ...] = e_b2_1
+    _dx[2, ...] = e_b2_2
+    _dx[3, ...] = f_b2_0
+    _dx[4, ...] = f_b2_1
+    _dx[5, ...] = f_b2_2
+    return _dx
 
 
 def jacobian(t, x, p=None, u=None):
@@ -262,30 +268,30 @@ def jacobian(t, x, p=None, u=None):
     _d10 = _d1*D_2_1
     _d11 = _d2*D_2_2
 
-    J = xp.zeros((6, 6) + np.broadcast_shapes(x.shape[1:], _bshape),
+    _J = xp.zeros((6, 6) + np.broadcast_shapes(x.shape[1:], _bshape),
                  device=_device(x))
-    J[0, 0, ...] = -_d3
-    J[0, 1, ...] = -_d4
-    J[0, 2, ...] = -_d5
-    J[0, 3, ...] = -K_0_0
-    J[0, 4, ...] = -K_0_1
-    J[0, 5, ...] = -K_0_2
-    J[1, 0, ...] = -_d6
-    J[1, 1, ...] = -_d7
-    J[1, 2, ...] = -_d8
-    J[1, 3, ...] = -K_1_0
-    J[1, 4, ...] = -K_1_1
-    J[1, 5, ...] = -K_1_2
-    J[2, 0, ...] = -_d9
-    J[2, 1, ...] = -_d10
-    J[2, 2, ...] = -_d11
-    J[2, 3, ...] = -K_2_0
-    J[2, 4, ...] = -K_2_1
-    J[2, 5, ...] = -K_2_2
-    J[3, 0, ...] = _d0
-    J[4, 1, ...] = _d1
-    J[5, 2, ...] = _d2
-    return J
+    _J[0, 0, ...] = -_d3
+    _J[0, 1, ...] = -_d4
+    _J[0, 2, ...] = -_d5
+    _J[0, 3, ...] = -K_0_0
+    _J[0, 4, ...] = -K_0_1
+    _J[0, 5, ...] = -K_0_2
+    _J[1, 0, ...] = -_d6
+    _J[1, 1, ...] = -_d7
+    _J[1, 2, ...] = -_d8
+    _J[1, 3, ...] = -K_1_0
+    _J[1, 4, ...] = -K_1_1
+    _J[1, 5, ...] = -K_1_2
+    _J[2, 0, ...] = -_d9
+    _J[2, 1, ...] = -_d10
+    _J[2, 2, ...] = -_d11
+    _J[2, 3, ...] = -K_2_0
+    _J[2, 4, ...] = -K_2_1
+    _J[2, 5, ...] = -K_2_2
+    _J[3, 0, ...] = _d0
+    _J[4, 1, ...] = _d1
+    _J[5, 2, ...] = _d2
+    return _J
 
 
 def outputs(t, x, p=None, u=None):
@@ -335,8 +341,8 @@ def input_jacobian(t, x, p=None, u=None):
 
     x = np.asarray(x, dtype=float)
 
-    B = np.zeros((6, 0) + np.broadcast_shapes(x.shape[1:], _bshape))
-    return B
+    _B = np.zeros((6, 0) + np.broadcast_shapes(x.shape[1:], _bshape))
+    return _B
 
 
 def output_jacobian(t, x, p=None, u=None):
@@ -362,24 +368,24 @@ def output_jacobian(t, x, p=None, u=None):
     _dx2 = _c0
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
-    C = np.zeros((9, 6) + _bs)
-    D = np.zeros((9, 0) + _bs)
-    C[0, 3] = 1
-    C[1, 4] = 1
-    C[2, 5] = 1
-    C[3, 0] = _dx0
-    C[4, 1] = _dx1
-    C[5, 2] = _dx2
-    C[6, 3] = K_0_0
-    C[6, 4] = K_0_1
-    C[6, 5] = K_0_2
-    C[7, 3] = K_1_0
-    C[7, 4] = K_1_1
-    C[7, 5] = K_1_2
-    C[8, 3] = K_2_0
-    C[8, 4] = K_2_1
-    C[8, 5] = K_2_2
-    return C, D
+    _C = np.zeros((9, 6) + _bs)
+    _D = np.zeros((9, 0) + _bs)
+    _C[0, 3] = 1
+    _C[1, 4] = 1
+    _C[2, 5] = 1
+    _C[3, 0] = _dx0
+    _C[4, 1] = _dx1
+    _C[5, 2] = _dx2
+    _C[6, 3] = K_0_0
+    _C[6, 4] = K_0_1
+    _C[6, 5] = K_0_2
+    _C[7, 3] = K_1_0
+    _C[7, 4] = K_1_1
+    _C[7, 5] = K_1_2
+    _C[8, 3] = K_2_0
+    _C[8, 4] = K_2_1
+    _C[8, 5] = K_2_2
+    return _C, _D
 
 
 class SimulationError(RuntimeError):
@@ -526,6 +532,49 @@ def _nonfinite(method, what, t, y, values, shape, stats):
 MAX_OUTPUT_SAMPLES = 1_000_000
 MAX_BATCH = 1_000_000
 MAX_RESULT_VALUES = 500_000_000
+
+
+def _guard_solves(solver, method, stats, shape):
+    """Radau and BDF solve linear systems in their Newton iterations from values the rhs
+    checks never see (the iterates' combinations): a system that is not finite (a state grown
+    past the double range) stops the run with a NonFiniteError naming the state's equation,
+    as Rodas4 and the C backend do, where scipy's LU would raise ValueError."""
+    factor, solve = getattr(solver, "lu", None), getattr(solver, "solve_lu", None)
+    if factor is None or solve is None:
+        return
+
+    def checked_factor(A):
+        import scipy.sparse as sps
+
+        diag = A.diagonal() if sps.issparse(A) else np.diag(A)
+        if not _all_finite(A.data if sps.issparse(A) else A):
+            raise _newton_nonfinite(method, solver, diag, shape, _counts(stats, solver))
+        return factor(A)
+
+    def checked_solve(LU, b):
+        if not _all_finite(b):
+            raise _newton_nonfinite(method, solver, b, shape, _counts(stats, solver))
+        return solve(LU, b)
+
+    solver.lu, solver.solve_lu = checked_factor, checked_solve
+
+
+def _newton_nonfinite(method, solver, values, shape, stats):
+    """The NonFiniteError for a linear system of the Newton iteration that is not finite."""
+    nb = int(np.prod(shape[1:]))
+    bad = np.flatnonzero(~np.isfinite(np.asarray(values).ravel()))
+    k = int(bad[0]) if bad.size else 0
+    i, b = divmod(k % (N_STATES * nb), nb)
+    x = np.asarray(solver.y, dtype=float).reshape(N_STATES, nb)[:, b]
+    big = int(np.argmax(np.where(np.isfinite(x), np.abs(x), np.inf)))
+    where = f" in batch instance {b}" if nb > 1 else ""
+    part = (f"the Newton iteration is not finite in the equation of state {i} "
+            f"{STATE_NAMES[i]!r} (element {STATE_OWNERS[i]!r}): the state grows without bound "
+            f"({STATE_NAMES[big]!r} = {x[big]:g})")
+    err = _error(NonFiniteError, f"{method} failed at t = {solver.t:.6g}{where}: {part}",
+                 solver.t, stats)
+    err.where, err.index, err.x, err.instance = "rhs", i, x, b
+    return err
 
 
 def _batched(x0, p):
@@ -1041,6 +1090,7 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
             solver = solver_class(
                 _flat_rhs(at, shape, p, u, stats, method), a, y, c, rtol=rtol, atol=atol,
                 max_step=max_step, **_jacobian_options(method, jac, at, shape, p, u, stats))
+            _guard_solves(solver, method, stats, shape)
             while solver.status == "running":
                 message = solver.step()
                 if solver.status == "failed":

@@ -94,14 +94,14 @@ JAC_SPARSITY[
 ] = True
 
 
-def _unpack(P):
+def _unpack(_P):
     """Parameter dict -> flat tuple of values (matrix entries, then derived parameters)."""
-    m_s = P['m_s']
-    m_u = P['m_u']
-    k_s = P['k_s']
-    c_s = P['c_s']
-    k_t = P['k_t']
-    g = P['g']
+    m_s = _P['m_s']
+    m_u = _P['m_u']
+    k_s = _P['k_s']
+    c_s = _P['c_s']
+    k_t = _P['k_t']
+    g = _P['g']
     _vals = (m_s, m_u, k_s, c_s, k_t, g, )
     _bshape = np.broadcast_shapes(*(np.shape(_v) for _v in _vals))
     return _vals, _bshape
@@ -112,7 +112,13 @@ class _Unpacked(tuple):
     take it in place of a dict, so simulate unpacks the overrides once, not at every call."""
 
 
-_P0 = _Unpacked(_unpack(PARAM_DEFAULTS))
+def _floats(P):
+    """Parameter values as numpy floats: a power or product that overflows gives inf (then
+    the non-finite diagnosis), where Python's float arithmetic would raise OverflowError."""
+    return {k: np.asarray(v, dtype=float) if np.ndim(v) else np.float64(v) for k, v in P.items()}
+
+
+_P0 = _Unpacked(_unpack(_floats(PARAM_DEFAULTS)))
 
 
 def _params(p, xp=np):
@@ -127,7 +133,7 @@ def _params(p, xp=np):
     unknown = set(p) - set(PARAM_DEFAULTS)
     if unknown:
         raise KeyError("unknown parameter(s): " + ", ".join(sorted(unknown)))
-    return _Unpacked(_unpack({**PARAM_DEFAULTS, **{k: np.asarray(v, dtype=float) if np.ndim(v) else v for k, v in p.items()}}))
+    return _Unpacked(_unpack(_floats({**PARAM_DEFAULTS, **p})))
 
 
 def _inputs(t, _pv, u, xp=np):
@@ -143,12 +149,12 @@ def initial_state(p=None):
     """The initial state x0 (n, *batch) from the parameters."""
     _pv, _bshape = _params(p)
 
-    x0 = np.empty((4,) + _bshape)
-    x0[0] = 0
-    x0[1] = 0
-    x0[2] = 0
-    x0[3] = 0
-    return x0
+    _x0 = np.empty((4,) + _bshape)
+    _x0[0] = 0
+    _x0[1] = 0
+    _x0[2] = 0
+    _x0[3] = 0
+    return _x0
 
 
 X0 = initial_state()
@@ -194,12 +200,12 @@ def rhs(t, x, p=None, u=None):
     # 1-junction vu: effort balance
     e_b9 = e_b5 + e_b8 - e_b10
 
-    dx = xp.empty((4,) + np.broadcast_shapes(x.shape[1:], _bshape), device=_device(x))
-    dx[0, ...] = e_b2
-    dx[1, ...] = e_b9
-    dx[2, ...] = f_b5
-    dx[3, ...] = f_b9
-    return dx
+    _dx = xp.empty((4,) + np.broadcast_shapes(x.shape[1:], _bshape), device=_device(x))
+    _dx[0, ...] = e_b2
+    _dx[1, ...] = e_b9
+    _dx[2, ...] = f_b5
+    _dx[3, ...] = f_b9
+    return _dx
 
 
 def jacobian(t, x, p=None, u=None):
@@ -218,19 +224,19 @@ def jacobian(t, x, p=None, u=None):
     _d2 = _d0*c_s
     _d3 = -_d1*c_s
 
-    J = xp.zeros((4, 4) + np.broadcast_shapes(x.shape[1:], _bshape),
+    _J = xp.zeros((4, 4) + np.broadcast_shapes(x.shape[1:], _bshape),
                  device=_device(x))
-    J[0, 0, ...] = -_d2
-    J[0, 1, ...] = -_d3
-    J[0, 2, ...] = -k_s
-    J[1, 0, ...] = _d2
-    J[1, 1, ...] = _d3
-    J[1, 2, ...] = k_s
-    J[1, 3, ...] = -k_t
-    J[2, 0, ...] = _d0
-    J[2, 1, ...] = -_d1
-    J[3, 1, ...] = _d1
-    return J
+    _J[0, 0, ...] = -_d2
+    _J[0, 1, ...] = -_d3
+    _J[0, 2, ...] = -k_s
+    _J[1, 0, ...] = _d2
+    _J[1, 1, ...] = _d3
+    _J[1, 2, ...] = k_s
+    _J[1, 3, ...] = -k_t
+    _J[2, 0, ...] = _d0
+    _J[2, 1, ...] = -_d1
+    _J[3, 1, ...] = _d1
+    return _J
 
 
 def outputs(t, x, p=None, u=None):
@@ -268,9 +274,9 @@ def input_jacobian(t, x, p=None, u=None):
 
     x = np.asarray(x, dtype=float)
 
-    B = np.zeros((4, 1) + np.broadcast_shapes(x.shape[1:], _bshape))
-    B[1, 0] = k_t
-    return B
+    _B = np.zeros((4, 1) + np.broadcast_shapes(x.shape[1:], _bshape))
+    _B[1, 0] = k_t
+    return _B
 
 
 def output_jacobian(t, x, p=None, u=None):
@@ -285,16 +291,16 @@ def output_jacobian(t, x, p=None, u=None):
     _dx0 = 1/m_s
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
-    C = np.zeros((5, 4) + _bs)
-    D = np.zeros((5, 1) + _bs)
-    C[0, 2] = 1
-    C[0, 3] = 1
-    C[1, 3] = 1
-    C[2, 0] = _dx0
-    C[3, 2] = 1
-    C[4, 3] = k_t
-    D[4, 0] = -k_t
-    return C, D
+    _C = np.zeros((5, 4) + _bs)
+    _D = np.zeros((5, 1) + _bs)
+    _C[0, 2] = 1
+    _C[0, 3] = 1
+    _C[1, 3] = 1
+    _C[2, 0] = _dx0
+    _C[3, 2] = 1
+    _C[4, 3] = k_t
+    _D[4, 0] = -k_t
+    return _C, _D
 
 
 class SimulationError(RuntimeError):
@@ -441,6 +447,49 @@ def _nonfinite(method, what, t, y, values, shape, stats):
 MAX_OUTPUT_SAMPLES = 1_000_000
 MAX_BATCH = 1_000_000
 MAX_RESULT_VALUES = 500_000_000
+
+
+def _guard_solves(solver, method, stats, shape):
+    """Radau and BDF solve linear systems in their Newton iterations from values the rhs
+    checks never see (the iterates' combinations): a system that is not finite (a state grown
+    past the double range) stops the run with a NonFiniteError naming the state's equation,
+    as Rodas4 and the C backend do, where scipy's LU would raise ValueError."""
+    factor, solve = getattr(solver, "lu", None), getattr(solver, "solve_lu", None)
+    if factor is None or solve is None:
+        return
+
+    def checked_factor(A):
+        import scipy.sparse as sps
+
+        diag = A.diagonal() if sps.issparse(A) else np.diag(A)
+        if not _all_finite(A.data if sps.issparse(A) else A):
+            raise _newton_nonfinite(method, solver, diag, shape, _counts(stats, solver))
+        return factor(A)
+
+    def checked_solve(LU, b):
+        if not _all_finite(b):
+            raise _newton_nonfinite(method, solver, b, shape, _counts(stats, solver))
+        return solve(LU, b)
+
+    solver.lu, solver.solve_lu = checked_factor, checked_solve
+
+
+def _newton_nonfinite(method, solver, values, shape, stats):
+    """The NonFiniteError for a linear system of the Newton iteration that is not finite."""
+    nb = int(np.prod(shape[1:]))
+    bad = np.flatnonzero(~np.isfinite(np.asarray(values).ravel()))
+    k = int(bad[0]) if bad.size else 0
+    i, b = divmod(k % (N_STATES * nb), nb)
+    x = np.asarray(solver.y, dtype=float).reshape(N_STATES, nb)[:, b]
+    big = int(np.argmax(np.where(np.isfinite(x), np.abs(x), np.inf)))
+    where = f" in batch instance {b}" if nb > 1 else ""
+    part = (f"the Newton iteration is not finite in the equation of state {i} "
+            f"{STATE_NAMES[i]!r} (element {STATE_OWNERS[i]!r}): the state grows without bound "
+            f"({STATE_NAMES[big]!r} = {x[big]:g})")
+    err = _error(NonFiniteError, f"{method} failed at t = {solver.t:.6g}{where}: {part}",
+                 solver.t, stats)
+    err.where, err.index, err.x, err.instance = "rhs", i, x, b
+    return err
 
 
 def _batched(x0, p):
@@ -956,6 +1005,7 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
             solver = solver_class(
                 _flat_rhs(at, shape, p, u, stats, method), a, y, c, rtol=rtol, atol=atol,
                 max_step=max_step, **_jacobian_options(method, jac, at, shape, p, u, stats))
+            _guard_solves(solver, method, stats, shape)
             while solver.status == "running":
                 message = solver.step()
                 if solver.status == "failed":

@@ -180,31 +180,31 @@ JAC_SPARSITY[
 ] = True
 
 
-def _unpack(P):
+def _unpack(_P):
     """Parameter dict -> flat tuple of values (matrix entries, then derived parameters)."""
-    g = P['g']
-    m1 = P['m1']
-    l1 = P['l1']
-    th1_0 = P['th1_0']
-    w1_0 = P['w1_0']
-    c1 = P['c1']
-    m2 = P['m2']
-    l2 = P['l2']
-    th2_0 = P['th2_0']
-    w2_0 = P['w2_0']
-    c2 = P['c2']
-    m3 = P['m3']
-    l3 = P['l3']
-    th3_0 = P['th3_0']
-    w3_0 = P['w3_0']
-    c3 = P['c3']
-    tau0 = P['tau0']
-    rod1__vx0 = P['rod1.vx0']
-    rod1__vy0 = P['rod1.vy0']
-    rod2__vx0 = P['rod2.vx0']
-    rod2__vy0 = P['rod2.vy0']
-    rod3__vx0 = P['rod3.vx0']
-    rod3__vy0 = P['rod3.vy0']
+    g = _P['g']
+    m1 = _P['m1']
+    l1 = _P['l1']
+    th1_0 = _P['th1_0']
+    w1_0 = _P['w1_0']
+    c1 = _P['c1']
+    m2 = _P['m2']
+    l2 = _P['l2']
+    th2_0 = _P['th2_0']
+    w2_0 = _P['w2_0']
+    c2 = _P['c2']
+    m3 = _P['m3']
+    l3 = _P['l3']
+    th3_0 = _P['th3_0']
+    w3_0 = _P['w3_0']
+    c3 = _P['c3']
+    tau0 = _P['tau0']
+    rod1__vx0 = _P['rod1.vx0']
+    rod1__vy0 = _P['rod1.vy0']
+    rod2__vx0 = _P['rod2.vx0']
+    rod2__vy0 = _P['rod2.vy0']
+    rod3__vx0 = _P['rod3.vx0']
+    rod3__vy0 = _P['rod3.vy0']
     _vals = (g, m1, l1, th1_0, w1_0, c1, m2, l2, th2_0, w2_0, c2, m3, l3, th3_0, w3_0, c3, tau0, rod1__vx0, rod1__vy0, rod2__vx0, rod2__vy0, rod3__vx0, rod3__vy0, )
     _bshape = np.broadcast_shapes(*(np.shape(_v) for _v in _vals))
     return _vals, _bshape
@@ -215,7 +215,13 @@ class _Unpacked(tuple):
     take it in place of a dict, so simulate unpacks the overrides once, not at every call."""
 
 
-_P0 = _Unpacked(_unpack(PARAM_DEFAULTS))
+def _floats(P):
+    """Parameter values as numpy floats: a power or product that overflows gives inf (then
+    the non-finite diagnosis), where Python's float arithmetic would raise OverflowError."""
+    return {k: np.asarray(v, dtype=float) if np.ndim(v) else np.float64(v) for k, v in P.items()}
+
+
+_P0 = _Unpacked(_unpack(_floats(PARAM_DEFAULTS)))
 
 
 def _params(p, xp=np):
@@ -230,7 +236,7 @@ def _params(p, xp=np):
     unknown = set(p) - set(PARAM_DEFAULTS)
     if unknown:
         raise KeyError("unknown parameter(s): " + ", ".join(sorted(unknown)))
-    return _Unpacked(_unpack({**PARAM_DEFAULTS, **{k: np.asarray(v, dtype=float) if np.ndim(v) else v for k, v in p.items()}}))
+    return _Unpacked(_unpack(_floats({**PARAM_DEFAULTS, **p})))
 
 
 def _inputs(t, _pv, u, xp=np):
@@ -259,14 +265,14 @@ def initial_state(p=None):
     th3_0 = _pv[13]
     w3_0 = _pv[14]
 
-    x0 = np.empty((6,) + _bshape)
-    x0[0] = (1/12)*m1*w1_0*l1*l1
-    x0[1] = (1/12)*m2*w2_0*l2*l2
-    x0[2] = (1/12)*m3*w3_0*l3*l3
-    x0[3] = th1_0
-    x0[4] = th2_0
-    x0[5] = th3_0
-    return x0
+    _x0 = np.empty((6,) + _bshape)
+    _x0[0] = (1/12)*m1*w1_0*l1*l1
+    _x0[1] = (1/12)*m2*w2_0*l2*l2
+    _x0[2] = (1/12)*m3*w3_0*l3*l3
+    _x0[3] = th1_0
+    _x0[4] = th2_0
+    _x0[5] = th3_0
+    return _x0
 
 
 X0 = initial_state()
@@ -593,14 +599,14 @@ def rhs(t, x, p=None, u=None):
     # 1-junction rod1.w: effort balance
     e_rod1__b3 = _c41 - e_rod1__b4 - e_rod1__b8
 
-    dx = xp.empty((6,) + np.broadcast_shapes(x.shape[1:], _bshape), device=_device(x))
-    dx[0, ...] = e_rod1__b3
-    dx[1, ...] = e_rod2__b3
-    dx[2, ...] = e_rod3__b3
-    dx[3, ...] = f_rod1__b3
-    dx[4, ...] = f_rod2__b3
-    dx[5, ...] = f_rod3__b3
-    return dx
+    _dx = xp.empty((6,) + np.broadcast_shapes(x.shape[1:], _bshape), device=_device(x))
+    _dx[0, ...] = e_rod1__b3
+    _dx[1, ...] = e_rod2__b3
+    _dx[2, ...] = e_rod3__b3
+    _dx[3, ...] = f_rod1__b3
+    _dx[4, ...] = f_rod2__b3
+    _dx[5, ...] = f_rod3__b3
+    return _dx
 
 
 def jacobian(t, x, p=None, u=None):
@@ -1484,30 +1490,30 @@ def jacobian(t, x, p=None, u=None):
     _d429 = -_d411 - _d423
     _d430 = -_d412 - _d424
 
-    J = xp.zeros((6, 6) + np.broadcast_shapes(x.shape[1:], _bshape),
+    _J = xp.zeros((6, 6) + np.broadcast_shapes(x.shape[1:], _bshape),
                  device=_device(x))
-    J[0, 0, ...] = _d425
-    J[0, 1, ...] = _d426
-    J[0, 2, ...] = _d427
-    J[0, 3, ...] = _d428
-    J[0, 4, ...] = _d429
-    J[0, 5, ...] = _d430
-    J[1, 0, ...] = _d401
-    J[1, 1, ...] = _d402
-    J[1, 2, ...] = _d403
-    J[1, 3, ...] = _d404
-    J[1, 4, ...] = _d405
-    J[1, 5, ...] = _d406
-    J[2, 0, ...] = -_d375
-    J[2, 1, ...] = _d381
-    J[2, 2, ...] = _d382
-    J[2, 3, ...] = -_d378
-    J[2, 4, ...] = -_d379
-    J[2, 5, ...] = -_d380
-    J[3, 0, ...] = _d0
-    J[4, 1, ...] = _d2
-    J[5, 2, ...] = _d3
-    return J
+    _J[0, 0, ...] = _d425
+    _J[0, 1, ...] = _d426
+    _J[0, 2, ...] = _d427
+    _J[0, 3, ...] = _d428
+    _J[0, 4, ...] = _d429
+    _J[0, 5, ...] = _d430
+    _J[1, 0, ...] = _d401
+    _J[1, 1, ...] = _d402
+    _J[1, 2, ...] = _d403
+    _J[1, 3, ...] = _d404
+    _J[1, 4, ...] = _d405
+    _J[1, 5, ...] = _d406
+    _J[2, 0, ...] = -_d375
+    _J[2, 1, ...] = _d381
+    _J[2, 2, ...] = _d382
+    _J[2, 3, ...] = -_d378
+    _J[2, 4, ...] = -_d379
+    _J[2, 5, ...] = -_d380
+    _J[3, 0, ...] = _d0
+    _J[4, 1, ...] = _d2
+    _J[5, 2, ...] = _d3
+    return _J
 
 
 def outputs(t, x, p=None, u=None):
@@ -1952,11 +1958,11 @@ def input_jacobian(t, x, p=None, u=None):
     _du39 = -_c4*_du38 + _c1*_du30
     _du40 = 1 - _du37 - _du39
 
-    B = np.zeros((6, 1) + np.broadcast_shapes(x.shape[1:], _bshape))
-    B[0, 0] = _du40
-    B[1, 0] = _du36
-    B[2, 0] = -_du32
-    return B
+    _B = np.zeros((6, 1) + np.broadcast_shapes(x.shape[1:], _bshape))
+    _B[0, 0] = _du40
+    _B[1, 0] = _du36
+    _B[2, 0] = -_du32
+    return _B
 
 
 def output_jacobian(t, x, p=None, u=None):
@@ -2544,57 +2550,57 @@ def output_jacobian(t, x, p=None, u=None):
     _du5 = -m1*_du3
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
-    C = np.zeros((16, 6) + _bs)
-    D = np.zeros((16, 1) + _bs)
-    C[0, 3] = 1
-    C[1, 0] = _dx0
-    C[2, 0] = _c67
-    C[2, 3] = _c68
-    C[3, 0] = _c69
-    C[3, 3] = _c70
-    C[4, 4] = 1
-    C[5, 1] = _dx18
-    C[6, 0] = _dx12
-    C[6, 1] = _c75
-    C[6, 3] = _dx13
-    C[6, 4] = _c76
-    C[7, 0] = _dx16
-    C[7, 1] = _c77
-    C[7, 3] = _dx17
-    C[7, 4] = _c78
-    C[8, 5] = 1
-    C[9, 2] = _dx31
-    C[10, 0] = _dx12
-    C[10, 1] = _dx27
-    C[10, 2] = -_dx32
-    C[10, 3] = _dx13
-    C[10, 4] = _dx28
-    C[10, 5] = -_dx33
-    C[11, 0] = _dx16
-    C[11, 1] = _dx29
-    C[11, 2] = -_dx34
-    C[11, 3] = _dx17
-    C[11, 4] = _dx30
-    C[11, 5] = -_dx35
-    C[12, 0] = _dx10
-    C[12, 3] = _dx11
-    C[13, 0] = _dx14
-    C[13, 3] = _dx15
-    C[14, 0] = _dx239
-    C[14, 1] = _dx240
-    C[14, 2] = _dx241
-    C[14, 3] = _dx242
-    C[14, 4] = _dx243
-    C[14, 5] = _dx244
-    C[15, 0] = _dx245
-    C[15, 1] = _dx246
-    C[15, 2] = _dx247
-    C[15, 3] = _dx248
-    C[15, 4] = _dx249
-    C[15, 5] = _dx250
-    D[14, 0] = _du4
-    D[15, 0] = _du5
-    return C, D
+    _C = np.zeros((16, 6) + _bs)
+    _D = np.zeros((16, 1) + _bs)
+    _C[0, 3] = 1
+    _C[1, 0] = _dx0
+    _C[2, 0] = _c67
+    _C[2, 3] = _c68
+    _C[3, 0] = _c69
+    _C[3, 3] = _c70
+    _C[4, 4] = 1
+    _C[5, 1] = _dx18
+    _C[6, 0] = _dx12
+    _C[6, 1] = _c75
+    _C[6, 3] = _dx13
+    _C[6, 4] = _c76
+    _C[7, 0] = _dx16
+    _C[7, 1] = _c77
+    _C[7, 3] = _dx17
+    _C[7, 4] = _c78
+    _C[8, 5] = 1
+    _C[9, 2] = _dx31
+    _C[10, 0] = _dx12
+    _C[10, 1] = _dx27
+    _C[10, 2] = -_dx32
+    _C[10, 3] = _dx13
+    _C[10, 4] = _dx28
+    _C[10, 5] = -_dx33
+    _C[11, 0] = _dx16
+    _C[11, 1] = _dx29
+    _C[11, 2] = -_dx34
+    _C[11, 3] = _dx17
+    _C[11, 4] = _dx30
+    _C[11, 5] = -_dx35
+    _C[12, 0] = _dx10
+    _C[12, 3] = _dx11
+    _C[13, 0] = _dx14
+    _C[13, 3] = _dx15
+    _C[14, 0] = _dx239
+    _C[14, 1] = _dx240
+    _C[14, 2] = _dx241
+    _C[14, 3] = _dx242
+    _C[14, 4] = _dx243
+    _C[14, 5] = _dx244
+    _C[15, 0] = _dx245
+    _C[15, 1] = _dx246
+    _C[15, 2] = _dx247
+    _C[15, 3] = _dx248
+    _C[15, 4] = _dx249
+    _C[15, 5] = _dx250
+    _D[14, 0] = _du4
+    _D[15, 0] = _du5
+    return _C, _D
 
 
 class SimulationError(RuntimeError):
@@ -2741,6 +2747,49 @@ def _nonfinite(method, what, t, y, values, shape, stats):
 MAX_OUTPUT_SAMPLES = 1_000_000
 MAX_BATCH = 1_000_000
 MAX_RESULT_VALUES = 500_000_000
+
+
+def _guard_solves(solver, method, stats, shape):
+    """Radau and BDF solve linear systems in their Newton iterations from values the rhs
+    checks never see (the iterates' combinations): a system that is not finite (a state grown
+    past the double range) stops the run with a NonFiniteError naming the state's equation,
+    as Rodas4 and the C backend do, where scipy's LU would raise ValueError."""
+    factor, solve = getattr(solver, "lu", None), getattr(solver, "solve_lu", None)
+    if factor is None or solve is None:
+        return
+
+    def checked_factor(A):
+        import scipy.sparse as sps
+
+        diag = A.diagonal() if sps.issparse(A) else np.diag(A)
+        if not _all_finite(A.data if sps.issparse(A) else A):
+            raise _newton_nonfinite(method, solver, diag, shape, _counts(stats, solver))
+        return factor(A)
+
+    def checked_solve(LU, b):
+        if not _all_finite(b):
+            raise _newton_nonfinite(method, solver, b, shape, _counts(stats, solver))
+        return solve(LU, b)
+
+    solver.lu, solver.solve_lu = checked_factor, checked_solve
+
+
+def _newton_nonfinite(method, solver, values, shape, stats):
+    """The NonFiniteError for a linear system of the Newton iteration that is not finite."""
+    nb = int(np.prod(shape[1:]))
+    bad = np.flatnonzero(~np.isfinite(np.asarray(values).ravel()))
+    k = int(bad[0]) if bad.size else 0
+    i, b = divmod(k % (N_STATES * nb), nb)
+    x = np.asarray(solver.y, dtype=float).reshape(N_STATES, nb)[:, b]
+    big = int(np.argmax(np.where(np.isfinite(x), np.abs(x), np.inf)))
+    where = f" in batch instance {b}" if nb > 1 else ""
+    part = (f"the Newton iteration is not finite in the equation of state {i} "
+            f"{STATE_NAMES[i]!r} (element {STATE_OWNERS[i]!r}): the state grows without bound "
+            f"({STATE_NAMES[big]!r} = {x[big]:g})")
+    err = _error(NonFiniteError, f"{method} failed at t = {solver.t:.6g}{where}: {part}",
+                 solver.t, stats)
+    err.where, err.index, err.x, err.instance = "rhs", i, x, b
+    return err
 
 
 def _batched(x0, p):
@@ -3256,6 +3305,7 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
             solver = solver_class(
                 _flat_rhs(at, shape, p, u, stats, method), a, y, c, rtol=rtol, atol=atol,
                 max_step=max_step, **_jacobian_options(method, jac, at, shape, p, u, stats))
+            _guard_solves(solver, method, stats, shape)
             while solver.status == "running":
                 message = solver.step()
                 if solver.status == "failed":

@@ -105,16 +105,16 @@ JAC_SPARSITY[
 ] = True
 
 
-def _unpack(P):
+def _unpack(_P):
     """Parameter dict -> flat tuple of values (matrix entries, then derived parameters)."""
-    rho = P['rho']
-    g = P['g']
-    A1 = P['A1']
-    A2 = P['A2']
-    Cd = P['Cd']
-    a12 = P['a12']
-    aout = P['aout']
-    Q0 = P['Q0']
+    rho = _P['rho']
+    g = _P['g']
+    A1 = _P['A1']
+    A2 = _P['A2']
+    Cd = _P['Cd']
+    a12 = _P['a12']
+    aout = _P['aout']
+    Q0 = _P['Q0']
     _vals = (rho, g, A1, A2, Cd, a12, aout, Q0, )
     _bshape = np.broadcast_shapes(*(np.shape(_v) for _v in _vals))
     return _vals, _bshape
@@ -125,7 +125,13 @@ class _Unpacked(tuple):
     take it in place of a dict, so simulate unpacks the overrides once, not at every call."""
 
 
-_P0 = _Unpacked(_unpack(PARAM_DEFAULTS))
+def _floats(P):
+    """Parameter values as numpy floats: a power or product that overflows gives inf (then
+    the non-finite diagnosis), where Python's float arithmetic would raise OverflowError."""
+    return {k: np.asarray(v, dtype=float) if np.ndim(v) else np.float64(v) for k, v in P.items()}
+
+
+_P0 = _Unpacked(_unpack(_floats(PARAM_DEFAULTS)))
 
 
 def _params(p, xp=np):
@@ -140,7 +146,7 @@ def _params(p, xp=np):
     unknown = set(p) - set(PARAM_DEFAULTS)
     if unknown:
         raise KeyError("unknown parameter(s): " + ", ".join(sorted(unknown)))
-    return _Unpacked(_unpack({**PARAM_DEFAULTS, **{k: np.asarray(v, dtype=float) if np.ndim(v) else v for k, v in p.items()}}))
+    return _Unpacked(_unpack(_floats({**PARAM_DEFAULTS, **p})))
 
 
 def _inputs(t, _pv, u, xp=np):
@@ -157,12 +163,12 @@ def initial_state(p=None):
     """The initial state x0 (n, *batch) from the parameters."""
     _pv, _bshape = _params(p)
 
-    x0 = np.empty((4,) + _bshape)
-    x0[0] = 0
-    x0[1] = 0
-    x0[2] = 0
-    x0[3] = 0
-    return x0
+    _x0 = np.empty((4,) + _bshape)
+    _x0[0] = 0
+    _x0[1] = 0
+    _x0[2] = 0
+    _x0[3] = 0
+    return _x0
 
 
 X0 = initial_state()
@@ -203,12 +209,12 @@ def rhs(t, x, p=None, u=None):
     # 0-junction p2: flow balance
     f_b6 = f_b4 - f_b7
 
-    dx = xp.empty((4,) + np.broadcast_shapes(x.shape[1:], _bshape), device=_device(x))
-    dx[0, ...] = f_b2
-    dx[1, ...] = f_b6
-    dx[2, ...] = u_Qin
-    dx[3, ...] = f_b7
-    return dx
+    _dx = xp.empty((4,) + np.broadcast_shapes(x.shape[1:], _bshape), device=_device(x))
+    _dx[0, ...] = f_b2
+    _dx[1, ...] = f_b6
+    _dx[2, ...] = u_Qin
+    _dx[3, ...] = f_b7
+    return _dx
 
 
 def jacobian(t, x, p=None, u=None):
@@ -243,14 +249,14 @@ def jacobian(t, x, p=None, u=None):
     _d4 = _c3*_d1*aout*xp.sign(e_b6)*xp.sign(e_b6)/xp.sqrt(abs(e_b6))
     _d5 = _d3 - _d4
 
-    J = xp.zeros((4, 4) + np.broadcast_shapes(x.shape[1:], _bshape),
+    _J = xp.zeros((4, 4) + np.broadcast_shapes(x.shape[1:], _bshape),
                  device=_device(x))
-    J[0, 0, ...] = -_d2
-    J[0, 1, ...] = -_d3
-    J[1, 0, ...] = _d2
-    J[1, 1, ...] = _d5
-    J[3, 1, ...] = _d4
-    return J
+    _J[0, 0, ...] = -_d2
+    _J[0, 1, ...] = -_d3
+    _J[1, 0, ...] = _d2
+    _J[1, 1, ...] = _d5
+    _J[3, 1, ...] = _d4
+    return _J
 
 
 def outputs(t, x, p=None, u=None):
@@ -303,10 +309,10 @@ def input_jacobian(t, x, p=None, u=None):
 
     x = np.asarray(x, dtype=float)
 
-    B = np.zeros((4, 1) + np.broadcast_shapes(x.shape[1:], _bshape))
-    B[0, 0] = 1
-    B[2, 0] = 1
-    return B
+    _B = np.zeros((4, 1) + np.broadcast_shapes(x.shape[1:], _bshape))
+    _B[0, 0] = 1
+    _B[2, 0] = 1
+    return _B
 
 
 def output_jacobian(t, x, p=None, u=None):
@@ -344,18 +350,18 @@ def output_jacobian(t, x, p=None, u=None):
     _c6 = 1/g
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
-    C = np.zeros((8, 4) + _bs)
-    D = np.zeros((8, 1) + _bs)
-    C[0, 0] = _c3*_c6*_dx0
-    C[1, 1] = _c3*_c6*_dx1
-    C[2, 0] = 1
-    C[3, 1] = 1
-    C[4, 0] = _dx2
-    C[4, 1] = _dx3
-    C[5, 1] = _dx4
-    C[6, 2] = 1
-    C[7, 3] = 1
-    return C, D
+    _C = np.zeros((8, 4) + _bs)
+    _D = np.zeros((8, 1) + _bs)
+    _C[0, 0] = _c3*_c6*_dx0
+    _C[1, 1] = _c3*_c6*_dx1
+    _C[2, 0] = 1
+    _C[3, 1] = 1
+    _C[4, 0] = _dx2
+    _C[4, 1] = _dx3
+    _C[5, 1] = _dx4
+    _C[6, 2] = 1
+    _C[7, 3] = 1
+    return _C, _D
 
 
 class SimulationError(RuntimeError):
@@ -502,6 +508,49 @@ def _nonfinite(method, what, t, y, values, shape, stats):
 MAX_OUTPUT_SAMPLES = 1_000_000
 MAX_BATCH = 1_000_000
 MAX_RESULT_VALUES = 500_000_000
+
+
+def _guard_solves(solver, method, stats, shape):
+    """Radau and BDF solve linear systems in their Newton iterations from values the rhs
+    checks never see (the iterates' combinations): a system that is not finite (a state grown
+    past the double range) stops the run with a NonFiniteError naming the state's equation,
+    as Rodas4 and the C backend do, where scipy's LU would raise ValueError."""
+    factor, solve = getattr(solver, "lu", None), getattr(solver, "solve_lu", None)
+    if factor is None or solve is None:
+        return
+
+    def checked_factor(A):
+        import scipy.sparse as sps
+
+        diag = A.diagonal() if sps.issparse(A) else np.diag(A)
+        if not _all_finite(A.data if sps.issparse(A) else A):
+            raise _newton_nonfinite(method, solver, diag, shape, _counts(stats, solver))
+        return factor(A)
+
+    def checked_solve(LU, b):
+        if not _all_finite(b):
+            raise _newton_nonfinite(method, solver, b, shape, _counts(stats, solver))
+        return solve(LU, b)
+
+    solver.lu, solver.solve_lu = checked_factor, checked_solve
+
+
+def _newton_nonfinite(method, solver, values, shape, stats):
+    """The NonFiniteError for a linear system of the Newton iteration that is not finite."""
+    nb = int(np.prod(shape[1:]))
+    bad = np.flatnonzero(~np.isfinite(np.asarray(values).ravel()))
+    k = int(bad[0]) if bad.size else 0
+    i, b = divmod(k % (N_STATES * nb), nb)
+    x = np.asarray(solver.y, dtype=float).reshape(N_STATES, nb)[:, b]
+    big = int(np.argmax(np.where(np.isfinite(x), np.abs(x), np.inf)))
+    where = f" in batch instance {b}" if nb > 1 else ""
+    part = (f"the Newton iteration is not finite in the equation of state {i} "
+            f"{STATE_NAMES[i]!r} (element {STATE_OWNERS[i]!r}): the state grows without bound "
+            f"({STATE_NAMES[big]!r} = {x[big]:g})")
+    err = _error(NonFiniteError, f"{method} failed at t = {solver.t:.6g}{where}: {part}",
+                 solver.t, stats)
+    err.where, err.index, err.x, err.instance = "rhs", i, x, b
+    return err
 
 
 def _batched(x0, p):
@@ -1017,6 +1066,7 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
             solver = solver_class(
                 _flat_rhs(at, shape, p, u, stats, method), a, y, c, rtol=rtol, atol=atol,
                 max_step=max_step, **_jacobian_options(method, jac, at, shape, p, u, stats))
+            _guard_solves(solver, method, stats, shape)
             while solver.status == "running":
                 message = solver.step()
                 if solver.status == "failed":

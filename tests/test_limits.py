@@ -11,6 +11,7 @@ from __future__ import annotations
 import ast
 import builtins
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -18,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bgc.backends.load import load_module
 from bgc.base.errors import Coord, ModelError
 from bgc.base.limits import LIMITS
 from bgc.base.safeio import read_text_bounded
@@ -273,7 +275,8 @@ def test_scene_within_limits_is_accepted(tmp_path):
 # Names: the generated module's own names are reserved
 
 #: The generated functions in which model names become local variables.
-BINDING_FUNCTIONS = ("_unpack", "_inputs", "initial_state", "rhs", "jacobian", "outputs")
+BINDING_FUNCTIONS = ("_unpack", "_inputs", "initial_state", "rhs", "jacobian", "outputs",
+                     "input_jacobian", "output_jacobian")
 
 
 def _model_symbols(eqs) -> set[str]:
@@ -296,9 +299,10 @@ def test_reserved_covers_the_module(model):
     c = compile_file(ROOT / "models" / f"{model}.yaml")
     mine = _model_symbols(c.equations)
     tree = ast.parse(c.source)
-    funcs = [n for n in tree.body if isinstance(n, ast.FunctionDef) and n.name in BINDING_FUNCTIONS]
+    funcs = [n for n in tree.body if isinstance(n, ast.FunctionDef) and (
+        n.name in BINDING_FUNCTIONS or re.fullmatch(r"_newton_\d+", n.name))]
     assert {f.name for f in funcs} >= {"_unpack", "initial_state", "rhs", "jacobian", "outputs"}
-    used = {n.name for n in funcs if not n.name.startswith("_")}
+    used = set()  # a function's own name is no local of it: a model name may take it
 
     def visit(node, hidden):  # hidden: parameters of an enclosing lambda (their own scope)
         if isinstance(node, ast.Lambda):
@@ -323,11 +327,38 @@ def test_reserved_covers_the_module(model):
     assert not missing, f"names the module uses that a model could shadow: {sorted(missing)}"
 
 
-@pytest.mark.parametrize("name", ["x0", "P", "dx", "J", "np"])
-def test_module_locals_cannot_be_parameters(name):
+@pytest.mark.parametrize("name", ["x", "u", "np", "t", "sin", "q"])
+def test_module_arguments_and_language_words_cannot_be_parameters(name):
     err = refused(parse_text, MSD.replace("{m: 2.0, k: 200.0}", f"{{m: 2.0, k: 200.0, {name}: 1}}"),
                   "m.yaml")
     assert f"invalid parameter name {name!r}: reserved" in err.message
+
+
+ORDINARY_NAMES = ["P", "x0", "dx", "J", "B", "C", "D", "y", "rhs", "jacobian", "outputs",
+                  "simulate", "initial_state", "X0", "N_STATES"]
+
+
+def test_ordinary_names_compile_to_the_same_model():
+    """Issue 21: a pressure P, an initial volume x0, a capacitance C... are model names like
+    any other: the module's own locals start with "_" (no model name can). Each name in turn
+    replaces the stiffness k (read by the rhs, the Jacobians and an output): the functions
+    agree with the model that calls it k, value for value."""
+    law = MSD.replace("elements:", 'inputs: {F: "1.0"}\nelements:').replace(
+        'effort: "1"', 'effort: "F"') + 'outputs: {spring_force: "k*q(spring)", pos: "q(spring)"}\n'
+    ref = load_module(compile_model(parse_text(law, "ref.yaml")).source, "ordinary_ref")
+    x = np.array([0.3, -0.2])
+    for name in ORDINARY_NAMES:
+        text = law.replace("k: 200.0", f"{name}: 200.0").replace('"k"', f'"{name}"').replace(
+            '"k*q', f'"{name}*q')
+        mod = load_module(compile_model(parse_text(text, f"{name}.yaml")).source, f"o_{name}")
+        assert np.allclose(mod.rhs(0.0, x), ref.rhs(0.0, x)), name
+        assert np.allclose(mod.jacobian(0.0, x), ref.jacobian(0.0, x)), name
+        assert np.allclose(mod.input_jacobian(0.0, x), ref.input_jacobian(0.0, x)), name
+        for a, b in zip(mod.output_jacobian(0.0, x), ref.output_jacobian(0.0, x)):
+            assert np.allclose(a, b), name
+        assert np.allclose(mod.outputs(0.0, x)["spring_force"], 200.0 * x[1]), name
+        assert np.allclose(mod.initial_state({name: 3.0}), ref.initial_state({"k": 3.0}))
+        assert np.allclose(mod.rhs(0.0, x, {name: 3.0}), ref.rhs(0.0, x, {"k": 3.0})), name
 
 
 @pytest.mark.parametrize("name", ["k\n", "k\r", "k "])

@@ -176,6 +176,49 @@ MAX_BATCH = 1_000_000
 MAX_RESULT_VALUES = 500_000_000
 
 
+def _guard_solves(solver, method, stats, shape):
+    """Radau and BDF solve linear systems in their Newton iterations from values the rhs
+    checks never see (the iterates' combinations): a system that is not finite (a state grown
+    past the double range) stops the run with a NonFiniteError naming the state's equation,
+    as Rodas4 and the C backend do, where scipy's LU would raise ValueError."""
+    factor, solve = getattr(solver, "lu", None), getattr(solver, "solve_lu", None)
+    if factor is None or solve is None:
+        return
+
+    def checked_factor(A):
+        import scipy.sparse as sps
+
+        diag = A.diagonal() if sps.issparse(A) else np.diag(A)
+        if not _all_finite(A.data if sps.issparse(A) else A):
+            raise _newton_nonfinite(method, solver, diag, shape, _counts(stats, solver))
+        return factor(A)
+
+    def checked_solve(LU, b):
+        if not _all_finite(b):
+            raise _newton_nonfinite(method, solver, b, shape, _counts(stats, solver))
+        return solve(LU, b)
+
+    solver.lu, solver.solve_lu = checked_factor, checked_solve
+
+
+def _newton_nonfinite(method, solver, values, shape, stats):
+    """The NonFiniteError for a linear system of the Newton iteration that is not finite."""
+    nb = int(np.prod(shape[1:]))
+    bad = np.flatnonzero(~np.isfinite(np.asarray(values).ravel()))
+    k = int(bad[0]) if bad.size else 0
+    i, b = divmod(k % (N_STATES * nb), nb)
+    x = np.asarray(solver.y, dtype=float).reshape(N_STATES, nb)[:, b]
+    big = int(np.argmax(np.where(np.isfinite(x), np.abs(x), np.inf)))
+    where = f" in batch instance {b}" if nb > 1 else ""
+    part = (f"the Newton iteration is not finite in the equation of state {i} "
+            f"{STATE_NAMES[i]!r} (element {STATE_OWNERS[i]!r}): the state grows without bound "
+            f"({STATE_NAMES[big]!r} = {x[big]:g})")
+    err = _error(NonFiniteError, f"{method} failed at t = {solver.t:.6g}{where}: {part}",
+                 solver.t, stats)
+    err.where, err.index, err.x, err.instance = "rhs", i, x, b
+    return err
+
+
 def _batched(x0, p):
     """The initial state broadcast to (n, *batch): batch is what x0 and the parameters span."""
     x0 = initial_state(p) if x0 is None else np.asarray(x0, dtype=float)
@@ -689,6 +732,7 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
             solver = solver_class(
                 _flat_rhs(at, shape, p, u, stats, method), a, y, c, rtol=rtol, atol=atol,
                 max_step=max_step, **_jacobian_options(method, jac, at, shape, p, u, stats))
+            _guard_solves(solver, method, stats, shape)
             while solver.status == "running":
                 message = solver.step()
                 if solver.status == "failed":

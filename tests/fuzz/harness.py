@@ -93,6 +93,7 @@ class Case:
     usage: bool = False  # click's own usage error (several lines) is acceptable
     twin: str | None = None  # a model (same physics, clean names): equal rhs and X0 if ok
     note: str = ""
+    env: dict = field(default_factory=dict)  # environment variables of the child (CC=...)
 
 
 def load_manifest(corpus: Path = CORPUS) -> list[Case]:
@@ -332,6 +333,7 @@ def _child(work: Path, tmp: Path, res: Path, case: Case, limit: int) -> None:
         os.chdir(work)
         os.umask(0o022)
         os.environ["TMPDIR"] = str(tmp)
+        os.environ.update({k: str(v) for k, v in case.env.items()})
         tempfile.tempdir = str(tmp)
         null = os.open(os.devnull, os.O_RDONLY)
         os.dup2(null, 0)

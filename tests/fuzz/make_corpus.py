@@ -190,7 +190,7 @@ class Corpus:
 
     def add(self, category: str, name: str, *, argv, expect, files=None, setup=(),
             outputs=(), message=None, line=None, located=True, exit=(2,), check="auto",
-            usage=False, twin=None, note=""):
+            usage=False, twin=None, note="", env=None):
         cid = f"{category}/{name}"
         assert cid not in self.ids, cid
         assert expect in ("ok", "error", "any")
@@ -217,6 +217,8 @@ class Corpus:
             c["twin"] = twin
         if note:
             c["note"] = note
+        if env:
+            c["env"] = dict(env)
         self.cases.append(c)
 
     # --- shortcuts ----------------------------------------------------------------------
@@ -965,6 +967,12 @@ def build(root: Path, private: bool = False, seed: int = 0) -> Corpus:
         expect="ok", message=None, outputs=["out.py"])
     cli("simulate_ok_sanity", ["simulate", "scene.yaml", "--out", "r.npz", "-q"], sfiles,
         expect="ok", message=None, outputs=["r.npz"])
+    import sys
+
+    sys.path.insert(0, str(HERE))
+    from cases_issue21 import add_issue21_cases
+
+    add_issue21_cases(C, base_rel, MSD, SCENE, dq)
     # every ok case expects the umask's permissions: 0644 under umask 022
     C.cases = [c for c in C.cases if c is not None]
     return C

@@ -79,12 +79,15 @@ def mutate(doc, data) -> object:
     # mostly a leaf (a value: text, number, expression), sometimes a whole entry
     path = rnd.choice(leaves) if rnd.random() < 0.75 else rnd.choice(paths)
     kind = rnd.choice(["text", "text", "text", "string", "number", "delete", "duplicate",
-                       "type", "tokens", "tokens", "nest", "container"])
+                       "type", "tokens", "tokens", "nest", "container", "name", "name",
+                       "rename", "rename", "retype"])
     texts = [p for p in leaves if p[-1] in ("description", "unit", "title", "name")]
     if kind == "text" and texts:  # free text: compiles when escaped, so the module is checked
         path = rnd.choice(texts)
         kind = "string"
     node = _get(doc, path)
+    if kind in ("name", "rename", "retype"):
+        return _mutate_names(doc, path, node, kind, rnd)
     if kind == "string":
         return _set(doc, path, rnd.choice(HOSTILE_STRINGS))
     if kind == "number":
@@ -118,6 +121,35 @@ def mutate(doc, data) -> object:
     if kind == "container":
         return _set(doc, path, rnd.choice([[], {}, [[1, 2], [3]], {"a": 1}]))
     return _set(doc, path, rnd.choice(HOSTILE_STRINGS + HOSTILE_NUMBERS))
+
+
+def _names(doc) -> list[str]:
+    """Every mapping key of the document: the names a model or scene defines and uses."""
+    return sorted({p[-1] for p in _paths(doc) if p and isinstance(p[-1], str)})
+
+
+def _mutate_names(doc, path, node, kind, rnd):
+    """Names used where another kind of name is expected (a state in an input's default, an
+    element as a parameter), keys renamed (to another name of the document or a fresh one),
+    and values whose type changes (text <-> number <-> list <-> mapping)."""
+    names = _names(doc) or ["x"]
+    if kind == "name":  # a value (an expression, an endpoint) becomes another name
+        return _set(doc, path, rnd.choice(names))
+    if kind == "rename":
+        keyed = [p for p in _paths(doc) if p and isinstance(p[-1], str)]
+        if keyed:
+            p = rnd.choice(keyed)
+            parent = _get(doc, p[:-1])
+            new = rnd.choice(names + [p[-1] + "2", p[-1].upper(), "x0", "P", "t"])
+            parent[new] = parent.pop(p[-1])
+        return doc
+    swaps = {str: lambda v: rnd.choice([1.5, [v], {v: v}]), bool: lambda v: str(v).lower(),
+             int: lambda v: rnd.choice([str(v), [v], {"value": v}]),
+             float: lambda v: rnd.choice([str(v), [v, v], {"value": str(v)}]),
+             list: lambda v: rnd.choice([str(v), len(v), {str(i): x for i, x in enumerate(v)}]),
+             dict: lambda v: rnd.choice([list(v), list(v.values()), "x"])}
+    change = swaps.get(type(node))
+    return _set(doc, path, change(node)) if change else doc
 
 
 def text_mutate(text: str, data) -> str:

@@ -61,7 +61,7 @@ _MODEL_TOP = {
                "TABLE_BREAKPOINTS", "TABLE_MAX_STEP", "OUTPUT_UNITS", "INPUT_UNITS",
                "_NEWTON_WARM", "_NEWTON_ITERATIONS", "RHS_USES_T", "INPUT_PERIODS", "N_EVENTS",
                "EVENT_NAMES", "EVENT_DIRECTIONS", "EVENT_WHERE", "MODE_NAMES", "_RESETS"},
-    "FunctionDef": {"_unpack", "_params", "_inputs", "initial_state", "rhs", "jacobian",
+    "FunctionDef": {"_unpack", "_floats", "_params", "_inputs", "initial_state", "rhs", "jacobian",
                     "outputs", "input_jacobian", "output_jacobian", "_bgc_linsolve",
                     "event_values", "apply_event", "_bgc_newton", "_bgc_norm",
                     "_bgc_line_search", "_bgc_newton_failure"},

@@ -109,3 +109,19 @@ def _why(exc: OSError) -> str:
 def _show(path: str) -> str:
     r = repr(path)
     return r if len(r) <= 120 else r[:100] + "...'"
+
+
+def read_bytes_bounded(path, what: str, limit: int) -> bytes:
+    """The bytes of the regular file ``path``, at most ``limit`` of them, or a ModelError at
+    the file's first character (a folder, FIFO, device, or a file over the limit): for readers
+    that digest files (the compile cache's key) before any parser has checked them."""
+    spath = os.fspath(path)
+    where, shown = Coord(spath, 1, 1), _show(spath)
+    if "\0" in spath:
+        raise ModelError(where, f"cannot read {what} {shown}: the path contains a NUL byte")
+    try:
+        return read_bytes(spath, limit)
+    except _Refused as exc:
+        raise ModelError(where, exc.message(what, shown, limit)) from None
+    except OSError as exc:
+        raise ModelError(where, f"cannot read {what} {shown}: {_why(exc)}") from None

@@ -193,13 +193,22 @@ def linearize_cmd(target, at, out, bode, freq_range, quiet):
         from bgc.cli.outputs import check_linear
 
         plan = check_linear(out, mod, pairs, target, sc)
-    t, x, where = operating_point(mod, at, p, None, t0, prog, " after Newton): linearise at "
-                                  "a time instead (--at TIME)",
-                                  on_equilibrium=lambda info: _warn_free(info, prog))
+    from bgc.base.errors import Coord
+    from bgc.cli import guards
+
+    coord = sc.coord if sc is not None and getattr(sc, "coord", None) else Coord(str(target), 1, 1)
+    with np.errstate(all="ignore"):
+        try:
+            t, x, where = operating_point(mod, at, p, None, t0, prog, " after Newton): "
+                                          "linearise at a time instead (--at TIME)",
+                                          on_equilibrium=lambda info: _warn_free(info, prog))
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
+            raise ModelError(coord, f"no operating point found: the search failed ({exc}); is "
+                                    "the right-hand side finite near the initial state?") from None
     if freq_range is not None and not freq_range[0] < freq_range[1]:
         raise ModelError(None, f"--freq-range {freq_range[0]:g} {freq_range[1]:g}: FMIN must "
                                "be below FMAX")
-    lin = mod.linearize(t, x, None, p)
+    lin = guards.linearization(mod, t, x, p, coord, where)
     _warn_unstable(lin[0], where, prog)
     ms = modes(lin[0], mod.STATE_NAMES)
     buf = io.StringIO()

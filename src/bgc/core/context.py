@@ -216,6 +216,7 @@ def _inputs_value(self: Context, name: str, coord: Coord):
         res = NameResolver(self, (), {}, False, False, f"input {name!r}")
         self.inputs[name] = None  # guard against self reference
         default = build(inp.default, res)
+        _default_uses_only_params(self, name, inp, default)
         if shape_of(default) != shape_of(syms):
             raise ModelError(inp.default.coord, f"input {name!r}: default has shape "
                                                 f"{shape_name(shape_of(default))}, declared "
@@ -226,6 +227,21 @@ def _inputs_value(self: Context, name: str, coord: Coord):
     elif self.inputs[name] is None:
         raise ModelError(coord, f"input {name!r} refers to itself")
     return self.cache[("input", name)]
+
+
+def _default_uses_only_params(self: Context, name: str, inp, default) -> None:
+    """An input's default is a signal of t and the parameters: a state or another input in it
+    has no value where the module evaluates the inputs (before the right-hand side)."""
+    used = set().union(*(d.free_symbols for d in flat(default)))
+    if not used:
+        return
+    found = [(sid, "a state") for sid, v in self.states.items() if used & set(flat(v))]
+    found += [(other, "an input") for other, iv in self.inputs.items()
+              if iv is not None and used & set(iv.symbols)]
+    if found:
+        what, kind = found[0]
+        raise ModelError(inp.default.coord, f"input {name!r}: its default may use only t and "
+                                            f"parameters, and {what!r} is {kind}")
 
 
 Context.inputs_value = _inputs_value

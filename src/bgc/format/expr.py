@@ -98,6 +98,9 @@ class _NumError(Exception):
     pass
 
 
+NumError = _NumError  # what numeric() raises: "overflow", "complex" or "undefined"
+
+
 _FLOAT_LIMIT = 10.0 ** MAX_EXPONENT
 
 
@@ -345,12 +348,23 @@ class _Builder:
                     raise self.err(node, f"exponent {short_text(str(b))} is larger than "
                                          f"{LIMITS.power_exponent} in magnitude (the limit of "
                                          "exponents)")
-                return a ** b
+                return self._power_guard(node, a ** b)
         except ModelError:
             raise
         except Exception as exc:  # sympy shape errors
             raise self.err(node, f"invalid operation: {exc}") from None
         raise self.err(node, "operator not allowed")
+
+    def _power_guard(self, node, v):
+        """Refuse a power whose exponent sympy merged beyond the limit: ``((x**2)**2)...``
+        150 deep is ``x**(2**150)``, which no double survives (and no printer can spell)."""
+        for x in (v, *v.args) if isinstance(v, sp.Mul) else (v,):
+            if isinstance(x, sp.Pow) and x.exp.is_Number and abs(x.exp) > LIMITS.power_exponent:
+                raise self.err(node, f"a chain of powers makes the exponent "
+                                     f"{short_text(str(x.exp))}, larger than "
+                                     f"{LIMITS.power_exponent} in magnitude (the limit of "
+                                     "exponents)")
+        return v
 
     def listlit(self, node):
         items = [self.visit(e) for e in node.elts]

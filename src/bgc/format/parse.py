@@ -184,6 +184,7 @@ def parse_file(path: str | Path, _imports: _Imports | None = None,
 def parse_text(text: str, path: str = "<model>", _imports: _Imports | None = None) -> Model:
     import hashlib
 
+    _check_encodable(text, path)
     r = Reader(path, text)
     if len(text) > LIMITS.model_bytes:
         raise ModelError(Coord(path, 1, 1), f"model file is larger than the limit of "
@@ -286,6 +287,19 @@ def _hybrid(r: Reader, top: dict, body: Body):
     if states:
         body = replace(body, states=body.states + states)
     return body, events, tuple(m.name for m in modes)
+
+
+def _check_encodable(text: str, path: str) -> None:
+    """Model text given as a str (bgc.compile) holds no lone surrogate: a file could never
+    contain one, and every later stage writes the text as UTF-8."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError as exc:
+        line = text.count("\n", 0, exc.start) + 1
+        col = exc.start - (text.rfind("\n", 0, exc.start) + 1) + 1
+        raise ModelError(Coord(path, line, col), f"the text holds a lone surrogate "
+                                                 f"(U+{ord(text[exc.start]):04X}), which no "
+                                                 "UTF-8 file can: not valid text") from None
 
 
 def _resolve(path, coord: Coord, shown) -> str:

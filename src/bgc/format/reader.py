@@ -20,13 +20,13 @@ IDENT = re.compile(r"[A-Za-z][A-Za-z0-9_]*")  # always used with fullmatch
 #: model names become locals (``tests/test_names.py`` renders modules and checks that each such
 #: name is here, so a parameter can never shadow the module's own variables or imports).
 RESERVED = frozenset({
-    # the expression language and bgc's words
-    "t", "x", "p", "u", "e", "f", "q", "pi", "y", "numpy", "scipy", "math",
-    # the array namespace of the generated functions (array API: numpy, CuPy, ...)
-    "xp",
-    # the generated module: its imports, its public functions, and the locals of the functions
-    # that bind model names (_unpack, _inputs, initial_state, rhs, jacobian, outputs)
-    "np", "rhs", "jacobian", "outputs", "simulate", "initial_state", "dx", "J", "P", "x0"}
+    # the expression language's own words
+    "t", "pi",
+    # what the generated functions that bind model names as locals read themselves: their
+    # arguments (rhs(t, x, p, u), the array namespace xp) and the modules their bodies call
+    # (numpy as np, scipy, math), and the error a Newton loop raises. Every other local of
+    # the module starts with "_", which no model name can (see check_name).
+    "x", "p", "u", "xp", "np", "numpy", "scipy", "math", "SimulationError"}
     | set(FUNCTIONS) | set(BOND_FUNCTIONS))
 MAX_CARDINALITY = LIMITS.cardinality
 _NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?")  # always with fullmatch

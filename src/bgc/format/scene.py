@@ -429,7 +429,12 @@ def check_rtol(v: float, where: Coord | None, what: str) -> float:
 
 
 def apply_scene(model: Model, scene: Scene) -> Model:
-    """The model with the scene's input signals in place of the input defaults."""
+    """The model with the scene's input signals in place of the input defaults (and the
+    scene's parameter values checked against the parameters' shapes)."""
+    top = {p.name: p for p in model.body.params}
+    for k, (v, coord) in scene.params.items():
+        if k in top and not isinstance(top[k].value, Expr):
+            _check_value_shape(k, v, top[k], coord)
     names = {i.name for i in model.inputs}
     for iname, (_, coord) in scene.inputs.items():
         if iname not in names:
@@ -487,6 +492,35 @@ def scene_model(scene: Scene) -> Model:
                    if p.name in values and not isinstance(p.value, Expr) else p
                    for p in model.body.params)
     return dataclasses.replace(model, body=dataclasses.replace(model.body, params=params))
+
+
+def _value_shape(v):
+    """A parameter value's shape: () for a number, (n, 1) for a vector (a list of numbers or
+    a column), (r, c) for a matrix, None for a ragged one."""
+    if not isinstance(v, (list, tuple)):
+        return ()
+    rows = [len(r) if isinstance(r, (list, tuple)) else None for r in v]
+    if all(n is None for n in rows):
+        return (len(v), 1)
+    if any(n is None for n in rows) or len(set(rows)) != 1:
+        return None
+    return (len(v), rows[0])
+
+
+def _shape_text(shape) -> str:
+    if shape is None:
+        return "a ragged value"
+    return "a scalar" if shape == () else "a " + "x".join(map(str, shape)) + " value"
+
+
+def _check_value_shape(pid: str, v, param, coord) -> None:
+    """A scene's value for a parameter has the parameter's shape: a scalar for a 3x3 matrix
+    would fold into something else entirely."""
+    want, got = _value_shape(param.value), _value_shape(v)
+    if got != want:
+        raise ModelError(coord, f"parameter {pid!r}: the scene gives {_shape_text(got)}, the "
+                                f"model's parameter is {_shape_text(want)} (line "
+                                f"{param.coord.line} of {param.coord.file})")
 
 
 def check_outputs(scene: Scene, names) -> None:

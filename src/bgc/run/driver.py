@@ -363,7 +363,7 @@ def usable_backend(backend: str, progress=None) -> str:
 
     say = progress or (lambda msg: None)
     if not cbuild.available():
-        say(f"no C compiler ({' '.join(cbuild.compiler())!r} cannot run; set CC): "
+        say(f"no C compiler ({cbuild.cc_text()!r} cannot run; set CC): "
             "using the numpy backend")
         return "numpy"
     if not cbuild.runtime_sources():
@@ -392,7 +392,7 @@ def build(model=None, scene=None, backend: str = "numpy", *, use_cache: bool = T
     import numpy as np
 
     from bgc.backends import load as backends
-    from bgc.backends.c.build import CUnsupported
+    from bgc.backends.c.build import CompilerFailed, CUnsupported
     from bgc.run import cache as cache_mod
 
     if fallback:
@@ -415,7 +415,7 @@ def build(model=None, scene=None, backend: str = "numpy", *, use_cache: bool = T
         try:
             compiled, mod = backends.load(name, backend, key, compile_fn,
                                           store if key is not None else None, progress)
-        except CUnsupported as exc:
+        except (CUnsupported, CompilerFailed) as exc:  # a CC that runs but cannot build
             if not fallback or backend != "c":
                 raise
             (progress or (lambda msg: None))(f"{exc.message}: using the numpy backend")

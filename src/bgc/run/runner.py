@@ -164,9 +164,26 @@ def _num(expr, vals):
             return complex(np.nan)
         if v.has(sp.zoo, sp.oo, -sp.oo):
             return complex(-np.inf if v == -sp.oo else np.inf)
-        return complex(v.evalf())
+        return _bounded_value(v)
     except (TypeError, ValueError, ArithmeticError, AttributeError):
         return complex(np.nan)
+
+
+def _bounded_value(v) -> complex:
+    """A constant sympy expression's value in double precision with bounded work (sympy's
+    own evalf of ``exp(exp(...))`` 100 deep runs for minutes); sympy only where the value is
+    complex (to show it) or the expression holds a function the double evaluator lacks."""
+    from bgc.format.expr import NumError, numeric
+
+    try:
+        x = numeric(v)
+    except NumError as exc:
+        if str(exc) == "overflow":
+            return complex(np.inf)
+        if str(exc) == "undefined":
+            return complex(np.nan)
+        x = None  # complex: sympy shows the value (roots and logs evaluate quickly)
+    return complex(x) if x is not None else complex(v.evalf())
 
 
 def _show(expr, limit: int = 160) -> str:

@@ -44,6 +44,7 @@ import multiprocessing as mp
 from dataclasses import replace
 
 from bgc.base.errors import ModelError
+from bgc.base.limits import LIMITS
 from bgc.studies.accuracy_report import cheapest, md_cell, write_all, write_csv  # noqa: F401
 from bgc.studies.runs import (  # noqa: F401 (the study's parts, as bgc.studies.accuracy.*)
     ALL_METHODS,
@@ -83,12 +84,18 @@ def parse_tols(text: str) -> tuple:
                 raise ValueError
             ka, kb = round(-math.log10(a)), round(-math.log10(b))
             step = 1 if kb >= ka else -1
-            return tuple(10.0 ** -k for k in range(ka, kb + step, step))
-        tols = tuple(float(s) for s in text.split(",") if s.strip())
+            tols = tuple(10.0 ** -k for k in range(ka, kb + step, step))
+        else:
+            tols = tuple(float(s) for s in text.split(",") if s.strip())
     except ValueError:
         raise ModelError(None, f"--tols {text!r}: give 1e-3:1e-10 or a comma list") from None
     if not tols or not all(0 < t < 1 for t in tols):
         raise ModelError(None, f"--tols {text!r}: tolerances lie strictly between 0 and 1")
+    low = LIMITS.min_rtol
+    if any(t < low * (1 - 1e-9) for t in tols):
+        raise ModelError(None, f"--tols {text!r}: {min(tols):g} is below {low:g}, the smallest "
+                               "relative tolerance double precision resolves (a scene's rtol "
+                               "has the same bound)")
     return tols
 
 

@@ -51,6 +51,8 @@ from pathlib import Path
 import numpy as np
 
 from bgc.base.errors import ModelError
+from bgc.base.limits import LIMITS
+from bgc.base.safeio import read_text_bounded
 from bgc.studies.sweep_plot import plot_sweep  # noqa: F401 (bgc.studies.sweep.plot_sweep)
 from bgc.studies.sweep_spec import (  # noqa: F401 (the section's names, as sweep.*)
     MAX_SAMPLES,
@@ -140,7 +142,7 @@ def solver_backend(path) -> str | None:
     from bgc.format.reader import Reader
 
     path = str(path)
-    r = Reader(path, Path(path).read_text(encoding="utf-8"))
+    r = Reader(path, read_text_bounded(path, None, "scene file", LIMITS.scene_bytes))
     top = r.mapping(r.compose(), "the scene")
     if "solver" not in top:
         return None
@@ -160,7 +162,7 @@ def choose_backend(compiled, backend=None, progress=None):
     from bgc.backends.c.build import CUnsupported
 
     if not cbuild.available():
-        say(f"no C compiler ({' '.join(cbuild.compiler())!r} cannot run; set CC): using the "
+        say(f"no C compiler ({cbuild.cc_text()!r} cannot run; set CC): using the "
             "numpy backend")
         return "numpy", {}, "", ""
     if not cbuild.runtime_sources():

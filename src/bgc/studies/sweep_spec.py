@@ -11,6 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from bgc.base.errors import Coord, ModelError
+from bgc.base.limits import LIMITS
+from bgc.base.safeio import read_text_bounded
 
 MAX_SAMPLES = 1_000_000
 GRIDS = ("linspace", "logspace", "values")
@@ -61,10 +63,7 @@ def parse_sweep(path) -> SweepSpec | None:
     from bgc.format.reader import Reader, require
 
     path = str(path)
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ModelError(Coord(path, 1, 1), f"cannot read scene file: {exc}") from None
+    text = read_text_bounded(path, None, "scene file", LIMITS.scene_bytes)
     r = Reader(path, text)
     root = r.compose()
     if root is None:

@@ -52,9 +52,11 @@ def c_comment(text, limit: int = 200) -> str:
 
 def c_name(name: str) -> str:
     """The C identifier of a model identifier (validated by the parser): unchanged unless it is
-    a C keyword, a C library name or in bgc's own ``bgc`` namespace."""
+    a C keyword, a C library name or in bgc's own ``bgc`` namespace, then ``bgcu_`` + name: a
+    name that starts with bgc is itself renamed, so no kept name can equal a renamed one
+    (``main`` beside ``m_main``)."""
     if name in _C_KEYWORDS or name in _C_LIBRARY or name.startswith("bgc") or name.startswith("__"):
-        return "m_" + name
+        return "bgcu_" + name
     return name
 
 
