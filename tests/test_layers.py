@@ -127,3 +127,30 @@ def test_sizes(path):
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
             n = node.end_lineno - node.lineno + 1
             assert n <= 100, f"{path}:{node.lineno}: {node.name} is {n} lines (at most 100)"
+
+
+def test_every_deferred_import_of_bgc_says_why():
+    """An import of a bgc module inside a function stays there only where it keeps a warm run
+    or `import bgc` light, and says so: a comment on its line, or on the line above it (one
+    for a group of imports)."""
+    bare = []
+    for path in sorted((SRC / "bgc").rglob("*.py")):
+        lines = path.read_text(encoding="utf-8").splitlines()
+        tree = ast.parse("\n".join(lines))
+        for fn in ast.walk(tree):
+            if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            for node in ast.walk(fn):
+                if not isinstance(node, (ast.Import, ast.ImportFrom)):
+                    continue
+                names = [a.name for a in node.names] if isinstance(node, ast.Import) \
+                    else [node.module or ""]
+                if not any(n == "bgc" or n.startswith("bgc.") for n in names):
+                    continue
+                i = node.lineno - 1
+                while i > 0 and lines[i - 1].strip().startswith(("from ", "import ")):
+                    i -= 1  # the top of a group of imports
+                said = "#" in lines[node.lineno - 1] or (i > 0 and "#" in lines[i - 1])
+                if not said:
+                    bare.append(f"{path.relative_to(SRC)}:{node.lineno}")
+    assert not bare, "deferred bgc imports without a reason: " + ", ".join(bare)

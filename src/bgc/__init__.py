@@ -1,7 +1,6 @@
 """bgc: a bond-graph-to-code compiler.
 
 From Python (docs/api.md)::
-
     import bgc
     model = bgc.compile("models/msd.yaml")      # the loaded module, from memory
     t, x, y = model.simulate((0.0, 2.0))
@@ -55,6 +54,7 @@ __all__ = ["BgcError", "Coord", "ModelError", "__version__", *_API]
 
 def __getattr__(name):
     if name in _API:
+        # lazy: `import bgc` stays light (the API loads on first use)
         from bgc import api
 
         return getattr(api, name)

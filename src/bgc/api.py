@@ -13,7 +13,16 @@ import html
 from dataclasses import dataclass
 from pathlib import Path
 
+from bgc.backends.load import BACKENDS as targets
 from bgc.base.errors import Coord, ModelError
+from bgc.core.causality import assign_causality
+from bgc.core.draw import render_image, to_dot
+from bgc.core.equations import T, derive
+from bgc.core.graph import build_graph
+from bgc.format.parse import parse_file, parse_text
+from bgc.format.scene import parse_scene
+from bgc.linear import load_target, modes, operating_point, scene_start, to_statespace
+from bgc.run.driver import build, check_model, check_scene_for
 
 BgcError = ModelError
 
@@ -24,8 +33,6 @@ def _is_text(src) -> bool:
 
 def _model(src):
     """Parse a model given as a path or as YAML text."""
-    from bgc.format.parse import parse_file, parse_text
-
     if _is_text(src):
         return parse_text(src, "<string>")
     if not isinstance(src, (str, Path)):
@@ -48,9 +55,6 @@ def compile(path_or_text, scene=None, target: str = "numpy") -> "CompiledModel":
     """Compile a model (path or YAML text), optionally specialised to a scene file, and return
     the loaded module wrapped in a :class:`CompiledModel` (attributes go to the module).
     A model file goes through the compile cache (bgc.run.driver.build, as `bgc simulate`)."""
-    from bgc.backends.load import BACKENDS as targets
-    from bgc.run.driver import build
-
     _check_types(path_or_text, scene)
     if target not in targets:
         raise ModelError(None, f"unknown target {target!r} (one of {', '.join(targets)})")
@@ -59,9 +63,6 @@ def compile(path_or_text, scene=None, target: str = "numpy") -> "CompiledModel":
         raise ModelError(Coord(str(path), 1, 1), "model file does not exist")
     sc = None
     if scene is not None:
-        from bgc.format.scene import parse_scene
-        from bgc.run.driver import check_scene_for
-
         sc = parse_scene(scene)
         check_scene_for(sc, path, "the text given" if path is None else path_or_text)
     b = build(path if path is not None else _model(path_or_text), sc, target)
@@ -95,9 +96,6 @@ class CompiledModel:
         """(bond graph, causality) for the drawing (rebuilt after a cache hit: cheap)."""
         if self.compiled is not None:
             return self.compiled.graph, self.compiled.causality
-        from bgc.core.causality import assign_causality
-        from bgc.core.graph import build_graph
-
         bg = build_graph(_model(self.origin))
         return bg, assign_causality(bg, allow_derivative=True)
 
@@ -131,8 +129,6 @@ class CompiledModel:
 
 def _svg(graph, caus):
     """The bond graph as SVG text, or None without Graphviz."""
-    from bgc.core.draw import render_image, to_dot
-
     try:
         return render_image(to_dot(graph, caus), "svg").decode("utf-8")
     except ModelError:
@@ -176,7 +172,6 @@ class CheckResult:
                 ("causality", "all integral" if self.all_integral else
                  "derivative: " + ", ".join(self.derivative))]
         rows += [("warning", w) for w in self.warnings] + [("error", d) for d in self.diagnostics]
-        from bgc.core.draw import render_image
 
         try:
             svg = render_image(self.dot, "svg").decode("utf-8")
@@ -190,9 +185,6 @@ def check(path_or_text, strict_causality: bool = False) -> CheckResult:
     `bgc check` reports (bgc.run.driver.check_model). Derivative causality the model refuses
     (``causality: strict``, or ``strict_causality``) is reported in ``diagnostics`` (not
     raised); other errors raise."""
-    from bgc.core.draw import to_dot
-    from bgc.run.driver import check_model
-
     chk = check_model(_model(path_or_text), strict_causality)
     m, bg, caus, eqs = chk.model, chk.graph, chk.causality, chk.equations
     bonds = []
@@ -257,10 +249,6 @@ def equations(path_or_text) -> StateEquations:
     """The state equations of a model as sympy objects (and LaTeX: ``.latex()``)."""
     import sympy as sp
 
-    from bgc.core.causality import assign_causality
-    from bgc.core.equations import T, derive
-    from bgc.core.graph import build_graph
-
     model = _model(path_or_text)
     bg = build_graph(model)
     strict = bool(getattr(model, "strict_causality", False))
@@ -305,14 +293,6 @@ def linearize(model, at="equilibrium", p=None, u=None, x0=None) -> Linearization
     values) for a scene or a model compiled for one: where `bgc linearize` linearises.
     ``x0``: the equilibrium's Newton starts there (default: the initial state), or the run to
     time ``at`` starts there."""
-    from bgc.linear import (
-        load_target,
-        modes,
-        operating_point,
-        scene_start,
-        to_statespace,
-    )
-
     pv, t0 = None, 0.0
     if isinstance(model, CompiledModel):
         mod = model

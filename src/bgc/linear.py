@@ -6,6 +6,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bgc.base.errors import ModelError
+from bgc.base.limits import LIMITS
+from bgc.base.outfiles import write_output
+from bgc.base.safeio import read_text_bounded
+from bgc.format.scene import parse_scene
+from bgc.run.driver import build
+from bgc.run.plots import plain_text
+from bgc.run.runner import runtime_params
+
 
 @dataclass(frozen=True)
 class Mode:
@@ -101,9 +110,6 @@ def bode_plot(path, lin, i_in, i_out, in_label, out_label, in_unit="", out_unit=
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from bgc.run.plots import (
-        plain_text,  # model text as written (no mathtext from a "$")
-    )
 
     A = np.asarray(lin[0])
     if f_range is None:
@@ -129,7 +135,6 @@ def bode_plot(path, lin, i_in, i_out, in_label, out_label, in_unit="", out_unit=
     else:  # a path: through the checked writer (never a link, a device or a folder; atomic)
         import io
 
-        from bgc.base.outfiles import write_output
 
         buf = io.BytesIO()
         fig.savefig(buf, dpi=100, format="png")
@@ -143,15 +148,9 @@ def bode_plot(path, lin, i_in, i_out, in_label, out_label, in_unit="", out_unit=
 def load_target(path, progress=None):
     """(module, run-time parameters, start time, scene or None) of a scene file (its
     specialised module, as `bgc simulate` runs it) or a model file (t0 = 0)."""
-    from bgc.base.limits import LIMITS
-    from bgc.base.safeio import read_text_bounded  # regular files only, never blocking
-
     head = read_text_bounded(path, None, "model or scene file", LIMITS.model_bytes)[:4096]
-    from bgc.run.driver import build
 
     if "bgc_scene" in head:
-        from bgc.format.scene import parse_scene
-
         sc = parse_scene(path)
         mod = build(scene=sc, progress=progress).module  # numpy, through the cache
         return (mod,) + scene_start(sc, mod)
@@ -160,8 +159,6 @@ def load_target(path, progress=None):
 
 def scene_start(scene, mod) -> tuple:
     """(run-time parameters, start time, scene): where a scene's runs start."""
-    from bgc.run.runner import runtime_params
-
     return runtime_params(scene, mod), scene.t_span[0], scene
 
 
@@ -171,8 +168,6 @@ def operating_point(mod, at, p=None, u=None, t0: float = 0.0, progress=None,
     at t0; Newton starts from ``x0``, default the initial state) or a time, the state a run
     from the initial state (or ``x0``) at t0 reaches then. ``on_equilibrium(info)`` sees the
     equilibrium solver's report (free directions, residual) once it has converged."""
-    from bgc.base.errors import ModelError
-
     say = progress or (lambda msg: None)
     if at == "equilibrium":
         say("finding the equilibrium")

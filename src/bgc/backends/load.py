@@ -11,7 +11,15 @@ import shutil
 import sys
 from pathlib import Path
 
-from bgc.base import BACKENDS  # noqa: F401 (the one list, re-exported)
+from bgc.backends.c import build as cbuild
+from bgc.backends.c.build import LIB_NAME
+from bgc.base import (
+    BACKENDS,  # noqa: F401 (the one list, re-exported)
+    __version__,
+)
+from bgc.base.outfiles import write_output
+from bgc.base.safeio import read_bytes
+from bgc.base.store import Cache, UnsafeCache
 
 MODULE_FILE = "module.py"
 CODE_FILE = "module.code"
@@ -20,7 +28,7 @@ ENTRY_BYTES = 256 << 20  # the largest module (text or code) read from a cache e
 
 def c_files(compiled) -> tuple[dict, str]:
     """(C sources by file name, wrapper text) of a compiled model."""
-    from bgc.backends.c.build import LIB_NAME
+    # lazy: the compile path, which a warm run never loads
     from bgc.backends.c.printer import render_c, render_wrapper
 
     m = compiled.model
@@ -35,7 +43,7 @@ def write_c(compiled, outdir, cache=None, progress=None, inputs=None) -> Path:
     library into outdir; returns the wrapper's path. Every file through the checked writer
     (bgc.base.outdirs): never over ``inputs`` (the run's model, imports, scene), never through
     a link (a linked ``runtime/`` is refused), never over anything but a regular file."""
-    from bgc.backends.c import build as cbuild
+    # lazy: the compile path, which a warm run never loads
     from bgc.base.outdirs import check_in, copy_file, out_folder, write_in
 
     say = progress or (lambda msg: None)
@@ -65,8 +73,6 @@ def _code_file(tmp: Path, text: str, name: str) -> None:
 
 def _build_entry(compiled, backend, cache, progress, name):
     def build(tmp: Path):
-        from bgc.base.outfiles import write_output
-
         if backend == "numpy":
             write_output(tmp / MODULE_FILE, compiled.source)
             _code_file(tmp, compiled.source, name)
@@ -80,9 +86,6 @@ def c_entry_builder(files: dict, wrapper: str, name: str, cache=None, progress=N
     """build(tmp): write the C sources (file name -> text) and the wrapper into tmp and build
     the library there with the system compiler (a compile-cache entry for ``load_entry``)."""
     def build(tmp: Path):
-        from bgc.backends.c import build as cbuild
-        from bgc.base.outfiles import write_output
-
         for fname, text in files.items():
             write_output(tmp / fname, text)
         (progress or (lambda m: None))(f"building the C library ({len(files)} model units)")
@@ -100,9 +103,6 @@ def c_key(files: dict, wrapper: str) -> str:
     import hashlib
     import sys
 
-    from bgc.backends.c import build as cbuild
-    from bgc.base import __version__
-
     h = hashlib.sha256(f"bgc {__version__}\0python {sys.version}\0c-texts\0".encode())
     for fname in sorted(files):
         h.update(fname.encode() + b"\0" + files[fname].encode() + b"\0")
@@ -119,8 +119,8 @@ def load_c(files: dict, wrapper: str, name: str, key: str | None = None, progres
     built in a temporary folder instead. Raises CompilerMissing without a compiler."""
     import tempfile
 
+    # lazy: the compile path, which a warm run never loads
     from bgc.backends.skeleton import check_wrapper
-    from bgc.base.store import Cache, UnsafeCache
 
     check_wrapper(wrapper)
     key = key or c_key(files, wrapper)
@@ -144,7 +144,6 @@ def load_entry(entry: Path, backend: str, name: str, trusted: bool = False):
     entry is in a checked cache directory and was checked when written; its compiled code
     (module.code) is used as it is."""
     entry = Path(entry)
-    from bgc.base.safeio import read_bytes  # regular files only, never blocking
 
     text = read_bytes(entry / MODULE_FILE, ENTRY_BYTES).decode("utf-8")
     code = None
@@ -157,10 +156,10 @@ def load_entry(entry: Path, backend: str, name: str, trusted: bool = False):
             code = None
     if backend == "numpy":
         return load_module(text, name, code=code)
-    from bgc.backends.c.build import LIB_NAME
 
     check = None
     if code is None:  # compiled code comes from a checked entry; text is checked first
+        # lazy: the compile path, which a warm run never loads
         from bgc.backends.skeleton import check_wrapper as check
     mod = load_module(text, name, check=check, code=code)
     mod._bind(Path(entry) / LIB_NAME)
@@ -173,6 +172,7 @@ def load_module(source: str, name: str, check=None, code=None):
     so tracebacks and ``inspect`` still show the generated lines."""
     if code is None:  # code: compiled from checked text (a trusted cache entry)
         if check is None:
+            # lazy: the compile path, which a warm run never loads
             from bgc.backends.skeleton import check_skeleton as check
         check(source)  # never execute a module whose top level is not the template's
     modname = f"bgc_generated_{name}"

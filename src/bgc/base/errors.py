@@ -7,6 +7,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from bgc.base.limits import LIMITS
+
 
 def oneline(text, limit: int = 200) -> str:
     """Free text made safe for one line inside a docstring or a comment: control characters,
@@ -45,8 +47,6 @@ class ModelError(Exception):
     its own, never cut (each line made printable; at most :data:`ADVICE_LINES` lines)."""
 
     def __init__(self, coord: Coord | None, message: str, advice: str = ""):
-        from bgc.base.limits import LIMITS
-
         # One line, of bounded length, whatever user text the message quotes.
         message = " ".join(str(message).splitlines())
         cap = LIMITS.message_chars

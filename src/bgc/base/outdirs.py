@@ -17,7 +17,15 @@ import os
 import stat
 from pathlib import Path
 
-from bgc.base.outfiles import Inputs, OutputError, _kind, _reason, write_output
+from bgc.base.outfiles import (
+    Inputs,
+    OutputError,
+    _kind,
+    _reason,
+    check_output,
+    write_output,
+)
+from bgc.base.safeio import read_bytes
 
 __all__ = ["MARKER", "check_in", "copy_file", "inside", "mark_folder", "marked_as", "out_folder",
            "remove_marked", "sub_folder", "write_in"]
@@ -97,8 +105,6 @@ def sub_folder(root: Path, rel: str, what: str = "output folder") -> Path:
 def check_in(root: Path, rel: str, inputs: Inputs | None = None, what: str = "output") -> Path:
     """The checks of :func:`write_in` without writing: each existing folder on the way is a
     folder, not a link, and the file may be replaced (bgc.base.outfiles.check_output)."""
-    from bgc.base.outfiles import check_output
-
     p = Path(root)
     for part in [x for x in rel.split("/")[:-1] if x not in ("", ".")]:
         if part == "..":
@@ -123,8 +129,6 @@ def copy_file(src, root: Path, rel: str, inputs: Inputs | None = None, what: str
               limit: int = 64 << 20) -> Path:
     """Copy the regular file ``src`` (bgc's own: a template, an example) to ``root/rel``: read
     with the bounded reader, written with the checked writer (never through a link)."""
-    from bgc.base.safeio import read_bytes
-
     try:
         data = read_bytes(src, limit)
     except OSError as exc:
@@ -166,8 +170,6 @@ def mark_folder(folder: Path, kind: str, inputs: Inputs | None = None,
 
 def marked_as(folder) -> str | None:
     """The kind a marked folder was made for, or None (no marker, a link, not a folder)."""
-    from bgc.base.safeio import read_bytes
-
     try:
         if not stat.S_ISDIR(os.lstat(folder).st_mode):
             return None

@@ -25,6 +25,8 @@ import stat
 from pathlib import Path
 
 from bgc.base.errors import ModelError
+from bgc.base.limits import LIMITS
+from bgc.base.safeio import read_text_bounded
 
 __all__ = ["OutputError", "Inputs", "write_output", "check_output", "prepare_folder",
            "check_folder",
@@ -84,9 +86,6 @@ class Inputs:
 def model_inputs(model_path) -> list[Path]:
     """The model file and every file it imports, transitively (read after the model has
     parsed, so the files are known to be valid and bounded; each file visited once)."""
-    from bgc.base.limits import LIMITS
-    from bgc.base.safeio import read_text_bounded
-
     out: list[Path] = []
     seen: set[str] = set()
     todo = [Path(model_path)]

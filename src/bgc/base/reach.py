@@ -14,6 +14,9 @@ import os
 from pathlib import Path
 from typing import NamedTuple
 
+from bgc.base.outfiles import Inputs
+from bgc.base.safeio import read_bytes
+
 #: The most bytes of one file that a key reads (larger files fail the parser's own limits).
 MAX_BYTES = 64 << 20
 #: The most files one model reaches (the parser's import limit is far lower).
@@ -52,8 +55,6 @@ class _Walk:
 
     def read(self, p: Path) -> Reached | None:
         """The file (None when seen already); OSError when it cannot be read."""
-        from bgc.base.safeio import read_bytes
-
         if len(self.out) >= MAX_FILES:
             raise OSError("too many files")
         rp = os.path.realpath(p)
@@ -104,8 +105,6 @@ def reached_files(path, scene_path=None, partial: bool = False) -> list[Reached]
     try:
         ok = w.visit(Path(path))
         if ok and scene_path is not None:
-            from bgc.base.safeio import read_bytes
-
             sp = Path(scene_path)
             data = read_bytes(sp, MAX_BYTES)
             w.tables(sp, w.load(data, b"table"))
@@ -117,8 +116,6 @@ def reached_files(path, scene_path=None, partial: bool = False) -> list[Reached]
 def run_inputs(model_path=None, scene_path=None, *more):
     """The inputs of a run that no output may replace (bgc.base.outfiles.Inputs): the model,
     the scene, every file they reach (as far as they can be read) and ``more``."""
-    from bgc.base.outfiles import Inputs
-
     ins = Inputs([p for p in (model_path, scene_path, *more) if p is not None])
     if model_path is not None:
         for r in reached_files(model_path, scene_path, partial=True) or ():

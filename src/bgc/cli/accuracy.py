@@ -11,11 +11,16 @@ import click
 import numpy as np
 
 from bgc.base.errors import ModelError
+from bgc.base.outdirs import out_folder
+from bgc.base.outfiles import check_folder
 from bgc.cli.options import POSITIVE, RTOL, finite, model_inputs
+from bgc.format.scene import parse_scene
 from bgc.run.progress import Progress
+from bgc.run.runner import check_start
 from bgc.studies.accuracy import parse_methods, parse_tols, study
 from bgc.studies.accuracy_report import cheapest, write_all
 from bgc.studies.runs import C_METHODS, FD_JACOBIAN, METHODS, c_available, prepare
+from bgc.studies.sweep import client_for
 
 _DEFAULT_METHODS = ",".join(METHODS + C_METHODS)
 
@@ -77,23 +82,16 @@ def register(main_group):
             raise ModelError(None, f"--breakpoints {extra_bps!r}: give numbers") from None
         if not all(math.isfinite(b) for b in bps):
             raise ModelError(None, f"--breakpoints {extra_bps!r}: give finite numbers")
-        from bgc.base.outfiles import check_folder
-        from bgc.format.scene import parse_scene
-
         sc = parse_scene(scene)
         out = Path(out_dir or f"accuracy_{Path(sc.file).stem}")
-        from bgc.base.outdirs import out_folder
 
         check_folder(out_folder(out, "--out", create=False), "--out")  # before the study
         setup = prepare(sc, t_end=t_end, atol_scale=atol_scale, breakpoints=bps)
         inputs = model_inputs(scene, sc.model_path)  # the model has parsed: its imports
-        from bgc.run.runner import check_start
 
         check_start(setup.compiled, setup.module, sc, setup.p)  # nan or inf at t0: one line
         client = None
         if workers is not None or scheduler is not None:
-            from bgc.studies.sweep import client_for
-
             client = client_for(scheduler or "local", workers)
         try:
             with np.errstate(all="ignore"):  # (inherited by the forked runs)
@@ -101,6 +99,7 @@ def register(main_group):
                            say, client)
         finally:
             if client is not None:
+                # lazy: Dask loads only for a study on workers
                 from bgc.studies.sweep import close_client
 
                 close_client(client)

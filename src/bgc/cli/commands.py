@@ -11,7 +11,7 @@ import traceback
 import click
 
 from bgc.base import __version__
-from bgc.base.errors import ModelError, SimulationFailed
+from bgc.base.errors import ModelError, SimulationFailed, oneline
 from bgc.cli import housekeeping, model_cmds, scene_cmds
 from bgc.cli.exits import (  # noqa: F401 (EXIT_*: the statuses, as bgc.cli.commands.*)
     EXIT_FAILED_RUN,
@@ -46,14 +46,10 @@ class _Group(click.Group):
         try:
             rv = super().main(args, prog_name, complete_var, False, **extra)
         except click.UsageError as exc:
-            from bgc.base.errors import oneline
-
             hint = f" (see '{exc.ctx.command_path} --help')" if exc.ctx is not None else ""
             click.echo(f"error: {oneline(exc.format_message(), 400)}{hint}", err=True)
             sys.exit(exc.exit_code)
         except click.ClickException as exc:
-            from bgc.base.errors import oneline
-
             click.echo(f"error: {oneline(exc.format_message(), 400)}", err=True)
             sys.exit(exc.exit_code)
         except click.Abort:
@@ -86,7 +82,6 @@ class _Group(click.Group):
                 raise  # stdout closed early (bgc check ... | head): click exits quietly
             if debug_on():
                 traceback.print_exc()
-            from bgc.base.errors import oneline
 
             where = f" {exc.filename!r}" if exc.filename is not None else ""
             click.echo(f"error:{oneline(where, 240)} {exc.strerror or exc}", err=True)
@@ -111,6 +106,7 @@ for _cmd in (model_cmds.compile_cmd, model_cmds.check_cmd, model_cmds.graph_cmd,
 def _register_accuracy():
     """`bgc accuracy` lives in a heavy module: registered only when asked for (warm runs of
     other commands never import it)."""
+    # lazy: the compile path, which a warm run never loads
     from bgc.cli.accuracy import register
 
     register(main)
@@ -138,6 +134,7 @@ for _name, _cmd in main.commands.items():
 
 def _register_sweep():
     """`bgc sweep` (Dask, xarray, Zarr) is registered only when asked for, like accuracy."""
+    # lazy: the compile path, which a warm run never loads
     from bgc.cli.sweep import register
 
     register(main)

@@ -8,7 +8,7 @@ import traceback
 
 import click
 
-from bgc.base.errors import ModelError
+from bgc.base.errors import ModelError, oneline
 
 #: Exit statuses (README, "Errors"): 0 ok; 1 the simulation failed (numerically, or was
 #: stopped); 2 a model, scene or usage error; 3 an internal error of bgc.
@@ -26,8 +26,6 @@ def debug_on() -> bool:
 
 def internal_error(exc: BaseException):
     """An exception bgc did not expect: one line saying so (the traceback with BGC_DEBUG=1)."""
-    from bgc.base.errors import oneline
-
     if debug_on():
         traceback.print_exc()
     what = oneline(f"{type(exc).__name__}: {exc}", 300)

@@ -3,10 +3,11 @@ compile cache's info and clear). Click commands that bgc.cli.commands adds to th
 group."""
 from __future__ import annotations
 
-
 import click
 
 from bgc.base.errors import ModelError
+from bgc.base.paths import package_dir
+from bgc.run.cache import Cache
 
 
 @click.command("examples")
@@ -16,6 +17,7 @@ def examples_cmd(directory):
     that already exists there is overwritten (then nothing is copied)."""
     import os
 
+    # lazy: the compile path, which a warm run never loads
     from bgc.base.outdirs import check_in, copy_file, out_folder
 
     files = _example_files()
@@ -36,8 +38,6 @@ def examples_cmd(directory):
 def _example_files() -> dict:
     """relative path -> source file: the repository's models/ and docs/model-format.md in a
     source checkout, else the installed copies (bgc.examples, bgc.docs)."""
-    from bgc.base.paths import package_dir
-
     here = package_dir()  # src/bgc in a checkout, site-packages/bgc when installed
     root = here.parent.parent
     if (root / "models" / "msd.yaml").is_file():
@@ -64,8 +64,6 @@ def cache_cmd():
 @cache_cmd.command("info")
 def cache_info_cmd():
     """Where the cache is, how many entries per target, how many bytes."""
-    from bgc.run.cache import Cache
-
     info = Cache().info()
     ents = ", ".join(f"{k} {v}" for k, v in info["entries"].items()) or "empty"
     click.echo(f"{info['path']}: {ents}; {info['bytes'] / 1e6:.1f} MB")
@@ -74,8 +72,6 @@ def cache_info_cmd():
 @cache_cmd.command("clear")
 def cache_clear_cmd():
     """Remove every cache entry."""
-    from bgc.run.cache import Cache
-
     c = Cache()
     n = c.clear()
     click.echo(f"{c.path}: removed {n} entries")

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import sys
 
+from bgc.run.record import replay
+
 
 def main(argv: list[str] | None = None) -> None:
     args = sys.argv[1:] if argv is None else list(argv)
     if args[:1] == ["simulate"]:
-        from bgc.run.record import replay
-
         try:
             status = replay(args[1:])
         except KeyboardInterrupt:
@@ -17,6 +17,7 @@ def main(argv: list[str] | None = None) -> None:
             sys.exit(1)
         if status is not None:
             sys.exit(status)
+    # lazy: a warm `bgc simulate` replays its record before click and the CLI load
     from bgc.cli.commands import main as cli_main
 
     cli_main(args=args)

@@ -8,11 +8,21 @@ from pathlib import Path
 
 import click
 
+from bgc.backends import load as backends
+from bgc.backends.c import build as cbuild
+from bgc.backends.c.build import CompilerMissing
 from bgc.base import BACKENDS
 from bgc.base.errors import ModelError
+from bgc.base.outfiles import check_output, write_output
+from bgc.base.reach import run_inputs
 from bgc.cli.exits import fail
 from bgc.cli.options import model_inputs
+from bgc.format.parse import parse_file
+from bgc.format.scene import parse_scene
+from bgc.run import cache as cache_mod
+from bgc.run.driver import check_model, compile_source
 from bgc.run.progress import Progress
+from bgc.run.runner import check_module_start
 
 
 @click.command("compile")
@@ -32,14 +42,9 @@ from bgc.run.progress import Progress
 @click.option("-q", "--quiet", is_flag=True)
 def compile_cmd(model, output, scene, target, no_cache, quiet, strict_causality):
     """Compile MODEL.yaml into a Python module (or, --target c, C sources and a library)."""
-    from bgc.base.outfiles import write_output
-    from bgc.run.driver import compile_source
-
     prog = Progress(quiet)
     sc = None
     if scene:
-        from bgc.format.scene import parse_scene
-
         prog("parsing")
         sc = parse_scene(scene)
     # the scene's module is the one `bgc simulate` runs: bgc.run.driver's one scene compile
@@ -47,14 +52,9 @@ def compile_cmd(model, output, scene, target, no_cache, quiet, strict_causality)
     if sc is not None and output is None:
         output = Path(f"{c.model.name}_{sc.name}.py")
     if target == "c":
-        from bgc.backends import load as backends
-        from bgc.backends.c import build as cbuild
-        from bgc.run import cache as cache_mod
-
         if output is None:
             raise ModelError(None, "--target c writes a folder: give it with -o OUTDIR")
         cbuild.identity()  # a clear message without a compiler
-        from bgc.base.reach import run_inputs
 
         path = backends.write_c(c, output, None if no_cache else cache_mod.Cache(), prog,
                                 run_inputs(model, scene))
@@ -64,7 +64,6 @@ def compile_cmd(model, output, scene, target, no_cache, quiet, strict_causality)
     if output is None:
         output = _default_output(Path(model), c.model.name)
     ins = model_inputs(model, scene, sc.model_path if scene else None)
-    from bgc.run.runner import check_module_start
 
     check_module_start(c)  # finite at X0 with the defaults, or a located error: nothing written
     write_output(output, c.source, ins, "-o")
@@ -88,9 +87,6 @@ def _default_output(model: Path, name: str) -> Path:
               help="also list each bond's physical domain and the dimensions of its effort and flow")
 def check_cmd(model, strict_causality, show_units):
     """Check MODEL.yaml completely (up to the equations) and list causality, states, warnings."""
-    from bgc.format.parse import parse_file
-    from bgc.run.driver import check_model
-
     chk = check_model(parse_file(model), strict_causality)  # as bgc.check() and compile check
     if chk.error is not None:
         raise chk.error
@@ -122,6 +118,7 @@ def check_cmd(model, strict_causality, show_units):
     all_integral = not caus.derivative
     out.write(f"\ncausality: {'all storage elements integral' if all_integral else 'derivative'}\n")
     if caus.derivative:
+        # lazy: the compile path, which a warm run never loads
         from bgc.core.causality import dependent_report
 
         out.write(dependent_report(bg, caus, eqs))
@@ -130,6 +127,7 @@ def check_cmd(model, strict_causality, show_units):
     for wmsg in eqs.warnings:  # what the equations leave standing of causality's warnings
         out.write(f"warning: {wmsg}\n")
     if show_units:
+        # lazy: the compile path, which a warm run never loads
         from bgc.core.units import check_units
 
         out.write("\n" + check_units(bg).text())
@@ -142,11 +140,10 @@ def check_cmd(model, strict_causality, show_units):
               help="FILE.dot, FILE.svg or FILE.png")
 def graph_cmd(model, output):
     """Draw the bond graph with causal strokes (DOT; SVG/PNG through Graphviz)."""
-    from bgc.base.outfiles import check_output, write_output
+    # lazy: the compile path, which a warm run never loads
     from bgc.core.causality import assign_causality
     from bgc.core.draw import render_image, to_dot
     from bgc.core.graph import build_graph
-    from bgc.format.parse import parse_file
 
     bg = build_graph(parse_file(model))
     caus = assign_causality(bg, allow_derivative=True)
@@ -170,6 +167,7 @@ def graph_cmd(model, output):
               help="substitute the causal assignments: dx/dt in states, parameters, inputs only")
 def equations_cmd(model, latex, explicit):
     """The state equations of MODEL: the causal assignments, then dx/dt (sympy)."""
+    # lazy: the compile path, which a warm run never loads
     from bgc.api import equations
 
     eq = equations(model)
@@ -198,7 +196,7 @@ def equations_cmd(model, latex, explicit):
 @click.option("-q", "--quiet", is_flag=True)
 def export_cmd(model, scene, fmu_out, kind, quiet):
     """Export MODEL.yaml (or SCENE's specialised model) as an FMI 2.0 FMU."""
-    from bgc.backends.c.build import CompilerMissing
+    # lazy: the compile path, which a warm run never loads
     from bgc.run.fmu import export_fmu
 
     prog = Progress(quiet)

@@ -5,6 +5,9 @@ import math
 
 import click
 
+from bgc.base.outfiles import Inputs
+from bgc.base.reach import reached_files
+
 
 class _Finite(click.ParamType):
     """A finite float in a range: click's FloatRange lets inf and nan through."""
@@ -48,9 +51,6 @@ def model_inputs(*paths, follow: bool = True):
     """The inputs of this run that no output may replace: the given files (models, scenes)
     and, with ``follow``, the files the models import and the tables they and the scenes read (only once bgc's parser has read them:
     the imports are found by reading the files again)."""
-    from bgc.base.outfiles import Inputs
-    from bgc.base.reach import reached_files
-
     ins = Inputs()
     for p in paths:
         if p is None:

@@ -5,13 +5,14 @@ import io
 
 import numpy as np
 
+from bgc.base.outdirs import check_in, out_folder, write_in
+from bgc.base.reach import run_inputs
+from bgc.linear import bode_plot
+
 
 def check_linear(out, mod, pairs, target, sc) -> dict:
     """Every refusal of :func:`write_linear` before anything is computed: the plan of what it
     writes (folder, inputs, file names)."""
-    from bgc.base.outdirs import check_in, out_folder
-    from bgc.base.reach import run_inputs
-
     ins = run_inputs(sc.model_path, target) if sc is not None else run_inputs(target)
     name = getattr(mod, "__name__", "model").removeprefix("bgc_generated_")
     pngs = [(i, o, f"bode_{i}_{o}.png".replace("[", "_").replace("]", "")) for i, o in pairs]
@@ -25,9 +26,6 @@ def write_linear(plan: dict, mod, lin, t, x, prog):
     """NAME_linear.npz and the Bode PNGs into the folder of ``plan`` (:func:`check_linear`),
     through the checked writer (never over an input of the run, a link or anything but a
     regular file; atomic)."""
-    from bgc.base.outdirs import out_folder, write_in
-    from bgc.linear import bode_plot
-
     ins = plan["ins"]
     d = out_folder(plan["out"], "--out")
     data = io.BytesIO()

@@ -8,10 +8,24 @@ import click
 import numpy as np
 
 from bgc.base import BACKENDS
-from bgc.base.errors import ModelError
+from bgc.base.errors import Coord, ModelError
+from bgc.base.outfiles import check_folder, check_output, write_output
 from bgc.cli.options import POSITIVE, model_inputs
 from bgc.format.scene import METHODS as SOLVER_METHODS
-from bgc.run.progress import Progress
+from bgc.format.scene import (
+    MODEL_T_END,
+    check_max_steps,
+    check_rtol,
+    is_model_file,
+    model_scene,
+    parse_scene,
+    with_t_end,
+)
+from bgc.run.event_log import event_arrays
+from bgc.run.plots import render_plots, write_plots
+from bgc.run.progress import Progress, summary_line
+from bgc.run.record import keep, options_text
+from bgc.run.runner import explain_scene, run_scene
 
 
 @click.command("simulate")
@@ -43,10 +57,6 @@ def simulate_cmd(scene, t_end, max_steps, out, plot_dir, method, rtol, atol, max
                  no_cache, strict_causality, quiet):
     """Compile the scene's model (or take it from the compile cache) and simulate the scene.
     SCENE may also be a model file: it runs with its defaults for 10 s (or --t-end)."""
-    from bgc.base.outfiles import check_folder, check_output, write_output
-    from bgc.format.scene import check_rtol
-    from bgc.run.runner import run_scene
-
     if rtol is not None:  # finite, within the limits (bgc.base.limits): one line, exit 2
         check_rtol(rtol, None, "--rtol")
     prog = Progress(quiet)
@@ -54,6 +64,7 @@ def simulate_cmd(scene, t_end, max_steps, out, plot_dir, method, rtol, atol, max
     if out:  # refused before the run, not after it (the imports are known after it)
         check_output(out, model_inputs(scene, sc.model_path, follow=False), "--out")
     if plot_dir is not None:
+        # lazy: the compile path, which a warm run never loads
         from bgc.base.outdirs import out_folder
 
         check_folder(out_folder(plot_dir, "--plot", create=False), "--plot")
@@ -63,13 +74,10 @@ def simulate_cmd(scene, t_end, max_steps, out, plot_dir, method, rtol, atol, max
     ins = model_inputs(scene, sc.model_path)
     figures = None
     if plot_dir is not None:  # every figure drawn before anything is written
-        from bgc.run.plots import render_plots, write_plots
 
         figures = render_plots(res.scene, res.t, res.y,
                                getattr(res.module, "OUTPUT_UNITS", None))
     if out:
-        from bgc.run.event_log import event_arrays  # a hybrid model's event log
-
         buf = io.BytesIO()
         np.savez_compressed(buf, t=res.t, **res.y, **event_arrays(res.events, res.x.shape[0]))
         write_output(out, buf.getvalue(), ins, "--out")
@@ -78,11 +86,9 @@ def simulate_cmd(scene, t_end, max_steps, out, plot_dir, method, rtol, atol, max
         for p in write_plots(res.scene, res.t, res.y, plot_dir, ins, figures):
             prog(f"wrote {p}")
     if not no_cache:  # a later run of the same scene and options replays it (bgc.run.record)
-        from bgc.run.record import keep, options_text
 
         keep(scene, options_text(method, rtol, atol, max_wall, backend, strict_causality,
                                  t_end=t_end, max_steps=max_steps), res)
-    from bgc.run.progress import summary_line
 
     click.echo(summary_line(res.scene.name, res.t, res.method, res.rtol, res.atol, res.backend,
                             res.stats, res.compile_time, res.run_time))
@@ -91,9 +97,6 @@ def simulate_cmd(scene, t_end, max_steps, out, plot_dir, method, rtol, atol, max
 def _scene_or_model(path, t_end, max_steps, say):
     """The scene file at path, or a model file as the scene of its defaults (bgc simulate
     MODEL.yaml); --t-end and --max-steps checked (one located line each)."""
-    from bgc.format.scene import (MODEL_T_END, check_max_steps, is_model_file, model_scene,
-                                  parse_scene, with_t_end)
-
     if max_steps is not None:
         check_max_steps(max_steps, None, "--max-steps")
     if is_model_file(path):
@@ -112,8 +115,6 @@ def _scene_or_model(path, t_end, max_steps, say):
 @click.option("-q", "--quiet", is_flag=True)
 def explain_cmd(scene, rounds, quiet):
     """Full model against SCENE's specialisation: states, operations, cost of one rhs call."""
-    from bgc.run.runner import explain_scene
-
     prog = Progress(quiet)
     ex = explain_scene(scene, progress=prog)
     prog("timing the rhs")
@@ -151,6 +152,7 @@ def explain_cmd(scene, rounds, quiet):
 
 def _load_target(path, prog):
     """A scene file (its specialised module, parameters and span) or a model file."""
+    # lazy: the compile path, which a warm run never loads
     from bgc.linear import load_target
 
     return load_target(path, prog)
@@ -174,6 +176,7 @@ def _load_target(path, prog):
 def linearize_cmd(target, at, out, bode, freq_range, quiet):
     """Linearise SCENE_OR_MODEL: eigenvalues with natural frequencies and damping ratios and
     the states that dominate each mode; matrices and Bode plots with --out."""
+    # lazy: the compile path, which a warm run never loads
     from bgc.linear import modes, operating_point
 
     prog = Progress(quiet)
@@ -190,10 +193,11 @@ def linearize_cmd(target, at, out, bode, freq_range, quiet):
         raise ModelError(None, "--bode needs --out DIR for its plots")
     plan = None
     if out:  # refused before anything is computed
+        # lazy: the compile path, which a warm run never loads
         from bgc.cli.outputs import check_linear
 
         plan = check_linear(out, mod, pairs, target, sc)
-    from bgc.base.errors import Coord
+    # lazy: the compile path, which a warm run never loads
     from bgc.cli import guards
 
     coord = sc.coord if sc is not None and getattr(sc, "coord", None) else Coord(str(target), 1, 1)
@@ -224,6 +228,7 @@ def linearize_cmd(target, at, out, bode, freq_range, quiet):
         buf.write(f"{ev:>30}  {md.wn:11.4g}  {md.hz:10.4g}  {zeta:>8}  {dom}\n")
     click.echo(buf.getvalue(), nl=False)
     if plan is not None:
+        # lazy: the compile path, which a warm run never loads
         from bgc.cli.outputs import write_linear
 
         plan["f_range"] = freq_range
@@ -245,6 +250,7 @@ def _warn_free(info, say) -> None:
 def _warn_unstable(A, where, say) -> None:
     """A warning line when the linearisation has growing modes (an equilibrium that is not
     stable, or not an equilibrium the model can hold)."""
+    # lazy: the compile path, which a warm run never loads
     from bgc.linear import unstable_modes
 
     grow = unstable_modes(A)

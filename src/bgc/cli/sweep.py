@@ -5,8 +5,11 @@ from __future__ import annotations
 
 import click
 
+from bgc.base.outdirs import out_folder
+from bgc.base.outfiles import check_folder
 from bgc.run.progress import Progress
 from bgc.studies.sweep import client_for, close_client, prepare, run_sweep
+from bgc.studies.sweep_folder import check_store
 from bgc.studies.sweep_plot import plot_sweep
 from bgc.studies.sweep_spec import MAX_SAMPLES
 from bgc.studies.sweep_store import open_results
@@ -43,13 +46,9 @@ def register(main_group):
         """Run SCENE's sweep: batched simulations on Dask, results in a Zarr store."""
         say = Progress(quiet)
 
-        from bgc.studies.sweep_folder import check_store
 
         check_store(out)  # a folder bgc did not make: refused before anything runs
         if plot_dir:
-            from bgc.base.outdirs import out_folder
-            from bgc.base.outfiles import check_folder
-
             check_folder(out_folder(plot_dir, "--plot", create=False), "--plot")
         say(f"compiling {scene}")
         prep = prepare(scene, say, backend)

@@ -12,11 +12,11 @@ import sympy as sp
 from bgc.base.errors import Coord, ModelError
 from bgc.core.causality import Causality
 from bgc.core.eqtypes import (
-    T,
     Assignment,
     InputVar,
     ParamVar,
     StateVar,
+    T,
     flat,
     real_symbol,
     shape_name,

@@ -25,10 +25,10 @@ from bgc.core.causality import Causality
 from bgc.core.context import Context, check_names
 from bgc.core.eqtypes import (
     SYMBOLIC_MAX,
-    T,
     Assignment,
     Equations,
     StateVar,
+    T,
     flat,
     is_trivial,
     shape_name,

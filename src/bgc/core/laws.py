@@ -17,7 +17,6 @@ from bgc.core.graph import FlatElement, code_name
 from bgc.format.expr import shape_of
 from bgc.format.parse import TWO_PORTS
 
-
 _BAD_VALUES = (sp.zoo, sp.oo, -sp.oo, sp.nan, sp.I)
 
 

@@ -15,6 +15,7 @@ import sympy as sp
 
 from bgc.core.eqtypes import T
 
+
 def _values(eq) -> dict:
     """The parameters' values (symbol -> sympy number), derived parameters included."""
     vals = {}

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 from bgc.base.errors import Coord, ModelError
 from bgc.core.causality import Causality, assign_causality, derivative_message
 from bgc.core.effects import Refs, Removal, remove_effects
-from bgc.core.eqtypes import Equations
+from bgc.core.eqtypes import Equations, state_label
 from bgc.core.graph import BondGraph
 from bgc.format.whitelist import Expr
 
@@ -319,8 +319,6 @@ def slice_outputs(eq: Equations) -> tuple[Equations, tuple, dict]:
 
 def state_owners(bg: BondGraph, caus: Causality) -> list[tuple[str, str]]:
     """(state name as in STATE_NAMES, owning element or state id), in the module's order."""
-    from bgc.core.eqtypes import state_label
-
     out = []
     for el in bg.elements:
         if el.type in ("I", "C") and el.id not in caus.derivative:

@@ -278,6 +278,7 @@ def _hybrid(r: Reader, top: dict, body: Body):
     states as a state whose derivative is zero (an event is the only thing that changes it)."""
     from dataclasses import replace
 
+    # lazy: the compile path, which a warm run never loads
     from bgc.format import events as _events
 
     modes = _events.read_modes(r, top["modes"][1]) if "modes" in top else ()

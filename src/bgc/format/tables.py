@@ -15,6 +15,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bgc.base.errors import Coord, ModelError
+from bgc.base.safeio import read_text_bounded
+from bgc.format.reader import require
 
 MAX_BYTES = 16 * 1024 * 1024
 MAX_ROWS = 200_000  # every row becomes two float literals in the generated module
@@ -47,8 +49,6 @@ def is_table(r, node) -> bool:
 
 def read_table(r, node, what: str, extra_keys=()) -> Table:
     """The table a mapping node describes (``r`` is parse's reader: coordinates, types)."""
-    from bgc.format.reader import require
-
     m = r.mapping(node, what)
     require(r, m, node, ("table", "columns", "interp", "extrapolate") + tuple(extra_keys), what,
              required=("table",))
@@ -84,9 +84,6 @@ def load_csv(base: Path, rel: str, columns, coord: Coord, what: str):
         raise ModelError(coord, f"{what}: the table file is given relative to this file, not "
                                 f"as an absolute path ({rel!r})")
     path = base / rel
-    from bgc.base.safeio import (
-        read_text_bounded,  # regular files only, size checked before reading
-    )
 
     text = read_text_bounded(path, coord, f"{what}: table", MAX_BYTES).removeprefix("\ufeff")
     rows = []

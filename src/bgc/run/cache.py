@@ -14,7 +14,11 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from bgc.backends.c import build as cbuild
 from bgc.base import __version__
+from bgc.base.paths import code_files
+from bgc.base.reach import MAX_BYTES, reached_files
+from bgc.base.safeio import read_bytes
 from bgc.base.store import TARGETS, Cache, UnsafeCache, root  # noqa: F401 (the cache's face)
 
 # ---------------------------------------------------------------------------------------------
@@ -25,8 +29,6 @@ def model_files(path, scene_path=None) -> list[tuple[str, bytes]] | None:
     model, its imports and the scene name, as (resolved path, bytes): what a compile reads
     (the scene itself apart), read with the bounded reader (bgc.base.reach). None when they
     cannot all be read (the compile then reports the error, uncached)."""
-    from bgc.base.reach import reached_files
-
     files = reached_files(path, scene_path)
     return None if files is None else [(r.resolved, r.data) for r in files]
 
@@ -53,10 +55,8 @@ def _code_digest() -> str:
     output): bgc.base.paths.code_files."""
     import hashlib
 
-    from bgc.base.paths import code_files
 
     h = hashlib.sha256()
-    from bgc.base.safeio import read_bytes
 
     for name, path in code_files():
         h.update(name.encode() + b"\0" + read_bytes(path, 64 << 20) + b"\0")
@@ -74,9 +74,6 @@ def key_inputs(target: str, model_path, scene_path=None, extra: str = ""):
     keeps the paths and digests of exactly the bytes the key was made of."""
     import hashlib
 
-    from bgc.base.reach import MAX_BYTES, reached_files
-    from bgc.base.safeio import read_bytes
-
     files = reached_files(model_path, scene_path)
     if files is None:
         return None, [], None
@@ -93,7 +90,5 @@ def key_inputs(target: str, model_path, scene_path=None, extra: str = ""):
             return None, [], None
         h.update(b"scene\0" + scene)
     if target == "c":
-        from bgc.backends.c import build as cbuild
-
         h.update(("\0" + cbuild.identity() + "\0" + " ".join(cbuild.flags())).encode())
     return h.hexdigest(), files, scene

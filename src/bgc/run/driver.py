@@ -37,7 +37,14 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from bgc.backends import load as backends
+from bgc.backends.c import build as cbuild
+from bgc.backends.c.build import CompilerFailed, CUnsupported
 from bgc.base.errors import ModelError
+from bgc.format.parse import parse_file
+from bgc.format.scene import check_against, check_outputs, scene_model
+from bgc.run import cache as cache_mod
+from bgc.run.plots import check_plots
 
 if TYPE_CHECKING:  # annotations only
     from bgc.core.causality import Causality
@@ -129,6 +136,7 @@ def graph_of(model: Model, progress=None) -> BondGraph:
 def causality_of(graph: BondGraph, allow_derivative: bool, progress=None) -> Causality:
     """Stage 3: causality (SCAP); with derivative causality allowed, one caused by a resistor
     law in the wrong fixed form is that law's located error, not the storage element's."""
+    # lazy: the compile path, which a warm run never loads
     from bgc.core.causality import assign_causality, fixed_r_culprit
 
     (progress or (lambda msg: None))("assigning causality (SCAP)")
@@ -175,6 +183,7 @@ class _Special:
 
 def _check_plan_effects(graph, plan) -> None:
     """Every effect the scene names (on or off) must exist."""
+    # lazy: the compile path, which a warm run never loads
     from bgc.core.effects import known_effects
 
     effects = known_effects(graph)
@@ -187,6 +196,7 @@ def _check_plan_effects(graph, plan) -> None:
 
 def specialise(graph: BondGraph, caus: Causality, plan: Plan, progress=None) -> _Special:
     """Stage 4: effects off (causality re-assigned), outputs selected, parameters to fold."""
+    # lazy: the compile path, which a warm run never loads
     from bgc.core.causality import derivative_message
     from bgc.core.specialize import (
         recausal,
@@ -223,6 +233,7 @@ def specialise(graph: BondGraph, caus: Causality, plan: Plan, progress=None) -> 
 
 def _compile_model(model: Model, progress, plan: Plan | None, strict_causality: bool,
                    symbolic_max: int | None) -> Compiled:
+    # lazy: the compile path, which a warm run never loads
     from bgc.core.equations import derive  # (sympy: compile path only)
     from bgc.lower.ir import lower
 
@@ -261,6 +272,7 @@ def _compile_model(model: Model, progress, plan: Plan | None, strict_causality: 
 
 def _sliced(eqs, plan, sp_: _Special, progress) -> tuple[Equations, list[str]]:
     """The equations sliced to the scene's outputs, and the notes on states removed."""
+    # lazy: the compile path, which a warm run never loads
     from bgc.core.specialize import slice_outputs, states_note
 
     notes: list[str] = []
@@ -276,6 +288,7 @@ def _sliced(eqs, plan, sp_: _Special, progress) -> tuple[Equations, list[str]]:
 
 def print_numpy(model: Model, low, notes: tuple[str, ...], progress=None) -> str:
     """Stage 7 for the numpy backend: the module's text from the IR."""
+    # lazy: the compile path, which a warm run never loads
     from bgc.backends.numpy.printer import render
 
     return render(low.eq, source=Path(model.file).name, source_hash=model.source_hash,
@@ -294,8 +307,6 @@ def _short(v) -> str:
 # Stage 1 and the whole compile of a model or a scene
 
 def parse(path) -> Model:
-    from bgc.format.parse import parse_file  # (PyYAML: compile path only)
-
     return parse_file(path)
 
 
@@ -323,9 +334,9 @@ def scene_compiled(scene, progress=None, specialise: bool = True,
     """Stages 1-7 of a scene: the scene's model (its signals and parameter values:
     :func:`bgc.format.scene.scene_model`) specialised to its plan (``specialise=False``: the
     scene's full model). Plots must name outputs the module keeps."""
+    # lazy: the compile path, which a warm run never loads
     from bgc.core.graph import build_graph  # (the compile path: sympy, networkx)
     from bgc.core.specialize import plan_for
-    from bgc.format.scene import check_outputs, scene_model
 
     t0 = time.perf_counter()
     model = scene_model(scene)
@@ -359,7 +370,6 @@ def usable_backend(backend: str, progress=None) -> str:
     and falls back to numpy."""
     if backend != "c":
         return backend
-    from bgc.backends.c import build as cbuild
 
     say = progress or (lambda msg: None)
     if not cbuild.available():
@@ -390,10 +400,6 @@ def build(model=None, scene=None, backend: str = "numpy", *, use_cache: bool = T
     and use numpy (else the error stands). A scene's plots must name the module's outputs.
     ``specialise=False``: the scene's full model (every effect, parameter and output)."""
     import numpy as np
-
-    from bgc.backends import load as backends
-    from bgc.backends.c.build import CompilerFailed, CUnsupported
-    from bgc.run import cache as cache_mod
 
     if fallback:
         backend = usable_backend(backend, progress)
@@ -431,9 +437,6 @@ def build(model=None, scene=None, backend: str = "numpy", *, use_cache: bool = T
 
 
 def _check_scene_module(scene, mod) -> None:
-    from bgc.format.scene import check_against
-    from bgc.run.plots import check_plots
-
     check_against(scene, mod)
     check_plots(scene, mod.OUTPUT_SHAPES)  # a plot that cannot be drawn: before any run
 
@@ -456,6 +459,7 @@ def check_model(model: Model, strict_causality: bool = False, progress=None) -> 
     """Stages 2-5 as a compile runs them (the model's ``causality: strict`` or
     ``strict_causality`` refuses derivative causality; a resistor law in the wrong fixed form
     is that law's error), the strict refusal kept as data rather than raised."""
+    # lazy: the compile path, which a warm run never loads
     from bgc.core.causality import derivative_message
     from bgc.core.equations import derive
 

@@ -6,13 +6,15 @@ from pathlib import Path
 
 from bgc.backends.fmu.export import KINDS, package_fmu
 from bgc.base.errors import ModelError
+from bgc.base.outfiles import check_output
+from bgc.base.reach import run_inputs
+from bgc.base.store import Cache
+from bgc.format.scene import parse_scene
+from bgc.run.driver import build, check_scene_for
 
 
 def export_fmu(model_path, out, scene_path=None, kind: str = "both", progress=None) -> Path:
     """Compile MODEL (or SCENE's specialised model) and write the FMU to out (atomically)."""
-    from bgc.base.outfiles import check_output
-    from bgc.base.reach import run_inputs
-
     say = progress or (lambda msg: None)
     if kind not in KINDS:
         raise ModelError(None, f"unknown FMU kind {kind!r}: one of {', '.join(KINDS)}")
@@ -20,10 +22,7 @@ def export_fmu(model_path, out, scene_path=None, kind: str = "both", progress=No
     check_output(out, ins, "--fmu")  # refused before anything is compiled
     scene = None
     if scene_path is not None:
-        from bgc.format.scene import parse_scene
-
         scene = parse_scene(scene_path)
-    from bgc.run.driver import build, check_scene_for
 
     if scene is not None:
         check_scene_for(scene, model_path)
@@ -32,7 +31,6 @@ def export_fmu(model_path, out, scene_path=None, kind: str = "both", progress=No
         say("parsing")
     # the one compile (bgc.run.driver): the scene's module is the one `bgc simulate` runs
     compiled = build(model_path, scene, "numpy", use_cache=False, progress=progress).compiled
-    from bgc.base.store import Cache
 
     # the C runtime's objects from the compile cache, as `bgc compile --target c` builds them
     return package_fmu(compiled, out, scene, kind, progress, Cache(),

@@ -17,6 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
+from bgc.base.errors import ModelError
+from bgc.base.outfiles import write_output
+
 
 def pyplot():
     import matplotlib
@@ -183,8 +186,6 @@ _NEEDS = {"path3d": ((3,), "a 3-vector"), "loci": ((3, 3), "a 3x3 matrix (a rota
 def check_plots(scene, output_shapes: dict) -> None:
     """Every plot of the scene can be drawn from the module's outputs: a located error (the
     plot's place in the scene) otherwise, before anything is simulated or written."""
-    from bgc.base.errors import ModelError
-
     for pl in scene.plots:
         if pl.kind not in ("time", *_NEEDS):
             raise ModelError(pl.coord, f"plot: unknown kind {pl.kind!r} (time, path3d, loci)")
@@ -203,8 +204,6 @@ def check_plots(scene, output_shapes: dict) -> None:
 
 def _name(outdir: Path, fname: str) -> Path:
     """outdir/fname, where fname must be a plain file name (scene and output names are)."""
-    from bgc.base.errors import ModelError
-
     if Path(fname).name != fname or fname.startswith("."):
         raise ModelError(None, f"plot file name {fname!r} is not a plain file name")
     return outdir / fname
@@ -233,8 +232,8 @@ def render_plots(scene, t, y, units=None) -> list[tuple[str, bytes]]:
 def write_plots(scene, t, y, outdir, inputs=None, rendered=None, units=None) -> list[Path]:
     """The scene's plots as PNGs in ``outdir`` (created if missing), each through the checked
     writer (bgc.base.outfiles). ``rendered``: the figures of :func:`render_plots`, if drawn."""
+    # lazy: the compile path, which a warm run never loads
     from bgc.base.outdirs import out_folder
-    from bgc.base.outfiles import write_output
 
     figures = render_plots(scene, t, y, units) if rendered is None else rendered
     outdir = out_folder(outdir, "--plot")  # a folder, not a link to one

@@ -34,7 +34,18 @@ import sys
 import time
 from pathlib import Path
 
+from bgc.backends.c import build as cbuild
+from bgc.backends.load import load_entry
 from bgc.base import __version__
+from bgc.base.limits import LIMITS
+from bgc.base.outfiles import Inputs, check_output, write_output
+from bgc.base.paths import code_files
+from bgc.base.reach import MAX_BYTES
+from bgc.base.safeio import read_bytes
+from bgc.base.store import UnsafeCache, check_dir
+from bgc.run.cache import Cache, tool_versions
+from bgc.run.event_log import event_arrays
+from bgc.run.progress import Progress, simulating_line, summary_line
 
 #: Record format; bump when the record's fields change.
 FORMAT = 2
@@ -72,8 +83,6 @@ def code_stamp() -> str:
     """bgc's sources, in every subpackage, and templates by name, size and modification time
     (as Python's own byte code cache checks its sources): an edit anywhere in bgc invalidates
     every record."""
-    from bgc.base.paths import code_files
-
     out: list[str] = []
     for name, path in code_files():
         try:
@@ -94,8 +103,6 @@ def options_text(method, rtol, atol, max_wall, backend, strict_causality, t_end=
 
 
 def record_key(scene_path: str, scene_bytes: bytes, options: str) -> str:
-    from bgc.run.cache import tool_versions
-
     h = _blake()
     for part in (f"bgc run record {FORMAT}", __version__, sys.version, tool_versions(),
                  code_stamp(), os.path.abspath(scene_path), os.path.realpath(scene_path),
@@ -129,8 +136,6 @@ def _plain(v):
 def save(store, key: str, record: dict) -> bool:
     """Write a record (replacing an older one under the key); False when it cannot be kept
     (an unsafe or unwritable cache, data that is not plain)."""
-    from bgc.base.store import UnsafeCache, check_dir
-
     try:
         data = marshal.dumps(_plain(record))
         top = store._ensure()
@@ -158,8 +163,6 @@ def save(store, key: str, record: dict) -> bool:
 
 def load(store, key: str) -> dict | None:
     """The record under key, or None (none, unreadable, not the user's, writable by others)."""
-    from bgc.base.store import UnsafeCache, check_dir
-
     p = _path(store, key)
     try:
         st = os.lstat(p)
@@ -168,8 +171,6 @@ def load(store, key: str) -> dict | None:
             return None
         for sub in (store.path, store.path / TARGET, Path(p).parent):
             check_dir(Path(sub))
-        from bgc.base.safeio import read_bytes
-
         data = read_bytes(p, 64 << 20, follow=False)
     except (OSError, UnsafeCache):
         return None
@@ -206,8 +207,6 @@ def _finite(v, positive: bool = False) -> bool:
 def _invalid(rec) -> str | None:
     """Why a decoded record cannot be replayed (None: it can): every field has the type and
     range the full way writes, so a damaged record never reaches the module's simulate."""
-    from bgc.base.limits import LIMITS
-
     if not isinstance(rec, dict):
         return "not a record"
     run = rec.get("run")
@@ -249,11 +248,8 @@ def keep(scene_path, options: str, result) -> bool:
     """Record a completed run (a bgc.run.runner.SceneResult) of the scene file ``scene_path``
     under ``options`` (options_text). The digests are of the very bytes the module's cache key
     was made of; a scene that changed since is not recorded."""
-    from bgc.run.cache import Cache
-
     if result.cache_entry is None or result.run_args is None:
         return False
-    from bgc.base.safeio import read_bytes
 
     backend, mkey, files, scene_bytes = result.cache_entry
     try:
@@ -263,8 +259,6 @@ def keep(scene_path, options: str, result) -> bool:
         return False
     comp = None
     if backend == "c":
-        from bgc.backends.c import build as cbuild
-
         comp = cbuild._stamp(tuple(cbuild.compiler()))
         if comp is None:
             return False
@@ -330,11 +324,7 @@ def replay(argv: list[str]) -> int | None:
     t0 = time.perf_counter()
     scene = opts["scene"]
     try:
-        from bgc.base.safeio import read_bytes
-
         scene_bytes = read_bytes(scene, SCENE_BYTES)  # regular files only, never blocking
-        from bgc.run.cache import Cache
-
         store = Cache()
         options = options_text(opts.get("method"), opts.get("rtol"), opts.get("atol"),
                                opts.get("max_wall"), opts.get("backend"),
@@ -345,8 +335,6 @@ def replay(argv: list[str]) -> int | None:
             return None
         backend = rec["backend"]
         if backend == "c":
-            from bgc.backends.c import build as cbuild
-
             if cbuild._stamp(tuple(cbuild.compiler())) != rec["compiler"]:
                 return None
         entry = store.get(backend, rec["key"])
@@ -375,9 +363,6 @@ def unchanged(rec: dict) -> bool:
     """Whether every file the record names is still what the run read: reached by the same
     path, resolving to the same file (a re-pointed link or a moved folder is a change), with
     the same bytes (read with the bounded reader)."""
-    from bgc.base.reach import MAX_BYTES
-    from bgc.base.safeio import read_bytes
-
     for path, resolved, dg in rec["files"]:
         if os.path.realpath(path) != resolved or digest(read_bytes(path, MAX_BYTES)) != dg:
             return False
@@ -386,10 +371,6 @@ def unchanged(rec: dict) -> bool:
 
 def _run(rec: dict, opts: dict, store, entry, scene: str, t0: float) -> int | None:
     import numpy as np
-
-    from bgc.backends.load import load_entry
-    from bgc.base.outfiles import Inputs, check_output, write_output
-    from bgc.run.progress import Progress, simulating_line, summary_line
 
     say = Progress(bool(opts.get("quiet")), t0)
     out = opts.get("out")
@@ -418,7 +399,6 @@ def _run(rec: dict, opts: dict, store, entry, scene: str, t0: float) -> int | No
     if out:
         import io
 
-        from bgc.run.event_log import event_arrays  # a hybrid model's event log, as the full way
 
         buf = io.BytesIO()
         np.savez_compressed(buf, t=t, **y, **event_arrays(getattr(res, "events", ()), x.shape[0]))
@@ -432,6 +412,7 @@ def _run(rec: dict, opts: dict, store, entry, scene: str, t0: float) -> int | No
 def _failed(scene: str, mod, exc, p, opts) -> int | None:
     """A run that failed: the full way's located diagnosis (it parses and compiles the scene,
     as a failed run of the full way does), exit status 1."""
+    # lazy: the compile path, which a warm run never loads
     from bgc.format.scene import parse_scene
     from bgc.run.runner import _compiled, simulation_failed
 

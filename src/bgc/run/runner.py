@@ -7,7 +7,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from bgc.backends.load import load_module
-from bgc.run.steps import STEPS_PER_PERIOD, fastest_input, scene_max_step, stepped_over
 from bgc.base.errors import ModelError, SimulationFailed
 from bgc.format.scene import (
     Scene,
@@ -16,6 +15,9 @@ from bgc.format.scene import (
     param_values,
     parse_scene,
 )
+from bgc.run.driver import build, module_name, scene_compiled
+from bgc.run.progress import simulating_line
+from bgc.run.steps import STEPS_PER_PERIOD, fastest_input, scene_max_step, stepped_over
 
 
 @dataclass(frozen=True)
@@ -49,8 +51,6 @@ def compile_scene(scene: Scene, progress=None, specialise: bool = True,
 
     ``specialise=False`` gives the scene's full model: the model with the scene's input
     signals, every effect on, every parameter and output kept."""
-    from bgc.run.driver import build
-
     b = build(scene=scene, use_cache=False, strict_causality=strict_causality,
               progress=progress, specialise=specialise)
     return b.compiled, b.module
@@ -73,22 +73,16 @@ def scene_module(scene: Scene, progress=None, backend: str = "numpy", use_cache:
     """The scene's specialised module for a backend, through the compile cache
     (bgc.run.driver.build): a warm run imports neither sympy nor the compiler. Without a C
     compiler, backend "c" says so and falls back to numpy. Returns (backend used, module)."""
-    from bgc.run.driver import build
-
     b = build(scene=scene, backend=backend, use_cache=use_cache,
               strict_causality=strict_causality, progress=progress, fallback=True)
     return b.backend, b.module
 
 
 def scene_module_name(scene: Scene) -> str:
-    from bgc.run.driver import module_name
-
     return module_name(None, scene)
 
 
 def _compiled(scene: Scene, progress=None, strict_causality: bool = False):
-    from bgc.run.driver import scene_compiled
-
     c = scene_compiled(scene, progress, strict_causality=strict_causality)
     return c, c.model
 
@@ -98,7 +92,6 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
               strict_causality: bool = False, max_steps: int | None = None) -> SceneResult:
     say = progress or (lambda msg: None)
     scene = path if isinstance(path, Scene) else parse_scene(path)
-    from bgc.run.driver import build
 
     t0 = time.perf_counter()
     built = build(scene=scene, backend=backend or scene.backend, use_cache=use_cache,
@@ -108,7 +101,6 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
     method = method or scene.method
     rtol = rtol or scene.rtol
     atol = scene.atol if atol is None else atol
-    from bgc.run.progress import simulating_line
 
     say(simulating_line(scene.name, method, backend, rtol, atol))
     if backend == "c" and method not in getattr(mod, "C_METHODS", (method,)):
@@ -173,6 +165,7 @@ def _bounded_value(v) -> complex:
     """A constant sympy expression's value in double precision with bounded work (sympy's
     own evalf of ``exp(exp(...))`` 100 deep runs for minutes); sympy only where the value is
     complex (to show it) or the expression holds a function the double evaluator lacks."""
+    # lazy: the compile path, which a warm run never loads
     from bgc.format.expr import NumError, numeric
 
     try:
@@ -302,10 +295,8 @@ def nonfinite_culprit(c, mod, exc, p=None):
             a = np.asarray(v, dtype=float).ravel()
             return float(a[b] if a.size > b else a[0])
 
-        vals = {}
         names = [s for pvar in eq.params for s in pvar.symbols] + [d.symbol for d in eq.derived]
-        for s, v in zip(names, pv):
-            vals[s] = pick(v)
+        vals = {s: pick(v) for s, v in zip(names, pv)}
         if eq.inputs:
             uv = mod._inputs(t, pv, None)
             for s, v in zip((s for iv in eq.inputs for s in iv.symbols), uv):
@@ -376,6 +367,7 @@ def nonfinite_culprit(c, mod, exc, p=None):
         if j is None or not (a.expr.free_symbols & dep):
             continue
         dep.add(a.symbol)
+        # lazy: the compile path, which a warm run never loads
         from bgc.core.eqtypes import clean_derivative
 
         for s in sorted(a.expr.free_symbols & dep, key=str):

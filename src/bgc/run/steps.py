@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import numpy as np
 
-
 #: A periodic input bounds a scene's step to its period divided by this (docs/model-format.md).
 STEPS_PER_PERIOD = 50
 

@@ -43,6 +43,7 @@ import math
 import multiprocessing as mp
 from dataclasses import replace
 
+from bgc.backends.load import load_module
 from bgc.base.errors import ModelError
 from bgc.base.limits import LIMITS
 from bgc.studies.accuracy_report import cheapest, md_cell, write_all, write_csv  # noqa: F401
@@ -214,7 +215,6 @@ def _worker_setup(bare: Setup) -> Setup:
     """The setup with this process's own module (compiled once per process, warmed up)."""
     import hashlib
 
-    from bgc.backends.load import load_module
 
     key = hashlib.sha256(bare.source.encode()).hexdigest()
     if key not in _WORKER_SETUPS:

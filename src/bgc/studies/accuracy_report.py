@@ -9,7 +9,11 @@ import math
 from dataclasses import replace
 from pathlib import Path
 
+from bgc.base.outdirs import out_folder
+from bgc.base.outfiles import prepare_folder, write_output
+from bgc.run.plots import pyplot
 from bgc.studies.runs import JAC_MODES, Run, Study
+
 
 def md_cell(text: str) -> str:
     """Text for one markdown table cell: its pipes escaped (messages quote |eigenvalue|) and
@@ -55,8 +59,6 @@ def write_csv(st: Study, path, inputs=None):
 def _write(path, data, inputs=None):
     """Every file of the study goes through bgc's one checked writer; ``inputs`` (a
     bgc.base.outfiles.Inputs: the scene, the model, its imports) are never replaced."""
-    from bgc.base.outfiles import write_output
-
     write_output(path, data, inputs, "accuracy output")
 
 
@@ -178,9 +180,6 @@ def _finish(plt, fig, ax, agree, xlabel, title, path, inputs=None):
 
 
 def plot_study(st: Study, out_dir, inputs=None) -> list:
-    from bgc.base.outfiles import prepare_folder
-    from bgc.run.plots import pyplot
-
     plt = pyplot()
     out_dir = prepare_folder(out_dir, "--out")
     files = []
@@ -229,8 +228,6 @@ def plot_study(st: Study, out_dir, inputs=None) -> list:
 
 
 def write_all(st: Study, out_dir, inputs=None) -> list:
-    from bgc.base.outdirs import out_folder
-
     out_dir = out_folder(out_dir, "--out")  # a folder, not a link to one
     imgs = plot_study(st, out_dir, inputs)
     csvf = out_dir / f"{st.setup.name}_runs.csv"

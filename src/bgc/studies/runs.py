@@ -19,7 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
+from bgc.backends.c import build as cbuild
 from bgc.base.errors import ModelError, SimulationFailed
+from bgc.format.scene import parse_scene
+from bgc.run.runner import compile_scene, scene_module
 
 METHODS = ("RK45", "DOP853", "Radau", "BDF", "LSODA", "Rodas4")
 # the C backend's integrators (the whole step loop in the scene's compiled library)
@@ -65,9 +68,6 @@ class Setup:
 def prepare(scene_path, t_end=None, atol_scale=None, breakpoints=(), progress=None) -> Setup:
     """Parse and compile the scene. t_end shortens the span; atol_scale defaults to atol/rtol;
     breakpoints are added to the scene's (instants where an input jumps)."""
-    from bgc.format.scene import parse_scene
-    from bgc.run.runner import compile_scene
-
     try:  # scene parameters not marked free are compiled into the module
         from bgc.format.scene import free_values as values
     except ImportError:  # pragma: no cover - older layout
@@ -154,16 +154,12 @@ def solve(setup: Setup, method, rtol, atol, jac_mode="analytic", deadline=math.i
 
 def c_available() -> bool:
     """A C compiler and the C runtime: the C methods can run."""
-    from bgc.backends.c import build as cbuild
-
     return cbuild.available() and bool(cbuild.runtime_sources())
 
 
 def c_module(setup: Setup):
     """The scene's C-backend module (built once, through the compile cache)."""
     if setup.cmodule is None:
-        from bgc.run.runner import scene_module
-
         backend, mod = scene_module(setup.scene, None, "c")
         if backend != "c":
             raise ModelError(None, "the C methods need a C compiler (set CC)")

@@ -2,7 +2,6 @@
 that runs them as batched simulations on Dask and writes the results to Zarr.
 
 The ``sweep:`` section (documented in docs/model-format.md, "Sweeps")::
-
     sweep:
       parameters:                      # model parameters (ids as in PARAM_DEFAULTS)
         m: {linspace: [0.5, 2.0, 4]}   # n evenly spaced values from a to b
@@ -46,13 +45,22 @@ import time
 import uuid
 import warnings
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
+from bgc.backends import load as backends
+from bgc.backends.c import build as cbuild
+from bgc.backends.c.build import CUnsupported
+from bgc.backends.load import c_key, load_c, load_module
 from bgc.base.errors import ModelError
 from bgc.base.limits import LIMITS
+from bgc.base.reach import run_inputs
 from bgc.base.safeio import read_text_bounded
+from bgc.core.graph import build_graph
+from bgc.format.expr import Expr
+from bgc.format.reader import Reader
+from bgc.format.scene import parse_scene, scene_model
+from bgc.run.runner import compile_scene, runtime_params
 from bgc.studies.sweep_plot import plot_sweep  # noqa: F401 (bgc.studies.sweep.plot_sweep)
 from bgc.studies.sweep_spec import (  # noqa: F401 (the section's names, as sweep.*)
     MAX_SAMPLES,
@@ -139,8 +147,6 @@ def _jsonable(d):
 def solver_backend(path) -> str | None:
     """The backend the scene's ``solver:`` names, None when it names none (the scene parser
     has already checked the value)."""
-    from bgc.format.reader import Reader
-
     path = str(path)
     r = Reader(path, read_text_bounded(path, None, "scene file", LIMITS.scene_bytes))
     top = r.mapping(r.compose(), "the scene")
@@ -157,10 +163,6 @@ def choose_backend(compiled, backend=None, progress=None):
     say = progress or (lambda msg: None)
     if backend == "numpy":
         return "numpy", {}, "", ""
-    from bgc.backends import load as backends
-    from bgc.backends.c import build as cbuild
-    from bgc.backends.c.build import CUnsupported
-
     if not cbuild.available():
         say(f"no C compiler ({cbuild.cc_text()!r} cannot run; set CC): using the "
             "numpy backend")
@@ -182,11 +184,6 @@ def prepare(scene_path, progress=None, backend: str | None = None) -> Prepared:
     backend: "c", "numpy", or None for the scene's ``solver: {backend: ...}`` if it names
     one, else C where it can run (see :func:`choose_backend`). For C the library is built here
     into the compile cache, so that workers on this machine only load it."""
-    from bgc.core.graph import build_graph
-    from bgc.format.expr import Expr
-    from bgc.format.scene import parse_scene, scene_model
-    from bgc.run.runner import compile_scene, runtime_params
-
     scene = parse_scene(scene_path)
     spec = parse_sweep(scene_path)
     if spec is None:
@@ -241,7 +238,6 @@ def prepare(scene_path, progress=None, backend: str | None = None) -> Prepared:
                     dict(mod.PARAM_UNITS), spec, c_files=files, c_wrapper=wrapper, c_key=ckey)
     if backend == "c":
         load(prep, progress)  # built once here: the workers on this machine find it cached
-    from bgc.base.reach import run_inputs
 
     prep.inputs = run_inputs(scene.model_path, scene_path)
     return prep
@@ -274,12 +270,8 @@ def load(prep: Prepared, progress=None):
     if mod is None:
         name = f"{prep.modname}_{key[:8]}"
         if prep.backend == "numpy":
-            from bgc.backends.load import load_module
-
             mod = load_module(prep.source, name)
         elif prep.backend == "c":
-            from bgc.backends.load import c_key, load_c
-
             # the key of this machine's compiler (on the client's machine: prep.c_key)
             with np.errstate(all="ignore"):
                 mod = load_c(prep.c_files, prep.c_wrapper, name,

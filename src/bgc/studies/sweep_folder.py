@@ -6,6 +6,7 @@ import os
 from pathlib import Path
 
 from bgc.base.errors import ModelError
+from bgc.base.outdirs import marked_as, out_folder
 
 __all__ = ["STORE_KIND", "check_store"]
 
@@ -13,8 +14,6 @@ __all__ = ["STORE_KIND", "check_store"]
 def check_store(out) -> Path:
     """``--out`` as a store: missing, an empty folder or a store bgc made (marked), else an
     error (before anything runs)."""
-    from bgc.base.outdirs import marked_as, out_folder
-
     out = out_folder(out, "--out", create=False)
     if out.exists() and marked_as(out) != STORE_KIND and os.listdir(out):
         raise ModelError(None, f"--out {str(out)!r} exists and is not a sweep store bgc made "

@@ -2,18 +2,17 @@
 each swept quantity (a statistic per sample, or the fan of every run over time)."""
 from __future__ import annotations
 
-
 import numpy as np
+
+from bgc.base.outdirs import out_folder, write_in
+from bgc.run.plots import plain_text, pyplot
 
 
 def plot_sweep(prep, ds, out_dir) -> list:
     """PNGs: each chosen output's final value (or max/min) against each swept quantity, or a
     fan of its trajectories (stat: fan). Failed instances are left out."""
-    from bgc.run.plots import plain_text, pyplot
-
     import io
 
-    from bgc.base.outdirs import out_folder, write_in
 
     plt = pyplot()
     out_dir = out_folder(out_dir, "--plot")  # a folder, not a link to one

@@ -6,13 +6,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from bgc.base.errors import Coord, ModelError
 from bgc.base.limits import LIMITS
 from bgc.base.safeio import read_text_bounded
+from bgc.format.reader import Reader, check_name, require
 
 MAX_SAMPLES = 1_000_000
 GRIDS = ("linspace", "logspace", "values")
@@ -60,8 +60,6 @@ class SweepSpec:
 
 def parse_sweep(path) -> SweepSpec | None:
     """The scene file's ``sweep:`` section (None when it has none), validated with places."""
-    from bgc.format.reader import Reader, require
-
     path = str(path)
     text = read_text_bounded(path, None, "scene file", LIMITS.scene_bytes)
     r = Reader(path, text)
@@ -141,8 +139,6 @@ def parse_sweep(path) -> SweepSpec | None:
 
 
 def _entry(r, kind, name, kn, vn) -> Entry:
-    from bgc.format.reader import check_name
-
     where = r.coord(kn)
     for part in name.split("."):
         check_name(part, where, "parameter" if kind == "param" else "state",

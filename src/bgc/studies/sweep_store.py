@@ -10,6 +10,8 @@ import json
 import numpy as np
 
 from bgc.base.errors import ModelError
+from bgc.base.outdirs import mark_folder, remove_marked
+from bgc.studies.sweep_folder import STORE_KIND, _zarr_entries, _zarr_own, check_store
 
 STATS = ("nfev", "njev", "nlu", "nsteps")
 MESSAGE_WIDTH = 240  # characters of a failure message kept in the store
@@ -67,9 +69,6 @@ def open_or_create(prep, out, chunk: int, restart: bool = False) -> list[bool]:
     array folders): never a folder bgc did not make, nor anything else in it
     (bgc.studies.sweep_folder)."""
     import xarray as xr
-
-    from bgc.base.outdirs import mark_folder, remove_marked
-    from bgc.studies.sweep_folder import STORE_KIND, _zarr_entries, _zarr_own, check_store
 
     digest = prep.digest(chunk)
     out = check_store(out)

@@ -15,7 +15,11 @@ import shlex
 import shutil
 from pathlib import Path
 
-from bgc.base.errors import ModelError
+from bgc.base.errors import ModelError, oneline
+from bgc.base.outfiles import write_output
+from bgc.base.paths import templates_dir
+from bgc.base.safeio import read_bytes
+from bgc.base.store import Cache
 
 CFLAGS = ("-O2", "-std=c99", "-fPIC")
 #: The runtime's objects export nothing from a library (the model's units call them inside
@@ -86,8 +90,6 @@ def _identity(cc: tuple[str, ...]) -> str:
     stamp = _stamp(cc)
     if stamp is not None:
         try:
-            from bgc.base.store import Cache
-
             key = "cc-" + hashlib.sha256(stamp.encode()).hexdigest()[:32]
             d = Cache().get_or_build("c-runtime", key, lambda tmp: (tmp / "identity").write_text(
                 _run_version(cc), encoding="utf-8"))
@@ -122,8 +124,6 @@ def _openmp(cc: tuple[str, ...]) -> bool:
 
     ident = hashlib.sha256(_identity(cc).encode() + b"\0" + " ".join(cc).encode()).hexdigest()
     try:
-        from bgc.base.store import Cache
-
         store = Cache()
         d = store.get_or_build("c-runtime", "openmp-" + ident[:32],
                                lambda tmp: (tmp / "openmp").write_text(
@@ -154,15 +154,11 @@ def flags() -> tuple[str, ...]:
 
 
 def runtime_sources() -> list[Path]:
-    from bgc.base.paths import templates_dir
-
     d = templates_dir() / RUNTIME_DIR
     return sorted(d.glob("*.c"))
 
 
 def runtime_headers() -> list[Path]:
-    from bgc.base.paths import templates_dir
-
     return sorted((templates_dir() / RUNTIME_DIR).glob("*.h"))
 
 
@@ -179,7 +175,6 @@ def runtime_key() -> str:
 def _cc(args: list[str], cwd: Path, coord=None) -> None:
     import subprocess
 
-    from bgc.base.errors import oneline
 
     r = subprocess.run(compiler() + args, cwd=cwd, capture_output=True, text=True)
     if r.returncode != 0:
@@ -247,9 +242,6 @@ def build_library(srcdir: Path, files: list[str], cache=None, jobs: int | None =
         lib = objdir / lib_name  # linked in bgc's own temporary folder, then written checked
         _cc(fl + ["-shared", "-o", str(lib)] + [str(o) for o in objs + rt_objs] + ["-lm"],
             srcdir, coord)
-        from bgc.base.outfiles import write_output
-        from bgc.base.safeio import read_bytes
-
         write_output(srcdir / lib_name, read_bytes(lib, 1 << 30), inputs, "-o")
     finally:
         shutil.rmtree(objdir, ignore_errors=True)

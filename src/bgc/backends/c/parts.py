@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import sympy as sp
 
 from bgc.backends.c.cexpr import CPrinter, c_name
+from bgc.core.eqtypes import LinSolve, LinSolveEntry, NewtonSolve
 from bgc.core.equations import T
 from bgc.lower.ir import Lowered
 
@@ -73,8 +74,6 @@ class CFunction:
 
 def cut_parts(name: str, fn, printer: CPrinter, ctx: PartContext, limit: int = PART_LINES
               ) -> CFunction:
-    from bgc.core.eqtypes import LinSolve, NewtonSolve
-
     items = [(ln.target, ln.expr, ln.comment, -1) for ln in fn.lines]
     items += [(None, r, "", k) for k, (_, r) in enumerate(fn.results)]
     # the results of numeric solves are arrays: their lengths
@@ -149,8 +148,6 @@ def _solve_line(tgt, e, why, export, n, printer, ctx, lus: dict) -> CLine:
     """The C line of a numeric solve's result (an array of n values). Solves with the same
     matrix in one part (the Jacobian's columns through a solve: d(A^-1 b) = A^-1 (db - dA x))
     share one LU."""
-    from bgc.core.eqtypes import LinSolve, NewtonSolve
-
     target = c_name(str(tgt))
     if isinstance(e, LinSolve):
         a = tuple(printer.doprint(v) for v in e.args[1:1 + n * n])
@@ -236,8 +233,6 @@ class PartContext:
         """What a singular numeric solve says: derivative causality's system (named by its
         unknowns and the elements it runs through), the same system's solves for the
         Jacobian, or a Newton loop's Jacobian at its solution."""
-        from bgc.core.eqtypes import LinSolve, LinSolveEntry
-
         if self._lin_msgs is None:
             eq = self._eq
             tears: dict = {}

@@ -36,7 +36,9 @@ from bgc.backends.numpy.printer import comment as py_comment
 from bgc.backends.numpy.printer import lit, template_loader
 from bgc.backends.skeleton import WRAPPER_MARK, binding_source, check_wrapper  # noqa: F401
 from bgc.base import __version__
+from bgc.core.eqtypes import LinSolve, LinSolveEntry, NewtonSolve
 from bgc.lower.ir import Lowered
+from bgc.lower.sparse_lu import make_plan, plan_c, prefer_sparse
 
 
 @dataclass(frozen=True)
@@ -52,8 +54,6 @@ class CSources:
 def has_solves(eq) -> bool:
     """Does the model solve equations numerically (numeric linear solves of derivative
     causality, Newton loops of nonlinear algebraic loops)?"""
-    from bgc.core.eqtypes import LinSolve, LinSolveEntry, NewtonSolve
-
     kinds = (LinSolve, LinSolveEntry, NewtonSolve)
     return bool(getattr(eq, "newton", ())) or any(
         isinstance(a.expr, kinds) for a in eq.assignments + eq.jac_assignments)
@@ -162,10 +162,6 @@ def _newton_loops(ctx, printer) -> list[dict]:
 def _lu_plan(n: int, keys) -> str:
     """The C text of a sparse LU plan for the iteration matrices, when bgc.lower.sparse_lu (the C
     runtime's planner) has one that beats the dense LU; "" for the dense LU."""
-    try:
-        from bgc.lower.sparse_lu import make_plan, plan_c, prefer_sparse
-    except ImportError:
-        return ""
     if not keys:
         return ""
     plan = make_plan(n, [k[0] for k in keys], [k[1] for k in keys])

@@ -27,10 +27,16 @@ from pathlib import Path
 
 import sympy as sp
 
+from bgc.backends.c import build as cbuild
 from bgc.backends.c.events import c_events, event_parts
+from bgc.backends.c.parts import UNIT_PARTS, PartContext, cut_parts
+from bgc.backends.c.printer import CPrinter, c_name, has_solves, template_env
 from bgc.backends.fmu.spec import FmuSpec, build_spec, flat_names  # noqa: F401 (as export.*)
+from bgc.backends.fmu.xmltext import clean_tree
 from bgc.base import __version__
 from bgc.base.errors import ModelError
+from bgc.base.outfiles import check_output, write_output
+from bgc.base.paths import templates_dir
 from bgc.core.equations import T
 
 KINDS = ("me", "cs", "both")
@@ -132,7 +138,6 @@ def model_description(compiled, spec: FmuSpec, scene=None, kind: str = "both",
             ET.SubElement(iu, "Unknown", {"index": str(i),
                                           "dependencies": " ".join(map(str, deps))})
     ET.indent(root, space="  ")
-    from bgc.backends.fmu.xmltext import clean_tree
 
     clean_tree(root)  # the one door: only characters XML 1.0 can hold
     buf = io.BytesIO()
@@ -147,10 +152,6 @@ def model_description(compiled, spec: FmuSpec, scene=None, kind: str = "both",
 def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> dict[str, str]:
     """The FMU's generated C files (name -> text): bgc_fmu_model.c, the parts and the
     configuration header."""
-    from bgc.backends.c.parts import UNIT_PARTS, PartContext, cut_parts
-    from bgc.backends.c.printer import CPrinter, c_name, has_solves, template_env
-    from bgc.base.paths import templates_dir
-
     low = compiled.lowered
     eq = compiled.equations
     if has_solves(eq):  # the FMU's model functions keep no per-instance workspace yet
@@ -258,9 +259,6 @@ def _lib_suffix() -> str:
 
 def write_sources(compiled, spec, scene, kind, dest: Path) -> list[str]:
     """All C sources (generated, glue, runtime, FMI headers) into dest; the .c file names."""
-    from bgc.backends.c import build as cbuild
-    from bgc.base.paths import templates_dir
-
     files = render_sources(compiled, spec, scene, kind)
     for name, text in files.items():
         (dest / name).write_text(text, encoding="utf-8")
@@ -281,8 +279,6 @@ def build_binary(src: Path, cfiles: list[str], out: Path, cache=None, coord=None
     ``cache`` is given): the FMU's own units with ``-fvisibility=hidden`` (only the fmi2
     functions are exported). A compiler that refuses the sources is one located error at
     ``coord``."""
-    from bgc.backends.c import build as cbuild
-
     rt_names = {f.name for f in cbuild.runtime_sources()}
     own = [f for f in cfiles if f not in rt_names]  # the runtime's: compiled once, cached
     lib = cbuild.build_library(src, own, cache=cache, extra=("-fvisibility=hidden",),
@@ -309,8 +305,6 @@ def package_fmu(compiled, out, scene=None, kind: str = "both", progress=None,
     ``inputs``, a link or anything but a regular file; atomic): its description, C sources
     and built binary in one zip (the C runtime's objects from ``cache``, a
     bgc.base.store.Cache, when given)."""
-    from bgc.base.outfiles import check_output, write_output
-
     check_output(out, inputs, "--fmu")  # before anything is built
     say = progress or (lambda msg: None)
     if kind not in KINDS:

@@ -14,6 +14,7 @@ import sympy as sp
 from bgc.base import __version__
 from bgc.base.errors import ModelError
 from bgc.core.equations import T
+from bgc.format.scene import free_values
 
 #: uuid5 namespace of bgc's FMU GUIDs
 _GUID_NS = uuid.UUID("6f1d2c9e-5b0a-4c1e-9d0f-b9c0f3a1e2d4")
@@ -160,8 +161,6 @@ def _param_table(eq, scene):
     parameters' values."""
     overrides = {}
     if scene is not None:
-        from bgc.format.scene import free_values
-
         overrides = free_values(scene)
     pnames, psyms, pstart, punits, pdesc = [], [], [], [], []
     for pv in eq.params:
