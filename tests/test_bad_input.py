@@ -119,8 +119,6 @@ CASES = [
     Case("expr_matrix_huge", 10, 41, "eye() size must be 1..64 (the limit of matrix size)"),
     Case("expr_caret", 10, 33, "operator ^ is not allowed: write ** for a power"),
     Case("expr_signum", 10, 37, "unknown function 'signum' (did you mean sign?)"),
-    Case("reserved_param_x0", 6, 3, "invalid parameter name 'x0': reserved"),
-    Case("reserved_param_P", 6, 3, "invalid parameter name 'P': reserved"),
     Case("zero_inertia", 6, 3, "I 'mass': its inertia is zero"),
     Case("c_reads_own_effort", 6, 3, "C 'spring': its law reads its own effort"),
     Case("matrix_1x1_on_n3", 8, 3, "I 'mass': cardinality mismatch: inertia is 1x1, the bond "

@@ -31,7 +31,8 @@ pytestmark = [
 
 # the resistive loop of models/algebraic_loop.yaml with R1 cubic: Newton in the generated code
 CUBIC = 'series_R: {type: R, effort: "R1 * f + 1.0e5 * f**3"}'
-NOT_CONVERGING = 'series_R: {type: R, effort: "R1 / f"}'  # no root near the warm start
+NOT_CONVERGING = 'series_R: {type: R, effort: "R1 * 1.0 / f"}'  # no root near the warm start
+# (the 1.0 carries A^2: a number in a product takes the unit its place needs)
 from test_derivative_causality import GEAR  # noqa: E402  (the rigid gear pair, J1 + n^2 J2)
 
 _built: dict = {}

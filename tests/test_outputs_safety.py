@@ -441,9 +441,9 @@ def test_plot_of_the_wrong_shape_is_located(tmp_path):
     assert listing(tmp_path) == []
 
 
-_BOOM = ("import sys, bgc.format.parse, bgc.cli.commands\n"
+_BOOM = ("import sys, bgc.cli.model_cmds, bgc.cli.commands\n"
          "def boom(*a, **k):\n    raise ZeroDivisionError('planted bug')\n"
-         "bgc.format.parse.parse_file = boom\n"
+         "bgc.cli.model_cmds.parse_file = boom\n"
          "sys.argv = ['bgc', 'check', sys.argv[1]]\nbgc.cli.commands.main()\n")
 
 

@@ -2,7 +2,7 @@
 XLA computation each (optional; needs JAX).
 
 The generated ``rhs``/``jacobian`` take their array namespace from x and write their results
-entry by entry (``dx[k, ...] = ...``), which JAX's immutable arrays refuse. :func:`jax_functions`
+entry by entry (``_dx[k, ...] = ...``), which JAX's immutable arrays refuse. :func:`jax_functions`
 rewrites the two functions' syntax trees (nothing else in them changes): the entries are
 stacked into one array instead (the Jacobian's nonzeros scattered into place with ``.at[]``),
 and the rest of each body, the equations in causal order, runs unchanged on ``jax.numpy``
@@ -30,8 +30,8 @@ def _jax():
 
 
 class _Rewrite(ast.NodeTransformer):
-    """rhs: `dx = xp.empty(..)` + `dx[k, ...] = e` -> `return xp.stack([...])`;
-    jacobian: `J = xp.zeros(..)` + `J[i, j, ...] = e` -> a scatter of the stacked entries."""
+    """rhs: `_dx = xp.empty(..)` + `_dx[k, ...] = e` -> `return xp.stack([...])`;
+    jacobian: `_J = xp.zeros(..)` + `_J[i, j, ...] = e` -> a scatter of the stacked entries."""
 
     def __init__(self, target: str, n: int):
         self.target, self.n = target, n
@@ -60,7 +60,7 @@ class _Rewrite(ast.NodeTransformer):
                          [ast.List([ast.Call(ast.Name("_bf", ast.Load()), [e], [])
                                     for _, e in entries], ast.Load())], [])
         body += [shape, bf]
-        if self.target == "dx":
+        if self.target == "_dx":
             order = [k[0] for k, _ in entries]
             if order != list(range(self.n)):
                 raise AssertionError("rhs does not assign every derivative in order")
@@ -96,7 +96,7 @@ def jax_functions(mod, p=None, jit=True):
 
     tree = ast.parse(_source(mod))
     fns = {}
-    for fn, target in (("rhs", "dx"), ("jacobian", "J")):
+    for fn, target in (("rhs", "_dx"), ("jacobian", "_J")):
         node = next(n for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == fn)
         node = _Rewrite(target, mod.N_STATES).visit(ast.parse(ast.unparse(node)).body[0])
         node.name = f"_fused_{fn}"

@@ -154,7 +154,12 @@ def load_target(path, progress=None):
         sc = parse_scene(path)
         mod = build(scene=sc, progress=progress).module  # numpy, through the cache
         return (mod,) + scene_start(sc, mod)
-    return build(path, None, "numpy", progress=progress).module, None, 0.0, None
+    b = build(path, None, "numpy", progress=progress)
+    if b.compiled is not None:  # compiled now: a zero mass, a root of a negative parameter
+        from bgc.run.runner import check_module_start
+
+        check_module_start(b.compiled)
+    return b.module, None, 0.0, None
 
 
 def scene_start(scene, mod) -> tuple:

@@ -53,14 +53,23 @@ def write_c(compiled, outdir, cache=None, progress=None, inputs=None) -> Path:
     out = out_folder(outdir, "-o", create=False)
     for name in names:  # every refusal before anything is written
         check_in(out, name, inputs, "-o")
-    out = out_folder(outdir, "-o")
-    for name, text in files.items():
-        write_in(out, name, text, inputs, "-o")
-    for f in cbuild.runtime_sources() + cbuild.runtime_headers():
-        copy_file(f, out, f"runtime/{f.name}", inputs, "-o")
-    say(f"building the C library ({len(files)} model units)")
-    cbuild.build_library(out, sorted(files), cache=cache, inputs=inputs)
-    return write_in(out, f"{compiled.model.name}.py", wrapper, inputs, "-o")
+    made = [p for p in [out, out / "runtime"] + [out / n for n in names] if not p.exists()]
+    try:
+        out = out_folder(outdir, "-o")
+        for name, text in files.items():
+            write_in(out, name, text, inputs, "-o")
+        for f in cbuild.runtime_sources() + cbuild.runtime_headers():
+            copy_file(f, out, f"runtime/{f.name}", inputs, "-o")
+        say(f"building the C library ({len(files)} model units)")
+        cbuild.build_library(out, sorted(files), cache=cache, inputs=inputs)
+        return write_in(out, f"{compiled.model.name}.py", wrapper, inputs, "-o")
+    except BaseException:  # a compiler that fails leaves nothing it wrote (what was there stays)
+        for p in reversed(made):
+            try:
+                p.rmdir() if p.is_dir() and not p.is_symlink() else p.unlink()
+            except OSError:
+                pass
+        raise
 
 
 def _code_file(tmp: Path, text: str, name: str) -> None:

@@ -47,9 +47,18 @@ class CompilerFailed(ModelError):
     a model bgc printed wrongly): one located line with the compiler's first error."""
 
 
+def cc_text() -> str:
+    """The compiler command as set (CC, else cc), for messages: never fails."""
+    return os.environ.get("CC", "").strip() or "cc"
+
+
 def compiler() -> list[str]:
-    cc = os.environ.get("CC", "").strip() or "cc"
-    return shlex.split(cc)
+    cc = cc_text()
+    try:
+        return shlex.split(cc)
+    except ValueError as exc:  # an unbalanced quote
+        raise CompilerMissing(f"no C compiler: CC={cc!r} cannot be split into a command "
+                              f"({exc}); set CC, or use the numpy backend") from None
 
 
 def _run_version(cc: tuple[str, ...]) -> str:
@@ -176,7 +185,13 @@ def _cc(args: list[str], cwd: Path, coord=None) -> None:
     import subprocess
 
 
-    r = subprocess.run(compiler() + args, cwd=cwd, capture_output=True, text=True)
+    cc = compiler()
+    exe = shutil.which(cc[0]) if cc else None  # a relative CC (./mycc) from the caller's folder
+    try:
+        r = subprocess.run(([os.path.abspath(exe)] + cc[1:] if exe else cc) + args, cwd=cwd,
+                           capture_output=True, text=True, errors="replace")
+    except OSError as exc:
+        raise CompilerFailed(coord, f"the C compiler ({' '.join(cc)}) cannot run: {exc}") from None
     if r.returncode != 0:
         what = next((ln for ln in r.stderr.splitlines() if "error" in ln.lower()),
                     r.stderr.strip().splitlines()[0] if r.stderr.strip() else
