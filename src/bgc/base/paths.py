@@ -11,7 +11,8 @@ from pathlib import Path
 
 #: src/bgc (the package's own folder), found from this file: bgc/base/paths.py.
 PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-_CODE_SUFFIXES = (".py", ".j2", ".c", ".h")
+#: .yaml: the component library (bgc/format/library), which shapes every model importing it
+_CODE_SUFFIXES = (".py", ".j2", ".c", ".h", ".yaml")
 
 
 def package_dir() -> Path:

@@ -88,6 +88,8 @@ class _Walk:
         if not isinstance(imports, list):
             return False
         for item in imports:
+            if isinstance(item, dict) and isinstance(item.get("from"), str) and "file" not in item:
+                continue  # the library (bgc:NAME): package files, in bgc.base.paths.code_files
             if not (isinstance(item, dict) and isinstance(item.get("file"), str)):
                 return False
             if not self.visit(p.parent / item["file"]):

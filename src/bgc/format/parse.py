@@ -15,6 +15,7 @@ import yaml
 from bgc.base.errors import Coord, ModelError
 from bgc.base.limits import LIMITS
 from bgc.base.safeio import read_text_bounded
+from bgc.format import library as _library
 from bgc.format import tables as _tables
 from bgc.format.reader import (  # noqa: F401
     IDENT,
@@ -132,6 +133,12 @@ class Component:
     body: Body
     ports: tuple[tuple[str, str, Coord], ...]
     coord: Coord
+    description: str = ""
+    laws: tuple[str, ...] = ()  # documentation (bgc library): the elements are the equations
+    port_docs: tuple[tuple[str, str, str], ...] = ()  # (port, domain, description)
+
+    def port_doc(self, port: str) -> tuple[str, str]:
+        return next(((d, t) for p, d, t in self.port_docs if p == port), ("", ""))
 
 
 @dataclass(frozen=True)
@@ -323,11 +330,16 @@ def _read_imports(r: Reader, node, imports: _Imports) -> list[Component]:
     listed: set[int] = set()
     for item in r.seq(node, "imports"):
         im = r.mapping(item, "an import")
-        require(r, im, item, ("file",), "an import", required=("file",))
-        fnode = im["file"][1]
+        require(r, im, item, ("file", "from"), "an import")
+        if ("file" in im) == ("from" in im):
+            raise ModelError(r.coord(item), "an import names one of 'file:' (a file of yours) "
+                                            "or 'from:' (the library, \"bgc:NAME\")")
+        fnode = im["file" if "file" in im else "from"][1]
         coord = r.coord(fnode)
         rel = r.string(fnode, "file")
-        if not rel:
+        if "from" in im:  # the library: a package file, never a user's path
+            rel = _library.resolve(rel, coord)
+        elif not rel:
             raise ModelError(coord, "an import names an empty file path")
         target = _resolve(Path(r.path).parent / rel, coord, rel)
         if target in imports.stack:
@@ -354,22 +366,25 @@ def _read_imports(r: Reader, node, imports: _Imports) -> list[Component]:
 
 def _component(r: Reader, cname: str, kn, vn) -> Component:
     cm = r.mapping(vn, f"component {cname!r}")
-    require(r, cm, vn, ("parameters", "ports", "elements", "bonds", "states", "description"),
-             f"component {cname!r}", required=("ports", "elements", "bonds"))
+    require(r, cm, vn, ("parameters", "ports", "elements", "bonds", "states", "description",
+                         "laws"), f"component {cname!r}", required=("ports", "elements", "bonds"))
     body = _body(r, cm, vn, f"component {cname!r}", is_component=True)
     _check_unique(body, ())
-    ports = []
+    ports, docs = [], []
     elnames = {e.name for e in body.elements}
     for pname, (pk, pv) in r.mapping(cm["ports"][1], f"component {cname!r} ports").items():
         check_name(pname, r.coord(pk), "port", allow_reserved=True)
-        target = r.string(pv, f"port {pname!r}")
+        target, domain, text = _library.read_port(r, cname, pname, pv)
         if target not in elnames:
             raise ModelError(r.coord(pv), f"component {cname!r}: port {pname!r} names "
                                           f"{target!r}, which is not one of its elements")
         ports.append((pname, target, r.coord(pk)))
+        docs.append((pname, domain, text))
     if not ports:
         raise ModelError(r.coord(cm["ports"][1]), f"component {cname!r} has no ports")
-    return Component(cname, body, tuple(ports), r.coord(kn))
+    desc = r.string(cm["description"][1], "description") if "description" in cm else ""
+    laws = _library.read_laws(r, cname, cm["laws"][1]) if "laws" in cm else ()
+    return Component(cname, body, tuple(ports), r.coord(kn), desc, laws, tuple(docs))
 
 
 def _body(r: Reader, top: dict, node, what: str, is_component: bool) -> Body:
