@@ -27,7 +27,7 @@ def describe(comp, markdown: bool = False) -> str:
     lines.append("Ports:" if not markdown else "**Ports**")
     for pname, target, _ in comp.ports:
         domain, desc = comp.port_doc(pname)
-        n = _cardinality(comp, target)
+        n = cardinality(comp, target)
         card = f", {n}-vector" if n > 1 else ""
         lines.append(f"{item}{code(pname)} ({domain or 'any domain'}{card}): {desc}".rstrip(": "))
     lines += ["", "Parameters:" if not markdown else "**Parameters**"]
@@ -48,7 +48,9 @@ def describe(comp, markdown: bool = False) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _cardinality(comp, target: str) -> int:
+def cardinality(comp, target: str) -> int:
+    """The cardinality of the bonds a component's element ``target`` holds inside (1 when
+    it holds none: a rigid pin's junction takes the cardinality of what is bonded to it)."""
     return max((b.n for b in comp.body.bonds if target in (b.src[0], b.dst[0])), default=1)
 
 

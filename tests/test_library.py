@@ -1,0 +1,439 @@
+"""The component library (bgc/format/library, imported as ``from: "bgc:NAME"``).
+
+Each component is checked in a small model against a closed form derived here by hand (free
+motion under a constant force, harmonic and exponential responses, Kirchhoff's laws solved
+by a root finder, the orifice and Hagen-Poiseuille laws, torque-free precession of an
+axisymmetric body); each library file against strict units, its ports' declared domains
+against the domains bgc's dimensional analysis infers; and the import's resolution against
+everything that must not reach a user's file. Several independent sub-systems share one
+model, so that each library file costs one compile.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+
+import bgc
+from bgc.base.errors import ModelError
+from bgc.core.graph import build_graph
+from bgc.format import library
+from bgc.format.catalogue import cardinality, load
+from bgc.format.parse import parse_file, parse_text
+
+HEAD = "bgc: 1\nname: {name}\nunits: strict\nimports: [{imports}]\n"
+
+
+def _model(tmp_path_factory, name, imports, body):
+    d = tmp_path_factory.mktemp(name)
+    text = HEAD.format(name=name, imports=", ".join(f'{{from: "bgc:{i}"}}' for i in imports))
+    (d / f"{name}.yaml").write_text(text + body)
+    return bgc.compile(str(d / f"{name}.yaml"))
+
+
+def _run(mod, t1, n=41, **kw):
+    t = np.linspace(0.0, t1, n)
+    r = mod.simulate((0.0, t1), t_eval=t, rtol=1e-10, atol=1e-12, **kw)
+    return r.t, r.y
+
+
+# ---------------------------------------------------------------------------------------------
+# The import and the library's own consistency
+
+
+def test_import_resolves_to_the_package_only(tmp_path):
+    # a user's files named like the library, beside the model, are never read
+    (tmp_path / "mechanics.translational.yaml").write_text("not: a model\n")
+    (tmp_path / "bgc:mechanics.translational").write_text("not: a model\n")
+    (tmp_path / "m.yaml").write_text(
+        'bgc: 1\nname: m\nimports: [{from: "bgc:mechanics.translational"}]\n'
+        "elements: {b: {type: mass}}\nbonds: []\n")
+    model = parse_file(tmp_path / "m.yaml")
+    assert model.component("mass") is not None
+
+
+@pytest.mark.parametrize("spec, words", [
+    ("bgc:../../base/x", "no such library"),
+    ("bgc:/etc/passwd", "no such library"),
+    ("bgc:nothing", "no such library"),
+    ("bgc:Mechanics.Spatial", "no such library"),
+    ("mechanics.spatial", "a library import reads 'bgc:NAME'"),
+    ("./parts.yaml", "a library import reads 'bgc:NAME'"),
+])
+def test_bad_library_imports_are_located(spec, words):
+    text = f'bgc: 1\nname: m\nimports:\n  - {{from: "{spec}"}}\nelements: {{}}\nbonds: []\n'
+    with pytest.raises(ModelError) as e:
+        parse_text(text, "m.yaml")
+    assert str(e.value).startswith("m.yaml:4:")
+    assert words in str(e.value)
+
+
+def test_an_import_names_a_file_or_the_library_not_both():
+    text = ('bgc: 1\nname: m\nimports:\n  - {from: "bgc:thermal", file: x.yaml}\n'
+            "elements: {}\nbonds: []\n")
+    with pytest.raises(ModelError, match=r"^m.yaml:4:5: an import names one of"):
+        parse_text(text, "m.yaml")
+
+
+def test_component_names_are_unique_across_the_library():
+    seen = {}
+    for name in library.names():
+        for c in load(name).components:
+            assert c.name not in seen, f"{c.name} in {name} and {seen[c.name]}"
+            seen[c.name] = name
+    assert len(seen) >= 40
+
+
+#: the units of effort and flow of each port domain, and bgc check --units' name for it
+DOMAIN = {"translation": ("N", "m/s", "mechanical translation"),
+          "rotation": ("N*m", "rad/s", "mechanical rotation"),
+          "electrical": ("V", "A", "electrical"),
+          "hydraulic": ("Pa", "m^3/s", "hydraulic"),
+          "thermal": ("K", "W", "thermal (temperature, heat flow)")}
+
+
+def _harness(lib, comp):
+    """A model holding one instance of ``comp`` with its defaults under strict units, each
+    port bonded to a 0-junction of its own that holds a source of effort and a source of flow,
+    the units of the port's declared domain: the dimensional analysis then checks the
+    component's laws against the domains its ports declare, from both sides."""
+    els, inputs, bonds = {"x": "{type: %s}" % comp.name}, [], []
+    types = {e.name: e.type for e in comp.body.elements}
+    seen = set()  # a two-port's first port takes the bond in, its second gives it out
+    for i, (pname, target, _) in enumerate(comp.ports):
+        e_unit, f_unit, _ = DOMAIN[comp.port_doc(pname)[0]]
+        n = cardinality(comp, target)
+        els[f"j{i}"] = '{type: "0"}'
+        els[f"se{i}"] = '{type: Se, effort: "ue%d"}' % i
+        els[f"sf{i}"] = '{type: Sf, flow: "uf%d"}' % i
+        zero = f"{{default: {[0] * n if n > 1 else 0}, shape: {[n] if n > 1 else []}, unit: "
+        inputs += [f"ue{i}: {zero}{e_unit!r}}}", f"uf{i}: {zero}{f_unit!r}}}"]
+        into = types[target] in ("TF", "GY", "MTF", "MGY") and target not in seen
+        seen.add(target)
+        bonds += [(f"{{from: j{i}, to: x.{pname}, n: {n}}}" if into
+                   else f"{{from: x.{pname}, to: j{i}, n: {n}}}"),
+                  f"{{from: j{i}, to: se{i}, n: {n}}}", f"{{from: j{i}, to: sf{i}, n: {n}}}"]
+    text = (HEAD.format(name="h", imports=f'{{from: "bgc:{lib}"}}')
+            + f"inputs: {{{', '.join(inputs)}}}\nelements:\n"
+            + "".join(f"  {k}: {v}\n" for k, v in els.items())
+            + f"bonds: [{', '.join(bonds)}]\n")
+    return parse_text(text, f"<{comp.name}>")
+
+
+@pytest.mark.parametrize("lib", library.names())
+def test_every_component_is_documented_and_checks_under_strict_units(lib):
+    from bgc.core.units import check_units
+
+    for comp in load(lib).components:
+        assert comp.description and comp.laws, comp.name
+        for p in comp.body.params:
+            assert p.unit and p.description, f"{comp.name}.{p.name}"
+        for pname, _, _ in comp.ports:
+            domain, text = comp.port_doc(pname)
+            assert domain in DOMAIN and text, f"{comp.name}.{pname}"
+        # raises on a parameter without a unit (strict) or a law against a port's domain
+        report = check_units(build_graph(_harness(lib, comp)))
+        inside = [b for b in report.bonds if b.id.startswith("x.")]
+        assert all(b.domain in {d[2] for d in DOMAIN.values()} for b in inside), comp.name
+
+
+def test_a_port_against_its_law_is_caught():
+    """The harness above can fail: a pump whose outlet is declared a translation."""
+    comp = next(c for c in load("hydraulic").components if c.name == "pump")
+    docs = tuple((p, "translation" if p == "p" else d, t) for p, d, t in comp.port_docs)
+    from dataclasses import replace
+
+    from bgc.core.units import check_units
+
+    model = _harness("hydraulic", replace(comp, port_docs=docs))
+    with pytest.raises(ModelError, match="TF 'x.TF': ratio 'D' is m\\^3"):
+        check_units(build_graph(model))
+
+
+# ---------------------------------------------------------------------------------------------
+# 1-D mechanics
+
+
+TRANSLATIONAL = """
+elements:
+  F1: {type: force, F: 3.0}
+  m1: {type: mass, m: 2.0}
+  m2: {type: mass, m: 0.5}
+  s2: {type: spring, k: 8.0, x0: 0.1}
+  m3: {type: mass, m: 2.0, v0: 2.0}
+  d3: {type: damper, d: 1.0}
+  m4: {type: mass, m: 1.0, v0: 1.0}
+  fr4: {type: friction, Fc: 0.5, vs: 1.0e-3}
+  F5: {type: force, F: 3.0}
+  lv5: {type: lever, n: 2.0}
+  m5: {type: mass, m: 1.5}
+  vs6: {type: velocity_source, v: 0.3}
+  sd6: {type: spring_damper, k: 20.0, d: 2.0}
+  m7: {type: mass, m: 1.0}
+  sd7: {type: spring_damper, k: 25.0, d: 2.0, x0: 0.2}
+bonds: [[F1.p, m1.p], [m2.p, s2.a], [m3.p, d3.a], [m4.p, fr4.a], [F5.p, lv5.a], [lv5.b, m5.p],
+        [vs6.p, sd6.a], [m7.p, sd7.a]]
+outputs:
+  v1: {expr: "f(m1.I)", unit: m/s}
+  x2: {expr: "q(s2.C)", unit: m}
+  v3: {expr: "f(m3.I)", unit: m/s}
+  v4: {expr: "f(m4.I)", unit: m/s}
+  v5: {expr: "f(m5.I)", unit: m/s}
+  x6: {expr: "q(sd6.C)", unit: m}
+  F6: {expr: "e(sd6.J)", unit: N}
+  x7: {expr: "q(sd7.C)", unit: m}
+"""
+
+
+@pytest.fixture(scope="module")
+def translational(tmp_path_factory):
+    mod = _model(tmp_path_factory, "trans", ["mechanics.translational"], TRANSLATIONAL)
+    return _run(mod, 1.0)
+
+
+def test_mass_under_a_force_and_a_lever(translational):
+    t, y = translational
+    assert np.allclose(y["v1"], 3.0 * t / 2.0, atol=1e-9)  # v = F t / m
+    assert np.allclose(y["v5"], 3.0 * t / (2.0 * 1.5), atol=1e-9)  # F_b = F / n
+
+
+def test_spring_mass_frequency(translational):
+    t, y = translational
+    assert np.allclose(y["x2"], 0.1 * np.cos(math.sqrt(8.0 / 0.5) * t), atol=1e-8)
+
+
+def test_damper_decay_and_friction_deceleration(translational):
+    t, y = translational
+    assert np.allclose(y["v3"], 2.0 * np.exp(-t / 2.0), atol=1e-8)
+    # sliding far above vs: tanh = 1 to 1e-300, so the deceleration is Fc / m
+    assert np.allclose(y["v4"], 1.0 - 0.5 * t, atol=1e-8)
+
+
+def test_spring_damper_driven_and_free(translational):
+    t, y = translational
+    assert np.allclose(y["x6"], 0.3 * t, atol=1e-9)
+    assert np.allclose(y["F6"], 20.0 * 0.3 * t + 2.0 * 0.3, atol=1e-7)
+    w0, zeta = 5.0, 2.0 / (2 * math.sqrt(25.0 * 1.0))
+    wd = w0 * math.sqrt(1 - zeta**2)
+    x = 0.2 * np.exp(-zeta * w0 * t) * (np.cos(wd * t) + zeta / math.sqrt(1 - zeta**2)
+                                         * np.sin(wd * t))
+    assert np.allclose(y["x7"], x, atol=1e-8)
+
+
+ROTATIONAL = """
+elements:
+  T1: {type: torque, T: 0.6}
+  J1: {type: inertia, J: 0.2}
+  J2: {type: inertia, J: 0.02}
+  k2: {type: torsion_spring, k: 2.0, phi0: 0.05}
+  J3: {type: inertia, J: 0.5, w0: 4.0}
+  d3: {type: rotational_damper, d: 0.25}
+  J4: {type: inertia, J: 0.1, w0: 3.0}
+  f4: {type: rotational_friction, Tc: 0.2, ws: 1.0e-3}
+  T5: {type: torque, T: 0.6}
+  g5: {type: gear, n: 4.0}
+  J5: {type: inertia, J: 0.8}
+  T6: {type: torque, T: 0.2}
+  rp6: {type: rack_pinion, r: 0.05}
+  m6: {type: mass, m: 2.0}
+  w7: {type: speed_source, omega: 1.5}
+  k7: {type: torsion_spring, k: 3.0}
+bonds: [[T1.w, J1.w], [J2.w, k2.a], [J3.w, d3.a], [J4.w, f4.a], [T5.w, g5.a], [g5.b, J5.w],
+        [T6.w, rp6.a], [rp6.b, m6.p], [w7.w, k7.a]]
+outputs:
+  w1: {expr: "f(J1.I)", unit: rad/s}
+  phi2: {expr: "q(k2.C)", unit: rad}
+  w3: {expr: "f(J3.I)", unit: rad/s}
+  w4: {expr: "f(J4.I)", unit: rad/s}
+  w5: {expr: "f(J5.I)", unit: rad/s}
+  w5_in: {expr: "f(T5.Se)", unit: rad/s}
+  v6: {expr: "f(m6.I)", unit: m/s}
+  phi7: {expr: "q(k7.C)", unit: rad}
+  T7: {expr: "e(k7.C)", unit: N*m}
+"""
+
+
+@pytest.fixture(scope="module")
+def rotational(tmp_path_factory):
+    mod = _model(tmp_path_factory, "rot", ["mechanics.rotational", "mechanics.translational"],
+                 ROTATIONAL)
+    return _run(mod, 1.0)
+
+
+def test_inertia_spring_damper_friction(rotational):
+    t, y = rotational
+    assert np.allclose(y["w1"], 0.6 * t / 0.2, atol=1e-9)
+    assert np.allclose(y["phi2"], 0.05 * np.cos(10.0 * t), atol=1e-8)
+    assert np.allclose(y["w3"], 4.0 * np.exp(-0.25 * t / 0.5), atol=1e-8)
+    assert np.allclose(y["w4"], 3.0 - 0.2 * t / 0.1, atol=1e-8)
+
+
+def test_gear_ratio_and_rack_pinion(rotational):
+    t, y = rotational
+    assert np.allclose(y["w5"], 4.0 * 0.6 * t / 0.8, atol=1e-9)  # T_out = n T_in
+    assert np.allclose(y["w5_in"], 4.0 * y["w5"], atol=1e-9)  # omega_in = n omega_out
+    assert np.allclose(y["v6"], (0.2 / 0.05) * t / 2.0, atol=1e-9)  # F = T / r
+    assert np.allclose(y["phi7"], 1.5 * t, atol=1e-9)
+    assert np.allclose(y["T7"], 3.0 * 1.5 * t, atol=1e-8)
+
+
+# ---------------------------------------------------------------------------------------------
+# Electrical
+
+ELECTRICAL = """
+elements:
+  vs1: {type: voltage_source, V: 5.0}
+  r1: {type: resistor, R: 1000.0}
+  c1: {type: capacitor, C: 1.0e-4}
+  vs2: {type: voltage_source, V: 2.0}
+  r2: {type: resistor, R: 10.0}
+  l2: {type: inductor, L: 0.5}
+  c3: {type: capacitor, C: 1.0e-3, v0: 1.0}
+  l3: {type: inductor, L: 0.1}
+  vs4: {type: voltage_source, V: 10.0}
+  tr4: {type: transformer, n: 3.0}
+  r4: {type: resistor, R: 50.0}
+  vs5: {type: voltage_source, V: 5.0}
+  r5: {type: resistor, R: 1000.0}
+  d5: {type: diode}
+  vs6: {type: voltage_source, V: 12.0}
+  mot6: {type: dc_motor}
+  is7: {type: current_source, I: 2.0e-3}
+  c7: {type: capacitor, C: 1.0e-3}
+bonds: [[vs1.p, r1.p], [r1.n, c1.p], [vs2.p, r2.p], [r2.n, l2.p], [c3.n, l3.p],
+        [vs4.p, tr4.p1], [tr4.p2, r4.p], [vs5.p, r5.p], [r5.n, d5.p], [vs6.p, mot6.p],
+        [is7.p, c7.p]]
+outputs:
+  v1: {expr: "e(c1.c)", unit: V}
+  i2: {expr: "f(l2.l)", unit: A}
+  v3: {expr: "e(c3.c)", unit: V}
+  i4: {expr: "f(r4.r)", unit: A}
+  i4_in: {expr: "f(vs4.Se)", unit: A}
+  i5: {expr: "f(d5.D)", unit: A}
+  w6: {expr: "f(mot6.jm)", unit: rad/s}
+  v7: {expr: "e(c7.c)", unit: V}
+"""
+
+
+@pytest.fixture(scope="module")
+def electrical(tmp_path_factory):
+    mod = _model(tmp_path_factory, "elec", ["electrical"], ELECTRICAL)
+    return _run(mod, 0.3, n=31, method="Radau")
+
+
+def test_rc_rl_lc(electrical):
+    t, y = electrical
+    assert np.allclose(y["v1"], 5.0 * (1 - np.exp(-t / 0.1)), atol=1e-7)
+    assert np.allclose(y["i2"], 2.0 / 10.0 * (1 - np.exp(-10.0 * t / 0.5)), atol=1e-8)
+    assert np.allclose(y["v3"], np.cos(t / math.sqrt(0.1 * 1.0e-3)), atol=1e-6)
+    assert np.allclose(y["v7"], 2.0e-3 * t / 1.0e-3, atol=1e-9)
+
+
+def test_transformer_and_diode_operating_point(electrical):
+    _, y = electrical
+    assert np.allclose(y["i4"], 3.0 * 10.0 / 50.0, rtol=1e-12)  # v2 = n v1
+    assert np.allclose(y["i4_in"], 3.0 * y["i4"], rtol=1e-12)  # i1 = n i2
+    Is, Vt = 1.0e-12, 0.025852
+    i = brentq(lambda i: 1000.0 * i + Vt * math.log(i / Is + 1) - 5.0, 0.0, 5.0e-3, xtol=1e-15)
+    assert np.allclose(y["i5"], i, rtol=1e-9)
+
+
+def test_dc_motor_steady_speed(electrical):
+    _, y = electrical
+    Ra, k, bm = 1.0, 0.05, 1.0e-6
+    assert y["w6"][-1] == pytest.approx(k * 12.0 / (Ra * bm + k**2), rel=1e-6)
+
+
+# ---------------------------------------------------------------------------------------------
+# Hydraulics and heat
+
+HYDRAULIC = """
+elements:
+  q1: {type: flow_source, Q: 2.0e-5}
+  ch1: {type: chamber, V: 1.0e-3, beta: 1.0e+9}
+  ps2: {type: pressure_source, P: 4.0e+6}
+  or2: {type: orifice}
+  ch3: {type: chamber, V: 1.0e-2, beta: 1.0e+9, p0: 1.0e+7}
+  or3: {type: orifice, A: 1.0e-6}
+  ps4: {type: pressure_source, P: 1.0e+6}
+  cy4: {type: cylinder, A: 2.0e-3}
+  m4: {type: mass, m: 100.0}
+  w5: {type: speed_source, omega: 100.0}
+  pu5: {type: pump, D: 1.0e-6}
+  ch5: {type: chamber, V: 1.0e-3, beta: 1.0e+9}
+  ps6: {type: pressure_source, P: 1.0e+5}
+  pi6: {type: pipe}
+bonds: [[q1.p, ch1.p], [ps2.p, or2.a], [ch3.p, or3.a], [ps4.p, cy4.p], [cy4.rod, m4.p],
+        [w5.w, pu5.shaft], [pu5.p, ch5.p], [ps6.p, pi6.a]]
+outputs:
+  p1: {expr: "e(ch1.C)", unit: Pa}
+  Q2: {expr: "f(or2.R)", unit: m^3/s}
+  p3: {expr: "e(ch3.C)", unit: Pa}
+  v4: {expr: "f(m4.I)", unit: m/s}
+  F4: {expr: "e(m4.I)", unit: N}
+  p5: {expr: "e(ch5.C)", unit: Pa}
+  Q6: {expr: "f(pi6.I)", unit: m^3/s}
+"""
+
+
+@pytest.fixture(scope="module")
+def hydraulic(tmp_path_factory):
+    mod = _model(tmp_path_factory, "hyd", ["hydraulic", "mechanics.translational",
+                                           "mechanics.rotational"], HYDRAULIC)
+    return _run(mod, 0.5, method="Radau")
+
+
+def test_chamber_build_up_and_pump(hydraulic):
+    t, y = hydraulic
+    assert np.allclose(y["p1"], 1.0e9 * 2.0e-5 * t / 1.0e-3, rtol=1e-9, atol=1e-3)
+    assert np.allclose(y["p5"], 1.0e9 * 1.0e-6 * 100.0 * t / 1.0e-3, rtol=1e-9, atol=1e-3)
+
+
+def test_orifice_flow_and_tank_drain(hydraulic):
+    t, y = hydraulic
+    Cd, A, rho, dpt = 0.61, 1.0e-5, 850.0, 1.0e3
+    dp = 4.0e6
+    exact = Cd * A * math.sqrt(2 * dp / rho)  # the square-root law
+    assert np.allclose(y["Q2"], exact, rtol=(dpt / dp) ** 2)  # regularised below dp_t only
+    # a chamber draining through an orifice: sqrt(p) falls linearly (p >> dp_t throughout)
+    c = Cd * 1.0e-6 * math.sqrt(2 / rho)
+    sq = math.sqrt(1.0e7) - 1.0e9 * c / (2 * 1.0e-2) * t
+    assert sq[-1] > 30 * math.sqrt(dpt)
+    assert np.allclose(np.sqrt(y["p3"]), sq, rtol=1e-5)
+
+
+def test_cylinder_force_and_pipe(hydraulic):
+    t, y = hydraulic
+    assert np.allclose(y["F4"], 1.0e6 * 2.0e-3, rtol=1e-12)  # F = p A
+    assert np.allclose(y["v4"], 1.0e6 * 2.0e-3 * t / 100.0, atol=1e-9)
+    L, d, mu, rho = 1.0, 0.01, 0.03, 850.0
+    R, ind = 128 * mu * L / (math.pi * d**4), rho * L / (math.pi * d**2 / 4)
+    assert np.allclose(y["Q6"], 1.0e5 / R * (1 - np.exp(-R * t / ind)), rtol=1e-7, atol=1e-12)
+
+
+THERMAL = """
+elements:
+  h1: {type: heat_capacity, Cth: 500.0, T0: 350.0}
+  g1: {type: conductance, G: 2.0}
+  amb1: {type: temperature_source, T: 300.0}
+  h2: {type: heat_capacity, Cth: 200.0, T0: 300.0}
+  q2: {type: heat_source, Q: 50.0}
+  h3: {type: heat_capacity, Cth: 100.0, T0: 400.0}
+  cv3: {type: convection, h: 25.0, A: 0.2}
+  amb3: {type: temperature_source, T: 290.0}
+bonds: [[h1.T, g1.a], [g1.b, amb1.p], [q2.p, h2.T], [h3.T, cv3.a], [cv3.b, amb3.p]]
+outputs:
+  T1: {expr: "e(h1.C)", unit: K}
+  T2: {expr: "e(h2.C)", unit: K}
+  T3: {expr: "e(h3.C)", unit: K}
+"""
+
+
+def test_thermal_capacity_conductance_convection(tmp_path_factory):
+    mod = _model(tmp_path_factory, "therm", ["thermal"], THERMAL)
+    t, y = _run(mod, 400.0)
+    assert np.allclose(y["T1"], 300.0 + 50.0 * np.exp(-2.0 * t / 500.0), atol=1e-7)
+    assert np.allclose(y["T2"], 300.0 + 50.0 * t / 200.0, atol=1e-7)
+    assert np.allclose(y["T3"], 290.0 + 110.0 * np.exp(-25.0 * 0.2 * t / 100.0), atol=1e-7)
