@@ -33,9 +33,9 @@ def _model(tmp_path_factory, name, imports, body):
     return bgc.compile(str(d / f"{name}.yaml"))
 
 
-def _run(mod, t1, n=41, **kw):
+def _run(mod, t1, n=41, rtol=1e-10, **kw):
     t = np.linspace(0.0, t1, n)
-    r = mod.simulate((0.0, t1), t_eval=t, rtol=1e-10, atol=1e-12, **kw)
+    r = mod.simulate((0.0, t1), t_eval=t, rtol=rtol, atol=1e-12, **kw)
     return r.t, r.y
 
 
@@ -437,3 +437,129 @@ def test_thermal_capacity_conductance_convection(tmp_path_factory):
     assert np.allclose(y["T1"], 300.0 + 50.0 * np.exp(-2.0 * t / 500.0), atol=1e-7)
     assert np.allclose(y["T2"], 300.0 + 50.0 * t / 200.0, atol=1e-7)
     assert np.allclose(y["T3"], 290.0 + 110.0 * np.exp(-25.0 * 0.2 * t / 100.0), atol=1e-7)
+
+
+# ---------------------------------------------------------------------------------------------
+# Planar and spatial mechanics
+
+PLANAR = """
+parameters:
+  eps: {value: 0.01, unit: rad, description: initial swing}
+  F3: {value: 0.5, unit: N, description: push along the rail}
+elements:
+  ground1: {type: Sf, flow: "[0, 0]"}
+  pin1: {type: pin}
+  rod1: {type: planar_rod, m: 1.2, l: 0.8, th0: "-pi / 2 + eps"}
+  tip1: {type: Se, effort: "[0, 0]"}
+  rod2: {type: planar_rod, m: 1.2, l: 0.8, th0: "-pi / 2 + eps"}
+  pin2: {type: pin_compliant, k: 1.0e+5, r: 300.0}
+  tip2: {type: Se, effort: "[0, 0]"}
+  rod3: {type: planar_rod, m: 2.0, l: 0.5, g: 0.0}
+  rail3: {type: prismatic_compliant}
+  push3: {type: Se, effort: "[F3, 0]"}
+bonds:
+  - {from: ground1, to: pin1.a, n: 2}
+  - {from: pin1.b, to: rod1.A, n: 2}
+  - {from: tip1, to: rod1.B, n: 2}
+  - {from: rod2.A, to: pin2.a, n: 2}
+  - {from: tip2, to: rod2.B, n: 2}
+  - {from: rod3.A, to: rail3.a, n: 2}
+  - [rod3.w, rail3.wa]
+  - {from: push3, to: rod3.B, n: 2}
+outputs:
+  th1: {expr: "rod1.th", unit: rad}
+  th2: {expr: "rod2.th", unit: rad}
+  th3: {expr: "rod3.th", unit: rad}
+  v3: {expr: "f(rod3.It)", unit: m/s}
+"""
+
+
+@pytest.mark.slow
+def test_planar_rod_pendulum_and_prismatic_rail(tmp_path_factory):
+    mod = _model(tmp_path_factory, "planar", ["mechanics.planar"], PLANAR)
+    omega = math.sqrt(3 * 9.81 / (2 * 0.8))  # rod on a pivot at one end: J_A = m l^2 / 3
+    t, y = _run(mod, 2 * 2 * math.pi / omega, method="LSODA", rtol=1e-9)
+    swing = -math.pi / 2 + 0.01 * np.cos(omega * t)  # small angles: amplitude^2 / 16 = 6e-6
+    assert np.allclose(y["th1"], swing, atol=2e-6)  # the rigid pin
+    assert np.allclose(y["th2"], swing, atol=3e-5)  # the compliant one (1e5 N/m)
+    # a rod sliding along a rail on the x axis, pushed along it: v = F t / m, no rotation
+    assert np.allclose(y["v3"][0], 0.5 * t / 2.0, atol=1e-9)
+    assert np.allclose(y["v3"][1], 0.0, atol=1e-9)
+    assert np.allclose(y["th3"], 0.0, atol=1e-9)
+
+
+SPATIAL = """
+parameters:
+  eps: {value: 0.02, unit: rad, description: initial swing}
+  lp: {value: 0.3, unit: m, description: the pendulum's length}
+  lt: {value: 0.2, unit: m, description: the twisting rod's length}
+  Rtilt: "[[sin(eps), -cos(eps), 0], [0, 0, 1], [-cos(eps), -sin(eps), 0]]"
+  Rhang: "[[0, -1, 0], [0, 0, 1], [-1, 0, 0]]"
+elements:
+  free: {type: rigid_rod, m: 1.0, l: 0.1, rho: 0.02, g: 0.0}
+  freeQ: {type: Se, effort: "[0, 0, 0]"}
+  freeP: {type: Se, effort: "[0, 0, 0]"}
+  pend: {type: rigid_rod, m: 0.8, l: lp, rho: 0.01, R0: Rtilt,
+         rC0: "lp / 2 * [sin(eps), 0, -cos(eps)]"}
+  pendP: {type: Se, effort: "[0, 0, 0]"}
+  pendT: {type: translational_coupling, k: 1.0e+6, r: 200.0}
+  pendR: {type: rotational_coupling, Rd: pend.R}
+  tors: {type: rigid_rod, m: 1.0, l: lt, rho: 0.05, R0: Rhang, rC0: "[0, 0, -lt / 2]"}
+  torsP: {type: Se, effort: "[0, 0, 0]"}
+  torsT: {type: translational_coupling, k: 1.0e+6, r: 200.0}
+  torsR: {type: rotational_coupling, k: 0.1, r: 0.0, Rd: tors.R}
+bonds:
+  - {from: freeQ, to: free.Q, n: 3}
+  - {from: freeP, to: free.P, n: 3}
+  - {from: pend.Q, to: pendT.a, n: 3}
+  - {from: pendP, to: pend.P, n: 3}
+  - {from: pend.w, to: pendR.a, n: 3}
+  - {from: tors.Q, to: torsT.a, n: 3}
+  - {from: torsP, to: tors.P, n: 3}
+  - {from: tors.w, to: torsR.a, n: 3}
+outputs:
+  axis: {expr: "free.R[:, 0]", unit: "-"}
+  h: {expr: "p(free.Ir)", unit: kg*m^2/s}
+  energy: {expr: "(dot(p(free.Ir), f(free.Ir)) + dot(p(free.It), f(free.It))) / 2", unit: J}
+  rC: {expr: "free.rC", unit: m}
+  swing: {expr: "atan2(pend.R[0, 0], -pend.R[2, 0])", unit: rad}
+  twist: {expr: "q(torsR.C)[0]", unit: rad}
+"""
+
+
+@pytest.mark.slow
+def test_spatial_rigid_rod_free_pendulum_and_torsion(tmp_path_factory):
+    mod = _model(tmp_path_factory, "spatial", ["mechanics.spatial"], SPATIAL)
+    names = list(mod.STATE_NAMES)
+    x0 = np.array(mod.initial_state(), dtype=float)
+    # the free rod: spin about its axis and about y (frame 0 = body frame at t = 0), and a drift
+    m, l, rho = 1.0, 0.1, 0.02
+    Ixx, Iyy = m * rho**2 / 2, m * (3 * rho**2 + l**2) / 12
+    h0 = np.array([Ixx * 30.0, Iyy * 4.0, 0.0])
+    p0 = m * np.array([0.1, 0.0, -0.2])
+    x0[names.index("free.Ir.p[0]"):names.index("free.Ir.p[0]") + 3] = h0
+    x0[names.index("free.It.p[0]"):names.index("free.It.p[0]") + 3] = p0
+    # the torsion rod: spinning about its own (vertical) axis, Omega0 = 0.5 rad/s
+    rho_t = 0.05
+    Ixx_t = 1.0 * rho_t**2 / 2
+    i = names.index("tors.Ir.p[0]")
+    x0[i:i + 3] = [0.0, 0.0, -Ixx_t * 0.5]  # body x is -z of frame 0
+    T = 2 * math.pi * math.sqrt((0.8 * 0.3**2 / 3 + 0.8 * 0.01**2 / 4) / (0.8 * 9.81 * 0.15))
+    t, y = _run(mod, 2 * T, n=61, x0=x0, method="LSODA", rtol=1e-9)
+    # torque-free axisymmetric body: the symmetry axis turns about h at |h| / I_perp
+    hn = np.linalg.norm(h0)
+    k = h0 / hn
+    e0 = np.array([1.0, 0.0, 0.0])
+    ang = hn / Iyy * t[:, None]
+    rot = (e0 * np.cos(ang) + np.cross(k, e0) * np.sin(ang)
+           + k * np.dot(k, e0) * (1 - np.cos(ang)))
+    assert np.allclose(y["axis"].T, rot, atol=1e-6)
+    assert np.allclose(y["h"].T, h0, atol=1e-15)  # angular momentum: no torque acts
+    e_exact = (h0[0]**2 / Ixx + h0[1]**2 / Iyy + p0 @ p0 / m) / 2
+    assert np.allclose(y["energy"], e_exact, rtol=1e-7)
+    assert np.allclose(y["rC"].T, t[:, None] * p0 / m, atol=1e-9)
+    # the compliant revolute pendulum: I_Q = Iyy + m (l/2)^2 against m g l / 2
+    assert np.allclose(y["swing"], 0.02 * np.cos(2 * math.pi * t / T), atol=2e-5)
+    # the torsion about the joint's stiff x axis: I_xx phi'' = -k phi
+    wt = math.sqrt(0.1 / Ixx_t)
+    assert np.allclose(y["twist"], 0.5 / wt * np.sin(wt * t), atol=1e-6)
