@@ -563,3 +563,40 @@ def test_spatial_rigid_rod_free_pendulum_and_torsion(tmp_path_factory):
     # the torsion about the joint's stiff x axis: I_xx phi'' = -k phi
     wt = math.sqrt(0.1 / Ixx_t)
     assert np.allclose(y["twist"], 0.5 / wt * np.sin(wt * t), atol=1e-6)
+
+
+# ---------------------------------------------------------------------------------------------
+# The 3R2S built from the library against the file it replaced (tests/data), which defined
+# its own rigid body and couplings: the same module, state for state.
+
+
+@pytest.mark.slow
+def test_3r2s_from_the_library_equals_the_hand_written_model():
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    new = bgc.compile(str(root / "models" / "3r2s.yaml"))
+    old = bgc.compile(str(root / "tests" / "data" / "3r2s_before_library.yaml"))
+    assert sorted(new.STATE_NAMES) == sorted(old.STATE_NAMES)
+    assert new.PARAM_DEFAULTS.keys() == old.PARAM_DEFAULTS.keys()
+    for k, v in old.PARAM_DEFAULTS.items():
+        assert np.array_equal(np.asarray(new.PARAM_DEFAULTS[k]), np.asarray(v)), k
+    assert new.OUTPUT_NAMES == old.OUTPUT_NAMES
+    order = [list(old.STATE_NAMES).index(s) for s in new.STATE_NAMES]  # old index of each new
+    rng = np.random.default_rng(26)
+    x0 = np.asarray(old.initial_state(), dtype=float)
+    assert np.array_equal(np.asarray(new.initial_state(), dtype=float), x0[order])
+    for _ in range(5):
+        t = float(rng.uniform(0.0, 10.0))
+        x_old = x0 + rng.normal(scale=1e-3, size=x0.shape)  # off the initial pose, R not unitary
+        x_new = x_old[order]
+        u = {"vd": (lambda t, a=rng.normal(scale=0.1, size=3): a)}
+        f_old, f_new = old.rhs(t, x_old, u=u), new.rhs(t, x_new, u=u)
+        scale = np.abs(f_old).max()
+        assert np.abs(np.asarray(f_new) - np.asarray(f_old)[order]).max() <= 1e-12 * scale
+        j_old = np.asarray(old.jacobian(t, x_old, u=u))[np.ix_(order, order)]
+        j_new = np.asarray(new.jacobian(t, x_new, u=u))
+        assert np.abs(j_new - j_old).max() <= 1e-12 * np.abs(j_old).max()
+        y_old, y_new = old.outputs(t, x_old, u=u), new.outputs(t, x_new, u=u)
+        for k in old.OUTPUT_NAMES:
+            assert np.allclose(y_new[k], y_old[k], rtol=1e-12, atol=0), k
