@@ -152,6 +152,49 @@ def test_a_port_against_its_law_is_caught():
         check_units(build_graph(model))
 
 
+def test_docs_library_md_is_what_the_script_writes():
+    import importlib.util
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location("library_docs",
+                                                  root / "scripts" / "library_docs.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    assert (root / "docs" / "library.md").read_text(encoding="utf-8") == script.text(), \
+        "docs/library.md is stale: run python scripts/library_docs.py"
+
+
+def test_bgc_library_lists_and_shows_from_the_files_own_text():
+    from click.testing import CliRunner
+
+    from bgc.cli.commands import main
+
+    run = CliRunner().invoke
+    r = run(main, ["library"])
+    assert r.exit_code == 0
+    for name in library.names():
+        assert f"bgc:{name}" in r.output
+        for c in load(name).components:
+            assert f"  {c.name} " in r.output
+    r = run(main, ["library", "orifice"])
+    assert r.exit_code == 0
+    orifice = next(c for c in load("hydraulic").components if c.name == "orifice")
+    text = " ".join(r.output.split())
+    for p in orifice.body.params:
+        assert f"{p.name} = " in text and f"[{p.unit}]: {p.description}" in text
+    for law in orifice.laws:
+        assert law in text
+    assert "a (hydraulic): upstream side (bond into it)" in text
+    r = run(main, ["library", "bgc:thermal"])
+    assert r.exit_code == 0 and "heat_capacity (bgc:thermal)" in r.output
+    r = run(main, ["library", "../../etc/passwd"])
+    assert r.exit_code == 2
+    assert r.output.strip().splitlines() == [
+        "error: the library has no library or component named '../../etc/passwd' "
+        "(bgc library lists them)"]
+
+
 # ---------------------------------------------------------------------------------------------
 # 1-D mechanics
 

@@ -12,7 +12,7 @@ import click
 
 from bgc.base import __version__
 from bgc.base.errors import ModelError, SimulationFailed, oneline
-from bgc.cli import housekeeping, model_cmds, scene_cmds
+from bgc.cli import housekeeping, library, model_cmds, scene_cmds
 from bgc.cli.exits import (  # noqa: F401 (EXIT_*: the statuses, as bgc.cli.commands.*)
     EXIT_FAILED_RUN,
     EXIT_INTERNAL,
@@ -99,7 +99,7 @@ def main():
 for _cmd in (model_cmds.compile_cmd, model_cmds.check_cmd, model_cmds.graph_cmd,
              scene_cmds.simulate_cmd, scene_cmds.explain_cmd, scene_cmds.linearize_cmd,
              model_cmds.equations_cmd, housekeeping.examples_cmd, housekeeping.cache_cmd,
-             model_cmds.export_cmd):
+             model_cmds.export_cmd, library.library_cmd):
     main.add_command(_cmd)
 
 
@@ -124,6 +124,7 @@ _EXAMPLES = {
     "linearize": "bgc linearize models/quarter_car.yaml --out lin/ --bode zr:body_height",
     "equations": "bgc equations models/msd.yaml --latex",
     "examples": "bgc examples my_models/",
+    "library": "bgc library rigid_rod",
     "sweep": "bgc sweep models/scenes/msd_sweep.yaml --out sweep.zarr --workers 2",
 }
 main.epilog = "\b\nExample:\n  bgc simulate models/scenes/msd_step.yaml --plot figs/\n\n" + _DOCS

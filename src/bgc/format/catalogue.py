@@ -1,11 +1,17 @@
 """The library's documentation, from the library's own text: ``bgc library [NAME]`` and
-docs/library.md (scripts/library_docs.py) print what :func:`describe` and :func:`catalogue`
-make of the component files in bgc/format/library (bgc.format.library)."""
+docs/library.md (scripts/library_docs.py) print what :func:`describe`, :func:`library_text`
+and :func:`catalogue` make of the component files in bgc/format/library (bgc.format.library):
+each component's description, ports with their domains, parameters with their units, defaults
+and descriptions, states and laws."""
 from __future__ import annotations
+
+import textwrap
 
 from bgc.base.errors import Coord
 from bgc.format.library import PREFIX, names, resolve
 from bgc.format.parse import parse_file
+
+WIDTH = 92
 
 
 def _value_text(value) -> str:
@@ -16,36 +22,14 @@ def _value_text(value) -> str:
     return str(getattr(value, "text", value))
 
 
-def describe(comp, markdown: bool = False) -> str:
-    """The documentation of one library component, from its own text."""
-    h = (lambda s: f"### `{s}`") if markdown else (lambda s: s)
-    item = "- " if markdown else "  "
-    code = (lambda s: f"`{s}`") if markdown else (lambda s: s)
-    lines = [h(comp.name), ""]
-    if comp.description:
-        lines += [" ".join(comp.description.split()), ""]
-    lines.append("Ports:" if not markdown else "**Ports**")
-    for pname, target, _ in comp.ports:
-        domain, desc = comp.port_doc(pname)
-        n = cardinality(comp, target)
-        card = f", {n}-vector" if n > 1 else ""
-        lines.append(f"{item}{code(pname)} ({domain or 'any domain'}{card}): {desc}".rstrip(": "))
-    lines += ["", "Parameters:" if not markdown else "**Parameters**"]
-    for p in comp.body.params:
-        unit = p.unit or "-"
-        desc = f": {p.description}" if p.description else ""
-        lines.append(f"{item}{code(p.name)} = {code(_value_text(p.value))} [{unit}]{desc}")
-    if not comp.body.params:
-        lines.append(f"{item}(none)")
-    states = [s for s in comp.body.states]
-    if states:
-        lines += ["", "States:" if not markdown else "**States**"]
-        lines += [f"{item}{code(s.name)} [{s.unit or '-'}]: d/dt = {code(s.derivative.text)}"
-                  for s in states]
-    if comp.laws:
-        lines += ["", "Laws:" if not markdown else "**Laws**"]
-        lines += [f"{item}{law}" for law in comp.laws]
-    return "\n".join(lines) + "\n"
+def _para(text: str, markdown: bool) -> list[str]:
+    """One paragraph or list item (its leading spaces kept), wrapped for a terminal."""
+    indent = text[:len(text) - len(text.lstrip(" "))]
+    text = " ".join(text.split())
+    if markdown:
+        return [indent + text]
+    return textwrap.wrap(text, WIDTH, initial_indent=indent,
+                         subsequent_indent=indent + "  " if indent else "")
 
 
 def cardinality(comp, target: str) -> int:
@@ -54,9 +38,46 @@ def cardinality(comp, target: str) -> int:
     return max((b.n for b in comp.body.bonds if target in (b.src[0], b.dst[0])), default=1)
 
 
+def describe(comp, lib: str, markdown: bool = False) -> str:
+    """The documentation of one component of the library ``lib``, from its own text."""
+    code = (lambda s: f"`{s}`") if markdown else (lambda s: s)
+    head = (lambda s: f"**{s}**") if markdown else (lambda s: f"{s}:")
+    item = "- " if markdown else "  "
+    title = (f"### `{comp.name}`" if markdown else f"{comp.name} ({PREFIX}{lib})")
+    lines = [title, ""] + _para(comp.description, markdown) + ["", head("Ports")]
+    for pname, target, _ in comp.ports:
+        domain, desc = comp.port_doc(pname)
+        n = cardinality(comp, target)
+        card = f", {n}-vector" if n > 1 else ""
+        lines += _para(f"{item}{code(pname)} ({domain}{card}): {desc}", markdown)
+    lines += ["", head("Parameters")]
+    for p in comp.body.params:
+        lines += _para(f"{item}{code(p.name)} = {code(_value_text(p.value))} [{p.unit or '-'}]: "
+                       f"{p.description}", markdown)
+    if not comp.body.params:
+        lines.append(f"{item}(none)")
+    if comp.body.states:
+        lines += ["", head("States")]
+        for s in comp.body.states:
+            lines += _para(f"{item}{code(s.name)} [{s.unit or '-'}]: d/dt = "
+                           f"{code(s.derivative.text)}", markdown)
+    lines += ["", head("Laws")]
+    for law in comp.laws:
+        lines += _para(f"{item}{law}", markdown)
+    return "\n".join(lines) + "\n"
+
+
 def load(name: str):
     """The parsed library file ``name`` (a bgc.format.parse.Model)."""
     return parse_file(resolve(PREFIX + name, Coord("<library>", 1, 1)))
+
+
+def library_text(name: str, markdown: bool = False) -> str:
+    """One library file: its description and every component in full."""
+    model = load(name)
+    head = f"## `{PREFIX}{name}`" if markdown else f"{PREFIX}{name}"
+    body = [describe(c, name, markdown) for c in model.components]
+    return "\n".join([head, ""] + _para(model.description, markdown) + [""] + body)
 
 
 def catalogue(markdown: bool = False) -> str:
@@ -64,19 +85,21 @@ def catalogue(markdown: bool = False) -> str:
     out = []
     for name in names():
         model = load(name)
-        out.append(f"## `{PREFIX}{name}`" if markdown else f"{PREFIX}{name}: {model.description}")
-        if markdown:
-            out += ["", " ".join(model.description.split()), ""]
+        out += [f"{PREFIX}{name}" if not markdown else f"- `{PREFIX}{name}`: "
+                + " ".join(model.description.split())]
         for c in model.components:
             first = " ".join(c.description.split()).split(". ")[0].rstrip(".")
-            out.append(f"- `{c.name}`: {first}" if markdown else f"  {c.name:<24} {first}")
-        out.append("")
-    return "\n".join(out)
+            if markdown:
+                out.append(f"  - [`{c.name}`](#{c.name}): {first}")
+            else:
+                out += textwrap.wrap(f"{c.name:<23} {first}", WIDTH, initial_indent="  ",
+                                     subsequent_indent=" " * 26)
+    return "\n".join(out) + "\n"
 
 
 def find(name: str):
-    """(file name, component) for a component name, or (file name, None) for a library file's
-    name; None when the library has neither."""
+    """(library name, component) for a component's name, or (library name, None) for a
+    library's; None when the library has neither."""
     if name in names():
         return name, None
     for lib in names():
