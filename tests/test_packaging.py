@@ -41,3 +41,12 @@ def test_every_example_is_package_data():
         files = {p.name for p in folder.iterdir() if p.is_file()}
         missing = sorted(files - _shipped(package, folder))
         assert not missing, f"{package}: not shipped: {missing}"
+
+
+@pytest.mark.skipif(tomllib is None, reason="tomllib needs Python 3.11")
+def test_the_component_library_is_package_data():
+    folder = ROOT / "src" / "bgc" / "format"
+    files = {str(p.relative_to(folder)) for p in (folder / "library").iterdir() if p.is_file()}
+    assert files, "no library files found"
+    missing = sorted(files - _shipped("bgc.format", folder))
+    assert not missing, f"library files not shipped in the wheel: {missing}"

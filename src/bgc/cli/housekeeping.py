@@ -50,7 +50,7 @@ def _example_files() -> dict:
     for f in sorted((models / "scenes").glob("*")):
         if f.suffix in (".yaml", ".csv"):
             out[f"models/scenes/{f.name}"] = f
-    for name in ("model-format.md", "api.md"):
+    for name in ("model-format.md", "api.md", "library.md"):
         if (docs / name).is_file():
             out[f"docs/{name}"] = docs / name
     return out
