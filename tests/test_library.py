@@ -54,6 +54,21 @@ def test_import_resolves_to_the_package_only(tmp_path):
     assert model.component("mass") is not None
 
 
+def test_the_compile_cache_keys_on_the_library_as_code(tmp_path):
+    """A library import is no file of the user's (the run's reached files hold the model
+    alone) and the library's files are part of bgc's code, which every cache key holds."""
+    from bgc.base.paths import code_files
+    from bgc.base.reach import reached_files
+
+    (tmp_path / "m.yaml").write_text(
+        'bgc: 1\nname: m\nimports: [{from: "bgc:thermal"}]\n'
+        "elements: {h: {type: heat_capacity}, q: {type: heat_source}}\nbonds: [[q.p, h.T]]\n")
+    reached = reached_files(tmp_path / "m.yaml")
+    assert reached is not None and [r.path for r in reached] == [str(tmp_path / "m.yaml")]
+    code = {name for name, _ in code_files()}
+    assert {f"bgc/format/library/{n}.yaml" for n in library.names()} <= code
+
+
 @pytest.mark.parametrize("spec, words", [
     ("bgc:../../base/x", "no such library"),
     ("bgc:/etc/passwd", "no such library"),
