@@ -92,6 +92,14 @@ def test_an_import_names_a_file_or_the_library_not_both():
         parse_text(text, "m.yaml")
 
 
+def test_a_users_component_cannot_stand_in_for_the_librarys():
+    text = ('bgc: 1\nname: m\nimports: [{from: "bgc:mechanics.translational"}]\n'
+            "components:\n  mass:\n    ports: {p: v}\n    elements: {v: {type: \"1\"}}\n"
+            "    bonds: []\nelements: {}\nbonds: []\n")
+    with pytest.raises(ModelError, match=r"^m.yaml:5:3: component 'mass' is defined twice"):
+        parse_text(text, "m.yaml")
+
+
 def test_component_names_are_unique_across_the_library():
     seen = {}
     for name in library.names():

@@ -334,9 +334,10 @@ def _read_imports(r: Reader, node, imports: _Imports) -> list[Component]:
         if ("file" in im) == ("from" in im):
             raise ModelError(r.coord(item), "an import names one of 'file:' (a file of yours) "
                                             "or 'from:' (the library, \"bgc:NAME\")")
-        fnode = im["file" if "file" in im else "from"][1]
+        key = "file" if "file" in im else "from"
+        fnode = im[key][1]
         coord = r.coord(fnode)
-        rel = r.string(fnode, "file")
+        rel = r.string(fnode, key)
         if "from" in im:  # the library: a package file, never a user's path
             rel = _library.resolve(rel, coord)
         elif not rel:
