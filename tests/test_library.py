@@ -561,6 +561,7 @@ parameters:
   lt: {value: 0.2, unit: m, description: the twisting rod's length}
   Rtilt: "[[sin(eps), -cos(eps), 0], [0, 0, 1], [-cos(eps), -sin(eps), 0]]"
   Rhang: "[[0, -1, 0], [0, 0, 1], [-1, 0, 0]]"
+  vpull: {value: 0.02, unit: m/s, description: the drive coupling's pull}
 elements:
   free: {type: rigid_rod, m: 1.0, l: 0.1, rho: 0.02, g: 0.0}
   freeQ: {type: Se, effort: "[0, 0, 0]"}
@@ -574,6 +575,8 @@ elements:
   torsP: {type: Se, effort: "[0, 0, 0]"}
   torsT: {type: translational_coupling, k: 1.0e+6, r: 200.0}
   torsR: {type: rotational_coupling, k: 0.1, r: 0.0, Rd: tors.R}
+  pull: {type: Sf, flow: "[0, vpull, 0]"}
+  pullc: {type: drive_coupling}
 bonds:
   - {from: freeQ, to: free.Q, n: 3}
   - {from: freeP, to: free.P, n: 3}
@@ -583,6 +586,7 @@ bonds:
   - {from: tors.Q, to: torsT.a, n: 3}
   - {from: torsP, to: tors.P, n: 3}
   - {from: tors.w, to: torsR.a, n: 3}
+  - {from: pull, to: pullc.a, n: 3}
 outputs:
   axis: {expr: "free.R[:, 0]", unit: "-"}
   h: {expr: "p(free.Ir)", unit: kg*m^2/s}
@@ -590,6 +594,7 @@ outputs:
   rC: {expr: "free.rC", unit: m}
   swing: {expr: "atan2(pend.R[0, 0], -pend.R[2, 0])", unit: rad}
   twist: {expr: "q(torsR.C)[0]", unit: rad}
+  pull_force: {expr: "e(pullc.J)", unit: N}
 """
 
 
@@ -629,6 +634,9 @@ def test_spatial_rigid_rod_free_pendulum_and_torsion(tmp_path_factory):
     # the torsion about the joint's stiff x axis: I_xx phi'' = -k phi
     wt = math.sqrt(0.1 / Ixx_t)
     assert np.allclose(y["twist"], 0.5 / wt * np.sin(wt * t), atol=1e-6)
+    # the drive coupling against the ground, pulled at a constant speed: F = k v t + r v
+    assert np.allclose(y["pull_force"][1], 1.0e5 * 0.02 * t + 5.0 * 0.02, rtol=1e-9)
+    assert np.allclose(y["pull_force"][[0, 2]], 0.0, atol=1e-12)
 
 
 # ---------------------------------------------------------------------------------------------
