@@ -39,9 +39,13 @@ def _flat(v) -> list:
     return list(v) if isinstance(v, sp.MatrixBase) else [v]
 
 
-def build_events(ctx, bg, state_vars, t_symbol) -> tuple[EventEq, ...]:
-    """Every event of the model (``bg.model.events``), resolved in the model's top scope."""
+def build_events(ctx, bg, state_vars, t_symbol, switched=False) -> tuple[EventEq, ...]:
+    """Every event of the model (``bg.model.events``), resolved in the model's top scope.
+    ``switched``: one mode of a switched graph (bgc.core.modes), where a storage element in
+    derivative causality keeps its state in the merged equations, so an action may set it."""
     symbols = {sv.symbol for sv in state_vars}
+    if switched:
+        symbols |= {s for _, syms, _ in ctx.dependent for s in syms}
     return tuple(_event(ctx, bg, ev, symbols, t_symbol) for ev in bg.model.events)
 
 

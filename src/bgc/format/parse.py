@@ -29,7 +29,7 @@ from bgc.format.reader import (  # noqa: F401
 )
 from bgc.format.whitelist import Expr
 
-ELEMENT_TYPES = ("Se", "Sf", "C", "I", "R", "TF", "GY", "MTF", "MGY", "0", "1")
+ELEMENT_TYPES = ("Se", "Sf", "C", "I", "R", "TF", "GY", "MTF", "MGY", "0", "1", "Sw")
 
 #: The element table: for each type, the law keys it accepts (exactly one unless noted).
 LAWS: dict[str, tuple[str, ...]] = {
@@ -38,6 +38,7 @@ LAWS: dict[str, tuple[str, ...]] = {
     "R": ("resistance", "effort", "flow"),
     "TF": ("ratio",), "GY": ("ratio",), "MTF": ("modulus",), "MGY": ("modulus",),
     "0": (), "1": (),
+    "Sw": ("closed",),  # an ideal switch: Se(0) where closed, Sf(0) where open (bgc.core.modes)
 }
 STORAGE = ("I", "C")
 TWO_PORTS = ("TF", "GY", "MTF", "MGY")
