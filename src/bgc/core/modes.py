@@ -83,8 +83,12 @@ def derive_switched(bg: BondGraph, fold, zero, derive_one, declare) -> Equations
             caus = assign_causality(g, allow_derivative=True)
             eqs = derive_one(g, caus)
         except ModelError as err:
+            message = err.message
+            for sw, closed in zip(sws, combo):  # the switch by its own name, not its stand-in
+                message = message.replace(f"{'Se' if closed else 'Sf'} {sw.id!r}",
+                                          f"Sw {sw.id!r} ({'closed' if closed else 'open'})")
             raise ModelError(err.coord or sws[0].coord,
-                             f"switch mode ({mode_label(sws, combo)}): {err.message}",
+                             f"switch mode ({mode_label(sws, combo)}): {message}",
                              err.advice) from None
         if eqs.newton:
             raise ModelError(sws[0].coord, f"switch mode ({mode_label(sws, combo)}): a "
