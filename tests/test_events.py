@@ -100,6 +100,29 @@ def test_ball_batched_over_restitution_and_height(ball):
             assert np.allclose(mine, impact_times(h0[i, 0], e[j], 3.0), atol=1e-9, rtol=0)
 
 
+@pytest.mark.parametrize("batch_events", ["own", "shared"])
+def test_ball_batch_equals_the_single_runs(batch_events):
+    """numpy: each instance of a batch has its own events; with batch_events="own" it is
+    integrated on its own (exactly its single run), with "shared" the batch restarts together
+    at every instance's event (the same trajectories to the solver's accuracy)."""
+    model = bgc.compile(str(BALL))
+    e = np.array([0.8, 0.85, 0.9])
+    kw = dict(dt=1e-3, rtol=1e-8, atol=1e-10)
+    r = model.simulate((0.0, 3.0), p={"e_r": e}, batch_events=batch_events, **kw)
+    for i, ei in enumerate(e):
+        single = model.simulate((0.0, 3.0), p={"e_r": float(ei)}, **kw)
+        mine = [ev for ev in r.events if ev[2] == (i,)]
+        assert len(mine) == len(single.events) == len(impact_times(1.0, ei, 3.0))
+        if batch_events == "own":
+            assert np.array_equal(r.x[:, i], single.x)
+            assert [ev[0] for ev in mine] == [ev[0] for ev in single.events]
+        else:
+            assert np.max(np.abs(r.x[:, i] - single.x)) < 1e-9
+            assert np.allclose([ev[0] for ev in mine], [ev[0] for ev in single.events],
+                               atol=1e-9, rtol=0)
+    assert [ev[0] for ev in r.events] == sorted(ev[0] for ev in r.events)
+
+
 def test_zeno_is_a_located_error(ball):
     # e = 0.5: the impacts pile up at t1 (1 + e)/(1 - e) = 1.3546 s
     with pytest.raises(ball.SimulationError) as exc:

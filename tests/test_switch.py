@@ -230,3 +230,22 @@ def test_too_many_switches_is_a_located_error(tmp_path):
         compile_file(path)
     assert "more than 6 switches" in exc.value.message
     assert exc.value.coord.line == text[:text.index("s6:")].count("\n") + 1
+
+
+# --- events inside components: each instance its own --------------------------------------------
+
+@pytest.mark.parametrize("target", TARGETS)
+def test_component_events_belong_to_each_instance(target):
+    """Two instances of an ideal-diode component (its mode and events inside it), each in a
+    rectifier of its own load: each matches the independent model of its circuit."""
+    model = bgc.compile(str(ROOT / "models" / "rectifier_pair.yaml"), target=target)
+    assert list(model.STATE_NAMES) == ["cap_a.q", "cap_b.q", "d_a.on", "d_b.on"]
+    times = np.linspace(0.0, 0.1, 1001)
+    r = model.simulate((0.0, 0.1), t_eval=times, rtol=1e-10, atol=1e-12)
+    for name, R in (("a", 1000.0), ("b", 500.0)):
+        v_ref, switches = rectifier_reference(times, R=R)
+        mine = [ev for ev in r.events if ev[1].startswith(f"d_{name}.")]
+        assert [ev[1] for ev in mine] == [f"d_{name}.turn_off", f"d_{name}.turn_on"] * (
+            len(switches) // 2) + [f"d_{name}.turn_off"] * (len(switches) % 2)
+        assert np.max(np.abs(np.array([ev[0] for ev in mine]) - switches)) < 1e-8
+        assert np.max(np.abs(r.y[f"v_{name}"] - v_ref)) < 1e-5

@@ -170,10 +170,18 @@ def _instance_params(p, shape, i):
 
 def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, u=None,
              x0=None, dt=None, breakpoints=(), jac=True, max_step=np.inf, max_steps=50_000,
-             stiff_check=True, max_wall=None, max_events=20, zeno_window=None):
+             stiff_check=True, max_wall=None, max_events=20, zeno_window=None,
+             batch_events="own"):
     """Integrate a hybrid model over t_span, stopping at its events; returns SimResult (t, x, y)
     with .events, the event log: (t, event name, instance index in the batch, x before, x after)
     in the order they happened, and stats["nevents"].
+
+    A batch (parameters or x0 spanning instances): with batch_events="own" (the default) and
+    output times (t_eval or dt), each instance is integrated on its own, with its own steps,
+    events and restarts, so that it is exactly its single run; with "shared" (or without
+    output times) one solver advances the whole batch and every instance restarts at any
+    instance's event (only those whose events fired are reset): vectorised, but each instance's
+    steps are the batch's.
 
     The arguments are the runtime's simulate's (stiff_check is not used: a hybrid model's
     explicit methods are not watched for stiffness), plus the Zeno guard: SimulationError
@@ -190,6 +198,14 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
     with np.errstate(all="ignore"):
         deadline = np.inf if max_wall is None else time.perf_counter() + max_wall
         x0, batch = _batched(x0, p)
+        if batch_events not in ("own", "shared"):
+            raise ValueError(f"batch_events {batch_events!r}: 'own' or 'shared'")
+        if batch and batch_events == "own" and (t_eval is not None or dt is not None):
+            return _separately(dict(t_span=t_span, t_eval=t_eval, method=method, rtol=rtol,
+                                    u=u, dt=dt, breakpoints=breakpoints, jac=jac,
+                                    max_step=max_step, max_steps=max_steps,
+                                    max_events=max_events, zeno_window=zeno_window),
+                               x0, batch, p, atol, deadline)
         p_raw, p = p, _params(p)
         shape = (N_STATES,) + batch
         y = np.array(x0, dtype=float).reshape(-1)
@@ -227,13 +243,45 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
                 if start == c:  # an event at the segment's very end
                     break
         t, X = path.arrays()
-        X = X.reshape(shape + (len(t),))
-        pt = None if p_raw is None else {
-            name: np.asarray(v)[..., None] if np.ndim(v) > _PARAM_NDIM[name] else v
+        return _result(t, X.reshape(shape + (len(t),)), p_raw, u, stats, log.records)
+
+
+def _result(t, X, p_raw, u, stats, records):
+    pt = None if p_raw is None else {
+        name: np.asarray(v)[..., None] if np.ndim(v) > _PARAM_NDIM[name] else v
+        for name, v in p_raw.items()}
+    res = SimResult(t, X, outputs(t, X, pt, u), stats)
+    res.events = records
+    return res
+
+
+def _separately(kw, x0, batch, p_raw, atol, deadline):
+    """A batch run instance by instance (batch_events="own"): each its own solver, steps,
+    events and restarts; the results stacked as one batch, the event logs merged in time."""
+    import time
+
+    X, records, stats, t = None, [], {}, None
+    atol = np.asarray(atol, dtype=float)
+    for index in np.ndindex(*batch):
+        p_i = None if p_raw is None else {
+            name: np.broadcast_to(np.asarray(v), batch + np.shape(v)[np.ndim(v) - _PARAM_NDIM[
+                name]:])[index] if np.ndim(v) > _PARAM_NDIM[name] else v
             for name, v in p_raw.items()}
-        res = SimResult(t, X, outputs(t, X, pt, u), stats)
-        res.events = log.records
-        return res
+        atol_i = atol if atol.ndim < 2 else np.broadcast_to(
+            atol.reshape(atol.shape + (1,) * (len(batch) + 1 - atol.ndim)),
+            (N_STATES,) + batch)[(slice(None),) + index]
+        wall = None if deadline == np.inf else max(deadline - time.perf_counter(), 0.0)
+        r = simulate(x0=np.array(x0[(slice(None),) + index]), p=p_i, atol=atol_i,
+                     max_wall=wall, batch_events="own", **kw)
+        if X is None:
+            t, X = r.t, np.empty((N_STATES,) + batch + (len(r.t),))
+        X[(slice(None),) + index] = r.x
+        records += [(te, name, tuple(int(j) for j in index), xb, xa)
+                    for te, name, _, xb, xa in r.events]
+        for key, v in r.stats.items():
+            stats[key] = stats.get(key, 0) + v
+    records.sort(key=lambda rec: (rec[0], rec[2]))
+    return _result(t, X, p_raw, kw["u"], stats, records)
 
 
 def _run_to_event(solver, guards, path, log, stats, method, deadline, max_wall):

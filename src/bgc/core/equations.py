@@ -36,7 +36,7 @@ from bgc.core.eqtypes import (
     symbol_array,
     symbol_vector,
 )
-from bgc.core.events import build_events
+from bgc.core.events import build_events, flat_events, mode_ids
 from bgc.core.forward import jacobian
 from bgc.core.graph import BondGraph, FlatElement, code_name
 from bgc.core.laws import check_value, element_equations
@@ -80,7 +80,7 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
         progress("ordering assignments")
     nloops: list = [] if newton else None
     order, loops = causal_order(bg, defs, owner, tear_sets, symbolic_max, nloops)
-    events = build_events(ctx, bg, state_vars, T, switched) if bg.model.events else ()
+    events = build_events(ctx, bg, state_vars, T, switched) if flat_events(bg) else ()
     kept, subs = _inline(order, defs)
     events = tuple(ev.replace(subs) for ev in events)
     rates = tuple((s, d.xreplace(subs)) for _, syms, dots in ctx.dependent
@@ -102,7 +102,7 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
                      tuple(ctx_derived), tuple(ctx.inputs[i.name] for i in bg.model.inputs),
                      tuple(kept), derivatives, outputs, jac, tuple(jac_assign), tuple(loops),
                      warnings=standing, dependent=tuple(dependent), newton=tuple(nloops),
-                     events=events, modes=bg.model.modes, rates=rates)
+                     events=events, modes=mode_ids(bg), rates=rates)
 
 
 def _declare(ctx: Context) -> None:

@@ -31,7 +31,7 @@ from bgc.base.errors import ModelError
 from bgc.core.causality import assign_causality
 from bgc.core.context import Context
 from bgc.core.eqtypes import Equations, StateVar
-from bgc.core.events import EventEq
+from bgc.core.events import EventEq, mode_ids
 from bgc.core.forward import jacobian
 from bgc.core.graph import BondGraph, FlatElement
 from bgc.format.expr import shape_of
@@ -109,7 +109,7 @@ def _position(ctx: Context, sw: FlatElement):
     val = ctx.build(sw.law[1], sw.scope, what)
     if shape_of(val):
         raise ModelError(sw.law[1].coord, f"{what}: the position must be a scalar")
-    modes = {ctx.states[m] for m in ctx.bg.model.modes if m in ctx.states}
+    modes = {ctx.states[m] for m in mode_ids(ctx.bg) if m in ctx.states}
     params = {s for pv in ctx.params.values() for s in pv.symbols}
     params |= {a.symbol for a in ctx.derived.values()}
     stray = val.free_symbols - modes - params

@@ -133,6 +133,8 @@ class Component:
     body: Body
     ports: tuple[tuple[str, str, Coord], ...]
     coord: Coord
+    events: tuple = ()  # bgc.format.events.Event: each instance gets its own (names prefixed)
+    modes: tuple[str, ...] = ()  # mode variables (the body's states whose derivative is 0)
 
 
 @dataclass(frozen=True)
@@ -355,9 +357,11 @@ def _read_imports(r: Reader, node, imports: _Imports) -> list[Component]:
 
 def _component(r: Reader, cname: str, kn, vn) -> Component:
     cm = r.mapping(vn, f"component {cname!r}")
-    require(r, cm, vn, ("parameters", "ports", "elements", "bonds", "states", "description"),
+    require(r, cm, vn, ("parameters", "ports", "elements", "bonds", "states", "description",
+                        "modes", "events"),
              f"component {cname!r}", required=("ports", "elements", "bonds"))
     body = _body(r, cm, vn, f"component {cname!r}", is_component=True)
+    body, events, modes = _hybrid(r, cm, body)
     _check_unique(body, ())
     ports = []
     elnames = {e.name for e in body.elements}
@@ -370,7 +374,7 @@ def _component(r: Reader, cname: str, kn, vn) -> Component:
         ports.append((pname, target, r.coord(pk)))
     if not ports:
         raise ModelError(r.coord(cm["ports"][1]), f"component {cname!r} has no ports")
-    return Component(cname, body, tuple(ports), r.coord(kn))
+    return Component(cname, body, tuple(ports), r.coord(kn), events, modes)
 
 
 def _body(r: Reader, top: dict, node, what: str, is_component: bool) -> Body:
