@@ -350,3 +350,49 @@ def test_fmu_ball_under_fmpy_model_exchange_and_co_simulation(tmp_path):
     r = fmpy.simulate_fmu(str(fmu), fmi_type="CoSimulation", stop_time=3.0,
                           output_interval=1e-2, output=["height"])
     assert np.max(np.abs(r["height"] - ball_height(r["time"], 1.0, 0.8))) < 1e-8
+
+
+# --- time events: breakpoints, not crossings ----------------------------------------------------
+
+SAMPLER = """bgc: 1
+name: sampler
+parameters:
+  P:  {value: 0.1, unit: s}
+  Rl: {value: 0.5, unit: Ohm}
+  Cc: {value: 1.0, unit: F}
+elements:
+  cap:  {type: C, compliance: "Cc", initial: "1"}
+  load: {type: R, resistance: "Rl"}
+  n:    {type: "0"}
+bonds: [[n, cap], [n, load]]
+states:
+  held: {initial: "0", derivative: "0", unit: V}
+events:
+  sample:
+    EVENT
+    do: {held: "e(cap)"}
+"""
+
+
+@pytest.mark.parametrize("target", TARGETS)
+@pytest.mark.parametrize("method", ["Radau", "Rodas4", "DOP853"])
+def test_periodic_time_event_hits_its_times_exactly(target, method):
+    """A sample-and-hold of an RC discharge, v = exp(-t/(R C)): `every: P` fires at k P to an
+    ulp or two (the integrator stops there: a breakpoint), and holds v(k P)."""
+    model = bgc.compile(SAMPLER.replace("EVENT", 'every: "P"'), target=target)
+    assert "sample_count" in model.STATE_NAMES
+    r = model.simulate((0.0, 1.05), dt=0.01, rtol=1e-10, atol=1e-12, method=method)
+    times = np.array([ev[0] for ev in r.events])
+    k = np.arange(1, 11)
+    assert len(times) == 10
+    assert np.all(np.abs(times - k * 0.1) <= 2 * np.spacing(k * 0.1))
+    held = np.array([ev[4][1] for ev in r.events])
+    assert np.max(np.abs(held - np.exp(-times / 0.5))) < 1e-10
+    # between samples the hold keeps the last one (the output at a sample is its left limit)
+    i = np.searchsorted(r.t, 0.555)
+    assert r.x[list(model.STATE_NAMES).index("held"), i] == held[4]
+    # `at` moves the first sample: at 0.05, then every 0.1
+    shifted = bgc.compile(SAMPLER.replace("EVENT", 'every: "P"\n    at: "P/2"'), target=target)
+    r = shifted.simulate((0.0, 1.0), dt=0.01, rtol=1e-10, atol=1e-12, method=method)
+    assert np.allclose([ev[0] for ev in r.events], 0.05 + 0.1 * np.arange(10), rtol=0,
+                       atol=4e-16)

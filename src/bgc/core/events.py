@@ -22,13 +22,16 @@ class EventEq:
     guard: object  # sympy scalar: the event fires where it crosses zero
     direction: int  # +1 rising, -1 falling, 0 either
     resets: tuple[tuple[sp.Symbol, object], ...]  # (state symbol, new value)
+    #: a time event (``at``, ``every``): its guard is t - (its time), which the runtimes do not
+    #: search: they integrate up to the time (a breakpoint) and fire it there
+    timed: bool = False
 
     def replace(self, subs: dict) -> EventEq:
         """The same event with ``subs`` applied (derive inlines plain copies)."""
         if not subs:
             return self
         return EventEq(self.name, self.coord, self.guard.xreplace(subs), self.direction,
-                       tuple((s, v.xreplace(subs)) for s, v in self.resets))
+                       tuple((s, v.xreplace(subs)) for s, v in self.resets), self.timed)
 
     def exprs(self):
         yield self.guard
@@ -78,6 +81,13 @@ def _event(ctx, bg, scope, ev, symbols, t_symbol) -> EventEq:
     if ev.condition is not None:
         guard = ctx.build(ev.condition, scope, f"{what} condition")
         where = ev.condition.coord
+    elif ev.every is not None:  # at + n every, n the event's count (a state its reset moves on)
+        where = ev.every.coord
+        period = ctx.build(ev.every, scope, f"{what} period", params_only=True)
+        first = period if ev.at is None else ctx.build(ev.at, scope, f"{what} time",
+                                                       params_only=True)
+        count = ctx.build(Expr(ev.count_state, ev.coord), scope, f"{what} count")
+        guard = t_symbol - (first + count * period)
     else:
         guard = t_symbol - ctx.build(ev.at, scope, f"{what} time", params_only=True)
         where = ev.at.coord
@@ -99,7 +109,17 @@ def _event(ctx, bg, scope, ev, symbols, t_symbol) -> EventEq:
             if s in resets:
                 raise ModelError(act.coord, f"{what}: {act.label!r} is set twice")
             resets[s] = v
-    return EventEq(name, ev.coord, guard, ev.direction, tuple(resets.items()))
+    if ev.every is not None:
+        if shape_of(period):
+            raise ModelError(where, f"{what}: the period must be a scalar")
+        if shape_of(first):
+            raise ModelError(ev.at.coord, f"{what}: the time must be a scalar")
+        if count in resets:
+            raise ModelError(ev.coord, f"{what}: {ev.count_state!r} is the event's own count: "
+                                       "an action may not set it")
+        resets[count] = count + 1
+    return EventEq(name, ev.coord, guard, ev.direction, tuple(resets.items()),
+                   ev.condition is None)
 
 
 def _shape(v) -> str:

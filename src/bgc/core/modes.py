@@ -190,4 +190,4 @@ def _merge_event(ev: EventEq, i: int, per_mode, pick) -> EventEq:
     guard = pick([eqs.events[i].guard for eqs in per_mode])
     resets = tuple((s, pick([dict(eqs.events[i].resets)[s] for eqs in per_mode]))
                    for s, _ in ev.resets)
-    return EventEq(ev.name, ev.coord, guard, ev.direction, resets)
+    return EventEq(ev.name, ev.coord, guard, ev.direction, resets, ev.timed)

@@ -288,6 +288,10 @@ def _hybrid(r: Reader, top: dict, body: Body):
     events = _events.read_events(r, top["events"][1]) if "events" in top else ()
     states = tuple(State(m.name, (), m.initial, Expr("0", m.initial.coord), m.coord)
                    for m in modes)
+    # a periodic event's count: a state that only its own event moves (by one)
+    states += tuple(State(ev.count_state, (), Expr("0", ev.every.coord),
+                          Expr("0", ev.every.coord), ev.coord)
+                    for ev in events if ev.every is not None)
     if states:
         body = replace(body, states=body.states + states)
     return body, events, tuple(m.name for m in modes)
