@@ -412,10 +412,18 @@ def _reset_0(t, x, p=None, u=None):
 def _reset_1(t, x, p=None, u=None):
     """Event release: the state just after it, from the state x just before."""
     _pv, _bshape = _params(p)
+    J1 = _pv[0]
+    J2 = _pv[1]
 
     x = np.asarray(x, dtype=float)
+    p_J1s, p_J2s, s_locked, = x
+    # J1s (I, integral): flow from momentum
+    f_b2_m1 = p_J1s/J1
+    # J2s (I, derivative): momentum from flow
+    p_J2s_m1 = J2*f_b2_m1
 
     _xn = np.array(np.broadcast_to(x, (3,) + np.broadcast_shapes(x.shape[1:], _bshape)))
+    _xn[1, ...] = xp.where((s_locked < 1/2), p_J2s, p_J2s_m1)
     _xn[2, ...] = 0
     return _xn
 

@@ -432,10 +432,35 @@ def event_values(t, x, p=None, u=None):
 def _reset_0(t, x, p=None, u=None):
     """Event d_a.turn_off: the state just after it, from the state x just before."""
     _pv, _bshape = _params(p)
+    V0 = _pv[0]
+    f0 = _pv[1]
+    Cap = _pv[4]
 
     x = np.asarray(x, dtype=float)
+    q_cap_a, q_cap_b, s_d_a__on, s_d_b__on, = x
+    _c0 = V0*xp.sin(2*xp.pi*f0*t)
+    # src_a (Se): effort
+    e_b1_m0 = _c0
+    # cap_a (C, derivative): displacement from effort
+    q_cap_a_m0 = Cap*e_b1_m0
+    # src_b (Se): effort
+    e_b6_m0 = _c0
+    # cap_b (C, derivative): displacement from effort
+    q_cap_b_m0 = Cap*e_b6_m0
+    # src_a (Se): effort
+    e_b1_m1 = _c0
+    # cap_a (C, derivative): displacement from effort
+    q_cap_a_m1 = Cap*e_b1_m1
+    # src_b (Se): effort
+    e_b6_m2 = _c0
+    # cap_b (C, derivative): displacement from effort
+    q_cap_b_m2 = Cap*e_b6_m2
+    _c1 = (s_d_b__on > 1/2)
+    _c2 = (s_d_a__on > 1/2)
 
     _xn = np.array(np.broadcast_to(x, (4,) + np.broadcast_shapes(x.shape[1:], _bshape)))
+    _xn[0, ...] = xp.where(_c2, xp.where(_c1, q_cap_a_m0, q_cap_a_m1), q_cap_a)
+    _xn[1, ...] = xp.where(_c2, xp.where(_c1, q_cap_b_m0, q_cap_b), xp.where(_c1, q_cap_b_m2, q_cap_b))
     _xn[2, ...] = 0
     return _xn
 
@@ -443,10 +468,35 @@ def _reset_0(t, x, p=None, u=None):
 def _reset_1(t, x, p=None, u=None):
     """Event d_a.turn_on: the state just after it, from the state x just before."""
     _pv, _bshape = _params(p)
+    V0 = _pv[0]
+    f0 = _pv[1]
+    Cap = _pv[4]
 
     x = np.asarray(x, dtype=float)
+    q_cap_a, q_cap_b, s_d_a__on, s_d_b__on, = x
+    _c0 = V0*xp.sin(2*xp.pi*f0*t)
+    # src_a (Se): effort
+    e_b1_m0 = _c0
+    # cap_a (C, derivative): displacement from effort
+    q_cap_a_m0 = Cap*e_b1_m0
+    # src_b (Se): effort
+    e_b6_m0 = _c0
+    # cap_b (C, derivative): displacement from effort
+    q_cap_b_m0 = Cap*e_b6_m0
+    # src_a (Se): effort
+    e_b1_m1 = _c0
+    # cap_a (C, derivative): displacement from effort
+    q_cap_a_m1 = Cap*e_b1_m1
+    # src_b (Se): effort
+    e_b6_m2 = _c0
+    # cap_b (C, derivative): displacement from effort
+    q_cap_b_m2 = Cap*e_b6_m2
+    _c1 = (s_d_b__on > 1/2)
+    _c2 = (s_d_a__on > 1/2)
 
     _xn = np.array(np.broadcast_to(x, (4,) + np.broadcast_shapes(x.shape[1:], _bshape)))
+    _xn[0, ...] = xp.where(_c2, xp.where(_c1, q_cap_a_m0, q_cap_a_m1), q_cap_a)
+    _xn[1, ...] = xp.where(_c2, xp.where(_c1, q_cap_b_m0, q_cap_b), xp.where(_c1, q_cap_b_m2, q_cap_b))
     _xn[2, ...] = 1
     return _xn
 
@@ -454,10 +504,35 @@ def _reset_1(t, x, p=None, u=None):
 def _reset_2(t, x, p=None, u=None):
     """Event d_b.turn_off: the state just after it, from the state x just before."""
     _pv, _bshape = _params(p)
+    V0 = _pv[0]
+    f0 = _pv[1]
+    Cap = _pv[4]
 
     x = np.asarray(x, dtype=float)
+    q_cap_a, q_cap_b, s_d_a__on, s_d_b__on, = x
+    _c0 = V0*xp.sin(2*xp.pi*f0*t)
+    # src_a (Se): effort
+    e_b1_m0 = _c0
+    # cap_a (C, derivative): displacement from effort
+    q_cap_a_m0 = Cap*e_b1_m0
+    # src_b (Se): effort
+    e_b6_m0 = _c0
+    # cap_b (C, derivative): displacement from effort
+    q_cap_b_m0 = Cap*e_b6_m0
+    # src_a (Se): effort
+    e_b1_m1 = _c0
+    # cap_a (C, derivative): displacement from effort
+    q_cap_a_m1 = Cap*e_b1_m1
+    # src_b (Se): effort
+    e_b6_m2 = _c0
+    # cap_b (C, derivative): displacement from effort
+    q_cap_b_m2 = Cap*e_b6_m2
+    _c1 = (s_d_b__on > 1/2)
+    _c2 = (s_d_a__on > 1/2)
 
     _xn = np.array(np.broadcast_to(x, (4,) + np.broadcast_shapes(x.shape[1:], _bshape)))
+    _xn[0, ...] = xp.where(_c2, xp.where(_c1, q_cap_a_m0, q_cap_a_m1), q_cap_a)
+    _xn[1, ...] = xp.where(_c2, xp.where(_c1, q_cap_b_m0, q_cap_b), xp.where(_c1, q_cap_b_m2, q_cap_b))
     _xn[3, ...] = 0
     return _xn
 
@@ -465,10 +540,35 @@ def _reset_2(t, x, p=None, u=None):
 def _reset_3(t, x, p=None, u=None):
     """Event d_b.turn_on: the state just after it, from the state x just before."""
     _pv, _bshape = _params(p)
+    V0 = _pv[0]
+    f0 = _pv[1]
+    Cap = _pv[4]
 
     x = np.asarray(x, dtype=float)
+    q_cap_a, q_cap_b, s_d_a__on, s_d_b__on, = x
+    _c0 = V0*xp.sin(2*xp.pi*f0*t)
+    # src_a (Se): effort
+    e_b1_m0 = _c0
+    # cap_a (C, derivative): displacement from effort
+    q_cap_a_m0 = Cap*e_b1_m0
+    # src_b (Se): effort
+    e_b6_m0 = _c0
+    # cap_b (C, derivative): displacement from effort
+    q_cap_b_m0 = Cap*e_b6_m0
+    # src_a (Se): effort
+    e_b1_m1 = _c0
+    # cap_a (C, derivative): displacement from effort
+    q_cap_a_m1 = Cap*e_b1_m1
+    # src_b (Se): effort
+    e_b6_m2 = _c0
+    # cap_b (C, derivative): displacement from effort
+    q_cap_b_m2 = Cap*e_b6_m2
+    _c1 = (s_d_b__on > 1/2)
+    _c2 = (s_d_a__on > 1/2)
 
     _xn = np.array(np.broadcast_to(x, (4,) + np.broadcast_shapes(x.shape[1:], _bshape)))
+    _xn[0, ...] = xp.where(_c2, xp.where(_c1, q_cap_a_m0, q_cap_a_m1), q_cap_a)
+    _xn[1, ...] = xp.where(_c2, xp.where(_c1, q_cap_b_m0, q_cap_b), xp.where(_c1, q_cap_b_m2, q_cap_b))
     _xn[3, ...] = 1
     return _xn
 

@@ -294,10 +294,19 @@ def event_values(t, x, p=None, u=None):
 def _reset_0(t, x, p=None, u=None):
     """Event turn_off: the state just after it, from the state x just before."""
     _pv, _bshape = _params(p)
+    V0 = _pv[0]
+    f0 = _pv[1]
+    Cap = _pv[3]
 
     x = np.asarray(x, dtype=float)
+    q_cap, s_on, = x
+    # source (Se): effort
+    e_b1_m0 = V0*xp.sin(2*xp.pi*f0*t)
+    # cap (C, derivative): displacement from effort
+    q_cap_m0 = Cap*e_b1_m0
 
     _xn = np.array(np.broadcast_to(x, (2,) + np.broadcast_shapes(x.shape[1:], _bshape)))
+    _xn[0, ...] = xp.where((s_on > 1/2), q_cap_m0, q_cap)
     _xn[1, ...] = 0
     return _xn
 
@@ -305,10 +314,19 @@ def _reset_0(t, x, p=None, u=None):
 def _reset_1(t, x, p=None, u=None):
     """Event turn_on: the state just after it, from the state x just before."""
     _pv, _bshape = _params(p)
+    V0 = _pv[0]
+    f0 = _pv[1]
+    Cap = _pv[3]
 
     x = np.asarray(x, dtype=float)
+    q_cap, s_on, = x
+    # source (Se): effort
+    e_b1_m0 = V0*xp.sin(2*xp.pi*f0*t)
+    # cap (C, derivative): displacement from effort
+    q_cap_m0 = Cap*e_b1_m0
 
     _xn = np.array(np.broadcast_to(x, (2,) + np.broadcast_shapes(x.shape[1:], _bshape)))
+    _xn[0, ...] = xp.where((s_on > 1/2), q_cap_m0, q_cap)
     _xn[1, ...] = 1
     return _xn
 

@@ -83,7 +83,7 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
     events = build_events(ctx, bg, state_vars, T, switched) if flat_events(bg) else ()
     kept, subs = _inline(order, defs)
     events = tuple(ev.replace(subs) for ev in events)
-    rates = tuple((s, d.xreplace(subs)) for _, syms, dots in ctx.dependent
+    rates = tuple((s, d.xreplace(subs), s.xreplace(subs)) for _, syms, dots in ctx.dependent
                   for s, d in zip(syms, dots))
     derivatives = tuple((derivs[sv.symbol].xreplace(subs) if subs else derivs[sv.symbol])
                         for sv in state_vars)

@@ -162,6 +162,7 @@ def _merge(bg, closed, combos, per_mode) -> Equations:
                                       for j in range(len(vals))))
                     for i, (name, shp, vals) in enumerate(base.outputs))
     events = tuple(_merge_event(ev, i, per_mode, pick) for i, ev in enumerate(base.events))
+    events = _consistent(events, states, per_mode, pick)
     jac, jac_assign = jacobian(kept, states, derivs, ())
     loops = tuple(dict.fromkeys(lp for eqs in per_mode for lp in eqs.loops))
     warnings = tuple(dict.fromkeys(w for eqs in per_mode for w in eqs.warnings))
@@ -177,13 +178,28 @@ def _rate(bg, eqs: Equations, sv: StateVar, combo, closed):
     for own, d in zip(eqs.states, eqs.derivatives):
         if own.symbol == sv.symbol:
             return d
-    rates = dict(eqs.rates)
+    rates = {s: d for s, d, _ in eqs.rates}
     if sv.symbol in rates:
         return rates[sv.symbol]
     raise ModelError(bg.element(sv.owner).coord if sv.owner in {e.id for e in bg.elements}
                      else bg.model.coord,
                      f"internal: state {sv.name!r} has no derivative in switch mode "
                      f"({mode_label(switches(bg), combo)})")
+
+
+def _consistent(events, states, per_mode, pick):
+    """Every event also sets each state that is dependent in some mode to its constraint's
+    value where the event starts in that mode (unless the event sets it): the integrated state
+    has drifted from the constraint by the solver's error, and the next mode starts from it."""
+    values = [{s: v for s, _, v in eqs.rates} for eqs in per_mode]
+    follow = [sv.symbol for sv in states if any(sv.symbol in v for v in values)]
+    out = []
+    for ev in events:
+        own = {s for s, _ in ev.resets}
+        extra = tuple((s, pick([v.get(s, s) for v in values])) for s in follow if s not in own)
+        out.append(EventEq(ev.name, ev.coord, ev.guard, ev.direction, ev.resets + extra,
+                           ev.timed))
+    return tuple(out)
 
 
 def _merge_event(ev: EventEq, i: int, per_mode, pick) -> EventEq:
