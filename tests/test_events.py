@@ -232,6 +232,11 @@ BAD = [
     ('  impact:\n    when: "h"\n    do: {"1x": "0"}\n', "1x", "cannot assign to '1x'"),
     ('  impact:\n    when: "h"\n    speed: 2\n    do: {h: "0"}\n', "speed",
      "unknown key 'speed'"),
+    ('  impact:\n    every: "h"\n    do: {h: "0"}\n', "h\"\n    do", "may only use parameters"),
+    ('  impact:\n    when: "h"\n    every: "1"\n    do: {h: "0"}\n', "when",
+     "or 'every' (a period)"),
+    ('  impact:\n    every: "1"\n    direction: rising\n    do: {h: "0"}\n', "direction",
+     "a time event ('at', 'every') has no direction"),
 ]
 
 
