@@ -4,6 +4,13 @@ the same restitution 0.8, acting only in contact). rhs calls, steps, LU factoris
 time and the height's largest error against the piecewise-analytic solution over 3 s.
 
     PYTHONPATH=src python bench/bench_events.py        # writes nothing; prints a table
+    PYTHONPATH=src python bench/bench_events.py batch  # numpy batches: own against shared
+    PYTHONPATH=src python bench/bench_events.py timed  # time events: breakpoint against crossing
+
+batch: bouncing balls with e_r from 0.8 to 0.9 as one batch, each instance on its own
+(batch_events="own") against one solver for the batch ("shared"). timed: a sampler's periodic
+event (`every: P`, a breakpoint) against the same event written as a crossing
+(`when: t - P*(1 + cnt)`), numpy and C: rhs calls, steps, and the sampled value's error.
 """
 from __future__ import annotations
 
@@ -21,7 +28,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 os.environ.setdefault("BGC_CACHE_DIR", tempfile.mkdtemp())
 
 import bgc  # noqa: E402
-from test_events import ball_height  # noqa: E402
+from test_events import SAMPLER, ball_height  # noqa: E402
 
 K, E = 1.0e6, 0.8
 ZETA = -np.log(E) / np.sqrt(np.pi ** 2 + np.log(E) ** 2)  # restitution of a linear contact
@@ -70,5 +77,46 @@ def main():
                       f"{st['nlu']} | {st.get('nevents', '-')} | {wall:.3f} | {err:.2g} |")
 
 
+def batch():
+    model = bgc.compile(str(ROOT / "models" / "bouncing_ball.yaml"))
+    kw = dict(dt=1e-3, rtol=1e-8, atol=1e-10)
+    model.simulate((0.0, 3.0), **kw)  # warm
+    print("| instances | batch_events | time [s] | rhs calls | events |")
+    print("|---|---|---|---|---|")
+    for n in (16, 128):
+        e = np.linspace(0.8, 0.9, n)
+        for mode in ("own", "shared"):
+            best, r = np.inf, None
+            for _ in range(3):
+                t0 = time.perf_counter()
+                r = model.simulate((0.0, 3.0), p={"e_r": e}, batch_events=mode, **kw)
+                best = min(best, time.perf_counter() - t0)
+            print(f"| {n} | {mode} | {best:.2f} | {r.stats['nfev']} | {r.stats['nevents']} |")
+
+
+CROSSING = SAMPLER.replace("states:\n", "states:\n  cnt: {initial: \"0\", derivative: \"0\"}\n")
+
+
+def timed():
+    print("| backend | method | rtol | way | rhs calls | steps | sampled value error |")
+    print("|---|---|---|---|---|---|---|")
+    for target in ("numpy", "c"):
+        ways = (("breakpoint", bgc.compile(SAMPLER.replace("EVENT", 'every: "P"'),
+                                           target=target)),
+                ("crossing", bgc.compile(CROSSING.replace(
+                    "EVENT", 'when: "t - P*(1 + cnt)"\n    direction: rising').replace(
+                    'do: {held: "e(cap)"}', 'do: {held: "e(cap)", cnt: "cnt + 1"}'),
+                    target=target)))
+        for method in ("Radau", "Rodas4", "DOP853"):
+            for rtol in (1e-6, 1e-10):
+                for way, model in ways:
+                    r = model.simulate((0.0, 1.05), dt=0.01, rtol=rtol, atol=rtol * 1e-2,
+                                       method=method)
+                    h = list(model.STATE_NAMES).index("held")
+                    err = max(abs(ev[4][h] - np.exp(-ev[0] / 0.5)) for ev in r.events)
+                    print(f"| {target} | {method} | {rtol:g} | {way} | {r.stats['nfev']} | "
+                          f"{r.stats['nsteps']} | {err:.1e} |")
+
+
 if __name__ == "__main__":
-    main()
+    {"batch": batch, "timed": timed}.get(sys.argv[1] if len(sys.argv) > 1 else "", main)()

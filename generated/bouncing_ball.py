@@ -216,6 +216,7 @@ def output_jacobian(t, x, p=None, u=None):
 N_EVENTS = 1
 EVENT_NAMES = ('impact', )
 EVENT_DIRECTIONS = (-1, )  # +1 rising, -1 falling, 0 either
+EVENT_TIMED = (0, )  # 1: a time event (guard t - its time), a breakpoint
 EVENT_WHERE = (  # where each event is declared: messages name it
     'bouncing_ball.yaml:33:3',
 )
@@ -1197,6 +1198,7 @@ class _Guards:
         self.at, self.shape, self.p, self.u = at, shape, p, u
         self.nb = int(np.prod(shape[1:]))
         self.dirs = np.asarray(EVENT_DIRECTIONS, dtype=float)[:, None]
+        self.timed = np.asarray(EVENT_TIMED, dtype=bool)[:, None]
         # a guard that starts at zero is taken to be before its event (rising: below zero)
         self.side = np.broadcast_to(-self.dirs, (N_EVENTS, self.nb)).copy()
 
@@ -1215,7 +1217,7 @@ class _Guards:
         end; the sides move on for every guard that left zero."""
         s = self.side
         left = (s != 0) & (np.sign(g_new) != s)
-        fire = left & ((self.dirs == 0) | (self.dirs == -s))
+        fire = left & ((self.dirs == 0) | (self.dirs == -s)) & ~self.timed
         self.side = np.where(left & ~fire & (g_new != 0), np.sign(g_new), s)
         return np.argwhere(fire)
 
@@ -1297,6 +1299,33 @@ def _fire(guards, solver, hits, log, stats):
     return t_stop, y_before, y.reshape(-1)
 
 
+def _next_time(guards, t, y, c, first):
+    """The solver's end from t: the earliest time event in (t, c] (at the run's first start,
+    [t, c]) over the instances, else c; and the (event, instance) pairs due there."""
+    if not guards.timed.any():
+        return c, []
+    tau = t - guards.values(t, y)  # a time event's guard is t - its time
+    tol = 4 * np.finfo(float).eps * max(1.0, abs(t), abs(c))
+    ahead = guards.timed & ((tau >= t) if first else (tau > t + tol)) & (tau <= c)
+    if not ahead.any():
+        return c, []
+    end = float(np.min(tau[ahead]))
+    end = c if c - end <= tol else end
+    return end, [tuple(ki) for ki in np.argwhere(ahead & (tau <= end + tol))]
+
+
+def _fire_timed(guards, t, y, due, log, stats):
+    """The time events due at t (the solver's end): their resets, in declaration order."""
+    y = y.reshape(guards.shape[0], guards.nb).copy()
+    for k, i in sorted(due, key=lambda ki: (ki[1], ki[0])):
+        x_i = y[:, i].copy()
+        p_i = _instance_params(guards.p, guards.shape, i)
+        y[:, i] = np.asarray(apply_event(k, guards.at(t), x_i, p_i, guards.u),
+                             dtype=float).reshape(-1)
+        log.add(t, k, i, x_i, y[:, i], stats)
+    return y.reshape(-1)
+
+
 def _instance_params(p, shape, i):
     """The unpacked parameters of instance i of the batch (flat index)."""
     vals, bshape = p
@@ -1309,10 +1338,18 @@ def _instance_params(p, shape, i):
 
 def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, u=None,
              x0=None, dt=None, breakpoints=(), jac=True, max_step=np.inf, max_steps=50_000,
-             stiff_check=True, max_wall=None, max_events=20, zeno_window=None):
+             stiff_check=True, max_wall=None, max_events=20, zeno_window=None,
+             batch_events="own"):
     """Integrate a hybrid model over t_span, stopping at its events; returns SimResult (t, x, y)
     with .events, the event log: (t, event name, instance index in the batch, x before, x after)
     in the order they happened, and stats["nevents"].
+
+    A batch (parameters or x0 spanning instances): with batch_events="own" (the default) and
+    output times (t_eval or dt), each instance is integrated on its own, with its own steps,
+    events and restarts, so that it is exactly its single run; with "shared" (or without
+    output times) one solver advances the whole batch and every instance restarts at any
+    instance's event (only those whose events fired are reset): vectorised, but each instance's
+    steps are the batch's.
 
     The arguments are the runtime's simulate's (stiff_check is not used: a hybrid model's
     explicit methods are not watched for stiffness), plus the Zeno guard: SimulationError
@@ -1329,6 +1366,14 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
     with np.errstate(all="ignore"):
         deadline = np.inf if max_wall is None else time.perf_counter() + max_wall
         x0, batch = _batched(x0, p)
+        if batch_events not in ("own", "shared"):
+            raise ValueError(f"batch_events {batch_events!r}: 'own' or 'shared'")
+        if batch and batch_events == "own" and (t_eval is not None or dt is not None):
+            return _separately(dict(t_span=t_span, t_eval=t_eval, method=method, rtol=rtol,
+                                    u=u, dt=dt, breakpoints=breakpoints, jac=jac,
+                                    max_step=max_step, max_steps=max_steps,
+                                    max_events=max_events, zeno_window=zeno_window),
+                               x0, batch, p, atol, deadline)
         p_raw, p = p, _params(p)
         shape = (N_STATES,) + batch
         y = np.array(x0, dtype=float).reshape(-1)
@@ -1350,29 +1395,71 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
             at = _one_sided(a, c)
             guards = _Guards(at, shape, p, u)
             start = a
-            while True:  # one solver from each restart to the segment's end
+            while start < c:  # one solver from each restart to the next time event or the end
                 guards.start(start, y)
+                end, due = _next_time(guards, start, y, c, start == t0)
+                if end == start:  # time events at the run's very start
+                    y = _fire_timed(guards, start, y, due, log, stats)
+                    end, due = _next_time(guards, start, y, c, False)
                 solver = solver_class(
-                    _flat_rhs(at, shape, p, u, stats, method), start, y, c, rtol=rtol,
+                    _flat_rhs(at, shape, p, u, stats, method), start, y, end, rtol=rtol,
                     atol=atol, max_step=max_step,
                     **_jacobian_options(method, jac, at, shape, p, u, stats))
                 stop = _run_to_event(solver, guards, path, log, stats, method, deadline,
                                      max_wall)
                 stats.update(_counts(stats, solver))
-                if stop is None:
-                    y = solver.y
-                    break
-                start, y = stop
-                if start == c:  # an event at the segment's very end
-                    break
+                if stop is not None:
+                    start, y = stop
+                    continue
+                start, y = end, solver.y
+                if due:
+                    y = _fire_timed(guards, end, y, due, log, stats)
+                    if path.times is None:  # every step: the event's time twice
+                        path.ts.append(end)
+                        path.ys.append(y.copy())
+                elif end != c:
+                    raise _error(SimulationError, f"internal: a solver ended at t = {end:.17g} "
+                                 "without a time event", end, stats)
         t, X = path.arrays()
-        X = X.reshape(shape + (len(t),))
-        pt = None if p_raw is None else {
-            name: np.asarray(v)[..., None] if np.ndim(v) > _PARAM_NDIM[name] else v
+        return _result(t, X.reshape(shape + (len(t),)), p_raw, u, stats, log.records)
+
+
+def _result(t, X, p_raw, u, stats, records):
+    pt = None if p_raw is None else {
+        name: np.asarray(v)[..., None] if np.ndim(v) > _PARAM_NDIM[name] else v
+        for name, v in p_raw.items()}
+    res = SimResult(t, X, outputs(t, X, pt, u), stats)
+    res.events = records
+    return res
+
+
+def _separately(kw, x0, batch, p_raw, atol, deadline):
+    """A batch run instance by instance (batch_events="own"): each its own solver, steps,
+    events and restarts; the results stacked as one batch, the event logs merged in time."""
+    import time
+
+    X, records, stats, t = None, [], {}, None
+    atol = np.asarray(atol, dtype=float)
+    for index in np.ndindex(*batch):
+        p_i = None if p_raw is None else {
+            name: np.broadcast_to(np.asarray(v), batch + np.shape(v)[np.ndim(v) - _PARAM_NDIM[
+                name]:])[index] if np.ndim(v) > _PARAM_NDIM[name] else v
             for name, v in p_raw.items()}
-        res = SimResult(t, X, outputs(t, X, pt, u), stats)
-        res.events = log.records
-        return res
+        atol_i = atol if atol.ndim < 2 else np.broadcast_to(
+            atol.reshape(atol.shape + (1,) * (len(batch) + 1 - atol.ndim)),
+            (N_STATES,) + batch)[(slice(None),) + index]
+        wall = None if deadline == np.inf else max(deadline - time.perf_counter(), 0.0)
+        r = simulate(x0=np.array(x0[(slice(None),) + index]), p=p_i, atol=atol_i,
+                     max_wall=wall, batch_events="own", **kw)
+        if X is None:
+            t, X = r.t, np.empty((N_STATES,) + batch + (len(r.t),))
+        X[(slice(None),) + index] = r.x
+        records += [(te, name, tuple(int(j) for j in index), xb, xa)
+                    for te, name, _, xb, xa in r.events]
+        for key, v in r.stats.items():
+            stats[key] = stats.get(key, 0) + v
+    records.sort(key=lambda rec: (rec[0], rec[2]))
+    return _result(t, X, p_raw, kw["u"], stats, records)
 
 
 def _run_to_event(solver, guards, path, log, stats, method, deadline, max_wall):

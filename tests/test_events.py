@@ -100,6 +100,29 @@ def test_ball_batched_over_restitution_and_height(ball):
             assert np.allclose(mine, impact_times(h0[i, 0], e[j], 3.0), atol=1e-9, rtol=0)
 
 
+@pytest.mark.parametrize("batch_events", ["own", "shared"])
+def test_ball_batch_equals_the_single_runs(batch_events):
+    """numpy: each instance of a batch has its own events; with batch_events="own" it is
+    integrated on its own (exactly its single run), with "shared" the batch restarts together
+    at every instance's event (the same trajectories to the solver's accuracy)."""
+    model = bgc.compile(str(BALL))
+    e = np.array([0.8, 0.85, 0.9])
+    kw = dict(dt=1e-3, rtol=1e-8, atol=1e-10)
+    r = model.simulate((0.0, 3.0), p={"e_r": e}, batch_events=batch_events, **kw)
+    for i, ei in enumerate(e):
+        single = model.simulate((0.0, 3.0), p={"e_r": float(ei)}, **kw)
+        mine = [ev for ev in r.events if ev[2] == (i,)]
+        assert len(mine) == len(single.events) == len(impact_times(1.0, ei, 3.0))
+        if batch_events == "own":
+            assert np.array_equal(r.x[:, i], single.x)
+            assert [ev[0] for ev in mine] == [ev[0] for ev in single.events]
+        else:
+            assert np.max(np.abs(r.x[:, i] - single.x)) < 1e-9
+            assert np.allclose([ev[0] for ev in mine], [ev[0] for ev in single.events],
+                               atol=1e-9, rtol=0)
+    assert [ev[0] for ev in r.events] == sorted(ev[0] for ev in r.events)
+
+
 def test_zeno_is_a_located_error(ball):
     # e = 0.5: the impacts pile up at t1 (1 + e)/(1 - e) = 1.3546 s
     with pytest.raises(ball.SimulationError) as exc:
@@ -209,6 +232,11 @@ BAD = [
     ('  impact:\n    when: "h"\n    do: {"1x": "0"}\n', "1x", "cannot assign to '1x'"),
     ('  impact:\n    when: "h"\n    speed: 2\n    do: {h: "0"}\n', "speed",
      "unknown key 'speed'"),
+    ('  impact:\n    every: "h"\n    do: {h: "0"}\n', "h\"\n    do", "may only use parameters"),
+    ('  impact:\n    when: "h"\n    every: "1"\n    do: {h: "0"}\n', "when",
+     "or 'every' (a period)"),
+    ('  impact:\n    every: "1"\n    direction: rising\n    do: {h: "0"}\n', "direction",
+     "a time event ('at', 'every') has no direction"),
 ]
 
 
@@ -327,3 +355,49 @@ def test_fmu_ball_under_fmpy_model_exchange_and_co_simulation(tmp_path):
     r = fmpy.simulate_fmu(str(fmu), fmi_type="CoSimulation", stop_time=3.0,
                           output_interval=1e-2, output=["height"])
     assert np.max(np.abs(r["height"] - ball_height(r["time"], 1.0, 0.8))) < 1e-8
+
+
+# --- time events: breakpoints, not crossings ----------------------------------------------------
+
+SAMPLER = """bgc: 1
+name: sampler
+parameters:
+  P:  {value: 0.1, unit: s}
+  Rl: {value: 0.5, unit: Ohm}
+  Cc: {value: 1.0, unit: F}
+elements:
+  cap:  {type: C, compliance: "Cc", initial: "1"}
+  load: {type: R, resistance: "Rl"}
+  n:    {type: "0"}
+bonds: [[n, cap], [n, load]]
+states:
+  held: {initial: "0", derivative: "0", unit: V}
+events:
+  sample:
+    EVENT
+    do: {held: "e(cap)"}
+"""
+
+
+@pytest.mark.parametrize("target", TARGETS)
+@pytest.mark.parametrize("method", ["Radau", "Rodas4", "DOP853"])
+def test_periodic_time_event_hits_its_times_exactly(target, method):
+    """A sample-and-hold of an RC discharge, v = exp(-t/(R C)): `every: P` fires at k P to an
+    ulp or two (the integrator stops there: a breakpoint), and holds v(k P)."""
+    model = bgc.compile(SAMPLER.replace("EVENT", 'every: "P"'), target=target)
+    assert "sample_count" in model.STATE_NAMES
+    r = model.simulate((0.0, 1.05), dt=0.01, rtol=1e-10, atol=1e-12, method=method)
+    times = np.array([ev[0] for ev in r.events])
+    k = np.arange(1, 11)
+    assert len(times) == 10
+    assert np.all(np.abs(times - k * 0.1) <= 2 * np.spacing(k * 0.1))
+    held = np.array([ev[4][1] for ev in r.events])
+    assert np.max(np.abs(held - np.exp(-times / 0.5))) < 1e-10
+    # between samples the hold keeps the last one (the output at a sample is its left limit)
+    i = np.searchsorted(r.t, 0.555)
+    assert r.x[list(model.STATE_NAMES).index("held"), i] == held[4]
+    # `at` moves the first sample: at 0.05, then every 0.1
+    shifted = bgc.compile(SAMPLER.replace("EVENT", 'every: "P"\n    at: "P/2"'), target=target)
+    r = shifted.simulate((0.0, 1.0), dt=0.01, rtol=1e-10, atol=1e-12, method=method)
+    assert np.allclose([ev[0] for ev in r.events], 0.05 + 0.1 * np.arange(10), rtol=0,
+                       atol=4e-16)

@@ -107,6 +107,9 @@ class Equations:
     warnings: tuple[str, ...] = field(default=())
     events: tuple = field(default=())  # bgc.core.events.EventEq: guards and resets
     modes: tuple[str, ...] = field(default=())  # the states that are mode variables
+    #: (state symbol, its time derivative, its value) of each storage element in derivative
+    #: causality (bgc.core.modes: such a state follows its constraint in a switch's mode)
+    rates: tuple = field(default=())
 
 
 class LinSolve(sp.Function):

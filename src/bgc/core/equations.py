@@ -36,21 +36,27 @@ from bgc.core.eqtypes import (
     symbol_array,
     symbol_vector,
 )
-from bgc.core.events import build_events
+from bgc.core.events import build_events, flat_events, mode_ids
 from bgc.core.forward import jacobian
 from bgc.core.graph import BondGraph, FlatElement, code_name
 from bgc.core.laws import check_value, element_equations
 from bgc.core.loops import causal_order, time_derivatives
+from bgc.core.modes import derive_switched, switches
 from bgc.format.expr import shape_of
 
 
 def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = None,
            zero: dict | None = None, symbolic_max: int = SYMBOLIC_MAX,
-           newton: bool = True) -> Equations:
+           newton: bool = True, switched: bool = False) -> Equations:
     """State equations of a causal bond graph.
 
     ``fold``: parameter id -> value, turned into numbers; ``zero``: removed element id ->
-    cardinality, whose variables read as zero (both from scene specialisation)."""
+    cardinality, whose variables read as zero (both from scene specialisation). A graph with
+    switches (``Sw``) is derived mode by mode and merged (bgc.core.modes; ``caus`` is then
+    assigned per mode, and ``switched`` marks one mode's derivation)."""
+    if switches(bg):
+        return derive_switched(bg, fold, zero, lambda g, c: derive(
+            g, c, progress, fold, zero, symbolic_max, newton, switched=True), _declare)
     ctx = Context(bg, caus, fold, zero)
     _declare(ctx)
     defs: dict[sp.Symbol, Assignment] = {}
@@ -74,9 +80,11 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
         progress("ordering assignments")
     nloops: list = [] if newton else None
     order, loops = causal_order(bg, defs, owner, tear_sets, symbolic_max, nloops)
-    events = build_events(ctx, bg, state_vars, T) if bg.model.events else ()
+    events = build_events(ctx, bg, state_vars, T, switched) if flat_events(bg) else ()
     kept, subs = _inline(order, defs)
     events = tuple(ev.replace(subs) for ev in events)
+    rates = tuple((s, d.xreplace(subs), s.xreplace(subs)) for _, syms, dots in ctx.dependent
+                  for s, d in zip(syms, dots))
     derivatives = tuple((derivs[sv.symbol].xreplace(subs) if subs else derivs[sv.symbol])
                         for sv in state_vars)
     outputs = tuple((n, shp, tuple(e.xreplace(subs) for e in vals)) for n, shp, vals in outputs)
@@ -94,7 +102,7 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
                      tuple(ctx_derived), tuple(ctx.inputs[i.name] for i in bg.model.inputs),
                      tuple(kept), derivatives, outputs, jac, tuple(jac_assign), tuple(loops),
                      warnings=standing, dependent=tuple(dependent), newton=tuple(nloops),
-                     events=events, modes=bg.model.modes)
+                     events=events, modes=mode_ids(bg), rates=rates)
 
 
 def _declare(ctx: Context) -> None:

@@ -13,6 +13,12 @@ knows the states.
       release:
         at: "t_off"              # a time event: an expression of parameters
         do: {stuck: 0}
+      sample:
+        every: "T_s"             # a periodic time event: at 'at' (default: one period), then
+        do: {...}                # every T_s; how often it fired is the state sample_count
+
+Time events are no zero crossings to locate: the runtimes integrate exactly up to them (a
+breakpoint) and fire them there.
 
 A mode variable is a discrete state: the solver sees it as a state whose derivative is zero, so
 every law, output and event may read it (``where(stuck == 1, ...)``) and only an event changes it.
@@ -57,6 +63,13 @@ class Event:
     direction: int  # +1 rising, -1 falling, 0 either
     actions: tuple[Action, ...]
     coord: Coord
+    every: Expr | None = None  # periodic time event: the period (from ``at``, default one period)
+
+    @property
+    def count_state(self) -> str:
+        """A periodic event's state: how many times it fired (the next time is at + n every,
+        one rounding however long the run)."""
+        return f"{self.name}_count"
 
 
 @dataclass(frozen=True)
@@ -95,16 +108,16 @@ def read_events(r: Reader, node) -> tuple[Event, ...]:
 def _event(r: Reader, ename: str, kn, vn) -> Event:
     what = f"event {ename!r}"
     m = r.mapping(vn, what)
-    require(r, m, vn, ("when", "at", "direction", "do", "description"), what,
+    require(r, m, vn, ("when", "at", "every", "direction", "do", "description"), what,
             required=("do",))
-    if ("when" in m) == ("at" in m):
+    if ("when" in m) == ("at" in m or "every" in m):
         raise ModelError(r.coord(vn), f"{what}: give one of 'when' (a zero crossing) or 'at' "
-                                      "(a time)")
+                                      "(a time) or 'every' (a period)")
     direction = 0
     if "direction" in m:
-        if "at" in m:
-            raise ModelError(r.coord(m["direction"][0]), f"{what}: a time event ('at') has no "
-                                                          "direction")
+        if "when" not in m:
+            raise ModelError(r.coord(m["direction"][0]), f"{what}: a time event ('at', "
+                                                          "'every') has no direction")
         word = r.string(m["direction"][1], f"{what} direction")
         if word not in DIRECTIONS:
             raise ModelError(r.coord(m["direction"][1]),
@@ -112,6 +125,7 @@ def _event(r: Reader, ename: str, kn, vn) -> Event:
         direction = DIRECTIONS[word]
     cond = r.expr(m["when"][1], f"{what} condition") if "when" in m else None
     at = r.expr(m["at"][1], f"{what} time") if "at" in m else None
+    every = r.expr(m["every"][1], f"{what} period") if "every" in m else None
     actions = []
     dm = r.mapping(m["do"][1], f"{what} actions")
     if not dm:
@@ -120,7 +134,8 @@ def _event(r: Reader, ename: str, kn, vn) -> Event:
         func, path = _target(r, target, tk, what)
         actions.append(Action(func, path, r.expr(tv, f"{what}, action on {target.strip()!r}"),
                               r.coord(tk)))
-    return Event(ename, cond, at, direction if at is None else 1, tuple(actions), r.coord(kn))
+    return Event(ename, cond, at, direction if cond is not None else 1, tuple(actions),
+                 r.coord(kn), every)
 
 
 def _target(r: Reader, text: str, node, what: str) -> tuple[str, tuple[str, ...]]:

@@ -30,7 +30,7 @@ from bgc.format.reader import (  # noqa: F401
 )
 from bgc.format.whitelist import Expr
 
-ELEMENT_TYPES = ("Se", "Sf", "C", "I", "R", "TF", "GY", "MTF", "MGY", "0", "1")
+ELEMENT_TYPES = ("Se", "Sf", "C", "I", "R", "TF", "GY", "MTF", "MGY", "0", "1", "Sw")
 
 #: The element table: for each type, the law keys it accepts (exactly one unless noted).
 LAWS: dict[str, tuple[str, ...]] = {
@@ -39,6 +39,7 @@ LAWS: dict[str, tuple[str, ...]] = {
     "R": ("resistance", "effort", "flow"),
     "TF": ("ratio",), "GY": ("ratio",), "MTF": ("modulus",), "MGY": ("modulus",),
     "0": (), "1": (),
+    "Sw": ("closed",),  # an ideal switch: Se(0) where closed, Sf(0) where open (bgc.core.modes)
 }
 STORAGE = ("I", "C")
 TWO_PORTS = ("TF", "GY", "MTF", "MGY")
@@ -136,6 +137,8 @@ class Component:
     description: str = ""
     laws: tuple[str, ...] = ()  # documentation (bgc library): the elements are the equations
     port_docs: tuple[tuple[str, str, str], ...] = ()  # (port, domain, description)
+    events: tuple = ()  # bgc.format.events.Event: each instance gets its own (names prefixed)
+    modes: tuple[str, ...] = ()  # mode variables (the body's states whose derivative is 0)
 
     def port_doc(self, port: str) -> tuple[str, str]:
         return next(((d, t) for p, d, t in self.port_docs if p == port), ("", ""))
@@ -292,6 +295,10 @@ def _hybrid(r: Reader, top: dict, body: Body):
     events = _events.read_events(r, top["events"][1]) if "events" in top else ()
     states = tuple(State(m.name, (), m.initial, Expr("0", m.initial.coord), m.coord)
                    for m in modes)
+    # a periodic event's count: a state that only its own event moves (by one)
+    states += tuple(State(ev.count_state, (), Expr("0", ev.every.coord),
+                          Expr("0", ev.every.coord), ev.coord)
+                    for ev in events if ev.every is not None)
     if states:
         body = replace(body, states=body.states + states)
     return body, events, tuple(m.name for m in modes)
@@ -368,8 +375,10 @@ def _read_imports(r: Reader, node, imports: _Imports) -> list[Component]:
 def _component(r: Reader, cname: str, kn, vn) -> Component:
     cm = r.mapping(vn, f"component {cname!r}")
     require(r, cm, vn, ("parameters", "ports", "elements", "bonds", "states", "description",
-                         "laws"), f"component {cname!r}", required=("ports", "elements", "bonds"))
+                         "laws", "modes", "events"),
+            f"component {cname!r}", required=("ports", "elements", "bonds"))
     body = _body(r, cm, vn, f"component {cname!r}", is_component=True)
+    body, events, modes = _hybrid(r, cm, body)
     _check_unique(body, ())
     ports, docs = [], []
     elnames = {e.name for e in body.elements}
@@ -385,7 +394,8 @@ def _component(r: Reader, cname: str, kn, vn) -> Component:
         raise ModelError(r.coord(cm["ports"][1]), f"component {cname!r} has no ports")
     desc = r.string(cm["description"][1], "description") if "description" in cm else ""
     laws = _library.read_laws(r, cname, cm["laws"][1]) if "laws" in cm else ()
-    return Component(cname, body, tuple(ports), r.coord(kn), desc, laws, tuple(docs))
+    return Component(cname, body, tuple(ports), r.coord(kn), desc, laws, tuple(docs),
+                     events, modes)
 
 
 def _body(r: Reader, top: dict, node, what: str, is_component: bool) -> Body:

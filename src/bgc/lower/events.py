@@ -18,6 +18,7 @@ class LoweredEvents:
     directions: tuple[int, ...]  # +1 rising, -1 falling, 0 either
     guards: Function  # results keyed by event index
     resets: tuple[Function, ...]  # per event: results keyed by state index, in order
+    timed: tuple[bool, ...] = ()  # time events: the runtimes stop at their times (breakpoints)
 
 
 def lower_events(eq: Equations) -> LoweredEvents | None:
@@ -36,4 +37,5 @@ def lower_events(eq: Equations) -> LoweredEvents | None:
     where = tuple(f"{PurePath(ev.coord.file).name}:{ev.coord.line}:{ev.coord.column}"
                   for ev in eq.events)
     return LoweredEvents(tuple(ev.name for ev in eq.events), where,
-                         tuple(ev.direction for ev in eq.events), guards, tuple(resets))
+                         tuple(ev.direction for ev in eq.events), guards, tuple(resets),
+                         tuple(ev.timed for ev in eq.events))

@@ -7,7 +7,9 @@
  * few ulp of t. The earliest such time ends the step there: the output rows up to it are
  * written from the dense output, the events that fire there get their resets (in declaration
  * order), and the integrator returns BGC_EVENT; the driver restarts it (a fresh Jacobian and
- * LU) from the state just after. The same rules as the numpy runtime (templates/numpy/events.py). */
+ * LU) from the state just after. The same rules as the numpy runtime (templates/numpy/events.py).
+ * A time event (ev_timed) is not searched for: bgc_events_next_time gives the driver the next
+ * one's time (t - its guard) as the integrator's end, and bgc_events_fire_timed fires it there. */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -126,7 +128,7 @@ int bgc_step_end(bgc_ctx *c, double t, double t_new, double *y, bgc_interp_fn f,
     double t_stop = INFINITY;
     for (int k = 0; k < m->nev; k++) {  /* the earliest crossing */
         double s = c->ev_side[k], g = c->ev_g[k];
-        if (s == 0.0 || g * s > 0) continue;
+        if (s == 0.0 || g * s > 0 || (m->ev_timed && m->ev_timed[k])) continue;
         if (m->ev_dir[k] != 0 && m->ev_dir[k] != (int)-s) {
             if (g != 0.0) c->ev_side[k] = -s;
             continue;
@@ -144,7 +146,7 @@ int bgc_step_end(bgc_ctx *c, double t, double t_new, double *y, bgc_interp_fn f,
     memcpy(y, x, sizeof(double) * (size_t)n);
     for (int k = 0; k < m->nev; k++) {  /* every event past its zero at t_stop, in order */
         double s = c->ev_side[k];
-        if (s == 0.0 || c->ev_g[k] * s > 0) continue;
+        if (s == 0.0 || c->ev_g[k] * s > 0 || (m->ev_timed && m->ev_timed[k])) continue;
         if (m->ev_dir[k] != 0 && m->ev_dir[k] != (int)-s) continue;
         memcpy(c->ev_xa, y, sizeof(double) * (size_t)n);
         double tm = t_stop < c->lo ? c->lo : (t_stop > c->hi ? c->hi : t_stop);
@@ -164,4 +166,56 @@ int bgc_step_end(bgc_ctx *c, double t, double t_new, double *y, bgc_interp_fn f,
     c->t_restart = t_stop;
     c->xs->t_last = t_stop;
     return BGC_EVENT;
+}
+
+static double timed_tol(double t, double b)
+{
+    return 4 * 2.220446049250313e-16 * fmax(1.0, fmax(fabs(t), fabs(b)));
+}
+
+/* the integrator's end from t: the earliest time event in (t, b] (first: [t, b]), else b;
+ * *due: whether a time event is at *end */
+int bgc_events_next_time(bgc_ctx *c, double t, const double *y, double b, int first,
+                         double *end, int *due)
+{
+    const bgc_model *m = c->m;
+    int status = guards(c, t, y, c->ev_g2);
+    if (status) return status;
+    double tol = timed_tol(t, b), best = INFINITY;
+    for (int k = 0; k < m->nev; k++) {
+        if (!m->ev_timed[k]) continue;
+        double tau = t - c->ev_g2[k];
+        if ((first ? tau >= t : tau > t + tol) && tau <= b && tau < best) best = tau;
+    }
+    *due = best < INFINITY;
+    *end = !*due ? b : (b - best <= tol ? b : best);
+    return 0;
+}
+
+/* the time events due at t (the integrator's end): their resets, in declaration order */
+int bgc_events_fire_timed(bgc_ctx *c, double t, double *y)
+{
+    const bgc_model *m = c->m;
+    const int n = m->n;
+    int status = guards(c, t, y, c->ev_g2);
+    if (status) return status;
+    double tol = timed_tol(t, t);
+    for (int k = 0; k < m->nev; k++) {
+        if (!m->ev_timed[k] || fabs(c->ev_g2[k]) > tol) continue;
+        memcpy(c->ev_xa, y, sizeof(double) * (size_t)n);
+        double tm = t < c->lo ? c->lo : (t > c->hi ? c->hi : t);
+        int r = m->reset(k, tm, c->ev_xa, c->p, y);
+        if (r) {
+            c->st->bad_index = r; c->st->bad_where = 2;
+            return bgc_fail(c, BGC_ERR_MODEL, t, "event %d: its reset failed (code %d) at "
+                            "t = %.17g", k, r, t);
+        }
+        for (int i = 0; i < n; i++)
+            if (!isfinite(y[i]))
+                return bgc_fail(c, BGC_ERR_NONFINITE, t, "event %d: its reset of state %d "
+                                "is not finite at t = %.17g", k, i, t);
+        if ((status = record(c, k, t, c->ev_xa, y))) return status;
+    }
+    c->xs->t_last = t;
+    return 0;
 }

@@ -94,6 +94,9 @@ double bgc_min_step(double t);
 #define BGC_EVENT 100
 int bgc_events_init(bgc_ctx *c, double t, const double *y);
 int bgc_events_restart(bgc_ctx *c, double t, const double *y);
+int bgc_events_next_time(bgc_ctx *c, double t, const double *y, double b, int first,
+                         double *end, int *due);
+int bgc_events_fire_timed(bgc_ctx *c, double t, double *y);
 /* after an accepted step from t to t_new (y: the state at t_new, f: the step's interpolant):
  * the output rows, and the events: 0, BGC_EVENT (y and c->t_restart updated) or a failure */
 int bgc_step_end(bgc_ctx *c, double t, double t_new, double *y, bgc_interp_fn f, void *data);

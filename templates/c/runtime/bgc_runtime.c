@@ -209,17 +209,40 @@ static int method_segment(bgc_ctx *c, double a, double b, double *y)
 }
 
 /* one segment; a hybrid model's integrator restarts (a fresh Jacobian and LU) after each
- * event inside it (bgc_events.c) */
-static int run_segment(bgc_ctx *c, double a, double b, double *y)
+ * event inside it (bgc_events.c), and stops exactly at each time event (a breakpoint: the
+ * integrator's end is the event's time) to fire it there. first: the run's first segment,
+ * where a time event at its very start fires too. */
+static int run_segment(bgc_ctx *c, double a, double b, double *y, int first)
 {
-    int status = method_segment(c, a, b, y);
-    while (status == BGC_EVENT) {
-        double t = c->t_restart;
-        if (!(t < b)) return 0;
-        if ((status = bgc_events_restart(c, t, y))) return status;
-        status = method_segment(c, t, b, y);
+    const int timed = c->m->nev > 0 && c->m->ev_timed;
+    double t = a;
+    while (t < b) {
+        double end = b;
+        int due = 0, status;
+        if (timed) {
+            if ((status = bgc_events_next_time(c, t, y, b, first, &end, &due))) return status;
+            if (due && end == t) {  /* at the run's very start */
+                if ((status = bgc_events_fire_timed(c, t, y))) return status;
+                if ((status = bgc_events_restart(c, t, y))) return status;
+                if ((status = bgc_events_next_time(c, t, y, b, 0, &end, &due))) return status;
+            }
+        }
+        first = 0;
+        status = method_segment(c, t, end, y);
+        if (status == BGC_EVENT) {
+            t = c->t_restart;
+            if (due && t == end && (status = bgc_events_fire_timed(c, t, y))) return status;
+            if (t < b && (status = bgc_events_restart(c, t, y))) return status;
+            continue;
+        }
+        if (status) return status;
+        t = end;
+        if (due) {
+            if ((status = bgc_events_fire_timed(c, t, y))) return status;
+            if (t < b && (status = bgc_events_restart(c, t, y))) return status;
+        }
     }
-    return status;
+    return 0;
 }
 
 int bgc_integrate_ex(const bgc_model *m, const double *p, double t0, double t1,
@@ -308,7 +331,7 @@ int bgc_integrate_ex(const bgc_model *m, const double *p, double t0, double t1,
         if (a == b) continue;
         c.lo = a;
         c.hi = nextafter(b, a);
-        status = run_segment(&c, a, b, y);
+        status = run_segment(&c, a, b, y, s == 0);
     }
     free(cuts); free(y); free(c.ws); free(c.ev_mem);
     if (status == BGC_REJECT)  /* not expected: accepted states are finite */

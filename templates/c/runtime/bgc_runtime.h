@@ -9,7 +9,7 @@
 #define BGC_RUNTIME_H
 
 /* bumped whenever the runtime's behaviour or ABI changes (compile caches may key on it) */
-#define BGC_RUNTIME_VERSION 3
+#define BGC_RUNTIME_VERSION 4
 
 #ifdef __cplusplus
 extern "C" {
@@ -61,6 +61,9 @@ typedef struct {
     int (*guards)(double t, const double *x, const double *p, double *g);
     int (*reset)(int k, double t, const double *x, const double *p, double *x_new);
     const int *ev_dir;
+    /* optional (NULL: none): ev_timed[k] != 0 marks a time event, whose guard is t minus its
+     * time: never searched for, the integrator stops exactly there (a breakpoint) */
+    const int *ev_timed;
 } bgc_model;
 
 enum { BGC_RODAS4 = 0, BGC_RADAU5 = 1, BGC_DOP853 = 2 };  /* DOP853: explicit, non-stiff */

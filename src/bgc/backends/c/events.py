@@ -14,6 +14,7 @@ def c_events(eq, parts) -> dict | None:
     resets = [{"fn": parts(f"reset{k}", fn), "index": [key for key, _ in fn.results]}
               for k, fn in enumerate(low.resets)]
     return {"nev": len(low.names), "dirs": list(low.directions), "names": list(low.names),
+            "timed": [int(t) for t in low.timed],
             "guards": parts("guards", low.guards), "resets": resets}
 
 

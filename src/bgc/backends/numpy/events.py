@@ -14,6 +14,7 @@ def events_part(eq: Equations, printer, printed) -> dict | None:
     if low is None:
         return None
     return {"names": list(low.names), "where": list(low.where),
-            "directions": list(low.directions), "guards": printed(low.guards, printer),
+            "directions": list(low.directions), "timed": [int(t) for t in low.timed],
+            "guards": printed(low.guards, printer),
             "resets": [printed(fn, printer) for fn in low.resets],
             "modes": [sv.name for sv in eq.states if sv.owner in eq.modes]}
