@@ -21,13 +21,16 @@ import numpy as np
 
 from bgc.backends.c import build as cbuild
 from bgc.base.errors import ModelError, SimulationFailed
+from bgc.core.signals import input_breakpoints
 from bgc.format.scene import parse_scene
 from bgc.run.runner import compile_scene, scene_module
 
 METHODS = ("RK45", "DOP853", "Radau", "BDF", "LSODA", "Rodas4")
 # the C backend's integrators (the whole step loop in the scene's compiled library)
 C_METHODS = ("C-Rodas4", "C-Radau")
-ALL_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA", "Rodas4") + C_METHODS
+# every C method a study may name: DOP853 in C too (the non-stiff reference's check)
+C_ALL = C_METHODS + ("C-DOP853",)
+ALL_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA", "Rodas4") + C_ALL
 IMPLICIT = ("Radau", "BDF", "LSODA", "Rodas4") + C_METHODS
 # the implicit methods that also run on finite-difference Jacobians (Rodas4 needs the exact one)
 FD_JACOBIAN = ("Radau", "BDF", "LSODA")
@@ -91,9 +94,13 @@ def prepare(scene_path, t_end=None, atol_scale=None, breakpoints=(), progress=No
         atol_scale = scene.atol / scene.rtol
     if not atol_scale > 0:
         raise ModelError(scene.coord, "the atol scale must be positive")
+    # the instants where an input expression jumps (where(t < 1, ...)) are breakpoints too:
+    # at rtol 1e-12 no integrator steps through a jump it is not told of
+    jumps = input_breakpoints(compiled.equations)
     return Setup(Path(scene.file).stem, scene, mod, values(scene) or None, (t0, t1),
-                 t_eval, tuple(sorted({float(b) for b in (*scene.breakpoints, *breakpoints)
-                                       if t0 < b < t1})), scene.max_step,
+                 t_eval, tuple(sorted({float(b) for b in (*scene.breakpoints, *breakpoints,
+                                                          *jumps) if t0 < b < t1})),
+                 scene.max_step,
                  outs, float(atol_scale), ct, compiled=compiled, source=compiled.source)
 
 
@@ -130,7 +137,7 @@ def solve(setup: Setup, method, rtol, atol, jac_mode="analytic", deadline=math.i
 
     njev counts every Jacobian the solver formed, finite-difference ones included (their rhs
     calls are in nfev)."""
-    if method in C_METHODS:  # one call into C: the budget is its wall-time limit
+    if method in C_ALL:  # one call into C: the budget is its wall-time limit
         mod = c_module(setup)
         wall = None if math.isinf(deadline) else max(deadline - time.perf_counter(), 1e-3)
         try:
@@ -374,8 +381,10 @@ class Run:
 
 
 def measure(setup: Setup, ref: Reference, method, rtol, atol=None, jac_mode="analytic",
-            budget=60.0, repeats=3) -> Run:
-    """Median wall time of up to `repeats` solves within `budget` seconds, in a child.
+            budget=60.0, repeats=3, long_run=math.inf) -> Run:
+    """Median wall time of up to `repeats` solves within `budget` seconds, in a child; a solve
+    that took longer than `long_run` seconds is not repeated (its time is already well above
+    the timer's noise, and the repeats would cost the study most of its time).
 
     ref=None: the run does not wait for the reference; it keeps its solution (Run.solution)
     and :func:`with_errors` adds the errors once the reference is there."""
@@ -397,7 +406,7 @@ def measure(setup: Setup, ref: Reference, method, rtol, atol=None, jac_mode="ana
             walls.append(time.perf_counter() - t0)
             if out is None:
                 out = (res, st)
-            if time.perf_counter() - start + walls[-1] > budget:
+            if time.perf_counter() - start + walls[-1] > budget or walls[-1] > long_run:
                 break
         res, st = out
         if ref is None:
@@ -417,7 +426,7 @@ def measure(setup: Setup, ref: Reference, method, rtol, atol=None, jac_mode="ana
         return replace(run, wall=float(np.median(walls)), walls=tuple(walls), nfev=st["nfev"],
                        njev=st["njev"], nlu=st["nlu"], nsteps=st["nsteps"], **errs)
     if isinstance(val, BudgetExceeded):
-        return replace(run, status="budget", message=f"exceeded the {budget:g} s budget")
+        return replace(run, status="budget", message=f"exceeded the {budget:.3g} s budget")
     msg = str(val).strip().splitlines()[0] if str(val).strip() else type(val).__name__
     if not type(val).__name__ == "SimulationError":
         msg = f"{type(val).__name__}: {msg}"
