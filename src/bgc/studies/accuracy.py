@@ -47,7 +47,13 @@ from dataclasses import replace
 from bgc.backends.load import load_module
 from bgc.base.errors import ModelError
 from bgc.base.limits import LIMITS
-from bgc.studies.accuracy_report import cheapest, md_cell, write_all, write_csv  # noqa: F401
+from bgc.studies.accuracy_report import (  # noqa: F401
+    cheapest,
+    md_cell,
+    skipped_lines,
+    write_all,
+    write_csv,
+)
 from bgc.studies.runs import (  # noqa: F401 (the study's parts, as bgc.studies.accuracy.*)
     ALL_METHODS,
     C_ALL,
