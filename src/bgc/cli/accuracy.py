@@ -38,9 +38,9 @@ def register(main_group):
                   help="rtol values: a decade range a:b or a comma list")
     @click.option("--atol-scale", type=POSITIVE, default=None,
                   help="atol = rtol x this (default: the scene's atol/rtol)")
-    @click.option("--budget", type=POSITIVE, default=30.0, show_default=True,
+    @click.option("--budget", type=POSITIVE, default=20.0, show_default=True,
                   help="seconds per (method, tolerance), repeats included")
-    @click.option("--study-budget", type=POSITIVE, default=150.0, show_default=True,
+    @click.option("--study-budget", type=POSITIVE, default=120.0, show_default=True,
                   help="seconds for all the measured runs together (the references not "
                        "counted); what is left when they are spent is skipped, and listed")
     @click.option("--sweep-budget", type=POSITIVE, default=None,
@@ -121,12 +121,18 @@ def register(main_group):
                 close_client(client)
         for f in write_all(st, out, inputs):
             say(f"wrote {f}")
-        a = st.agreement
-        skipped = skipped_lines(st)
-        if skipped:
-            click.echo("skipped:\n" + "\n".join(f"  {line}" for line in skipped))
-        click.echo(f"{setup.name}: reference agreement {a['err']:.2e}; "
-                   + "; ".join(f"error <= {t:.0e}: {r.method} rtol {r.rtol:.0e} {r.wall:.3g} s"
-                               for t in (1e-3, 1e-6) if (r := cheapest(st.runs, t))))
+        _summary(st)
 
     return accuracy_cmd
+
+
+def _summary(st):
+    """The study's last lines: what was skipped and why, the references' agreement and the
+    cheapest runs."""
+    a = st.agreement
+    skipped = skipped_lines(st)
+    if skipped:
+        click.echo("skipped:\n" + "\n".join(f"  {line}" for line in skipped))
+    click.echo(f"{st.setup.name}: reference agreement {a['err']:.2e}; "
+               + "; ".join(f"error <= {t:.0e}: {r.method} rtol {r.rtol:.0e} {r.wall:.3g} s"
+                           for t in (1e-3, 1e-6) if (r := cheapest(st.runs, t))))
