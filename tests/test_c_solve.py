@@ -205,12 +205,16 @@ def test_singular_linear_solve_is_an_error_not_garbage():
         cm.simulate((0, 1), method="Rodas4", p=pb)
 
 
-def test_fmu_export_refuses_numeric_solves():
-    from bgc.backends.fmu.export import render_sources
+def test_fmu_export_carries_numeric_solves():
+    """The FMU's parts hold derivative causality's numeric solve as the C backend's do, and
+    return its failure code (tests/test_fmu_solves.py runs such units in FMPy)."""
+    from bgc.backends.fmu.export import build_spec, render_sources
 
     c, _, _ = _pair("gear")
-    with pytest.raises(ModelError, match="FMU export does not support numeric"):
-        render_sources(c, None)
+    files = render_sources(c, build_spec(c))
+    parts = "".join(v for k, v in files.items() if k.startswith("model_part"))
+    assert "bgc_dense_lu(" in parts
+    assert ", NULL)) return 1;" in files["bgc_fmu_model.c"]
 
 
 def test_cli_simulate_backend_c_runs_a_newton_loop_in_c(tmp_path):

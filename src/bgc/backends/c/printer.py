@@ -60,6 +60,21 @@ def has_solves(eq) -> bool:
         isinstance(a.expr, kinds) for a in eq.assignments + eq.jac_assignments)
 
 
+def has_linear_solves(eq) -> bool:
+    """Does the model solve linear systems numerically (derivative causality's LinSolve)?"""
+    return any(isinstance(a.expr, LinSolve) for a in eq.assignments + eq.jac_assignments)
+
+
+def newton_protos(ctx) -> list[str]:
+    """The Newton loops' prototypes (the FMU's parts declare them too)."""
+    return _newton_protos(ctx)
+
+
+def newton_loops(ctx, printer) -> list[dict]:
+    """The Newton loops as newton.c.j2 prints them (the FMU's model_newton.c too)."""
+    return _newton_loops(ctx, printer)
+
+
 def unsupported(eq) -> None:
     """What the C backend cannot print is one clear error, never wrong code. Today it prints
     everything bgc generates: numeric linear solves (a dense LU per instance), Newton loops (a

@@ -30,7 +30,13 @@ import sympy as sp
 from bgc.backends.c import build as cbuild
 from bgc.backends.c.events import c_events, event_parts
 from bgc.backends.c.parts import UNIT_PARTS, PartContext, cut_parts
-from bgc.backends.c.printer import CPrinter, c_name, has_solves, template_env
+from bgc.backends.c.printer import (
+    CPrinter,
+    c_name,
+    newton_loops,
+    newton_protos,
+    template_env,
+)
 from bgc.backends.fmu.spec import FmuSpec, build_spec, flat_names  # noqa: F401 (as export.*)
 from bgc.backends.fmu.xmltext import clean_tree
 from bgc.base import __version__
@@ -154,11 +160,8 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
     configuration header."""
     low = compiled.lowered
     eq = compiled.equations
-    if has_solves(eq):  # the FMU's model functions keep no per-instance workspace yet
-        raise ModelError(None, f"model {eq.name!r}: the FMU export does not support numeric "
-                               "linear solves or nonlinear algebraic loops (Newton) yet: make "
-                               "the loop a state (a small C or I in it), or run it with bgc "
-                               "simulate --backend c (docs/fmu.md)")
+    # numeric solves (Newton loops, derivative causality's linear solves): the C backend's
+    # code in the parts, failures returned as codes (fmi2Error); Newton cold-started
     tabs = [iv.name for iv in eq.inputs if getattr(iv, "table", None) is not None]
     if tabs:  # an input following its default would follow the placeholder 0, not the data
         raise ModelError(None, f"model {eq.name!r}: the FMU export does not support table "
@@ -204,7 +207,10 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
     files = {}
     for k, unit in enumerate(units):
         files[f"model_part{k}.c"] = env.get_template("c/part.c.j2").render(
-            parts=unit, unit=k, **common)
+            parts=unit, unit=k, newton=newton_protos(ctx), ntables=0, **common)
+    if ctx.newton:  # the C backend's Newton loops; cold-started (no per-instance workspace)
+        files["model_newton.c"] = env.get_template("c/newton.c.j2").render(
+            loops=newton_loops(ctx, printer), **common)
     method, rtol, atol, max_step, breaks = 1, 1e-6, 1e-9, 0.0, []
     if scene is not None:
         method = _METHODS.get(scene.method, 1)
