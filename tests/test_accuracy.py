@@ -319,3 +319,22 @@ def test_cli_default_study_of_msd_step_runs(tmp_path):
     assert r.exit_code == 0, (r.output, r.exception)
     assert "reference agreement" in r.output
     assert (out / "msd_step_accuracy.md").is_file()
+
+
+def test_an_explicit_method_that_fails_on_a_stiff_scene_stops(setup, small_study,
+                                                              monkeypatch):
+    calls = []
+
+    def failing(setup_, ref, method, rtol, **kw):
+        calls.append((method, rtol))
+        return A.Run(method, rtol, rtol, "none", "failed", "StiffnessError: stiff")
+
+    monkeypatch.setattr(A, "measure", failing)
+    monkeypatch.setattr(A, "reference", lambda s, m, *a: small_study.refs[0])
+    monkeypatch.setattr(A, "is_stiff", lambda s: (True, 1e6))
+    st = A.study(setup, methods=("RK45", "Radau"), tols=(1e-3, 1e-4, 1e-5), jac_methods=(),
+                 ref_methods=("Radau", "Radau"))
+    # the explicit method stops after its loosest tolerance; the implicit one goes on
+    assert calls == [("RK45", 1e-3), ("Radau", 1e-3), ("Radau", 1e-4), ("Radau", 1e-5)]
+    assert any(line.startswith("RK45: rtol 1e-04 to 1e-05 (2 runs) skipped: an explicit "
+                               "method on a stiff scene") for line in A.skipped_lines(st))

@@ -146,11 +146,12 @@ def _study_head(setup: Setup, ref_methods, ref_rtol):
 
 
 def _sweep(setup, say, ref, method, tols, budget, limits, repeats, long_run,
-           jac_mode="analytic", kind="study") -> list:
+           jac_mode="analytic", kind="study", stiff=False) -> list:
     """One method's runs, loosest tolerance first. The tighter ones are skipped (a run with
     status 'skipped' that says why) once a run exceeds the per-run budget, once the sweep's
     runs together have taken more than its budget (tighter tolerances cost at least as much),
-    or once the whole study's deadline has passed. limits: (the sweep's budget, the study's
+    once the whole study's deadline has passed, or once an explicit method on a stiff scene has
+    not finished a run. limits: (the sweep's budget, the study's
     deadline (perf_counter), the study's budget)."""
     sweep_budget, deadline, study_budget = limits
     runs, why = [], None
@@ -171,7 +172,10 @@ def _sweep(setup, say, ref, method, tols, budget, limits, repeats, long_run,
         runs.append(r)
         say(_line(r))
         spent += sum(r.walls) if r.status == "ok" else (budget if r.status == "budget" else 0)
-        if r.status == "budget" and left < budget:
+        if r.status != "ok" and stiff and method not in IMPLICIT:
+            why = (f"an explicit method on a stiff scene: it did not finish at rtol {tol:g} "
+                   "and tighter tolerances only ask for more steps")
+        elif r.status == "budget" and left < budget:
             why = f"the study's {study_budget:g} s budget was spent at rtol {tol:g}"
         elif r.status == "budget":
             why = f"over the {budget:.3g} s budget at rtol {tol:g}"
@@ -198,11 +202,12 @@ def study(setup: Setup, methods=METHODS, tols=DEFAULT_TOLS, budget=60.0, repeats
         return _study_on(client, setup, methods, tols, budget, repeats, ref_rtol, ref_methods,
                          ref_budget, jac_methods, jac_tols, say)
     warm_up(setup)
-    stiff, index, ref_methods, ref_atol, head, ref_note = _study_head(setup, ref_methods,
-                                                                      ref_rtol)
-    if any(m in C_ALL for m in (*methods, *ref_methods)):  # before the forked children
+    if any(m in C_ALL for m in (*methods, *(ref_methods or ()))) or (
+            ref_methods is None and c_available()):  # before the forked children
         say("building the C backend's module for the C methods")
         c_module(setup)
+    stiff, index, ref_methods, ref_atol, head, ref_note = _study_head(setup, ref_methods,
+                                                                      ref_rtol)
     say(head)
     if ref_note:
         say(ref_note)
@@ -217,7 +222,8 @@ def study(setup: Setup, methods=METHODS, tols=DEFAULT_TOLS, budget=60.0, repeats
     limits = (sweep_budget, time.perf_counter() + study_budget, study_budget)
     runs = []
     for m in methods:
-        runs += _sweep(setup, say, ref, m, tols, budget, limits, repeats, long_run)
+        runs += _sweep(setup, say, ref, m, tols, budget, limits, repeats, long_run,
+                       stiff=stiff)
     jac_runs = []
     for m in jac_methods:
         for mode in JAC_MODES:
