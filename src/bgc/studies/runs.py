@@ -37,7 +37,14 @@ FD_JACOBIAN = ("Radau", "BDF", "LSODA")
 DEFAULT_TOLS = tuple(10.0 ** -k for k in range(3, 11))
 JAC_MODES = ("analytic", "sparse-fd", "dense-fd")
 STIFF_THRESHOLD = 1e3  # max|eig(J(t0, x0))| * span above this: the scene is treated as stiff
-GRACE = 20.0  # seconds a child gets past its budget before it is killed
+GRACE = 20.0  # seconds a child gets past its budget before it is killed (at most)
+
+
+def grace(budget: float) -> float:
+    """The seconds past its budget a run's child gets before it is killed: a quarter of the
+    budget and 2 s, at most GRACE (a solver that does not call back in time, as LSODA's
+    Fortran loop, would otherwise hold a short run for GRACE seconds more)."""
+    return min(GRACE, 2.0 + budget / 4)
 
 
 class BudgetExceeded(Exception):
@@ -422,7 +429,7 @@ def measure(setup: Setup, ref: Reference, method, rtol, atol=None, jac_mode="ana
             warnings.simplefilter("ignore", RuntimeWarning)
             return work()
 
-    status, val = run_isolated(quiet_work, budget + GRACE)
+    status, val = run_isolated(quiet_work, budget + grace(budget))
     run = Run(method, rtol, atol, jac_label, "ok")
     if status == "ok":
         walls, st, errs = val
