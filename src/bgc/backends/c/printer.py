@@ -65,6 +65,11 @@ def has_linear_solves(eq) -> bool:
     return any(isinstance(a.expr, LinSolve) for a in eq.assignments + eq.jac_assignments)
 
 
+def table_data(ctx) -> list[dict]:
+    """The table inputs as tables.c.j2 prints them (the FMU's model_tables.c too)."""
+    return _tables(ctx)
+
+
 def newton_protos(ctx) -> list[str]:
     """The Newton loops' prototypes (the FMU's parts declare them too)."""
     return _newton_protos(ctx)
