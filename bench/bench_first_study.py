@@ -40,7 +40,7 @@ def run(scene: str, extra: str, limit: float) -> dict:
                 exc.stdout, bytes) else (exc.stdout or "")
         wall = time.perf_counter() - t0
     return {"command": shlex.join(["bgc", *cmd[3:]]), "status": status, "wall": wall,
-            "tail": "\n".join(out.strip().splitlines()[-15:])}
+            "tail": "\n".join(out.strip().splitlines()[-15:]), "out": out}
 
 
 def main(argv=None) -> int:
@@ -48,10 +48,16 @@ def main(argv=None) -> int:
     ap.add_argument("--scene", default="models/scenes/3r2s_figure8.yaml")
     ap.add_argument("--extra", default="", help="options added to the command")
     ap.add_argument("--limit", type=float, default=1800.0, help="seconds before it is stopped")
+    ap.add_argument("--log", default=None, help="write the command's whole output here")
     a = ap.parse_args(argv)
+    load0 = os.getloadavg()
     res = run(a.scene, a.extra, a.limit)
+    load1 = os.getloadavg()
+    if a.log:
+        Path(a.log).write_text(res["out"])
     print(f"{res['command']}\nexit {res['status']} after {res['wall']:.0f} s "
-          f"({os.cpu_count()} cores)\n{res['tail']}")
+          f"({os.cpu_count()} cores; load average {load0[0]:.1f} before, {load1[0]:.1f} "
+          f"after, {load1[1]:.1f} over 5 min)\n{res['tail']}")
     return 0 if res["status"] == 0 else 1
 
 

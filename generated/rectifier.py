@@ -181,11 +181,13 @@ def _bgc_newton_failure(t):
 
 def _bgc_newton(fun, z, n):
     """Damped Newton on z - g(z) = 0, batched: (z, True) at the solution, (z, False) when
-    _NEWTON_ITERATIONS iterations do not converge. fun(z) -> (Jacobian entries, residuals).
-    A full step that does not cut the residual's max-norm by 4 on every instance is searched
-    along (_bgc_line_search), so a step that overshoots an exponential law is cut back and one
-    on its slow side (where plain Newton moves its argument by about one unit) is lengthened."""
-    jac, res = fun(z)
+    _NEWTON_ITERATIONS iterations do not converge. fun(z) -> (Jacobian entries, residuals,
+    the loop's exponents). A full step that does not cut the residual's max-norm by 4 on every
+    instance is first limited where it would raise an exponent by more than a few units
+    (_bgc_exp_limit), then searched along (_bgc_line_search), so a step that overshoots an
+    exponential law is cut back and one on its slow side (where plain Newton moves its
+    argument by about one unit) is lengthened."""
+    jac, res, ex = fun(z)
     norm = _bgc_norm(res, z)
     for _it in range(_NEWTON_ITERATIONS):
         try:
@@ -199,16 +201,53 @@ def _bgc_newton(fun, z, n):
         trial = _bgc_norm(new[1], z)
         lam = 1.0
         if not np.all(trial <= 0.25 * norm):
-            lam = _bgc_line_search(fun, z, dz, norm, trial)
-            new = fun(z - lam * dz)
-            trial = _bgc_norm(new[1], z)
+            lam = _bgc_exp_limit(ex, new[2], norm.shape)
+            if np.any(lam < 1.0):
+                new = fun(z - lam * dz)
+                trial = _bgc_norm(new[1], z)
+            if not np.all(trial <= 0.25 * norm):
+                lam = _bgc_line_search(fun, z, dz, norm, trial, lam)
+                new = fun(z - lam * dz)
+                trial = _bgc_norm(new[1], z)
         z = z - lam * dz
-        (jac, res), norm = new, trial
+        (jac, res, ex), norm = new, trial
         if not np.all(np.isfinite(norm)):
             return z, False
         if np.max(np.abs(lam * dz)) <= 1e-12 * (1.0 + np.max(np.abs(z))) or np.max(norm) == 0:
             return z, True
     return z, False
+
+
+_BGC_EXP_CAP = 200.0  # a loop's exp(a) beyond this is continued by its tangent
+_BGC_EXP_STEP = 2.0  # how far one step may raise an exponent before it is limited
+
+
+def _bgc_lexp(a):
+    """exp(a), continued by its tangent beyond _BGC_EXP_CAP: finite, so that Newton from far
+    off still has a residual and a direction."""
+    c = np.minimum(a, _BGC_EXP_CAP)
+    return np.exp(c) * (1.0 + (a - c))
+
+
+def _bgc_sexp(a):
+    """The derivative of _bgc_lexp."""
+    return np.exp(np.minimum(a, _BGC_EXP_CAP))
+
+
+def _bgc_exp_limit(before, after, shape):
+    """The step length per instance that raises no exponent by more than logarithmically:
+    an exponent going from a0 to a1 > a0 + _BGC_EXP_STEP (and above _BGC_EXP_STEP) may reach
+    b + log(1 + a1 - b), b = max(a0, 0); along the step the exponents are taken as linear."""
+    lam = np.ones(shape)
+    for a0, a1 in zip(before, after):
+        a0, a1 = np.broadcast_to(a0, shape), np.broadcast_to(a1, shape)
+        grow = a1 - a0
+        base = np.maximum(a0, 0.0)
+        big = (grow > _BGC_EXP_STEP) & (a1 > _BGC_EXP_STEP) & np.isfinite(grow)
+        target = base + np.log1p(np.maximum(a1 - base, 0.0))
+        frac = np.where(big, (target - a0) / np.where(big, grow, 1.0), 1.0)
+        lam = np.minimum(lam, np.clip(frac, 1e-6, 1.0))
+    return lam
 
 
 def _bgc_norm(res, z):
@@ -219,11 +258,12 @@ def _bgc_norm(res, z):
     return np.broadcast_to(np.where(np.isfinite(m), m, np.inf), z.shape[1:])
 
 
-def _bgc_line_search(fun, z, dz, norm, trial):
-    """The step length per instance along -dz, given the residual norm after the full step:
-    1 unless that fails to decrease the residual (then halved, up to 40 times) or decreases it
-    by less than a factor 4 (then doubled while the residual keeps decreasing, up to 2**20)."""
-    lam = np.ones(norm.shape)
+def _bgc_line_search(fun, z, dz, norm, trial, lam=1.0):
+    """The step length per instance along -dz, given the residual norm after a step of length
+    lam (1: the full step): lam unless that fails to decrease the residual (then halved, up to
+    40 times) or, for the full step, decreases it by less than a factor 4 (then doubled while
+    the residual keeps decreasing, up to 2**20)."""
+    lam = np.broadcast_to(np.asarray(lam, dtype=float), norm.shape).copy()
     for _k in range(40):
         bad = ~(trial <= (1.0 - 1e-4 * lam) * norm)
         if not bad.any():
@@ -253,9 +293,9 @@ def _newton_0(_t, Is, Rs, e_b1, e_b4, nVt):
         f_b3, = _z
         e_b3 = Rs*f_b3
         e_b2 = e_b1 - e_b3 - e_b4
-        f_b2 = Is*(-1 + xp.exp(e_b2/nVt))
-        _nc0 = -Is*Rs*xp.exp(e_b2/nVt)/nVt
-        return (1 - _nc0,), (f_b3 - f_b2,)
+        f_b2 = Is*(-1 + _bgc_lexp(e_b2/nVt))
+        _nc0 = -Is*Rs*_bgc_sexp(e_b2/nVt)/nVt
+        return (1 - _nc0,), (f_b3 - f_b2,), (e_b2/nVt, )
 
     _z, _ok = _bgc_newton(_eval, _z, 1)
     if _ok:
@@ -1133,6 +1173,7 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
     where inputs jump; each segment between them is a fresh solver, and inside (a, c) the
     model sees t only in [a, c) (one-sided inputs). jac: implicit methods get the analytic
     Jacobian, or with jac=False finite differences over JAC_SPARSITY. max_step: the solver's.
+    max_steps: the most accepted steps over the whole span; SimulationError beyond.
     stiff_check (explicit methods): raise StiffnessError when stability would hold the steps
     down so far that the rest of the span needs more than max_steps of them, judged from the
     Jacobian at the start and, while integrating, from steps held at the stability limit.
@@ -1197,6 +1238,10 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
                 max_step=max_step, **_jacobian_options(method, jac, at, shape, p, u, stats))
             _guard_solves(solver, method, stats, shape)
             while solver.status == "running":
+                if stats["nsteps"] >= max_steps:  # as the C step loop: a located stop
+                    raise _error(SimulationError, f"{method} stopped at t = {solver.t:.17g}: "
+                                 f"max_steps = {max_steps} steps (raise the scene's solver "
+                                 "max_steps or --max-steps)", solver.t, _counts(stats, solver))
                 message = solver.step()
                 if solver.status == "failed":
                     raise _error(SimulationError, f"{method} failed at t = {solver.t:.6g}: "

@@ -46,7 +46,10 @@ def test_setup_takes_the_scene(setup):
 def test_reference_agreement_is_tiny(small_study):
     st = small_study
     assert not st.stiff
-    assert [r.method for r in st.refs] == ["Radau", "DOP853"]
+    # the default references: the C backend's Radau checked with its DOP853 (not stiff)
+    # where a compiler works, scipy's on the numpy backend otherwise
+    want = ["C-Radau", "C-DOP853"] if A.c_available() else ["Radau", "DOP853"]
+    assert [r.method for r in st.refs] == want
     assert st.agreement["err"] < 1e-9
     assert st.agreement["final_err"] < 1e-9
     # the step response settles at F0 / k = 0.05 m
@@ -222,3 +225,116 @@ def test_cli_user_errors_are_model_errors(tmp_path):
     register_accuracy(group)
     r = CliRunner().invoke(group, ["accuracy", str(SCENE), "--methods", "Euler"])
     assert isinstance(r.exception, ModelError)
+
+
+def test_the_input_jump_is_a_breakpoint_without_being_told():
+    """msd_step's force is where(t < 1, 0, F0) and the scene names no breakpoint: the study
+    finds the jump in the expression (before, its reference at rtol 1e-12 failed at t = 1)."""
+    su = A.prepare(SCENE)
+    assert su.breakpoints == (1.0,)
+
+
+def test_default_references_choose_the_backend():
+    assert A.default_references(False, True) == (("C-Radau", "C-DOP853"), "")
+    assert A.default_references(True, True) == (("C-Radau", "C-Rodas4"), "")
+    ms, note = A.default_references(True, False)
+    assert ms == ("Radau", "BDF") and "no C compiler" in note and "numpy" in note
+    ms, note = A.default_references(False, False)
+    assert ms == ("Radau", "DOP853") and note
+
+
+def test_without_a_compiler_the_references_run_on_numpy_with_a_note(setup, monkeypatch):
+    monkeypatch.setattr(A, "c_available", lambda: False)
+    st = A.study(setup, methods=("DOP853",), tols=(1e-3,), repeats=1, ref_rtol=1e-9,
+                 jac_methods=())
+    assert [r.method for r in st.refs] == ["Radau", "DOP853"]
+    assert "no C compiler" in st.settings["ref_note"]
+    assert any("no C compiler" in line for line in A.skipped_lines(st))
+
+
+def _fake_runs(monkeypatch, small_study, wall):
+    """measure replaced by runs that each take `wall` seconds (as reported), and the
+    reference by the small study's."""
+    calls = []
+
+    def fake_measure(setup_, ref, method, rtol, **kw):
+        calls.append((method, rtol, kw.get("jac_mode")))
+        return A.Run(method, rtol, rtol, "none", "ok", wall=wall, walls=(wall,), err=rtol,
+                     err_output="position", err_abs={"position": rtol})
+
+    monkeypatch.setattr(A, "measure", fake_measure)
+    monkeypatch.setattr(A, "reference", lambda s, m, *a: small_study.refs[0])
+    return calls
+
+
+def test_a_sweep_past_its_budget_stops_and_the_summary_says_so(setup, small_study,
+                                                               monkeypatch, tmp_path):
+    calls = _fake_runs(monkeypatch, small_study, 4.0)
+    st = A.study(setup, methods=("RK45", "DOP853"), tols=(1e-3, 1e-4, 1e-5, 1e-6),
+                 jac_methods=(), sweep_budget=10.0, ref_methods=("Radau", "Radau"))
+    # 4 s a run: after three runs (12 s) each sweep is past its 10 s budget
+    assert calls == [(m, t, "analytic") for m in ("RK45", "DOP853")
+                     for t in (1e-3, 1e-4, 1e-5)]
+    assert [r.status for r in st.runs] == ["ok", "ok", "ok", "skipped"] * 2
+    lines = A.skipped_lines(st)
+    assert len(lines) == 2
+    assert lines[0].startswith("RK45: rtol 1e-06 skipped:") and "10 s budget" in lines[0]
+    A.write_all(st, tmp_path)
+    md = (tmp_path / "msd_step_accuracy.md").read_text()
+    assert "## What was skipped, and why" in md and "DOP853: rtol 1e-06 skipped" in md
+
+
+def test_the_study_budget_skips_what_is_left(setup, small_study, monkeypatch):
+    import time
+
+    def slow_measure(setup_, ref, method, rtol, **kw):
+        time.sleep(0.3)
+        return A.Run(method, rtol, rtol, "none", "ok", wall=0.3, walls=(0.3,), err=rtol)
+
+    monkeypatch.setattr(A, "measure", slow_measure)
+    monkeypatch.setattr(A, "reference", lambda s, m, *a: small_study.refs[0])
+    st = A.study(setup, methods=("RK45", "DOP853"), tols=(1e-3, 1e-4), jac_methods=(),
+                 study_budget=0.5, sweep_budget=100.0, ref_methods=("Radau", "Radau"))
+    assert [r.status for r in st.runs][:2] == ["ok", "ok"]
+    assert [r.status for r in st.runs][2:] == ["skipped", "skipped"]
+    assert any(line.startswith("DOP853: rtol 1e-03 to 1e-04 (2 runs) skipped: the study's "
+                               "0.5 s budget") for line in A.skipped_lines(st))
+
+
+def test_long_runs_are_not_repeated(setup, small_study):
+    r = A.measure(setup, small_study.refs[0], "Radau", 1e-4, repeats=3, long_run=0.0)
+    assert r.status == "ok" and len(r.walls) == 1
+    r = A.measure(setup, small_study.refs[0], "Radau", 1e-4, repeats=3)
+    assert len(r.walls) == 3
+
+
+def test_cli_default_study_of_msd_step_runs(tmp_path):
+    """The command --help shows, without --breakpoints, on short settings."""
+    group = click.Group()
+    register_accuracy(group)
+    out = tmp_path / "acc"
+    r = CliRunner().invoke(group, ["accuracy", str(SCENE), "--out", str(out), "--methods",
+                                   "DOP853,Radau", "--tols", "1e-3:1e-4", "--repeats", "1",
+                                   "--jac-methods", "", "--study-budget", "60"])
+    assert r.exit_code == 0, (r.output, r.exception)
+    assert "reference agreement" in r.output
+    assert (out / "msd_step_accuracy.md").is_file()
+
+
+def test_an_explicit_method_that_fails_on_a_stiff_scene_stops(setup, small_study,
+                                                              monkeypatch):
+    calls = []
+
+    def failing(setup_, ref, method, rtol, **kw):
+        calls.append((method, rtol))
+        return A.Run(method, rtol, rtol, "none", "failed", "StiffnessError: stiff")
+
+    monkeypatch.setattr(A, "measure", failing)
+    monkeypatch.setattr(A, "reference", lambda s, m, *a: small_study.refs[0])
+    monkeypatch.setattr(A, "is_stiff", lambda s: (True, 1e6))
+    st = A.study(setup, methods=("RK45", "Radau"), tols=(1e-3, 1e-4, 1e-5), jac_methods=(),
+                 ref_methods=("Radau", "Radau"))
+    # the explicit method stops after its loosest tolerance; the implicit one goes on
+    assert calls == [("RK45", 1e-3), ("Radau", 1e-3), ("Radau", 1e-4), ("Radau", 1e-5)]
+    assert any(line.startswith("RK45: rtol 1e-04 to 1e-05 (2 runs) skipped: an explicit "
+                               "method on a stiff scene") for line in A.skipped_lines(st))

@@ -64,8 +64,8 @@ def _points(m, rng, k=4):
     x0 = np.asarray(m.X0, float)
     xs = x0[:, None] * (1 + 0.3 * rng.standard_normal((len(x0), k))) + \
         0.2 * rng.standard_normal((len(x0), k)) * (np.abs(x0[:, None]) + 0.1)
-    if "rectifier" in m.__name__:  # the 1 mF capacitor within the circuit's volts (the
-        xs = x0[:, None] + 0.01 * rng.uniform(-1, 1, (len(x0), k))  # diode's exp() loop)
+    if "rectifier" in m.__name__:  # the 1 mF capacitor across +-100 V: the diode's exp()
+        xs = x0[:, None] + 0.1 * rng.uniform(-1, 1, (len(x0), k))  # loop from far off
     return np.abs(xs) if "tanks" in m.__name__ else xs
 
 

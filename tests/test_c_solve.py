@@ -205,12 +205,16 @@ def test_singular_linear_solve_is_an_error_not_garbage():
         cm.simulate((0, 1), method="Rodas4", p=pb)
 
 
-def test_fmu_export_refuses_numeric_solves():
-    from bgc.backends.fmu.export import render_sources
+def test_fmu_export_carries_numeric_solves():
+    """The FMU's parts hold derivative causality's numeric solve as the C backend's do, and
+    return its failure code (tests/test_fmu_solves.py runs such units in FMPy)."""
+    from bgc.backends.fmu.export import build_spec, render_sources
 
     c, _, _ = _pair("gear")
-    with pytest.raises(ModelError, match="FMU export does not support numeric"):
-        render_sources(c, None)
+    files = render_sources(c, build_spec(c))
+    parts = "".join(v for k, v in files.items() if k.startswith("model_part"))
+    assert "bgc_dense_lu(" in parts
+    assert ", NULL)) return 1;" in files["bgc_fmu_model.c"]
 
 
 def test_cli_simulate_backend_c_runs_a_newton_loop_in_c(tmp_path):
@@ -268,10 +272,11 @@ def test_solves_across_parts(name, monkeypatch):
     assert np.max(np.abs(xc - xn)) <= 1e-6 * (np.max(np.abs(xn)) + 1e-3)
 
 
-def test_fmu_export_refuses_table_inputs(tmp_path):
-    """An FMU input that follows its default would follow the table's placeholder (0), not
-    the data: the export says it cannot, instead of writing that."""
-    from bgc.backends.fmu.export import render_sources
+def test_fmu_export_carries_table_inputs(tmp_path):
+    """An FMU input that follows its default follows the table's data (compiled into the
+    unit as the C backend's model_tables.c), not a placeholder (tests/test_fmu_solves.py runs
+    such a unit in FMPy)."""
+    from bgc.backends.fmu.export import build_spec, render_sources
     from bgc.run.driver import compile_file
 
     text = (ROOT / "models" / "quarter_car.yaml").read_text()
@@ -281,5 +286,6 @@ def test_fmu_export_refuses_table_inputs(tmp_path):
         text.replace(old, "zr: {table: road.csv, columns: [time, height], unit: m}"))
     (tmp_path / "road.csv").write_text("time,height\n0,0\n0.5,0.02\n1,0\n")
     c = compile_file(tmp_path / "qc.yaml")
-    with pytest.raises(ModelError, match="does not support table inputs yet .input 'zr'"):
-        render_sources(c, None)
+    files = render_sources(c, build_spec(c))
+    assert "0.02" in files["model_tables.c"] and "bgcm_table_0" in files["model_tables.c"]
+    assert "bgcf_table_0(t)" in files["bgc_fmu_model.c"]

@@ -76,6 +76,32 @@ def test_max_steps_from_scene_and_command_line(tmp_path):
     assert "--max-steps 0" in bad.stderr
 
 
+@pytest.mark.parametrize("method", ["Radau", "RK45"])
+def test_max_steps_on_the_numpy_backend(tmp_path, method):
+    """scipy's step loop on the numpy backend holds max_steps too (issue 23, item 3): a scene's
+    5 cannot cover the 5 s run (exit 1, one message naming max_steps and where it stopped);
+    --max-steps 1000 covers it; the module's simulate says the same."""
+    scene = _scene(tmp_path, f"{{method: {method}, max_steps: 5, backend: numpy}}")
+    cache = tmp_path / "cache"
+    few = _bgc("simulate", scene, cache_dir=cache)
+    assert few.returncode == 1 and "max_steps = 5" in few.stderr, few.stderr
+    assert f"{method} stopped at t = " in few.stderr and "Traceback" not in few.stderr
+    many = _bgc("simulate", scene, "--max-steps", "1000", "--out", tmp_path / "a.npz",
+                cache_dir=cache)
+    assert many.returncode == 0, many.stderr
+    # the run took more than 5 accepted steps (counted by scipy's solver itself)
+    import bgc
+
+    mod = bgc.compile(str(ROOT / "models" / "msd.yaml"))
+    res = mod.simulate((0.0, 5.0), method=method, rtol=1e-6, atol=1e-9, max_steps=1000)
+    n = int(res.stats["nsteps"])
+    assert n > 5
+    with pytest.raises(mod.SimulationError, match=f"max_steps = {n - 1}"):
+        mod.simulate((0.0, 5.0), method=method, rtol=1e-6, atol=1e-9, max_steps=n - 1)
+    assert mod.simulate((0.0, 5.0), method=method, rtol=1e-6, atol=1e-9,
+                        max_steps=n).stats["nsteps"] == n
+
+
 @pytest.mark.parametrize("path", MODELS, ids=[p.stem for p in MODELS])
 def test_equations_on_every_model(path):
     """bgc.equations (what `bgc equations` prints) accepts every model in models/, rigid

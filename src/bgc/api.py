@@ -10,6 +10,7 @@ disk: the generated module is loaded from memory. Every mistake in a model or sc
 from __future__ import annotations
 
 import html
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,8 +21,15 @@ from bgc.core.draw import render_image, to_dot
 from bgc.core.equations import T, derive
 from bgc.core.graph import build_graph
 from bgc.format.parse import parse_file, parse_text
-from bgc.format.scene import parse_scene
-from bgc.linear import load_target, modes, operating_point, scene_start, to_statespace
+from bgc.format.scene import initial_state, parse_scene
+from bgc.linear import (
+    load_target,
+    modes,
+    operating_point,
+    point_warnings,
+    scene_start,
+    to_statespace,
+)
 from bgc.run.driver import build, check_model, check_scene_for
 
 BgcError = ModelError
@@ -293,18 +301,23 @@ def linearize(model, at="equilibrium", p=None, u=None, x0=None) -> Linearization
     values) for a scene or a model compiled for one: where `bgc linearize` linearises.
     ``x0``: the equilibrium's Newton starts there (default: the initial state), or the run to
     time ``at`` starts there."""
-    pv, t0 = None, 0.0
+    pv, t0, sc = None, 0.0, None
     if isinstance(model, CompiledModel):
         mod = model
         if model.scene is not None:
-            pv, t0, _ = scene_start(model.scene, model.module)
+            pv, t0, sc = scene_start(model.scene, model.module)
     elif not _is_text(model) and isinstance(model, (str, Path)) and Path(model).is_file():
-        mod, pv, t0, _ = load_target(model)
+        mod, pv, t0, sc = load_target(model)
     else:
         mod = compile(model)
     if p is not None:
         pv = {**(pv or {}), **p}
+    if x0 is None and sc is not None and isinstance(sc.initial, dict):
+        x0 = initial_state(sc, mod, pv)  # the scene's `initial:` values: the guess
     t, x, _ = operating_point(mod, at, pv, u, t0, hint=")", x0=x0)
+    guess = mod.initial_state(pv) if x0 is None else x0
+    for msg in point_warnings(mod, t, x, pv, u, guess, at == "equilibrium"):
+        warnings.warn(msg, RuntimeWarning, stacklevel=2)
     A, B, C, D = mod.linearize(t, x, u, pv)
     try:
         ss = to_statespace(mod, A, B, C, D)

@@ -196,3 +196,72 @@ def operating_point(mod, at, p=None, u=None, t0: float = 0.0, progress=None,
     except mod.SimulationError as exc:
         raise ModelError(None, f"simulation to t = {t:g} failed: {exc}") from None
     return t, res.x[..., -1], f"t = {t:g} s"
+
+
+# ---------------------------------------------------------------------------------------------
+# What to say about an operating point before linearising there
+
+#: A point whose max |dx/dt| exceeds this times (1 + max |x|) is not an equilibrium.
+RESIDUAL_TOL = 1e-8
+#: An equilibrium this far from its guess (max |x - x0| / (1 + max |x0|)) whose Jacobian's
+#: condition number exceeds COND_WARN may not be the one the model's geometry means.
+MOVED_WARN = 0.1
+COND_WARN = 1e8
+
+
+def point_warnings(mod, t, x, p=None, u=None, guess=None, equilibrium=False) -> list[str]:
+    """Warnings (text) about the point (t, x) a model is linearised at: not an equilibrium
+    (max |dx/dt| and its state); an equilibrium found far from its initial guess ``guess`` with
+    an ill-conditioned Jacobian (a near-free direction: the solve may have moved angles while a
+    spring's deflection did not, inconsistent with the geometry)."""
+    x = np.asarray(x, dtype=float).reshape(-1)
+    names = list(mod.STATE_NAMES)
+    with np.errstate(all="ignore"):
+        dx = np.asarray(mod.rhs(t, x, p, u), dtype=float).reshape(-1)
+    out = []
+    if dx.size and np.all(np.isfinite(dx)):
+        k = int(np.argmax(np.abs(dx)))
+        r = float(abs(dx[k]))
+        if r > RESIDUAL_TOL * (1.0 + float(np.max(np.abs(x)))):
+            what = "the equilibrium found" if equilibrium else f"t = {t:g} s"
+            out.append(f"{what} is not an equilibrium: max |dx/dt| = {r:.3g} (in "
+                       f"{names[k]}); the linearisation describes deviations from a moving "
+                       "state")
+    if equilibrium and guess is not None and x.size:
+        g = np.asarray(guess, dtype=float).reshape(-1)
+        moved = np.abs(x - g)
+        rel = float(np.max(moved)) / (1.0 + float(np.max(np.abs(g))))
+        if rel > MOVED_WARN:
+            with np.errstate(all="ignore"):
+                J = np.asarray(mod.jacobian(t, x, p, u), dtype=float).reshape(x.size, x.size)
+            cond = float(np.linalg.cond(J)) if np.all(np.isfinite(J)) else np.inf
+            if cond > COND_WARN:
+                far = ", ".join(names[i] for i in np.argsort(-moved)[:3] if moved[i] > 0)
+                out.append(f"the equilibrium is far from its initial guess ({far} moved by up "
+                           f"to {float(np.max(moved)):.3g}) and its Jacobian is ill-conditioned "
+                           f"(condition number {cond:.2g}): it may not be the equilibrium the "
+                           "model's geometry means (a state tied to others by the geometry, "
+                           "such as a spring's deflection, may not have moved with them); give "
+                           "a consistent guess (bgc.linearize(..., x0=...), `bgc linearize "
+                           "--x0 NAME=VALUE`, or the scene's `initial:`)")
+    return out
+
+
+def start_guess(mod, p, assignments, base=None):
+    """The initial state with ``NAME=VALUE`` assignments set (NAME a state of STATE_NAMES),
+    or ``base`` (default: the module's initial state) when there are none."""
+    x = np.array(mod.initial_state(p) if base is None else base, dtype=float).reshape(-1)
+    names = list(mod.STATE_NAMES)
+    for text in assignments:
+        name, sep, val = text.partition("=")
+        name = name.strip()
+        try:
+            v = float(val)
+        except ValueError:
+            v = float("nan")
+        if not sep or name not in names or not np.isfinite(v):
+            raise ModelError(None, f"--x0 {text!r}: give NAME=VALUE with NAME one of "
+                                   f"{', '.join(names[:12])}{', ...' if len(names) > 12 else ''}"
+                                   " and a finite VALUE")
+        x[names.index(name)] = v
+    return x

@@ -61,11 +61,12 @@ _MODEL_TOP = {
                "TABLE_BREAKPOINTS", "TABLE_MAX_STEP", "OUTPUT_UNITS", "INPUT_UNITS",
                "_NEWTON_WARM", "_NEWTON_ITERATIONS", "RHS_USES_T", "INPUT_PERIODS", "N_EVENTS",
                "EVENT_NAMES", "EVENT_DIRECTIONS", "EVENT_TIMED", "EVENT_WHERE", "MODE_NAMES",
-               "_RESETS"},
+               "_RESETS", "_BGC_EXP_CAP", "_BGC_EXP_STEP"},
     "FunctionDef": {"_unpack", "_floats", "_params", "_inputs", "initial_state", "rhs", "jacobian",
                     "outputs", "input_jacobian", "output_jacobian", "_bgc_linsolve",
                     "event_values", "apply_event", "_bgc_newton", "_bgc_norm",
-                    "_bgc_line_search", "_bgc_newton_failure"},
+                    "_bgc_line_search", "_bgc_newton_failure", "_bgc_lexp", "_bgc_sexp",
+                    "_bgc_exp_limit"},
     "ClassDef": {"_Unpacked"},
 }
 

@@ -18,7 +18,7 @@ from bgc.format.scene import parse_scene
 from bgc.run.progress import Progress
 from bgc.run.runner import check_start
 from bgc.studies.accuracy import parse_methods, parse_tols, study
-from bgc.studies.accuracy_report import cheapest, write_all
+from bgc.studies.accuracy_report import cheapest, skipped_lines, write_all
 from bgc.studies.runs import C_METHODS, FD_JACOBIAN, METHODS, c_available, prepare
 from bgc.studies.sweep import client_for
 
@@ -38,14 +38,24 @@ def register(main_group):
                   help="rtol values: a decade range a:b or a comma list")
     @click.option("--atol-scale", type=POSITIVE, default=None,
                   help="atol = rtol x this (default: the scene's atol/rtol)")
-    @click.option("--budget", type=POSITIVE, default=60.0, show_default=True,
+    @click.option("--budget", type=POSITIVE, default=20.0, show_default=True,
                   help="seconds per (method, tolerance), repeats included")
+    @click.option("--study-budget", type=POSITIVE, default=120.0, show_default=True,
+                  help="seconds for all the measured runs together (the references not "
+                       "counted); what is left when they are spent is skipped, and listed")
+    @click.option("--sweep-budget", type=POSITIVE, default=None,
+                  help="seconds one method's sweep over the tolerances may take before its "
+                       "tighter tolerances are skipped (default: the study budget shared "
+                       "among the sweeps)")
     @click.option("--repeats", type=click.IntRange(1, 1000), default=3, show_default=True)
+    @click.option("--long-run", type=POSITIVE, default=1.0, show_default=True,
+                  help="a run longer than this many seconds is not repeated")
     @click.option("--ref-rtol", type=RTOL, default=1e-12, show_default=True)
     @click.option("--ref-methods", default=None,
-                  help="two methods for the reference (default: Radau,BDF if stiff, else "
-                       "Radau,DOP853)")
-    @click.option("--ref-budget", type=POSITIVE, default=900.0, show_default=True)
+                  help="two methods for the reference (default: C-Radau checked with "
+                       "C-Rodas4 if stiff, else C-DOP853; without a C compiler Radau,BDF if "
+                       "stiff, else Radau,DOP853)")
+    @click.option("--ref-budget", type=POSITIVE, default=300.0, show_default=True)
     @click.option("--jac-methods", default="Radau,BDF", show_default=True,
                   help="methods for the analytic-vs-FD Jacobian comparison ('' for none)")
     @click.option("--jac-tols", default="1e-4,1e-6,1e-8", show_default=True)
@@ -58,10 +68,15 @@ def register(main_group):
     @click.option("--scheduler", default=None,
                   help="run them on this running Dask scheduler instead")
     @click.option("-q", "--quiet", is_flag=True)
-    def accuracy_cmd(scene, out_dir, methods, tols, atol_scale, budget, repeats, ref_rtol,
-                     ref_methods, ref_budget, jac_methods, jac_tols, t_end, extra_bps, workers,
-                     scheduler, quiet):
-        """Work-precision study of SCENE.yaml: error against wall time and rhs calls."""
+    def accuracy_cmd(scene, out_dir, methods, tols, atol_scale, budget, study_budget,
+                     sweep_budget, repeats, long_run, ref_rtol, ref_methods, ref_budget,
+                     jac_methods, jac_tols, t_end, extra_bps, workers, scheduler, quiet):
+        """Work-precision study of SCENE.yaml: error against wall time and rhs calls.
+
+        The default study is a first look that finishes in a few minutes: the references on
+        the C backend where a compiler works, each method's sweep stopped once it has taken
+        its share of --study-budget, long runs not repeated; the summary lists what was
+        skipped and why."""
         say = Progress(quiet)
         ms = parse_methods(methods)
         if methods == _DEFAULT_METHODS and not c_available():
@@ -96,7 +111,8 @@ def register(main_group):
         try:
             with np.errstate(all="ignore"):  # (inherited by the forked runs)
                 st = study(setup, ms, tl, budget, repeats, ref_rtol, rms, ref_budget, jms, jtl,
-                           say, client)
+                           say, client, study_budget=study_budget, sweep_budget=sweep_budget,
+                           long_run=long_run)
         finally:
             if client is not None:
                 # lazy: Dask loads only for a study on workers
@@ -105,9 +121,18 @@ def register(main_group):
                 close_client(client)
         for f in write_all(st, out, inputs):
             say(f"wrote {f}")
-        a = st.agreement
-        click.echo(f"{setup.name}: reference agreement {a['err']:.2e}; "
-                   + "; ".join(f"error <= {t:.0e}: {r.method} rtol {r.rtol:.0e} {r.wall:.3g} s"
-                               for t in (1e-3, 1e-6) if (r := cheapest(st.runs, t))))
+        _summary(st)
 
     return accuracy_cmd
+
+
+def _summary(st):
+    """The study's last lines: what was skipped and why, the references' agreement and the
+    cheapest runs."""
+    a = st.agreement
+    skipped = skipped_lines(st)
+    if skipped:
+        click.echo("skipped:\n" + "\n".join(f"  {line}" for line in skipped))
+    click.echo(f"{st.setup.name}: reference agreement {a['err']:.2e}; "
+               + "; ".join(f"error <= {t:.0e}: {r.method} rtol {r.rtol:.0e} {r.wall:.3g} s"
+                           for t in (1e-3, 1e-6) if (r := cheapest(st.runs, t))))

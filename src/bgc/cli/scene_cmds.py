@@ -16,6 +16,7 @@ from bgc.format.scene import (
     MODEL_T_END,
     check_max_steps,
     check_rtol,
+    initial_state,
     is_model_file,
     model_scene,
     parse_scene,
@@ -172,15 +173,21 @@ def _load_target(path, prog):
 @click.option("--freq-range", nargs=2, type=POSITIVE, default=None, metavar="FMIN FMAX",
               help="the Bode plots' frequencies in Hz (default: two decades around the modes' "
                    "natural frequencies, near-zero eigenvalues ignored)")
+@click.option("--x0", "x0_items", multiple=True, metavar="NAME=VALUE",
+              help="the start (the equilibrium's initial guess, or the run's start): a state "
+                   "of the module's STATE_NAMES set to VALUE; repeatable (default: the "
+                   "scene's `initial:` values, else the initial state)")
 @click.option("-q", "--quiet", is_flag=True)
-def linearize_cmd(target, at, out, bode, freq_range, quiet):
+def linearize_cmd(target, at, out, bode, freq_range, x0_items, quiet):
     """Linearise SCENE_OR_MODEL: eigenvalues with natural frequencies and damping ratios and
     the states that dominate each mode; matrices and Bode plots with --out."""
     # lazy: the compile path, which a warm run never loads
-    from bgc.linear import modes, operating_point
+    from bgc.linear import modes, operating_point, point_warnings, start_guess
 
     prog = Progress(quiet)
     mod, p, t0, sc = _load_target(target, prog)
+    base = initial_state(sc, mod, p) if sc is not None and isinstance(sc.initial, dict) else None
+    guess = start_guess(mod, p, x0_items, base)
     pairs = []
     for spec in bode:
         i_name, sep, o_name = spec.partition(":")
@@ -205,7 +212,10 @@ def linearize_cmd(target, at, out, bode, freq_range, quiet):
         try:
             t, x, where = operating_point(mod, at, p, None, t0, prog, " after Newton): "
                                           "linearise at a time instead (--at TIME)",
+                                          x0=guess,
                                           on_equilibrium=lambda info: _warn_free(info, prog))
+            for msg in point_warnings(mod, t, x, p, None, guess, at == "equilibrium"):
+                prog(f"warning: {msg}")
         except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
             raise ModelError(coord, f"no operating point found: the search failed ({exc}); is "
                                     "the right-hand side finite near the initial state?") from None

@@ -1,4 +1,5 @@
-"""What the input signals tell the integrator: the periods of periodic inputs.
+"""What the input signals tell the integrator: the periods of periodic inputs, and the
+instants where an input jumps (input_breakpoints: comparisons of time with a constant).
 
 An integrator with a loose tolerance may step over the part of a period where a model does
 something sharp (a diode that conducts for a millisecond of each 20 ms cycle) and never see it:
@@ -63,3 +64,47 @@ def input_periods(eq) -> dict[str, float]:
         if periods:
             out[iv.name] = min(periods)
     return out
+
+
+def _crossing(rel, vals) -> float | None:
+    """The instant where a condition on time flips: c for t < c, t >= c, c - t > 0, ... (a
+    side linear in t, its coefficients of parameters), None for anything else."""
+    d = rel.lhs - rel.rhs
+    if T not in d.free_symbols:
+        return None
+    a = sp.diff(d, T)
+    if T in a.free_symbols:
+        return None
+    try:
+        a = float(a.xreplace(vals))
+        b = float(d.subs(T, 0).xreplace(vals))
+    except (TypeError, ValueError):
+        return None
+    if not (math.isfinite(a) and math.isfinite(b)) or a == 0:
+        return None
+    c = -b / a
+    return c if math.isfinite(c) else None
+
+
+def input_breakpoints(eq) -> tuple[float, ...]:
+    """The instants where an input signal may jump, read off its expressions: every
+    comparison of time with a constant (``where(t < 1, 0, F0)`` jumps at t = 1), evaluated at
+    the parameters' values. An integrator that is not told steps into the jump and, at a tight
+    tolerance, shrinks its step until it fails there."""
+    vals = _values(eq)
+    out = set()
+    for iv in eq.inputs:
+        if getattr(iv, "table", None) is not None:
+            continue
+        for d in iv.default:
+            if not isinstance(d, sp.Basic):
+                continue
+            for rel in d.atoms(sp.core.relational.Relational):
+                c = _crossing(rel, vals)
+                if c is not None:
+                    out.add(c)
+            for h in d.atoms(sp.Heaviside):
+                c = _crossing(sp.Gt(h.args[0], 0), vals)
+                if c is not None:
+                    out.add(c)
+    return tuple(sorted(out))

@@ -41,14 +41,22 @@ from __future__ import annotations
 import contextlib
 import math
 import multiprocessing as mp
+import time
 from dataclasses import replace
 
 from bgc.backends.load import load_module
 from bgc.base.errors import ModelError
 from bgc.base.limits import LIMITS
-from bgc.studies.accuracy_report import cheapest, md_cell, write_all, write_csv  # noqa: F401
+from bgc.studies.accuracy_report import (  # noqa: F401
+    cheapest,
+    md_cell,
+    skipped_lines,
+    write_all,
+    write_csv,
+)
 from bgc.studies.runs import (  # noqa: F401 (the study's parts, as bgc.studies.accuracy.*)
     ALL_METHODS,
+    C_ALL,
     C_METHODS,
     DEFAULT_TOLS,
     FD_JACOBIAN,
@@ -110,33 +118,130 @@ def parse_methods(text, allowed=ALL_METHODS) -> tuple:
     return ms
 
 
+def default_references(stiff: bool, c_ok: bool) -> tuple[tuple, str]:
+    """(the two reference methods, a note): the C backend's Radau, checked with its Rodas4
+    (stiff) or DOP853 (not stiff), where a compiler works: the whole step loop in C, minutes
+    faster at rtol 1e-12 than scipy's; numpy's Radau and BDF or DOP853 otherwise, with a
+    note."""
+    if c_ok:
+        return ("C-Radau", "C-Rodas4" if stiff else "C-DOP853"), ""
+    return (("Radau", "BDF") if stiff else ("Radau", "DOP853"),
+            "no C compiler or C runtime: the references run on the numpy backend "
+            "(scipy's step loop, much slower at a tight tolerance)")
+
+
 def _study_head(setup: Setup, ref_methods, ref_rtol):
     """(stiff, stiffness index, reference methods, reference atol, the study's first progress
-    line), the same whether the runs go one after another or on Dask."""
+    line, a note on the references' backend), the same whether the runs go one after another
+    or on Dask."""
     stiff, index = is_stiff(setup)
+    note = ""
     if ref_methods is None:
-        ref_methods = ("Radau", "BDF") if stiff else ("Radau", "DOP853")
+        ref_methods, note = default_references(stiff, c_available())
     head = (f"{setup.name}: {setup.module.N_STATES} states, t = {setup.t_span[0]:g}..."
             f"{setup.t_span[1]:g} s, {len(setup.t_eval)} output points; stiffness index "
             f"{index:.3g} ({'stiff' if stiff else 'not stiff'}); atol = rtol x "
             f"{setup.atol_scale:g}")
-    return stiff, index, ref_methods, ref_rtol * setup.atol_scale, head
+    return stiff, index, ref_methods, ref_rtol * setup.atol_scale, head, note
+
+
+def _sweep(setup, say, ref, method, tols, budget, limits, repeats, long_run,
+           jac_mode="analytic", kind="study", stiff=False) -> list:
+    """One method's runs, loosest tolerance first. The tighter ones are skipped (a run with
+    status 'skipped' that says why) once a run exceeds the per-run budget, once the sweep's
+    runs together have taken more than its budget (tighter tolerances cost at least as much),
+    once the whole study's deadline has passed, or once an explicit method on a stiff scene has
+    not finished a run. limits: (the sweep's budget, the study's
+    deadline (perf_counter), the study's budget)."""
+    sweep_budget, deadline, study_budget = limits
+    runs, why = [], None
+    spent = 0.0
+    jac = jac_mode if method in IMPLICIT else "none"
+    for tol in sorted(tols, reverse=True):
+        left = deadline - time.perf_counter()
+        if why is None and left <= 0:
+            why = f"the study's {study_budget:g} s budget was spent before this run"
+        if why is not None:
+            runs.append(Run(method, tol, tol * setup.atol_scale, jac, "skipped",
+                            f"skipped: {why}", kind=kind))
+            continue
+        r = measure(setup, ref, method, tol, jac_mode=jac_mode, budget=min(budget, left),
+                    repeats=repeats, long_run=long_run)
+        if kind != "study":
+            r = replace(r, kind=kind)
+        runs.append(r)
+        say(_line(r))
+        spent += sum(r.walls) if r.status == "ok" else (budget if r.status == "budget" else 0)
+        if r.status != "ok" and stiff and method not in IMPLICIT:
+            why = (f"an explicit method on a stiff scene: it did not finish at rtol {tol:g} "
+                   "and tighter tolerances only ask for more steps")
+        elif r.status == "budget" and left < budget:
+            why = f"the study's {study_budget:g} s budget was spent at rtol {tol:g}"
+        elif r.status == "budget":
+            why = f"over the {budget:.3g} s budget at rtol {tol:g}"
+        elif spent > sweep_budget:
+            why = (f"the sweep had taken {spent:.1f} s by rtol {tol:g}, past its "
+                   f"{sweep_budget:g} s budget")
+    return runs
 
 
 def study(setup: Setup, methods=METHODS, tols=DEFAULT_TOLS, budget=60.0, repeats=3,
           ref_rtol=1e-12, ref_methods=None, ref_budget=900.0, jac_methods=("Radau", "BDF"),
-          jac_tols=(1e-4, 1e-6, 1e-8), progress=None, client=None) -> Study:
-    """The study; with a dask.distributed client, its runs are Dask tasks (see _Grid)."""
+          jac_tols=(1e-4, 1e-6, 1e-8), progress=None, client=None, study_budget=math.inf,
+          sweep_budget=None, long_run=math.inf) -> Study:
+    """The study; with a dask.distributed client, its runs are Dask tasks (see _Grid).
+
+    study_budget: seconds all the measured runs together may take (the references not
+    counted); what is left when it is spent is skipped, and says so. sweep_budget: seconds one
+    sweep (a method over the tolerances; for the Jacobian comparison, a method in one
+    Jacobian mode) may take before its tighter tolerances are skipped; by default the study's
+    budget shared evenly among the sweeps. long_run: a run that took longer than this many
+    seconds is not repeated."""
     say = progress or (lambda msg: None)
     if client is not None:
         return _study_on(client, setup, methods, tols, budget, repeats, ref_rtol, ref_methods,
                          ref_budget, jac_methods, jac_tols, say)
     warm_up(setup)
-    if any(m in C_METHODS for m in methods):  # built here, before the runs' forked children
+    if any(m in C_ALL for m in (*methods, *(ref_methods or ()))) or (
+            ref_methods is None and c_available()):  # before the forked children
         say("building the C backend's module for the C methods")
         c_module(setup)
-    stiff, index, ref_methods, ref_atol, head = _study_head(setup, ref_methods, ref_rtol)
+    stiff, index, ref_methods, ref_atol, head, ref_note = _study_head(setup, ref_methods,
+                                                                      ref_rtol)
     say(head)
+    if ref_note:
+        say(ref_note)
+    refs, check_note = _references(setup, say, ref_methods, ref_rtol, ref_atol, ref_budget)
+    ref_methods = tuple(r.method for r in refs)
+    agree = errors(setup, refs[0], refs[1].t, refs[1].x, refs[1].y)
+    say(f"reference agreement ({ref_methods[1]} vs {ref_methods[0]}): output error "
+        f"{agree['err']:.2e} ({agree['err_output']}), final state {agree['final_err']:.2e}")
+    ref = refs[0]
+    if sweep_budget is None:
+        sweep_budget = study_budget / max(1, len(methods) + len(jac_methods) * len(JAC_MODES))
+    limits = (sweep_budget, time.perf_counter() + study_budget, study_budget)
+    runs = []
+    for m in methods:
+        runs += _sweep(setup, say, ref, m, tols, budget, limits, repeats, long_run,
+                       stiff=stiff)
+    jac_runs = []
+    for m in jac_methods:
+        for mode in JAC_MODES:
+            jac_runs += _sweep(setup, say, ref, m, jac_tols, budget, limits, repeats,
+                               long_run, jac_mode=mode, kind="jacobian")
+    jac_runs.sort(key=lambda r: (jac_methods.index(r.method), -r.rtol, JAC_MODES.index(r.jac)))
+    settings = {"ref_rtol": ref_rtol, "ref_atol": ref_atol, "ref_methods": tuple(ref_methods),
+                "budget": budget, "repeats": repeats, "atol_scale": setup.atol_scale,
+                "tols": tuple(tols), "methods": tuple(methods), "jac_tols": tuple(jac_tols),
+                "jac_methods": tuple(jac_methods), "check_note": check_note,
+                "ref_note": ref_note, "sweep_budget": sweep_budget, "long_run": long_run,
+                "study_budget": study_budget}
+    return Study(setup, tuple(refs), agree, stiff, index, runs, jac_runs, settings)
+
+
+def _references(setup, say, ref_methods, ref_rtol, ref_atol, ref_budget):
+    """The two reference solutions, and a note when the second had to fall back to the first
+    method at a 10x looser tolerance."""
     refs = []
     check_note = ""
     for i, m in enumerate(ref_methods):
@@ -156,38 +261,7 @@ def study(setup: Setup, methods=METHODS, tols=DEFAULT_TOLS, budget=60.0, repeats
             f"{r.stats['nfev']} rhs, "
             f"{r.stats['njev']} Jacobians)")
         refs.append(r)
-    ref_methods = tuple(r.method for r in refs)
-    agree = errors(setup, refs[0], refs[1].t, refs[1].x, refs[1].y)
-    say(f"reference agreement ({ref_methods[1]} vs {ref_methods[0]}): output error "
-        f"{agree['err']:.2e} ({agree['err_output']}), final state {agree['final_err']:.2e}")
-    ref = refs[0]
-    runs = []
-    for m in methods:
-        over = None
-        for tol in sorted(tols, reverse=True):
-            if over is not None:
-                runs.append(Run(m, tol, tol * setup.atol_scale, "analytic" if m in IMPLICIT
-                                else "none", "skipped",
-                                f"skipped: over the budget at rtol {over:g}"))
-                continue
-            r = measure(setup, ref, m, tol, budget=budget, repeats=repeats)
-            runs.append(r)
-            say(_line(r))
-            if r.status == "budget":
-                over = tol
-    jac_runs = []
-    for m in jac_methods:
-        for tol in jac_tols:
-            for mode in JAC_MODES:
-                r = replace(measure(setup, ref, m, tol, jac_mode=mode, budget=budget,
-                                    repeats=repeats), kind="jacobian")
-                jac_runs.append(r)
-                say(_line(r))
-    settings = {"ref_rtol": ref_rtol, "ref_atol": ref_atol, "ref_methods": tuple(ref_methods),
-                "budget": budget, "repeats": repeats, "atol_scale": setup.atol_scale,
-                "tols": tuple(tols), "methods": tuple(methods), "jac_tols": tuple(jac_tols),
-                "jac_methods": tuple(jac_methods), "check_note": check_note}
-    return Study(setup, tuple(refs), agree, stiff, index, runs, jac_runs, settings)
+    return refs, check_note
 
 
 def _line(r: Run) -> str:
@@ -259,7 +333,8 @@ def _study_on(client, setup, methods, tols, budget, repeats, ref_rtol, ref_metho
     # a fresh key (hash=False): a key shared with an earlier study's data could be released
     # by that study's futures going away while this one still needs it
     fbare = client.scatter(bare, broadcast=True, hash=False)
-    stiff, index, ref_methods, ref_atol, head = _study_head(setup, ref_methods, ref_rtol)
+    stiff, index, ref_methods, ref_atol, head, ref_note = _study_head(setup, ref_methods,
+                                                                      ref_rtol)
     say(f"{head}; on {len(client.scheduler_info()['workers'])} Dask workers")
 
     def ref_of(val, fallback_ok):
@@ -337,7 +412,8 @@ def _study_on(client, setup, methods, tols, budget, repeats, ref_rtol, ref_metho
     settings = {"ref_rtol": ref_rtol, "ref_atol": ref_atol, "ref_methods": tuple(ref_methods),
                 "budget": budget, "repeats": repeats, "atol_scale": setup.atol_scale,
                 "tols": tuple(tols), "methods": tuple(methods), "jac_tols": tuple(jac_tols),
-                "jac_methods": tuple(jac_methods), "check_note": check_note}
+                "jac_methods": tuple(jac_methods), "check_note": check_note,
+                "ref_note": ref_note}
     return Study(setup, refs, agree, stiff, index, runs, jac_runs, settings)
 
 

@@ -67,6 +67,35 @@ def cheapest(runs, target):
     return min(ok, key=lambda r: r.wall) if ok else None
 
 
+def skipped_lines(st: Study) -> list[str]:
+    """What the study left out and why, one line per sweep that stopped early (a method over
+    its tolerances; for the Jacobian comparison, a method in one Jacobian mode), then the
+    notes on the references and on runs that were not repeated."""
+    groups: dict = {}
+    for r in list(st.runs) + list(st.jac_runs):
+        if r.status == "skipped":
+            key = (r.kind, r.method, r.jac if r.kind == "jacobian" else "", r.message)
+            groups.setdefault(key, []).append(r.rtol)
+    out = []
+    for (kind, method, jac, msg), tols in groups.items():
+        what = f"{method} ({jac} Jacobian, the Jacobian comparison)" if kind == "jacobian" \
+            else method
+        span = (f"rtol {max(tols):.0e}" if len(tols) == 1
+                else f"rtol {max(tols):.0e} to {min(tols):.0e} ({len(tols)} runs)")
+        out.append(f"{what}: {span} {msg}")
+    s = st.settings
+    for note in (s.get("ref_note"), s.get("check_note")):
+        if note:
+            out.append(f"references: {note}")
+    lr = s.get("long_run", math.inf)
+    once = [r for r in list(st.runs) + list(st.jac_runs)
+            if r.status == "ok" and len(r.walls) == 1 and r.wall > lr and s["repeats"] > 1]
+    if once:
+        out.append(f"repeats: {len(once)} runs longer than {lr:g} s ran once, not "
+                   f"{s['repeats']} times")
+    return out
+
+
 def write_markdown(st: Study, path, images=(), inputs=None):
     s, se = st.settings, st.setup
     a = st.agreement
@@ -96,10 +125,22 @@ def write_markdown(st: Study, path, images=(), inputs=None):
              "in the CSV (`err_abs_*`). Final-state error: max_i |x_i(T) - x_ref,i(T)| / "
              "(max_t |x_ref,i| + atol scale).")
     L.append(f"* Wall time: median of up to {s['repeats']} runs within a {s['budget']:g} s "
-             "budget per (method, tolerance), each in a forked child with a hard limit; "
+             "budget per (method, tolerance), each in a forked child with a hard limit"
+             + (f"; a run over {s['long_run']:g} s runs once" if math.isfinite(
+                 s.get("long_run", math.inf)) else "")
+             + (f"; each sweep over the tolerances stops once it has taken "
+                f"{s['sweep_budget']:.3g} s" if math.isfinite(
+                 s.get("sweep_budget") or math.inf) else "")
+             + (f"; all runs together within {s['study_budget']:g} s" if math.isfinite(
+                 s.get("study_budget", math.inf)) else "") + "; "
              "'steps' counts accepted steps; rhs counts include finite-difference "
              "columns; 'Jac' counts Jacobian "
              "evaluations (analytic or finite-difference).\n")
+    skipped = skipped_lines(st)
+    if skipped:
+        L.append("## What was skipped, and why\n")
+        L += [f"* {md_cell(line)}" for line in skipped]
+        L.append("")
     L.append("## Cheapest run reaching an error\n")
     L.append("| error <= | method | rtol | error | wall [s] | steps | rhs | Jac |")
     L.append("|---|---|---|---|---|---|---|---|")

@@ -21,20 +21,30 @@ import numpy as np
 
 from bgc.backends.c import build as cbuild
 from bgc.base.errors import ModelError, SimulationFailed
+from bgc.core.signals import input_breakpoints
 from bgc.format.scene import parse_scene
 from bgc.run.runner import compile_scene, scene_module
 
 METHODS = ("RK45", "DOP853", "Radau", "BDF", "LSODA", "Rodas4")
 # the C backend's integrators (the whole step loop in the scene's compiled library)
 C_METHODS = ("C-Rodas4", "C-Radau")
-ALL_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA", "Rodas4") + C_METHODS
+# every C method a study may name: DOP853 in C too (the non-stiff reference's check)
+C_ALL = C_METHODS + ("C-DOP853",)
+ALL_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA", "Rodas4") + C_ALL
 IMPLICIT = ("Radau", "BDF", "LSODA", "Rodas4") + C_METHODS
 # the implicit methods that also run on finite-difference Jacobians (Rodas4 needs the exact one)
 FD_JACOBIAN = ("Radau", "BDF", "LSODA")
 DEFAULT_TOLS = tuple(10.0 ** -k for k in range(3, 11))
 JAC_MODES = ("analytic", "sparse-fd", "dense-fd")
 STIFF_THRESHOLD = 1e3  # max|eig(J(t0, x0))| * span above this: the scene is treated as stiff
-GRACE = 20.0  # seconds a child gets past its budget before it is killed
+GRACE = 20.0  # seconds a child gets past its budget before it is killed (at most)
+
+
+def grace(budget: float) -> float:
+    """The seconds past its budget a run's child gets before it is killed: a quarter of the
+    budget and 2 s, at most GRACE (a solver that does not call back in time, as LSODA's
+    Fortran loop, would otherwise hold a short run for GRACE seconds more)."""
+    return min(GRACE, 2.0 + budget / 4)
 
 
 class BudgetExceeded(Exception):
@@ -91,9 +101,13 @@ def prepare(scene_path, t_end=None, atol_scale=None, breakpoints=(), progress=No
         atol_scale = scene.atol / scene.rtol
     if not atol_scale > 0:
         raise ModelError(scene.coord, "the atol scale must be positive")
+    # the instants where an input expression jumps (where(t < 1, ...)) are breakpoints too:
+    # at rtol 1e-12 no integrator steps through a jump it is not told of
+    jumps = input_breakpoints(compiled.equations)
     return Setup(Path(scene.file).stem, scene, mod, values(scene) or None, (t0, t1),
-                 t_eval, tuple(sorted({float(b) for b in (*scene.breakpoints, *breakpoints)
-                                       if t0 < b < t1})), scene.max_step,
+                 t_eval, tuple(sorted({float(b) for b in (*scene.breakpoints, *breakpoints,
+                                                          *jumps) if t0 < b < t1})),
+                 scene.max_step,
                  outs, float(atol_scale), ct, compiled=compiled, source=compiled.source)
 
 
@@ -130,7 +144,7 @@ def solve(setup: Setup, method, rtol, atol, jac_mode="analytic", deadline=math.i
 
     njev counts every Jacobian the solver formed, finite-difference ones included (their rhs
     calls are in nfev)."""
-    if method in C_METHODS:  # one call into C: the budget is its wall-time limit
+    if method in C_ALL:  # one call into C: the budget is its wall-time limit
         mod = c_module(setup)
         wall = None if math.isinf(deadline) else max(deadline - time.perf_counter(), 1e-3)
         try:
@@ -147,7 +161,8 @@ def solve(setup: Setup, method, rtol, atol, jac_mode="analytic", deadline=math.i
     with _instrumented(mod, deadline, jac_mode == "dense-fd"):
         res = mod.simulate(setup.t_span, t_eval=setup.t_eval, method=method, rtol=rtol,
                            atol=atol, p=setup.p, breakpoints=setup.breakpoints,
-                           jac=jac_mode == "analytic", max_step=setup.max_step)
+                           jac=jac_mode == "analytic", max_step=setup.max_step,
+                           max_steps=10 ** 7)  # the budget bounds a study's runs
     stats = {k: int(res.stats[k]) for k in ("nfev", "njev", "nlu", "nsteps")}
     return res, stats
 
@@ -252,9 +267,11 @@ def _pilot_states(setup: Setup):
     the states before its STIFF_SAMPLES shortest steps (where something fast happens: a
     contact that closes, a valve that shuts) and at STIFF_SAMPLES evenly spread steps, so a
     model that is stiff only later is judged where it is stiff, not at t0 alone."""
+    # the C backend's module when the study has built it (the whole run in C: seconds less)
+    mod = setup.cmodule if setup.cmodule is not None else setup.module
     try:
         with np.errstate(all="ignore"):
-            res = setup.module.simulate(setup.t_span, method="Radau", rtol=1e-4,
+            res = mod.simulate(setup.t_span, method="Radau", rtol=1e-4,
                                         atol=1e-4 * setup.atol_scale, p=setup.p,
                                         breakpoints=setup.breakpoints,
                                         max_step=setup.max_step, max_wall=30.0)
@@ -374,8 +391,10 @@ class Run:
 
 
 def measure(setup: Setup, ref: Reference, method, rtol, atol=None, jac_mode="analytic",
-            budget=60.0, repeats=3) -> Run:
-    """Median wall time of up to `repeats` solves within `budget` seconds, in a child.
+            budget=60.0, repeats=3, long_run=math.inf) -> Run:
+    """Median wall time of up to `repeats` solves within `budget` seconds, in a child; a solve
+    that took longer than `long_run` seconds is not repeated (its time is already well above
+    the timer's noise, and the repeats would cost the study most of its time).
 
     ref=None: the run does not wait for the reference; it keeps its solution (Run.solution)
     and :func:`with_errors` adds the errors once the reference is there."""
@@ -397,7 +416,7 @@ def measure(setup: Setup, ref: Reference, method, rtol, atol=None, jac_mode="ana
             walls.append(time.perf_counter() - t0)
             if out is None:
                 out = (res, st)
-            if time.perf_counter() - start + walls[-1] > budget:
+            if time.perf_counter() - start + walls[-1] > budget or walls[-1] > long_run:
                 break
         res, st = out
         if ref is None:
@@ -410,14 +429,14 @@ def measure(setup: Setup, ref: Reference, method, rtol, atol=None, jac_mode="ana
             warnings.simplefilter("ignore", RuntimeWarning)
             return work()
 
-    status, val = run_isolated(quiet_work, budget + GRACE)
+    status, val = run_isolated(quiet_work, budget + grace(budget))
     run = Run(method, rtol, atol, jac_label, "ok")
     if status == "ok":
         walls, st, errs = val
         return replace(run, wall=float(np.median(walls)), walls=tuple(walls), nfev=st["nfev"],
                        njev=st["njev"], nlu=st["nlu"], nsteps=st["nsteps"], **errs)
     if isinstance(val, BudgetExceeded):
-        return replace(run, status="budget", message=f"exceeded the {budget:g} s budget")
+        return replace(run, status="budget", message=f"exceeded the {budget:.3g} s budget")
     msg = str(val).strip().splitlines()[0] if str(val).strip() else type(val).__name__
     if not type(val).__name__ == "SimulationError":
         msg = f"{type(val).__name__}: {msg}"

@@ -130,6 +130,12 @@ class CPrinter(C99CodePrinter):
     def _print_Heaviside(self, expr):
         return f"(({self._print(expr.args[0])}) >= 0 ? 1.0 : 0.0)"
 
+    def _print_LimExp(self, expr):  # only inside a Newton loop (templates/c/newton.c.j2)
+        return f"bgc_lexp({self._print(expr.args[0])})"
+
+    def _print_SlopeExp(self, expr):
+        return f"bgc_sexp({self._print(expr.args[0])})"
+
     def _print_Relational(self, expr):
         op = {"<": "<", "<=": "<=", ">": ">", ">=": ">="}.get(expr.rel_op)
         if op is None:

@@ -206,10 +206,11 @@ class PartContext:
     def inputs_as_params(cls, low: Lowered) -> PartContext:
         """The FMU's context: every input is a value in the parameter vector, after the
         derived parameters (set through fmi2SetReal), so that no part reads an input's default
-        or a table. (The FMU export refuses numeric solves and tables before printing.)"""
+        or a table. (The FMU export refuses linear solves and tables before printing; its
+        Newton loops are the C backend's, called without a workspace: cold-started.)"""
         ctx = cls(low)
         ctx.param_syms = ctx.param_syms + ctx.input_syms
-        ctx.input_syms, ctx.input_default, ctx.table_of, ctx.newton = [], {}, {}, ()
+        ctx.input_syms, ctx.input_default, ctx.table_of = [], {}, {}
         return ctx
 
     def table_fail(self, k: int) -> int:

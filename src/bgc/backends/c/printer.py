@@ -38,6 +38,7 @@ from bgc.backends.skeleton import WRAPPER_MARK, binding_source, check_wrapper  #
 from bgc.base import __version__
 from bgc.core.eqtypes import LinSolve, LinSolveEntry, NewtonSolve
 from bgc.lower.ir import Lowered
+from bgc.lower.newton import guarded
 from bgc.lower.sparse_lu import make_plan, plan_c, prefer_sparse
 
 
@@ -57,6 +58,26 @@ def has_solves(eq) -> bool:
     kinds = (LinSolve, LinSolveEntry, NewtonSolve)
     return bool(getattr(eq, "newton", ())) or any(
         isinstance(a.expr, kinds) for a in eq.assignments + eq.jac_assignments)
+
+
+def has_linear_solves(eq) -> bool:
+    """Does the model solve linear systems numerically (derivative causality's LinSolve)?"""
+    return any(isinstance(a.expr, LinSolve) for a in eq.assignments + eq.jac_assignments)
+
+
+def table_data(ctx) -> list[dict]:
+    """The table inputs as tables.c.j2 prints them (the FMU's model_tables.c too)."""
+    return _tables(ctx)
+
+
+def newton_protos(ctx) -> list[str]:
+    """The Newton loops' prototypes (the FMU's parts declare them too)."""
+    return _newton_protos(ctx)
+
+
+def newton_loops(ctx, printer) -> list[dict]:
+    """The Newton loops as newton.c.j2 prints them (the FMU's model_newton.c too)."""
+    return _newton_loops(ctx, printer)
 
 
 def unsupported(eq) -> None:
@@ -149,13 +170,15 @@ def _newton_loops(ctx, printer) -> list[dict]:
     protos = _newton_protos(ctx)
     loops = []
     for k, nl in enumerate(ctx.newton):
+        gd = guarded(nl)  # exponentials guarded and listed (bgc.lower.newton)
         loops.append({
             "proto": protos[k], "n": len(nl.tear), "where": nl.where,
             "args": [c_name(str(a)) for a in nl.args],
             "tear": [c_name(str(t)) for t in nl.tear],
-            "body": [(c_name(str(sym)), printer.doprint(e)) for sym, e in nl.body],
-            "residual": [printer.doprint(e) for e in nl.residual],
-            "jac": [printer.doprint(e) for e in nl.jac]})
+            "body": [(c_name(str(sym)), printer.doprint(e)) for sym, e in gd["body"]],
+            "residual": [printer.doprint(e) for e in gd["residual"]],
+            "jac": [printer.doprint(e) for e in gd["jac"]],
+            "exponents": [printer.doprint(e) for e in gd["exponents"]]})
     return loops
 
 

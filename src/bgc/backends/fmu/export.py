@@ -30,7 +30,14 @@ import sympy as sp
 from bgc.backends.c import build as cbuild
 from bgc.backends.c.events import c_events, event_parts
 from bgc.backends.c.parts import UNIT_PARTS, PartContext, cut_parts
-from bgc.backends.c.printer import CPrinter, c_name, has_solves, template_env
+from bgc.backends.c.printer import (
+    CPrinter,
+    c_name,
+    newton_loops,
+    newton_protos,
+    table_data,
+    template_env,
+)
 from bgc.backends.fmu.spec import FmuSpec, build_spec, flat_names  # noqa: F401 (as export.*)
 from bgc.backends.fmu.xmltext import clean_tree
 from bgc.base import __version__
@@ -154,16 +161,8 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
     configuration header."""
     low = compiled.lowered
     eq = compiled.equations
-    if has_solves(eq):  # the FMU's model functions keep no per-instance workspace yet
-        raise ModelError(None, f"model {eq.name!r}: the FMU export does not support numeric "
-                               "linear solves or nonlinear algebraic loops (Newton) yet: make "
-                               "the loop a state (a small C or I in it), or run it with bgc "
-                               "simulate --backend c (docs/fmu.md)")
-    tabs = [iv.name for iv in eq.inputs if getattr(iv, "table", None) is not None]
-    if tabs:  # an input following its default would follow the placeholder 0, not the data
-        raise ModelError(None, f"model {eq.name!r}: the FMU export does not support table "
-                               f"inputs yet (input {tabs[0]!r}): give the data to the importer "
-                               "as an input signal (docs/fmu.md)")
+    # numeric solves (Newton loops, derivative causality's linear solves): the C backend's
+    # code in the parts, failures returned as codes (fmi2Error); Newton cold-started
     printer = CPrinter()
     ctx = PartContext.inputs_as_params(low)  # the inputs are values in the parameter vector
     fns = {name: cut_parts(name, fn, printer, ctx) for name, fn in
@@ -181,11 +180,22 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
     index = {s: k for k, s in enumerate(ctx.param_syms)}
     defaults = [d for iv in eq.inputs for d in iv.default]
     used = set()
-    for d in defaults:
-        used |= sp.sympify(d).free_symbols
+    for iv in eq.inputs:
+        if getattr(iv, "table", None) is None:
+            for d in iv.default:
+                used |= sp.sympify(d).free_symbols
     default_params = [(c_name(str(s)), index[s]) for s in ctx.param_syms[:n_par + nd]
                       if s in used]
-    default_codes = [printer.doprint(d) for d in defaults]
+    # a table input's default is its table at t (the C backend's model_tables.c, its data
+    # compiled into the unit)
+    default_codes, k_tab = [], 0
+    for iv in eq.inputs:
+        if getattr(iv, "table", None) is not None:
+            default_codes += [f"bgcf_table_{k_tab}(t)"] * len(iv.default)
+            k_tab += 1
+        else:
+            default_codes += [printer.doprint(d) for d in iv.default]
+    assert len(default_codes) == len(defaults)
     dused = set()
     for ln in low.derived:
         dused |= ln.expr.free_symbols
@@ -193,7 +203,7 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
                       if s in dused]
     derived_lines = [(c_name(str(ln.target)), printer.doprint(ln.expr), n_par + j)
                      for j, ln in enumerate(low.derived)]
-    has_t = int(fns["rhs"].uses_t or fns["jac"].uses_t or T in used)
+    has_t = int(fns["rhs"].uses_t or fns["jac"].uses_t or T in used or bool(ctx.tables))
     all_parts = [p for f in fns.values() for p in f.parts] + event_parts(events)
     units = [all_parts[i:i + UNIT_PARTS] for i in range(0, len(all_parts), UNIT_PARTS)]
     env = template_env()
@@ -204,7 +214,13 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
     files = {}
     for k, unit in enumerate(units):
         files[f"model_part{k}.c"] = env.get_template("c/part.c.j2").render(
-            parts=unit, unit=k, **common)
+            parts=unit, unit=k, newton=newton_protos(ctx), ntables=0, **common)
+    if ctx.tables:  # the table inputs' data and interpolation, as the C backend's
+        files["model_tables.c"] = env.get_template("c/tables.c.j2").render(
+            tables=table_data(ctx), **common)
+    if ctx.newton:  # the C backend's Newton loops; cold-started (no per-instance workspace)
+        files["model_newton.c"] = env.get_template("c/newton.c.j2").render(
+            loops=newton_loops(ctx, printer), **common)
     method, rtol, atol, max_step, breaks = 1, 1e-6, 1e-9, 0.0, []
     if scene is not None:
         method = _METHODS.get(scene.method, 1)
@@ -220,7 +236,8 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
         param_start=[_g(v) for v in spec.param_start], param_tunable=list(spec.param_tunable),
         input_start=[_g(v) for v in spec.input_start], breaks=[_g(b) for b in breaks],
         guid=spec.guid, model_identifier=spec.model_identifier, method=method,
-        rtol=_g(rtol), atol=_g(atol), max_step=_g(max_step), events=events, **common)
+        rtol=_g(rtol), atol=_g(atol), max_step=_g(max_step), events=events,
+        ntables=len(ctx.tables), **common)
     cfg = ["/* bgc FMU configuration (generated) */", "#ifndef BGC_FMU_CONFIG_H",
            "#define BGC_FMU_CONFIG_H"]
     if kind == "cs":

@@ -30,6 +30,7 @@ from bgc.base.paths import templates_dir
 from bgc.core.eqtypes import Equations, T
 from bgc.core.signals import input_periods
 from bgc.lower import ir as lower
+from bgc.lower.newton import guarded
 
 _IDENT_OK = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_")
 _TEMPLATES = "numpy"  # this backend's folder in templates/
@@ -196,6 +197,12 @@ class BgcPrinter(NumPyPrinter):
         # the first argument is the time of the call (the failure message says when)
         return f"_newton_{k}(t, {', '.join(self._print(a) for a in expr.args[1:])})"
 
+    def _print_LimExp(self, expr):
+        return f"_bgc_lexp({self._print(expr.args[0])})"
+
+    def _print_SlopeExp(self, expr):
+        return f"_bgc_sexp({self._print(expr.args[0])})"
+
     def _print_LinSolveEntry(self, expr):
         return f"{self._print(expr.args[0])}[{int(expr.args[1])}]"
 
@@ -252,12 +259,14 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
     events = events_part(eq, printer, printed)  # None without events: the module is unchanged
     newton = []
     for nl in eq.newton:  # nonlinear algebraic loops: a Newton solver each
+        gd = guarded(nl)  # exponentials guarded and listed (bgc.lower.newton)
         newton.append({
             "name": nl.name, "n": len(nl.tear), "args": [str(a) for a in nl.args],
             "tear": [str(t) for t in nl.tear], "message": nl.where,
-            "body": [Line(str(sym), printer.doprint(e)) for sym, e in nl.body],
-            "residual": [printer.doprint(e) for e in nl.residual],
-            "jac": [printer.doprint(e) for e in nl.jac]})
+            "body": [Line(str(sym), printer.doprint(e)) for sym, e in gd["body"]],
+            "residual": [printer.doprint(e) for e in gd["residual"]],
+            "jac": [printer.doprint(e) for e in gd["jac"]],
+            "exponents": [printer.doprint(e) for e in gd["exponents"]]})
     if newton:
         printer.uses_linsolve = True
     derived = [Line(str(a.symbol), printer.doprint(a.expr), a.why) for a in eq.derived]
