@@ -1076,6 +1076,7 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
     where inputs jump; each segment between them is a fresh solver, and inside (a, c) the
     model sees t only in [a, c) (one-sided inputs). jac: implicit methods get the analytic
     Jacobian, or with jac=False finite differences over JAC_SPARSITY. max_step: the solver's.
+    max_steps: the most accepted steps over the whole span; SimulationError beyond.
     stiff_check (explicit methods): raise StiffnessError when stability would hold the steps
     down so far that the rest of the span needs more than max_steps of them, judged from the
     Jacobian at the start and, while integrating, from steps held at the stability limit.
@@ -1140,6 +1141,10 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
                 max_step=max_step, **_jacobian_options(method, jac, at, shape, p, u, stats))
             _guard_solves(solver, method, stats, shape)
             while solver.status == "running":
+                if stats["nsteps"] >= max_steps:  # as the C step loop: a located stop
+                    raise _error(SimulationError, f"{method} stopped at t = {solver.t:.17g}: "
+                                 f"max_steps = {max_steps} steps (raise the scene's solver "
+                                 "max_steps or --max-steps)", solver.t, _counts(stats, solver))
                 message = solver.step()
                 if solver.status == "failed":
                     raise _error(SimulationError, f"{method} failed at t = {solver.t:.6g}: "
