@@ -48,7 +48,7 @@ LAYERS = ("base", "format", "core", "lower", "backends", "run", "studies", "api"
 
 BgcError = ModelError
 _API = ("compile", "check", "equations", "linearize", "CompiledModel", "CheckResult",
-        "StateEquations", "Linearization")
+        "StateEquations", "Linearization", "Builder", "Component")
 __all__ = ["BgcError", "Coord", "ModelError", "__version__", *_API]
 
 
