@@ -25,7 +25,7 @@ def here(offset: int = 1) -> int:
 
 def msd_builder() -> bgc.Builder:
     """models/msd.yaml, written as calls."""
-    b = bgc.Builder("msd", description="mass-spring-damper under a force step")
+    b = bgc.Builder("msd", description="mass-spring-damper under a force step", units="strict")
     b.parameter("m", 2.0, unit="kg", min=0, description="moving mass")
     b.parameter("k", 200.0, unit="N/m", min=0, description="spring stiffness")
     b.parameter("c", 4.0, unit="N*s/m", min=0, description="viscous damping coefficient")
@@ -48,7 +48,7 @@ def msd_builder() -> bgc.Builder:
 def dc_motor_builder() -> bgc.Builder:
     """models/dc_motor.yaml, written as calls: a gyrator between two junctions."""
     b = bgc.Builder("dc_motor", description="DC motor with inertia, viscous friction and a "
-                                            "constant load torque")
+                                            "constant load torque", units="strict")
     for name, value, unit, lo, text in (
             ("V0", 12.0, "V", None, "supply voltage"),
             ("R_a", 2.0, "ohm", 0, "armature resistance"),
