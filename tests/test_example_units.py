@@ -52,3 +52,18 @@ def test_a_missing_unit_is_noticed():
 
     bare = parse_text(text.replace('{expr: "f(mass)", unit: m/s}', '"f(mass)"'), "msd.yaml")
     assert missing_units(bare) == ["output velocity"]
+
+
+def test_the_units_report_shows_bonds_states_and_outputs():
+    """`bgc check --units`: each bond's domain with its effort and flow, then each state's and
+    output's dimension (dc_motor: flux linkage V*s = N*m/A, angular momentum N*m*s)."""
+    text = build_graph(parse_file(ROOT / "models" / "dc_motor.yaml")).units.text()
+    lines = [ln.split() for ln in text.splitlines()]
+    assert ["b4", "armature", "->", "motor:", "electrical;", "effort", "V,", "flow", "A"] in lines
+    assert ["b6", "shaft", "->", "rotor:", "mechanical", "rotation;", "effort", "N*m,", "flow",
+            "1/s"] in lines
+    states = text.split("states (their dimensions):\n")[1].split("outputs")[0].split()
+    assert states == ["winding_L.p", "N*m/A", "rotor.p", "N*m*s"]
+    outputs = dict(ln for ln in lines[lines.index(["outputs", "(their", "dimensions):"]) + 1:])
+    assert outputs == {"current": "A", "speed": "1/s", "back_emf": "V", "torque": "N*m",
+                       "power_in": "W"}

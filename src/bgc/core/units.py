@@ -69,7 +69,7 @@ class UnitReport:
     bonds: tuple[BondUnits, ...]
     #: output name -> its expression's dimension (None where the model leaves it open)
     outputs: dict = field(default_factory=dict, compare=False)
-    #: state owner (a storage element's id, or an auxiliary state's) -> the state's dimension
+    #: state (``mass.p``, ``spring.q``, an auxiliary state's id) -> the state's dimension
     states: dict = field(default_factory=dict, compare=False)
 
     def output_unit(self, name: str, declared: str = "") -> str:
@@ -83,6 +83,12 @@ class UnitReport:
         lines = ["units (each bond: its domain, the dimensions of its effort and flow; ? where "
                  "the model leaves them open):"]
         lines += [f"  {b.line()}" for b in self.bonds]
+        for title, dims in (("states", self.states), ("outputs", self.outputs)):
+            if dims:
+                lines.append(f"{title} (their dimensions):")
+                width = max(len(k) for k in dims)
+                lines += [f"  {k.ljust(width)}  {show(d) if d is not None else '?'}"
+                          for k, d in dims.items()]
         return "\n".join(lines) + "\n"
 
 
@@ -112,13 +118,15 @@ def check_units(bg) -> UnitReport:
 
 
 def _state_forms(chk: Checker) -> dict:
-    """Each state's dimension as a form: an I's momentum is its effort times s, a C's
+    """Each state's dimension as a form, by its name without an index (STATE_NAMES' ``mass.p``
+    for ``mass.p`` and ``mass.p[1]``): an I's momentum is its effort times s, a C's
     displacement its flow times s, an auxiliary state's its own."""
     out = {}
     for el in chk.bg.elements:
         if el.type in ("I", "C"):
             b = chk.bg.bonds_of(el.id)[0]
-            out[el.id] = (chk.e(b.id) if el.type == "I" else chk.f(b.id)) + SECOND
+            name = f"{el.id}.{'p' if el.type == 'I' else 'q'}"
+            out[name] = (chk.e(b.id) if el.type == "I" else chk.f(b.id)) + SECOND
     for st in chk.bg.states:
         out[st.id] = chk.states[st.id]
     return out

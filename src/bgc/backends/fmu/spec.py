@@ -227,7 +227,7 @@ def _state_units(compiled):
     declared = {st.name: st.unit for st in compiled.model.body.states}
     xunits, dunits = [], []
     for sv in compiled.equations.states:
-        d = report.states.get(sv.owner) if report is not None else None
+        d = report.states.get(sv.name.split("[")[0]) if report is not None else None
         unit = declared.get(sv.owner, "") or (show(d) if d is not None else "")
         xunits.append(unit)
         if not unit:
