@@ -233,6 +233,27 @@ def test_a_value_that_is_not_data_is_refused_at_its_call():
     b.parameter("m", object())
     err = located(b)
     assert err.coord.line == line and "cannot be part of a model" in err.message
+    with pytest.raises(bgc.BgcError) as info:  # nor can it be written out
+        b.to_yaml()
+    assert info.value.coord.line == line
+
+
+def test_numpy_values_are_numbers():
+    import numpy as np
+
+    b = bgc.Builder("arrays")
+    b.parameter("K", np.array([[2.0, 1.0], [1.0, 3.0]]), unit="N/m")
+    b.parameter("m", np.float64(2.5), unit="kg")
+    b.parameter("n", np.int64(3), unit="1")
+    b.element("mass", "I", inertia="m")
+    b.element("spring", "C", stiffness="K")
+    b.element("v", "1")
+    b.bond("v", "mass", n=2)
+    b.bond("v", "spring", n=2)
+    params = {p.name: p.value for p in b.build().body.params}
+    assert params == {"K": ((2.0, 1.0), (1.0, 3.0)), "m": 2.5, "n": 3.0}
+    again = parse_text(b.to_yaml(), "<twin>")
+    assert no_places(again) == no_places(b.build())
 
 
 COMPONENT_YAML = """\

@@ -18,6 +18,7 @@ evaluated: values are numbers, text or (nested) lists of those, as in a YAML fil
 from __future__ import annotations
 
 import hashlib
+import os
 import sys
 from pathlib import Path
 
@@ -27,7 +28,7 @@ from bgc.base.errors import Coord, ModelError
 from bgc.format.parse import Model, parse_root
 from bgc.format.reader import Reader
 
-_PKG = str(Path(__file__).resolve().parent)
+_PKG = str(Path(__file__).resolve().parent) + os.sep
 _STR, _INT, _FLOAT, _BOOL, _NULL = (f"tag:yaml.org,2002:{t}" for t in
                                     ("str", "int", "float", "bool", "null"))
 _MAP, _SEQ = "tag:yaml.org,2002:map", "tag:yaml.org,2002:seq"
@@ -213,7 +214,8 @@ class Builder(_Body):
 
     def to_yaml(self) -> str:
         """The model as YAML text that the reader accepts (the same model as :meth:`build`,
-        but for the places)."""
+        but for the places). A value that is not data is a located error, as in build()."""
+        self._root()
         data = dict(self._head_values)
         order = ("parameters", "inputs", "imports")
         body = self._data()
@@ -231,6 +233,13 @@ class Builder(_Body):
     def build(self) -> Model:
         """The validated, frozen model: the reader's checks and messages, at the places of
         the calls that made each part. Raises a located :class:`bgc.BgcError`."""
+        root = self._root()
+        digest = hashlib.sha256(self.to_yaml().encode()).hexdigest()[:16]
+        return parse_root(Reader(self._coord.file, ""), root, digest)
+
+    def _root(self) -> yaml.MappingNode:
+        """The model as the YAML node tree the reader would compose, each node placed at the
+        call that made it."""
         c = self._coord
         head = [(_node(k, c), _node(v, c)) for k, v in self._head_values.items()]
         if self._components:
@@ -242,9 +251,7 @@ class Builder(_Body):
         for section, empty in (("elements", {}), ("bonds", [])):
             if section not in self._sections:
                 head.append((_node(section, c), _node(empty, c)))
-        root = self._nodes(head)
-        digest = hashlib.sha256(self.to_yaml().encode()).hexdigest()[:16]
-        return parse_root(Reader(c.file, ""), root, digest)
+        return self._nodes(head)
 
 
 def _marks(coord: Coord):
@@ -266,8 +273,8 @@ def _node(value, coord: Coord):
         return yaml.ScalarNode(_NULL, "null", start, end)
     if isinstance(value, int):
         return yaml.ScalarNode(_INT, str(value), start, end)
-    if isinstance(value, float):
-        return yaml.ScalarNode(_FLOAT, repr(value), start, end)
+    if isinstance(value, float):  # (numpy's float64 too: its own repr is not YAML's)
+        return yaml.ScalarNode(_FLOAT, repr(float(value)), start, end)
     if isinstance(value, str):
         return yaml.ScalarNode(_STR, value, start, end)
     if hasattr(value, "tolist"):  # a numpy array or scalar: its numbers
@@ -284,6 +291,10 @@ def _plain(value):
         return [_plain(v) for v in value]
     if hasattr(value, "tolist") and not isinstance(value, (str, bytes)):
         return _plain(value.tolist())
+    if isinstance(value, float):
+        return float(value)
+    if isinstance(value, int) and not isinstance(value, bool):
+        return int(value)
     return value
 
 
