@@ -343,3 +343,26 @@ def test_components_imported_from_a_file(tmp_path):
     b.imports(str(tmp_path / "missing.yaml"))
     err = located(b)
     assert (err.coord.file, err.coord.line) == (HERE, line)
+
+
+def test_events_and_modes_built_in_python_are_the_bouncing_balls_twin():
+    b = bgc.Builder("bouncing_ball", description="a ball bouncing on a rigid floor (an impact "
+                                                 "event with restitution)", units="strict")
+    b.parameter("m", 0.1, unit="kg", min=0, description="mass of the ball")
+    b.parameter("g", 9.81, unit="m/s^2", description="gravitational acceleration")
+    b.parameter("h0", 1.0, unit="m", description="initial height")
+    b.parameter("e_r", 0.8, unit="1", min=0, max=1, description="coefficient of restitution")
+    b.element("gravity", "Se", effort="-m*g")
+    b.element("ball", "I", inertia="m")
+    b.element("v", "1")
+    b.bond("gravity", "v")
+    b.bond("v", "ball")
+    b.state("h", "f(ball)", initial="h0", unit="m")
+    b.event("impact", when="h", direction="falling", do={"p(ball)": "-e_r*p(ball)"})
+    b.output("height", "h", unit="m")
+    b.output("velocity", "f(ball)", unit="m/s")
+    built = b.build()
+    assert no_places(built) == no_places(parse_file(ROOT / "models" / "bouncing_ball.yaml"))
+    assert no_places(parse_text(b.to_yaml(), "<twin>")) == no_places(built)
+    b.mode("latched", 0)
+    assert parse_text(b.to_yaml(), "<twin>").modes == ("latched",) == b.build().modes

@@ -192,6 +192,18 @@ class Builder(_Body):
         self._add("outputs", name, {"expr": expr, "unit": unit} if unit is not None else expr)
         return self
 
+    def mode(self, name, initial, *, description=None):
+        """A discrete mode variable (``modes:``): its initial value, changed only by events."""
+        opts = _options(description=description)
+        self._add("modes", name, {"initial": initial, **opts} if opts else initial)
+        return self
+
+    def event(self, name, **keys):
+        """An event (``events:``), its keys as in YAML: ``when=``, ``direction=``,
+        ``do={"p(ball)": "-e_r*p(ball)"}``, ... (docs/model-format.md, Events)."""
+        self._add("events", name, dict(keys))
+        return self
+
     def imports(self, file=None, **keys):
         """The components of another model file (``file=`` a path relative to the calling
         file's folder, as an import is relative to its model file), or any other import the
@@ -217,7 +229,7 @@ class Builder(_Body):
         but for the places). A value that is not data is a located error, as in build()."""
         self._root()
         data = dict(self._head_values)
-        order = ("parameters", "inputs", "imports")
+        order = ("parameters", "inputs", "imports", "modes")
         body = self._data()
         for key in order:
             if key in body:
