@@ -114,7 +114,7 @@ def test_units_and_their_base_units_come_from_the_checked_dimensions(fmus):
 def test_a_prefixed_unit_has_its_factor(tmp_path):
     """A unit with a prefix (mm) or outside SI (rpm) keeps its name, and its BaseUnit says
     how much one of it is in SI (0.001 m; pi/30 1/s); an output without a unit gets the
-    inferred one (a flow on a rotation bond: 1/s, as rad/s)."""
+    inferred one (a flow on a rotation bond: 1/s, as rad/s); a state its declared unit."""
     from fmpy.validation import validate_fmu
 
     from bgc.run.fmu import export_fmu
@@ -132,6 +132,7 @@ def test_a_prefixed_unit_has_its_factor(tmp_path):
           axle: {type: R, resistance: "J * 1.0"}
           w: {type: "1"}
         bonds: [[w, rotor], [w, axle]]
+        states: {turn: {initial: 0, derivative: "f(rotor)", unit: rad}}
         outputs: {speed: "f(rotor)", gap: {expr: "d", unit: mm}}
         """))
     out = export_fmu(model, tmp_path / "prefixed.fmu")
@@ -143,6 +144,7 @@ def test_a_prefixed_unit_has_its_factor(tmp_path):
     unit_of = {v.name: v.unit for v in md.modelVariables}
     assert unit_of["speed"] == "1/s" and unit_of["gap"] == "mm"
     assert unit_of["rotor.p"] == "N*m*s" and unit_of["der(rotor.p)"] == "N*m"
+    assert unit_of["turn"] == "rad" and unit_of["der(turn)"] == "1/s"  # as declared
 
 
 def test_export_is_deterministic_and_the_guid_follows_the_model(tmp_path, fmus):

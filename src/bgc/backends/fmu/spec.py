@@ -224,11 +224,11 @@ def _state_units(compiled):
     """Each state's unit and its derivative's (the state's per second), from the checked
     dimensions: a declared unit of an auxiliary state as written; "" where unknown."""
     report = getattr(compiled.graph, "units", None)
-    declared = {st.name: st.unit for st in compiled.model.body.states}
+    declared = {st.id: st.unit for st in compiled.graph.states}  # components' states too
     xunits, dunits = [], []
     for sv in compiled.equations.states:
         d = report.states.get(sv.name.split("[")[0]) if report is not None else None
-        unit = declared.get(sv.owner, "") or (show(d) if d is not None else "")
+        unit = declared.get(sv.name.split("[")[0], "") or (show(d) if d is not None else "")
         xunits.append(unit)
         if not unit:
             dunits.append("")
