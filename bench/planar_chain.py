@@ -19,7 +19,14 @@ from __future__ import annotations
 ROD = """\
 components:
   rod:
-    parameters: {m: 1.0, l: 1.0, g: 9.81, th0: 0.0, w0: 0.0, vx0: 0.0, vy0: 0.0}
+    parameters:
+      m: {value: 1.0, unit: kg}
+      l: {value: 1.0, unit: m}
+      g: {value: 9.81, unit: m/s^2}
+      th0: {value: 0.0, unit: rad}
+      w0: {value: 0.0, unit: rad/s}
+      vx0: {value: 0.0, unit: m/s}
+      vy0: {value: 0.0, unit: m/s}
     ports: {A: A, B: B, w: w}
     states:
       th: {initial: "th0", derivative: "f(w)", unit: rad}
@@ -52,7 +59,7 @@ components:
 COUPLING = """\
   joint:
     # compliant revolute joint: C || R on the relative velocity of the two coincident points
-    parameters: {k: 1.0e+6, r: 10.0}
+    parameters: {k: {value: 1.0e+6, unit: N/m}, r: {value: 10.0, unit: N*s/m}}
     ports: {a: J, b: J}
     elements:
       J: {type: "0"}
@@ -81,7 +88,9 @@ def chain_yaml(n: int, compliant: bool = False, k: float = 1.0e6, r: float = 10.
            "bench/planar_chain.py; see its docstring).",
            "bgc: 1", f"name: {name}",
            f"description: planar chain of {n} rods with {kind} revolute joints, gravity, joint "
-           "friction and a torque at the pivot", "", "parameters:", "  g: {value: 9.81, unit: m/s^2}"]
+           "friction and a torque at the pivot",
+           "units: strict                # every parameter carries a unit; the model checks clean",
+           "", "parameters:", "  g: {value: 9.81, unit: m/s^2}"]
     for i in range(n):
         out += [f"  m{i + 1}: {{value: {MASS[i % len(MASS)]}, unit: kg}}",
                 f"  l{i + 1}: {{value: {LENGTH[i % len(LENGTH)]}, unit: m}}",
@@ -132,8 +141,10 @@ def chain_yaml(n: int, compliant: bool = False, k: float = 1.0e6, r: float = 10.
         out += [f"  - [rod{i - 1}.w, z{i}]", f"  - [z{i}, rod{i}.w]", f"  - [z{i}, fr{i}]"]
     out += ["", "outputs:"]
     for i in range(1, n + 1):
-        out += [f'  th{i}: "rod{i}.th"', f'  w{i}: "f(rod{i}.w)"', f'  v{i}: "f(rod{i}.It)"']
-    out += ['  p1: "p(rod1.It)"', '  F1: "e(rod1.It)"']
+        out += [f'  th{i}: {{expr: "rod{i}.th", unit: rad}}',
+                f'  w{i}: {{expr: "f(rod{i}.w)", unit: rad/s}}',
+                f'  v{i}: {{expr: "f(rod{i}.It)", unit: m/s}}']
+    out += ['  p1: {expr: "p(rod1.It)", unit: N*s}', '  F1: {expr: "e(rod1.It)", unit: N}']
     return "\n".join(out) + "\n"
 
 

@@ -128,7 +128,7 @@ def test_zeno_is_a_located_error(ball):
     with pytest.raises(ball.SimulationError) as exc:
         ball.simulate((0.0, 3.0), dt=1e-3, rtol=1e-10, atol=1e-12, p={"e_r": 0.5})
     msg = str(exc.value)
-    assert msg.startswith("bouncing_ball.yaml:33:3: event 'impact' at t = 1.3545")
+    assert msg.startswith("bouncing_ball.yaml:34:3: event 'impact' at t = 1.3545")
     assert "Zeno" in msg and "\n" not in msg
 
 

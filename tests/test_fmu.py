@@ -92,6 +92,61 @@ def test_model_description_against_the_module(fmus):
             assert byname[name].unit == unit and unit in units
 
 
+def test_units_and_their_base_units_come_from_the_checked_dimensions(fmus):
+    """msd: every Real has its unit, the states' and derivatives' from the checked dimensions
+    (the momentum p in N*s = kg*m/s, its rate a force; the displacement q in m, its rate m/s),
+    and every unit its SI exponents (FMI 2.0, 2.2.2). Written out by hand here."""
+    md = fmpy.read_model_description(str(fmus["msd"]))
+    unit_of = {v.name: v.unit for v in md.modelVariables}
+    assert unit_of == {
+        "mass.p": "kg*m/s", "spring.q": "m", "der(mass.p)": "N", "der(spring.q)": "m/s",
+        "m": "kg", "k": "N/m", "c": "N*s/m", "F0": "N", "F": "N",
+        "position": "m", "velocity": "m/s", "spring_force": "N"}
+    base = {u.name: u.baseUnit for u in md.unitDefinitions}
+    exps = {name: {k: getattr(b, k) for k in ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
+                   if getattr(b, k)} for name, b in base.items()}
+    assert exps == {"kg*m/s": {"kg": 1, "m": 1, "s": -1}, "m": {"m": 1}, "N": {"kg": 1, "m": 1,
+                    "s": -2}, "m/s": {"m": 1, "s": -1}, "kg": {"kg": 1}, "N/m": {"kg": 1,
+                    "s": -2}, "N*s/m": {"kg": 1, "s": -1}}
+    assert all(float(b.factor) == 1.0 and float(b.offset) == 0.0 for b in base.values())
+
+
+def test_a_prefixed_unit_has_its_factor(tmp_path):
+    """A unit with a prefix (mm) or outside SI (rpm) keeps its name, and its BaseUnit says
+    how much one of it is in SI (0.001 m; pi/30 1/s); an output without a unit gets the
+    inferred one (a flow on a rotation bond: 1/s, as rad/s); a state its declared unit."""
+    from fmpy.validation import validate_fmu
+
+    from bgc.run.fmu import export_fmu
+
+    model = tmp_path / "prefixed.yaml"
+    model.write_text(textwrap.dedent("""\
+        bgc: 1
+        name: prefixed
+        parameters:
+          J: {value: 0.01, unit: kg*m^2}
+          w0: {value: 3.0, unit: rpm}
+          d: {value: 2.0, unit: mm}
+        elements:
+          rotor: {type: I, inertia: J, initial: "J * w0"}
+          axle: {type: R, resistance: "J * 1.0"}
+          w: {type: "1"}
+        bonds: [[w, rotor], [w, axle]]
+        states: {turn: {initial: 0, derivative: "f(rotor)", unit: rad}}
+        outputs: {speed: "f(rotor)", gap: {expr: "d", unit: mm}}
+        """))
+    out = export_fmu(model, tmp_path / "prefixed.fmu")
+    assert validate_fmu(str(out)) == []
+    md = fmpy.read_model_description(str(out))
+    base = {u.name: u.baseUnit for u in md.unitDefinitions}
+    assert (base["mm"].m, float(base["mm"].factor)) == (1, 0.001)
+    assert base["rpm"].s == -1 and abs(float(base["rpm"].factor) - np.pi / 30) < 1e-15
+    unit_of = {v.name: v.unit for v in md.modelVariables}
+    assert unit_of["speed"] == "1/s" and unit_of["gap"] == "mm"
+    assert unit_of["rotor.p"] == "N*m*s" and unit_of["der(rotor.p)"] == "N*m"
+    assert unit_of["turn"] == "rad" and unit_of["der(turn)"] == "1/s"  # as declared
+
+
 def test_export_is_deterministic_and_the_guid_follows_the_model(tmp_path, fmus):
     a = _export("msd.yaml", tmp_path / "a.fmu")
     assert _xml(a) == _xml(fmus["msd"])

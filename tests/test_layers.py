@@ -15,7 +15,7 @@ import pytest
 import bgc
 
 SRC = Path(__file__).resolve().parent.parent / "src"
-TOP_API = {"bgc.api", "bgc.linear", "bgc.fused"}  # the "api" layer's top-level modules
+TOP_API = {"bgc.api", "bgc.linear", "bgc.fused", "bgc.builder"}  # the api layer: top-level
 
 
 def modules() -> dict[str, Path]:

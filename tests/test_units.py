@@ -178,7 +178,9 @@ def test_a_gyrator_modulus_in_the_wrong_unit():
     text = (ROOT / "models" / "dc_motor.yaml").read_text(encoding="utf-8")
     assert text.count("unit: N*m/A,") == 1
     err = error_of(text.replace("unit: N*m/A,", "unit: N*m,"))
-    assert err.coord.line == 36
+    motor = text.splitlines().index('  motor:     {type: GY, ratio: "K"}                # '
+                                    'torque = K i, back-EMF = K w') + 1
+    assert err.coord.line == motor  # the GY's ratio
     assert err.message == "GY 'motor': ratio 'K' is N*m, but its bonds need N*m/A"
 
 

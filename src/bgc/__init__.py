@@ -34,7 +34,8 @@ against :data:`LAYERS`, the one place the order is written:
 ``studies``
     what runs many simulations: work-precision studies, parameter sweeps.
 ``api``
-    the public Python face: ``bgc.api``, ``bgc.linear``, ``bgc.fused``.
+    the public Python face: ``bgc.api``, ``bgc.linear``, ``bgc.fused``, ``bgc.builder``
+    (models from Python calls).
 ``cli``
     the ``bgc`` command.
 """
@@ -42,13 +43,13 @@ from bgc.base import __version__  # noqa: F401
 from bgc.base.errors import Coord, ModelError  # (light: no third-party imports)
 
 #: The layers, bottom first: a module may import from its own layer (without a cycle) and from
-#: the layers before it. Top-level modules (bgc.api, bgc.linear, bgc.fused) form the "api"
+#: the layers before it. Top-level modules (bgc.api, linear, fused, builder) form the "api"
 #: layer; this package's own __init__ and __main__ stand above all.
 LAYERS = ("base", "format", "core", "lower", "backends", "run", "studies", "api", "cli")
 
 BgcError = ModelError
 _API = ("compile", "check", "equations", "linearize", "CompiledModel", "CheckResult",
-        "StateEquations", "Linearization")
+        "StateEquations", "Linearization", "Builder", "Component")
 __all__ = ["BgcError", "Coord", "ModelError", "__version__", *_API]
 
 

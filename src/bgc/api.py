@@ -16,6 +16,7 @@ from pathlib import Path
 
 from bgc.backends.load import BACKENDS as targets
 from bgc.base.errors import Coord, ModelError
+from bgc.builder import Builder, Component  # noqa: F401 (bgc.Builder, bgc.Component)
 from bgc.core.causality import assign_causality
 from bgc.core.draw import render_image, to_dot
 from bgc.core.equations import T, derive
@@ -40,11 +41,14 @@ def _is_text(src) -> bool:
 
 
 def _model(src):
-    """Parse a model given as a path or as YAML text."""
+    """Parse a model given as a path, as YAML text or as a builder (bgc.builder)."""
+    if isinstance(src, Builder):
+        return src.build()
     if _is_text(src):
         return parse_text(src, "<string>")
     if not isinstance(src, (str, Path)):
-        raise TypeError(f"a model is a path or YAML text, not {type(src).__name__}")
+        raise TypeError(f"a model is a path or YAML text (or a bgc.Builder), not "
+                        f"{type(src).__name__}")
     if not Path(src).is_file():
         raise ModelError(Coord(str(src), 1, 1), "model file does not exist")
     return parse_file(src)
@@ -52,9 +56,10 @@ def _model(src):
 
 def _check_types(src, scene=None) -> None:
     """The documented TypeError for a model that is neither a path nor YAML text (bytes, a
-    dict, ...), and for a scene that is not a path."""
-    if not isinstance(src, (str, Path)):
-        raise TypeError(f"a model is a path or YAML text, not {type(src).__name__}")
+    dict, ...) nor a builder, and for a scene that is not a path."""
+    if not isinstance(src, (str, Path, Builder)):
+        raise TypeError(f"a model is a path or YAML text (or a bgc.Builder), not "
+                        f"{type(src).__name__}")
     if scene is not None and not isinstance(scene, (str, Path)):
         raise TypeError(f"a scene is a path, not {type(scene).__name__}")
 
@@ -66,7 +71,8 @@ def compile(path_or_text, scene=None, target: str = "numpy") -> "CompiledModel":
     _check_types(path_or_text, scene)
     if target not in targets:
         raise ModelError(None, f"unknown target {target!r} (one of {', '.join(targets)})")
-    path = None if _is_text(path_or_text) else path_or_text
+    built = _is_text(path_or_text) or isinstance(path_or_text, Builder)
+    path = None if built else path_or_text
     if path is not None and not Path(path).is_file():
         raise ModelError(Coord(str(path), 1, 1), "model file does not exist")
     sc = None

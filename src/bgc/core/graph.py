@@ -95,6 +95,7 @@ class BondGraph:
     states: tuple[FlatState, ...]
     scopes: dict
     graph: nx.MultiDiGraph = field(repr=False, compare=False)
+    units: object = field(default=None, repr=False, compare=False)  # bgc.core.units.UnitReport
 
     def element(self, eid: str) -> FlatElement:
         return self._el[eid]
@@ -138,7 +139,9 @@ def build_graph(model: Model) -> BondGraph:
     bg = BondGraph(model, tuple(b.params), tuple(b.elements), tuple(b.bonds), tuple(b.states),
                    b.scopes, g)
     _check(bg)
-    check_units(bg)  # dimensions: a located error where a law, unit or output disagrees
+    # dimensions: a located error where a law, unit or output disagrees; the report (each
+    # bond's, output's and state's dimension) stays with the graph for units of FMI and plots
+    object.__setattr__(bg, "units", check_units(bg))
     return bg
 
 

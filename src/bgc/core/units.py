@@ -22,7 +22,7 @@ bond's dimensions and physical domain (``bgc check --units``).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from fractions import Fraction
 
 from bgc.base.errors import ModelError
@@ -67,12 +67,28 @@ class BondUnits:
 @dataclass(frozen=True)
 class UnitReport:
     bonds: tuple[BondUnits, ...]
+    #: output name -> its expression's dimension (None where the model leaves it open)
+    outputs: dict = field(default_factory=dict, compare=False)
+    #: state (``mass.p``, ``spring.q``, an auxiliary state's id) -> the state's dimension
+    states: dict = field(default_factory=dict, compare=False)
+
+    def output_unit(self, name: str, declared: str = "") -> str:
+        """An output's unit for axes and FMI: as declared, else the inferred dimension's name
+        ("" when unknown)."""
+        d = self.outputs.get(name)
+        return declared or (show(d) if d is not None else "")
 
     def text(self) -> str:
         """The report of ``bgc check --units``: one line per bond."""
         lines = ["units (each bond: its domain, the dimensions of its effort and flow; ? where "
                  "the model leaves them open):"]
         lines += [f"  {b.line()}" for b in self.bonds]
+        for title, dims in (("states", self.states), ("outputs", self.outputs)):
+            if dims:
+                lines.append(f"{title} (their dimensions):")
+                width = max(len(k) for k in dims)
+                lines += [f"  {k.ljust(width)}  {show(d) if d is not None else '?'}"
+                          for k, d in dims.items()]
         return "\n".join(lines) + "\n"
 
 
@@ -92,11 +108,28 @@ def check_units(bg) -> UnitReport:
     _states(chk)
     _inputs(chk)
     _initials(chk)
-    _outputs(chk)
+    outs = _outputs(chk)
     chk.sys.settle()
     val = chk.sys.value
     return UnitReport(tuple(BondUnits(b.id, b.src, b.dst, val(chk.e(b.id)), val(chk.f(b.id)))
-                            for b in bg.bonds))
+                            for b in bg.bonds),
+                      {name: val(form) for name, form in outs.items()},
+                      {key: val(form) for key, form in _state_forms(chk).items()})
+
+
+def _state_forms(chk: Checker) -> dict:
+    """Each state's dimension as a form, by its name without an index (STATE_NAMES' ``mass.p``
+    for ``mass.p`` and ``mass.p[1]``): an I's momentum is its effort times s, a C's
+    displacement its flow times s, an auxiliary state's its own."""
+    out = {}
+    for el in chk.bg.elements:
+        if el.type in ("I", "C"):
+            b = chk.bg.bonds_of(el.id)[0]
+            name = f"{el.id}.{'p' if el.type == 'I' else 'q'}"
+            out[name] = (chk.e(b.id) if el.type == "I" else chk.f(b.id)) + SECOND
+    for st in chk.bg.states:
+        out[st.id] = chk.states[st.id]
+    return out
 
 
 def _declares_units(bg) -> bool:
@@ -224,10 +257,13 @@ def _initials(chk: Checker) -> None:
                    f"{short_text(st.initial.text)} is {x}, but the state is {y}")
 
 
-def _outputs(chk: Checker) -> None:
+def _outputs(chk: Checker) -> dict:
+    forms = {}
     for out in chk.bg.model.body.outputs:
         got = chk.eval(out.expr, (), f"output {out.name!r}")
         declared = unit_of(out.unit, out.coord, f"output {out.name!r}")
         chk.equate(declared, got, out.coord,
                    lambda x, y, out=out: f"output {out.name!r} is declared {out.unit}, but "
                    f"its expression {short_text(out.expr.text)} is {y}")
+        forms[out.name] = got
+    return forms

@@ -202,6 +202,14 @@ def parse_text(text: str, path: str = "<model>", _imports: _Imports | None = Non
     root = r.compose()
     if root is None:
         raise ModelError(Coord(path, 1, 1), "the model file is empty")
+    return parse_root(r, root, hashlib.sha256(text.encode()).hexdigest()[:16], _imports)
+
+
+def parse_root(r: Reader, root, source_hash: str, _imports: _Imports | None = None) -> Model:
+    """The model from its composed YAML node tree (each node with its place): the one
+    validation of a model, shared by files, text and the Python builder (bgc.builder, whose
+    nodes carry the places of the user's calls)."""
+    path = r.path
     top = r.mapping(root, "the model")
     allowed = ("bgc", "name", "description", "parameters", "inputs", "elements", "bonds",
                "states", "outputs", "components", "imports", "causality", "modes", "events",
@@ -278,7 +286,7 @@ def parse_text(text: str, path: str = "<model>", _imports: _Imports | None = Non
     _check_unique(body, inputs)
     return Model(name=name, file=path, body=body, inputs=tuple(inputs),
                   components=tuple(components), description=description,
-                  source_hash=hashlib.sha256(text.encode()).hexdigest()[:16],
+                  source_hash=source_hash,
                   coord=r.coord(root), strict_causality=strict, events=events, modes=modes,
                   strict_units=strict_units)
 

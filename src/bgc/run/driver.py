@@ -251,6 +251,8 @@ def _compile_model(model: Model, progress, plan: Plan | None, strict_causality: 
     if special:
         with clock("specialise"):
             sp_ = specialise(graph, caus, plan, progress)
+    if getattr(sp_.graph, "units", None) is None:  # the full graph's dimensions (FMI units)
+        object.__setattr__(sp_.graph, "units", graph.units)
     notes = list(sp_.notes)
     with clock("equations"):
         say("deriving equations")
@@ -265,7 +267,7 @@ def _compile_model(model: Model, progress, plan: Plan | None, strict_causality: 
     with clock("lower"):
         low = lower(eqs, progress)
     with clock("print"):
-        text = print_numpy(model, low, tuple(notes), progress)
+        text = print_numpy(model, low, tuple(notes), progress, graph.units)
     return Compiled(model, sp_.graph, sp_.causality, eqs, text, tuple(notes), low,
                     tuple(clock.times))
 
@@ -286,14 +288,18 @@ def _sliced(eqs, plan, sp_: _Special, progress) -> tuple[Equations, list[str]]:
     return eqs, notes
 
 
-def print_numpy(model: Model, low, notes: tuple[str, ...], progress=None) -> str:
-    """Stage 7 for the numpy backend: the module's text from the IR."""
+def print_numpy(model: Model, low, notes: tuple[str, ...], progress=None,
+                units=None) -> str:
+    """Stage 7 for the numpy backend: the module's text from the IR. ``units``: the unit
+    check's report (bgc.core.units.UnitReport): an output without a declared unit gets its
+    inferred one in OUTPUT_UNITS (the axes of plots)."""
     # lazy: the compile path, which a warm run never loads
     from bgc.backends.numpy.printer import render
 
     return render(low.eq, source=Path(model.file).name, source_hash=model.source_hash,
                   description=model.description, header_notes=notes, progress=progress,
-                  output_units={o.name: o.unit for o in model.body.outputs},
+                  output_units={o.name: units.output_unit(o.name, o.unit) if units else o.unit
+                                for o in model.body.outputs},
                   input_units={i.name: i.unit for i in model.inputs}, lowered=low)
 
 

@@ -64,6 +64,16 @@ def _with_unit(label, unit):
 
 def plot_time(t, y, names, path, title="", labels=(), units=None):
     plt = pyplot()
+    fig = figure_time(t, y, names, title, labels, units)
+    fig.savefig(path, format="png")
+    plt.close(fig)
+
+
+def figure_time(t, y, names, title="", labels=(), units=None):
+    """The time figure (not yet saved): one panel per output, each labelled with its unit
+    (``units``: the module's OUTPUT_UNITS, declared or inferred from the checked dimensions),
+    time in s."""
+    plt = pyplot()
     fig, axes = plt.subplots(len(names), 1, sharex=True, squeeze=False,
                              figsize=(7.5, 1.2 + 1.75 * len(names)))
     for k, (name, ax) in enumerate(zip(names, axes[:, 0])):
@@ -76,8 +86,7 @@ def plot_time(t, y, names, path, title="", labels=(), units=None):
     axes[-1, 0].set_xlabel("t [s]")
     fig.suptitle(plain_text(title or ", ".join(names)))
     fig.tight_layout()
-    fig.savefig(path, format="png")
-    plt.close(fig)
+    return fig
 
 
 def _equal_3d(ax, pts):

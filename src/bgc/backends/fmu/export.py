@@ -45,6 +45,7 @@ from bgc.base.errors import ModelError
 from bgc.base.outfiles import check_output, write_output
 from bgc.base.paths import templates_dir
 from bgc.core.equations import T
+from bgc.format.units import UnitError, parse_unit
 
 KINDS = ("me", "cs", "both")
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
@@ -60,6 +61,26 @@ _METHODS = {"Rodas4": 0, "Radau": 1}  # BGC_RODAS4, BGC_RADAU5; other methods ru
 
 def _g(v: float) -> str:
     return repr(float(v))
+
+
+#: FMI 2.0's BaseUnit attributes for bgc's base dimensions (bgc.format.units.BASE's order)
+_FMI_BASE = ("m", "kg", "s", "A", "K", "mol", "cd")
+
+
+def base_unit(unit: str) -> dict | None:
+    """The attributes of a unit's ``<BaseUnit>`` (FMI 2.0, 2.2.2): the SI exponents (only
+    those not 0) and ``factor`` (1 unit = factor * base units); None where FMI cannot say it
+    (an exponent that is not a whole number, or a unit string bgc does not read)."""
+    try:
+        scale, d = parse_unit(unit)
+    except UnitError:
+        return None
+    if any(int(x) != x for x in d):
+        return None
+    attrs = {name: str(int(x)) for name, x in zip(_FMI_BASE, d) if x}
+    if scale != 1.0:
+        attrs["factor"] = _g(scale)
+    return attrs
 
 
 def model_description(compiled, spec: FmuSpec, scene=None, kind: str = "both",
@@ -93,7 +114,10 @@ def model_description(compiled, spec: FmuSpec, scene=None, kind: str = "both",
     if units:
         ud = ET.SubElement(root, "UnitDefinitions")
         for u in units:
-            ET.SubElement(ud, "Unit", {"name": u})
+            base = base_unit(u)
+            unit = ET.SubElement(ud, "Unit", {"name": u})
+            if base is not None:
+                ET.SubElement(unit, "BaseUnit", base)
     cats = ET.SubElement(root, "LogCategories")
     for cat, what in (("logStatusError", "errors: bad calls, failed evaluations"),
                       ("logStatusDiscard", "communication steps the integrator could not end"),

@@ -15,6 +15,7 @@ from bgc.base import __version__
 from bgc.base.errors import ModelError
 from bgc.core.equations import T
 from bgc.format.scene import free_values
+from bgc.format.units import div, dim, show
 
 #: uuid5 namespace of bgc's FMU GUIDs
 _GUID_NS = uuid.UUID("6f1d2c9e-5b0a-4c1e-9d0f-b9c0f3a1e2d4")
@@ -127,13 +128,14 @@ def build_spec(compiled, scene=None, kind: str = "both") -> FmuSpec:
     values[T] = sp.Float(scene.t_span[0] if scene is not None else 0.0)
     inames, isyms, istart, iunits = _input_table(compiled, values)
     onames, ounits = _output_table(compiled)
+    xunits, dunits = _state_units(compiled)
     nu, npar, nout = len(inames), len(pnames), len(onames)
     vr_p, vr_u, vr_y = 2 * n, 2 * n + npar, 2 * n + npar + nu
     sdeps, odeps, initial = _structure(low, eq, isyms, psyms, vr_p, vr_u, vr_y)
-    variables = [Var(sv.name, i, "local", "continuous", "calculated")
+    variables = [Var(sv.name, i, "local", "continuous", "calculated", unit=xunits[i])
                  for i, sv in enumerate(eq.states)]
     variables += [Var(f"der({sv.name})", n + i, "local", "continuous", "calculated",
-                      derivative=i + 1) for i, sv in enumerate(eq.states)]
+                      unit=dunits[i], derivative=i + 1) for i, sv in enumerate(eq.states)]
     variables += [Var(nm, vr_p + k, "parameter", "tunable" if ptun[k] else "fixed", "exact",
                       pstart[k], punits[k], pdesc[k]) for k, nm in enumerate(pnames)]
     variables += [Var(nm, vr_u + k, "input", "continuous", None, istart[k], iunits[k])
@@ -205,13 +207,36 @@ def _input_table(compiled, values: dict):
 
 
 def _output_table(compiled):
-    """The outputs' FMI names and units."""
+    """The outputs' FMI names and units: as declared, else the checked dimension's name."""
     onames, ounits = [], []
+    report = getattr(compiled.graph, "units", None)
     out_unit = {o.name: o.unit for o in compiled.model.body.outputs}  # {expr, unit} outputs
     for name, shape, vals in compiled.equations.outputs:
+        unit = out_unit.get(name, "")
+        if report is not None:
+            unit = report.output_unit(name, unit)
         onames += flat_names(name, tuple(shape))
-        ounits += [out_unit.get(name, "")] * len(flat_names(name, tuple(shape)))
+        ounits += [unit] * len(flat_names(name, tuple(shape)))
     return onames, ounits
+
+
+def _state_units(compiled):
+    """Each state's unit and its derivative's (the state's per second), from the checked
+    dimensions: a declared unit of an auxiliary state as written; "" where unknown."""
+    report = getattr(compiled.graph, "units", None)
+    declared = {st.id: st.unit for st in compiled.graph.states}  # components' states too
+    xunits, dunits = [], []
+    for sv in compiled.equations.states:
+        d = report.states.get(sv.name.split("[")[0]) if report is not None else None
+        unit = declared.get(sv.name.split("[")[0], "") or (show(d) if d is not None else "")
+        xunits.append(unit)
+        if not unit:
+            dunits.append("")
+        elif d is None:
+            dunits.append(f"({unit})/s")
+        else:
+            dunits.append(show(div(d, dim(s=1))))
+    return xunits, dunits
 
 
 def _structure(low, eq, isyms, psyms, vr_p, vr_u, vr_y):
