@@ -58,7 +58,8 @@ def main() -> None:
             if a.before:
                 rows["bgc compile, --before's bgc"].append(cpu_of(
                     [sys.executable, "-m", "bgc", "compile", a.model, "-o",
-                     str(Path(d) / "b.py"), "-q"], {**env, "PYTHONPATH": a.before}))    print(f"whole-process CPU (user + sys), median of {a.repeats}, {Path(a.model).name}:")
+                     str(Path(d) / "b.py"), "-q"], {**env, "PYTHONPATH": a.before}))
+    print(f"whole-process CPU (user + sys), median of {a.repeats}, {Path(a.model).name}:")
     for k, v in rows.items():
         print(f"  {k:28s} {statistics.median(v):6.3f} s   (min {min(v):.3f})")
 
