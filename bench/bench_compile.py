@@ -60,15 +60,17 @@ def link_chain(n: int) -> dict:
     base = yaml.safe_load((ROOT / "models" / "3r2s.yaml").read_text())
     comps = {k: base["components"][k] for k in ("link", "tcoupling")}
     el = {"ground": {"type": "Sf", "flow": "[0, 0, 0]"}}
+    params = {"d": {"value": 0.05, "unit": "m"}}  # the links' length: rC0's unit
     bonds = []
     for i in range(n):
-        el[f"link{i}"] = {"type": "link", "m": 0.5, "l": 0.05, "rC0": f"[{0.05 * i + 0.025}, 0, 0]"}
+        el[f"link{i}"] = {"type": "link", "m": 0.5, "l": "d", "rC0": f"[{i + 0.5} * d, 0, 0]"}
         el[f"j{i}"] = {"type": "tcoupling", "k": 1.0e6, "r": 10.0}
         bonds.append({"from": "ground" if i == 0 else f"link{i - 1}.P", "to": f"j{i}.a", "n": 3})
         bonds.append({"from": f"j{i}.b", "to": f"link{i}.Q", "n": 3})
     el["tip_load"] = {"type": "Se", "effort": "[0, 0, 0]"}  # a free end: no force on it
     bonds.append({"from": "tip_load", "to": f"link{n - 1}.P", "n": 3})
-    return {"bgc": 1, "name": f"link_chain_{n}", "components": comps, "elements": el,
+    return {"bgc": 1, "name": f"link_chain_{n}", "parameters": params, "components": comps,
+            "elements": el,
             "bonds": bonds, "outputs": {"tip": f"f(link{n - 1}.P)"}}
 
 

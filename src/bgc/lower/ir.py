@@ -2,7 +2,8 @@
 
 Each generated function (rhs, Jacobian values on JAC_SPARSITY, outputs, initial state)
 computes only what its results need: the assignments are pruned backwards from the results,
-common subexpressions are eliminated (symengine's ``cse``, else sympy's), and the definitions are scheduled in
+common subexpressions are eliminated (symengine's ``cse``, else sympy's; beyond
+:data:`bgc.lower.cse.LINEAR_ABOVE` nodes bgc.lower.cse's linear pass), and the definitions are scheduled in
 causal order. The result is a tree of frozen dataclasses holding sympy expressions; printing
 them as numpy (:mod:`bgc.backends.numpy.printer`) or C (:mod:`bgc.backends.c.printer`) is the printers' business.
 """
@@ -17,6 +18,7 @@ import sympy as sp
 from bgc.core import fastsym
 from bgc.core.eqtypes import Assignment, Equations, prune, schedule
 from bgc.core.forward import linear_parts
+from bgc.lower import cse as lcse
 
 
 @dataclass(frozen=True)
@@ -72,7 +74,10 @@ def lower_function(eq: Equations, results: list, assigns: list[Assignment], keys
     exprs = [a.expr for a in assigns] + list(results)
     if cse and exprs:
         names = (sp.Symbol(f"_c{i}", real=True) for i in itertools.count())
-        fast = fastsym.cse(exprs, lambda: next(names))  # symengine, when it can read them all
+        big = lcse.size_of(exprs, limit=lcse.LINEAR_ABOVE) > lcse.LINEAR_ABOVE
+        # a large body: the linear pass (the pairwise search's cost grows as its square)
+        fast = lcse.linear_cse(exprs, lambda: next(names)) if big else \
+            fastsym.cse(exprs, lambda: next(names))  # symengine, when it can read them all
         if fast is not None:
             repl, reduced = fast
         else:

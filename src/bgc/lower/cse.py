@@ -1,0 +1,103 @@
+"""Common-subexpression elimination in time linear in the size of the expressions.
+
+symengine's ``cse`` (and sympy's) first look for common sub-sums and sub-products among the
+arguments of every pair of sums and products: the best factoring, but its cost grows about as
+the square of the body (a 3-D link chain of 1,000 states spent 97 % of its compile there).
+:func:`linear_cse` shares exactly the subtrees that occur more than once (value numbering by
+structural equality, which sympy's cached hashes make one dictionary look-up per node): every
+node is visited once to count its parents, and once to rebuild it. It finds every repeated
+subtree, but not a sum ``a + b`` hidden inside two different sums ``a + b + c`` and
+``a + b + d``; bgc.lower.ir uses it for bodies beyond :data:`LINEAR_ABOVE` nodes, where the
+pairwise search stops paying (measured: bench/profile_compile.py, bench/RESULTS_compile_scale.md).
+
+``stats`` counts the nodes each call visited (tests/test_compile_scale.py holds the work
+linear in the model's size through it).
+"""
+from __future__ import annotations
+
+import sympy as sp
+
+#: bodies (counted in distinct expression nodes) above which the linear pass replaces the
+#: pairwise one; the goldens and the 3R2S lie below it
+LINEAR_ABOVE = 15_000
+
+#: work counters: "nodes" visited by linear_cse and size_of since the last reset
+stats = {"nodes": 0}
+
+
+def size_of(exprs, limit: int | None = None) -> int:
+    """The number of distinct nodes of ``exprs`` (stops counting past ``limit``)."""
+    seen: set = set()
+    stack = list(exprs)
+    while stack:
+        e = stack.pop()
+        if e in seen:
+            continue
+        seen.add(e)
+        if limit is not None and len(seen) > limit:
+            break
+        stack.extend(e.args)
+    stats["nodes"] += len(seen)
+    return len(seen)
+
+
+def _worth(e) -> bool:
+    """A repeated node worth a temporary: an expression that is not an atom nor -atom."""
+    if e.is_Atom or not isinstance(e, sp.Expr):
+        return False
+    if e.is_Mul and len(e.args) == 2 and e.args[0] is sp.S.NegativeOne and e.args[1].is_Atom:
+        return False
+    return True
+
+
+def _parents(exprs) -> dict:
+    """How many times each distinct node is an argument of a distinct node (or a result)."""
+    count: dict = {}
+    stack = list(exprs)
+    while stack:
+        e = stack.pop()
+        if e in count:
+            count[e] += 1
+            continue
+        count[e] = 1
+        stack.extend(e.args)
+    stats["nodes"] += len(count)
+    return count
+
+
+def _rebuilt(e, args):
+    """``e`` with new arguments, without re-canonicalising sums and products (replacing a
+    subtree by a symbol changes nothing of their meaning)."""
+    if e.is_Add or e.is_Mul:
+        return e.func._from_args(args)
+    if e.is_Pow:
+        return sp.Pow(*args, evaluate=False)
+    return e.func(*args)
+
+
+def linear_cse(exprs: list, make_symbol) -> tuple[list, list]:
+    """(replacements [(symbol, expr)] in dependency order, reduced exprs), like sympy's
+    ``cse``: every non-trivial subtree met more than once is computed once, as a temporary
+    named by ``make_symbol()``."""
+    count = _parents(exprs)
+    memo: dict = {}
+    repl: list = []
+    for root in exprs:
+        stack = [(root, False)]
+        while stack:  # post-order without recursion (trees may be deep)
+            e, ready = stack.pop()
+            if e in memo:
+                continue
+            if not ready:
+                stack.append((e, True))
+                stack.extend((a, False) for a in reversed(e.args) if a not in memo)
+                continue
+            new_args = tuple(memo[a] for a in e.args)
+            out = e if all(n is a for n, a in zip(new_args, e.args)) else _rebuilt(e, new_args)
+            if count[e] > 1 and _worth(e):
+                s = make_symbol()
+                repl.append((s, out))
+                out = s
+            memo[e] = out
+    stats["nodes"] += len(memo)
+    return repl, [memo[r] for r in exprs]
