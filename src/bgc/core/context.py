@@ -68,6 +68,7 @@ class Context:
         self.inputs: dict[str, InputVar] = {}
         self.cache: dict = {}
         self.dependent: list = []  # (element id, state symbols, their dt_ symbols)
+        self.constraints: list = []  # bgc.core.constraints.Constraint
 
     # -- parameters -------------------------------------------------------------------------
     def param(self, pid: str, coord: Coord):

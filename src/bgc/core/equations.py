@@ -22,6 +22,7 @@ import sympy as sp
 
 from bgc.base.errors import ModelError
 from bgc.core.causality import Causality
+from bgc.core.constraints import alpha_of, constraint_states, stabilise
 from bgc.core.context import Context, check_names
 from bgc.core.eqtypes import (
     SYMBOLIC_MAX,
@@ -61,19 +62,24 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
     for el in bg.elements:
         element_equations(ctx, el, define, derivs, state_vars)
     _auxiliary_states(ctx, derivs, state_vars)
+    constraint_states(ctx, derivs, state_vars)
     outputs = _outputs(ctx)
 
     tear_sets = ()
     dependent = []
-    if ctx.dependent:
+    residual = frozenset()
+    if ctx.dependent or ctx.constraints:
         dependent = _dependent(ctx, defs, state_vars)
         if progress:
             progress("differentiating along the causal paths of dependent storage elements")
-        tear_sets = time_derivatives(ctx, defs, owner, derivs, state_vars)
+        seeds = [f for c in ctx.constraints for f in c.flow]
+        tear_sets = time_derivatives(ctx, defs, owner, derivs, state_vars, seeds)
+        if ctx.constraints:
+            residual = stabilise(ctx, defs, owner, alpha_of(bg.model))
     if progress:
         progress("ordering assignments")
     nloops: list = [] if newton else None
-    order, loops = causal_order(bg, defs, owner, tear_sets, symbolic_max, nloops)
+    order, loops = causal_order(bg, defs, owner, tear_sets, symbolic_max, nloops, residual)
     events = build_events(ctx, bg, state_vars, T) if bg.model.events else ()
     kept, subs = _inline(order, defs)
     events = tuple(ev.replace(subs) for ev in events)

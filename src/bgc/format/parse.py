@@ -148,6 +148,9 @@ class Model:
     events: tuple = ()  # bgc.format.events.Event: zero crossings and time events, with actions
     modes: tuple[str, ...] = ()  # the discrete mode variables (states whose derivative is 0)
     strict_units: bool = False  # `units: strict`: every parameter needs a unit
+    #: `constraints: {stabilisation: alpha}`: the rate (1/s) at which a closed loop's constraint
+    #: violation decays (bgc.core.constraints); None: the default
+    stabilisation: float | None = None
 
     def component(self, name: str) -> Component | None:
         for c in self.components:
@@ -195,7 +198,7 @@ def parse_text(text: str, path: str = "<model>", _imports: _Imports | None = Non
     top = r.mapping(root, "the model")
     allowed = ("bgc", "name", "description", "parameters", "inputs", "elements", "bonds",
                "states", "outputs", "components", "imports", "causality", "modes", "events",
-               "units")
+               "units", "constraints")
     require(r, top, root, allowed, "the model", required=("bgc", "name", "elements", "bonds"))
     strict = False
     if "causality" in top:
@@ -263,6 +266,7 @@ def parse_text(text: str, path: str = "<model>", _imports: _Imports | None = Non
                 default = r.expr(vn, f"input {iname!r}")
             inputs.append(Input(iname, default, shape, r.coord(kn), unit))
 
+    stabilisation = _constraints(r, top["constraints"][1]) if "constraints" in top else None
     body = _body(r, top, root, "the model", is_component=False)
     body, events, modes = _hybrid(r, top, body)
     _check_unique(body, inputs)
@@ -270,7 +274,21 @@ def parse_text(text: str, path: str = "<model>", _imports: _Imports | None = Non
                   components=tuple(components), description=description,
                   source_hash=hashlib.sha256(text.encode()).hexdigest()[:16],
                   coord=r.coord(root), strict_causality=strict, events=events, modes=modes,
-                  strict_units=strict_units)
+                  strict_units=strict_units, stabilisation=stabilisation)
+
+
+def _constraints(r: Reader, node) -> float | None:
+    """``constraints: {stabilisation: alpha}``: a positive rate in 1/s, at most 1e6."""
+    m = r.mapping(node, "constraints")
+    require(r, m, node, ("stabilisation",), "constraints")
+    if "stabilisation" not in m:
+        return None
+    vn = m["stabilisation"][1]
+    alpha = r.number(vn, "constraints: stabilisation")
+    if not (0 < alpha <= 1e6):
+        raise ModelError(r.coord(vn), f"constraints: stabilisation {alpha!r} is not a rate in "
+                                      "(0, 1e6] 1/s (the constraint violation's decay rate)")
+    return float(alpha)
 
 
 def _hybrid(r: Reader, top: dict, body: Body):

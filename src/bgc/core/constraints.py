@@ -1,0 +1,114 @@
+"""Constraints: flow sources that close a kinematic loop, held by an unknown reaction.
+
+When SCAP meets a closed kinematic loop, or a non-square modulus that a zero-flow source
+would have to invert (a joint that locks only part of a multibond), causality
+(bgc.core.causality) turns that source into a *constraint*: causally an effort source whose
+effort is an unknown reaction lambda, one per component of its bond. What the source imposed
+becomes an equation: the bond's flow f (now computed by the other end) must equal the
+source's flow s(t).
+
+The constraint's violation q (the relative displacement of the two sides, q(0) = 0: the given
+configuration is the assembled one) is a state, q' = f - s. The reaction follows from the
+acceleration-level constraint, stabilised (Baumgarte):
+
+    q'' + 2 alpha q' + alpha^2 q = 0,
+
+linear in lambda: q'' = d/dt f - s', and d/dt f reaches the efforts through the state
+derivatives. Its ``_dt_`` symbols come from the chain rule of bgc.core.loops
+(``time_derivatives``) and the system is solved with the dependent storage elements'
+derivatives by tearing (a residual row per component). The result is an ODE that every
+backend, solver and the FMU carry as they are; q decays critically damped at rate alpha
+instead of drifting.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import sympy as sp
+
+from bgc.base.errors import ModelError
+from bgc.core.context import Context
+from bgc.core.eqtypes import Assignment, StateVar, T, clean_derivative, flat, real_symbol, symbol_vector
+from bgc.core.graph import FlatElement, code_name
+
+#: The default stabilisation rate alpha (1/s), chosen by measurement (docs/closed_loops.md).
+DEFAULT_ALPHA = 20.0
+
+
+@dataclass(frozen=True)
+class Constraint:
+    source: str  # the flow source's element id
+    bond: str  # its bond
+    lam: tuple  # the reaction (the bond's effort), one symbol per component
+    flow: tuple  # the bond's flow, computed by the other end
+    target: tuple  # the source's flow: expressions of t and parameters
+    q: tuple  # the violation's state symbols
+
+
+def constraint_source(ctx: Context, el: FlatElement, b, target, define) -> None:
+    """The law of a flow source turned constraint: its effort is the unknown reaction."""
+    n = b.n
+    lam = symbol_vector(f"lam_{code_name(el.id)}", n)
+    define(ctx.e[b.id], lam, el, f"{el.id} (constraint): reaction effort")
+    q = symbol_vector(f"q_{code_name(el.id)}", n)
+    ctx.constraints.append(Constraint(el.id, b.id, tuple(flat(lam)), tuple(flat(ctx.f[b.id])),
+                                      tuple(flat(target)), tuple(flat(q))))
+
+
+def constraint_states(ctx: Context, derivs: dict, state_vars: list) -> None:
+    """The violation states q, q' = f - s, q(0) = 0."""
+    for c in ctx.constraints:
+        n = len(c.q)
+        for k, (q, f, s) in enumerate(zip(c.q, c.flow, c.target)):
+            derivs[q] = f - s
+            label = f"{c.source}.q" + (f"[{k}]" if n > 1 else "")
+            state_vars.append(StateVar(label, q, c.source, sp.Integer(0)))
+
+
+def stabilise(ctx: Context, defs: dict, owner: dict, alpha: float) -> frozenset:
+    """Each reaction component defined by its residual q'' + 2 alpha q' + alpha^2 q (its
+    ``_dt_`` flows defined by ``time_derivatives`` beforehand). Returns the reactions."""
+    bg = ctx.bg
+    lams = {lam for c in ctx.constraints for lam in c.lam}
+    inputs = {s for iv in ctx.inputs.values() for s in iv.symbols}
+    out = set()
+    for c in ctx.constraints:
+        el = bg.element(c.source)
+        reach = _closure(defs, c.flow)
+        own = reach & lams
+        if own:
+            raise ModelError(el.coord, f"constraint {c.source!r} (the flow source that closes "
+                             "a kinematic loop): the flow it holds depends on a reaction "
+                             f"({', '.join(sorted(map(str, own)))}) through a resistive path, "
+                             "not only on the motion; bgc cannot hold it (index > 3): make a "
+                             "connection on that path compliant")
+        for lam, f, s, q in zip(c.lam, c.flow, c.target, c.q):
+            if sp.sympify(s).free_symbols & inputs:
+                raise ModelError(el.coord, f"constraint {c.source!r}: its flow follows input "
+                                 "signals, whose time derivative a rigid constraint needs; make "
+                                 "the signal an expression of t, or the connection compliant")
+            ds = clean_derivative(sp.diff(s, T))
+            qdot = f - s
+            r = real_symbol(f"_dt_{f}") - ds + 2 * alpha * qdot + alpha ** 2 * q
+            defs[lam] = Assignment(lam, r, f"{c.source} (constraint): reaction, from "
+                                   f"q'' + 2 alpha q' + alpha^2 q = 0 (alpha = {alpha:g} 1/s)")
+            owner[lam] = c.source
+            out.add(lam)
+    return frozenset(out)
+
+
+def _closure(defs: dict, syms) -> set:
+    seen, stack = set(), list(syms)
+    while stack:
+        s = stack.pop()
+        if s in seen:
+            continue
+        seen.add(s)
+        if s in defs:
+            stack.extend(defs[s].expr.free_symbols)
+    return seen
+
+
+def alpha_of(model) -> float:
+    return model.stabilisation if model.stabilisation is not None else DEFAULT_ALPHA
