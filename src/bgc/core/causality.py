@@ -226,6 +226,8 @@ def _assign(bg: BondGraph, allow_derivative: bool, constraints: tuple) -> Causal
         except CausalConflict as err:
             loop = closed_loop(bg, err.at)
             closing = _closing_source(bg, loop, constraints)
+            if closing is None and plain_err is None:  # a lock the plain order left partial
+                closing = _partial_in(bg, trial, constraints)
             if closing is not None:
                 raise _Constrain(closing) from None
             if loop:
@@ -369,6 +371,17 @@ def _partial_source(bg: BondGraph, s: _Scap, bond: FlatBond, constraints: tuple)
     origin = s.origin.get(bond.id, (None, None))[0]
     if origin is not None and bg.element(origin).type == "Sf" and origin not in constraints:
         return origin
+    return None
+
+
+def _partial_in(bg: BondGraph, s: _Scap, constraints: tuple) -> str | None:
+    """The flow source behind a non-square modulus that ``s`` leaves inverted, if any."""
+    try:
+        _check_partial(bg, s, constraints)
+    except _Constrain as c:
+        return c.source
+    except ModelError:
+        return None
     return None
 
 

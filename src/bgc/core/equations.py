@@ -22,7 +22,7 @@ import sympy as sp
 
 from bgc.base.errors import ModelError
 from bgc.core.causality import Causality
-from bgc.core.constraints import alpha_of, constraint_states, stabilise
+from bgc.core.constraints import alpha_of, check_initial, constraint_states, stabilise
 from bgc.core.context import Context, check_names
 from bgc.core.eqtypes import (
     SYMBOLIC_MAX,
@@ -89,6 +89,7 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
     ctx_derived = [ctx.derived[k] for k in ctx.derived_order]
     _check_declared(ctx, state_vars, ctx_derived, kept, derivatives, outputs,
                     [e for ev in events for e in ev.exprs()])
+    check_initial(ctx, state_vars, kept, derivatives)
 
     if progress:
         progress("deriving the Jacobian")
