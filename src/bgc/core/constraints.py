@@ -147,7 +147,7 @@ def check_initial(ctx: Context, state_vars, kept, derivatives) -> None:
         worst = max(abs(r) for r in res)
         if worst > 1e-9 * max(1.0, scale):
             el = ctx.bg.element(c.source)
-            shown = ", ".join(f"{r:.3g}" for r in res)
+            shown = ", ".join(f"{r:.6g}" for r in res)
             raise ModelError(el.coord, f"constraint {c.source!r} closing the kinematic loop "
                              f"{loop_text(ctx.bg, c.source)}: the initial velocities violate "
                              f"it: the flow of bond {c.bond!r} differs from the source's by "
