@@ -200,3 +200,28 @@ def loop_text(bg, source: str) -> str:
         return f"at {source!r}"
     more = f", ... ({len(names)} elements)" if len(names) > 24 else ""
     return "through " + ", ".join(names[:24]) + more
+
+
+def constraint_report(bg, caus, eqs) -> str:
+    """What `bgc check` says about closed loops: each loop by its elements, its constraint
+    (source, bond, components), the coordinates kept independent (the states in integral
+    causality), the dependent storage elements, the redundant components dropped, alpha."""
+    if not caus.constraints:
+        return ""
+    alpha = alpha_of(bg.model)
+    lines = [f"closed loops (constraints held by reactions; violation q stabilised by "
+             f"q'' + 2 alpha q' + alpha^2 q = 0, alpha = {alpha:g} 1/s):"]
+    qs = {c: [sv.name for sv in eqs.states if sv.owner == c] for c in caus.constraints}
+    for k, src in enumerate(caus.constraints, 1):
+        el = bg.element(src)
+        (b,) = bg.bonds_of(src)
+        lines.append(f"  loop {k} {loop_text(bg, src)}")
+        lines.append(f"    constraint: Sf {src} (line {el.coord.line}) on bond {b.id} "
+                     f"({b.src} -> {b.dst}), {b.n} component(s): its flow held, its effort the "
+                     f"reaction; violation state(s) {', '.join(qs[src])}")
+    cons = {n for v in qs.values() for n in v}
+    kept = [sv.name for sv in eqs.states if sv.name not in cons]
+    lines.append(f"  coordinates kept independent: {', '.join(kept) or 'none'}")
+    lines.append(f"  dependent storage elements: {', '.join(caus.derivative) or 'none'}")
+    lines.append("  redundant constraint components dropped: none")
+    return "\n".join(lines) + "\n"
