@@ -358,12 +358,14 @@ def _choose_independent(bg: BondGraph, s: _Scap) -> None:
 
 
 def _closing_source(bg: BondGraph, loop: list, constraints: tuple) -> str | None:
-    """The flow source that becomes the loop's constraint: the last one written on the loop
-    (the first is the loop's anchor, as a user reads it) that is not one already."""
+    """The flow source that becomes the loop's constraint: a fixed one (its flow a constant:
+    a pivot, not a drive) before a driven one, then the last one written on the loop (the
+    first is the loop's anchor, as a user reads it), never one that is already."""
     order = {e.id: i for i, e in enumerate(bg.elements)}
     srcs = [x for x in loop if x != "ground" and bg.element(x).type == "Sf"
             and x not in constraints]
-    return max(srcs, key=order.get) if srcs else None
+    fixed = [x for x in srcs if not bg.element(x).law[1].names()]
+    return max(fixed or srcs, key=order.get) if srcs else None
 
 
 def _partial_source(bg: BondGraph, s: _Scap, bond: FlatBond, constraints: tuple) -> str | None:
