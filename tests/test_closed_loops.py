@@ -9,6 +9,8 @@ body on a 3-D revolute joint (a partly determined multibond) against its closed 
 """
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +27,7 @@ from bgc.run.driver import compile_model
 ROOT = Path(__file__).resolve().parents[1]
 FOURBAR = ROOT / "tests" / "loops" / "fourbar.yaml"
 LOCK = ROOT / "tests" / "loops" / "revolute_lock.yaml"
+FOURBAR_3D = ROOT / "tests" / "loops" / "fourbar_3d.yaml"
 
 # the four-bar's numbers, as its file gives them
 P = dict(g=9.81, m=(1.0, 0.8, 0.6), l=(0.4, 1.0, 0.8), c=(0.05, 0.05, 0.05), tau0=0.3, d=1.0)
@@ -201,6 +204,34 @@ def test_fourbar_energy_balance(fourbar_c):
         E += m[i] * P["g"] * yc
     scale = np.abs(E).max() + np.abs(work).max()
     assert np.abs((E - E[0]) - work).max() < 1e-8 * scale
+
+
+def test_planar_loop_with_3d_bonds_drops_the_redundant_component():
+    """The same four-bar with n=3 translational bonds: the loop's z component is held by the
+    motion itself (no reaction reaches it); it is reported, its reaction is zero, and the
+    planar motion is the Kane reference's."""
+    m = bgc.compile(str(FOURBAR_3D), target="c")
+    eqs = compile_model(parse_file(FOURBAR_3D)).equations
+    assert eqs.redundant == (("pivot2", 2),)
+    te, r = _fourbar_run(m, 2.0, 1e-10, 201)
+    th = np.array([r.y[f"th{i}"] for i in (1, 2, 3)])
+    w = np.array([r.y[f"w{i}"] for i in (1, 2, 3)])
+    ref = _reference(np.concatenate([th[:, 0], w[:, 0]]), te)
+    assert np.abs(th - ref[:3]).max() < 1e-6 and np.abs(w - ref[3:]).max() < 1e-5
+    assert np.abs(np.asarray(r.y["v3"])[2]).max() == 0.0  # no out-of-plane motion at all
+
+
+def test_check_reports_the_loop():
+    out = subprocess.run([sys.executable, "-m", "bgc", "check", str(FOURBAR_3D)],
+                         capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    text = out.stdout
+    assert "loop 1 through pivot2, pivot, rod1.A" in text
+    assert "constraint: Sf pivot2" in text and "3 component(s)" in text
+    assert "coordinates kept independent: rod1.Ir.p, rod2.Ir.p, rod3.Ir.p, rod1.th" in text
+    assert "dependent storage elements: rod1.It, rod2.It, rod3.It" in text
+    assert "redundant constraint components dropped (reaction 0): pivot2.q[2]" in text
+    assert "alpha = 20 1/s" in text
 
 
 @pytest.mark.slow

@@ -73,7 +73,10 @@ def stabilise(ctx: Context, defs: dict, owner: dict, alpha: float) -> frozenset:
     bg = ctx.bg
     lams = {lam for c in ctx.constraints for lam in c.lam}
     inputs = {s for iv in ctx.inputs.values() for s in iv.symbols}
-    out = set()
+    out: set = set()
+    residuals: dict = {}
+    owner_of = {lam: c.source for c in ctx.constraints for lam in c.lam}
+    c_index = {lam: k for c in ctx.constraints for k, lam in enumerate(c.lam)}
     for c in ctx.constraints:
         el = bg.element(c.source)
         reach = _closure(defs, c.flow)
@@ -92,10 +95,20 @@ def stabilise(ctx: Context, defs: dict, owner: dict, alpha: float) -> frozenset:
             ds = clean_derivative(sp.diff(s, T))
             qdot = f - s
             r = real_symbol(f"_dt_{f}") - ds + 2 * alpha * qdot + alpha ** 2 * q
-            defs[lam] = Assignment(lam, r, f"{c.source} (constraint): reaction, from "
+            residuals[lam] = r
+    for lam, r in residuals.items():
+        src = owner_of[lam]
+        if not (_closure(defs, r.free_symbols) & lams):
+            # no reaction reaches this component's acceleration: the motion already holds it
+            # (an out-of-plane component of a planar loop written with 3-D bonds)
+            defs[lam] = Assignment(lam, sp.Integer(0), f"{src} (constraint): redundant "
+                                   "component, its reaction is zero")
+            ctx.redundant.append((src, c_index[lam]))
+        else:
+            defs[lam] = Assignment(lam, r, f"{src} (constraint): reaction, from "
                                    f"q'' + 2 alpha q' + alpha^2 q = 0 (alpha = {alpha:g} 1/s)")
-            owner[lam] = c.source
             out.add(lam)
+        owner[lam] = src
     return frozenset(out)
 
 
@@ -223,5 +236,8 @@ def constraint_report(bg, caus, eqs) -> str:
     kept = [sv.name for sv in eqs.states if sv.name not in cons]
     lines.append(f"  coordinates kept independent: {', '.join(kept) or 'none'}")
     lines.append(f"  dependent storage elements: {', '.join(caus.derivative) or 'none'}")
-    lines.append("  redundant constraint components dropped: none")
+    red = [f"{src}.q[{k}]" if bg.bonds_of(src)[0].n > 1 else f"{src}.q"
+           for src, k in getattr(eqs, "redundant", ())]
+    lines.append("  redundant constraint components dropped (reaction 0): "
+                 + (", ".join(red) if red else "none"))
     return "\n".join(lines) + "\n"

@@ -69,6 +69,7 @@ class Context:
         self.cache: dict = {}
         self.dependent: list = []  # (element id, state symbols, their dt_ symbols)
         self.constraints: list = []  # bgc.core.constraints.Constraint
+        self.redundant: list = []  # (constraint source, component): dropped, reaction 0
 
     # -- parameters -------------------------------------------------------------------------
     def param(self, pid: str, coord: Coord):

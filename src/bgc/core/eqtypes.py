@@ -107,6 +107,8 @@ class Equations:
     warnings: tuple[str, ...] = field(default=())
     events: tuple = field(default=())  # bgc.core.events.EventEq: guards and resets
     modes: tuple[str, ...] = field(default=())  # the states that are mode variables
+    #: constraint components found redundant (their reaction is zero): (source, component)
+    redundant: tuple = field(default=())
 
 
 class LinSolve(sp.Function):

@@ -101,7 +101,7 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
                      tuple(ctx_derived), tuple(ctx.inputs[i.name] for i in bg.model.inputs),
                      tuple(kept), derivatives, outputs, jac, tuple(jac_assign), tuple(loops),
                      warnings=standing, dependent=tuple(dependent), newton=tuple(nloops),
-                     events=events, modes=bg.model.modes)
+                     events=events, modes=bg.model.modes, redundant=tuple(ctx.redundant))
 
 
 def _declare(ctx: Context) -> None:
