@@ -154,11 +154,13 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
     configuration header."""
     low = compiled.lowered
     eq = compiled.equations
-    if has_solves(eq):  # the FMU's model functions keep no per-instance workspace yet
-        raise ModelError(None, f"model {eq.name!r}: the FMU export does not support numeric "
-                               "linear solves or nonlinear algebraic loops (Newton) yet: make "
-                               "the loop a state (a small C or I in it), or run it with bgc "
-                               "simulate --backend c (docs/fmu.md)")
+    # numeric linear solves (derivative causality, closed loops' reactions) factor on the
+    # stack; Newton loops keep warm starts in a per-instance workspace the FMU has not yet
+    if has_solves(eq) and getattr(eq, "newton", ()):
+        raise ModelError(None, f"model {eq.name!r}: the FMU export does not support nonlinear "
+                               "algebraic loops (Newton) yet: make the loop a state (a small C "
+                               "or I in it), or run it with bgc simulate --backend c "
+                               "(docs/fmu.md)")
     tabs = [iv.name for iv in eq.inputs if getattr(iv, "table", None) is not None]
     if tabs:  # an input following its default would follow the placeholder 0, not the data
         raise ModelError(None, f"model {eq.name!r}: the FMU export does not support table "
