@@ -205,12 +205,19 @@ def test_singular_linear_solve_is_an_error_not_garbage():
         cm.simulate((0, 1), method="Rodas4", p=pb)
 
 
-def test_fmu_export_refuses_numeric_solves():
+def test_fmu_export_refuses_newton_loops_and_carries_linear_solves():
+    """A Newton loop needs a per-instance workspace the FMU has not: refused. A numeric linear
+    solve factors on the stack: its part returns the failure code the FMI glue checks."""
     from bgc.backends.fmu.export import render_sources
+    from bgc.backends.fmu.spec import build_spec
 
-    c, _, _ = _pair("gear")
-    with pytest.raises(ModelError, match="FMU export does not support numeric"):
+    c, _, _ = _pair("loop_cubic")
+    with pytest.raises(ModelError, match="FMU export does not support nonlinear algebraic"):
         render_sources(c, None)
+    c, _, _ = _pair("gear")
+    files = render_sources(c, build_spec(c))
+    model = files["bgc_fmu_model.c"]
+    assert "int bgc_r = " in model and ", NULL); if (bgc_r) return bgc_r;" in model
 
 
 def test_cli_simulate_backend_c_runs_a_newton_loop_in_c(tmp_path):
