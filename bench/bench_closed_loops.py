@@ -14,7 +14,14 @@ and the wall time of `simulate`.
 reference (tests/reference/fourbar_lagrange.py, rtol 1e-12) and the wall time of `simulate`
 (best of 3), side by side in one run.
 
-    PYTHONPATH=src .venv/bin/python bench/bench_closed_loops.py [--drift] [--compare]
+`--3r2s`: the circle scene on the rigid 3R2S (models/scenes/3r2s_circle_rigid.yaml: five
+rigid joints, the drive coupling compliant) and on the all-compliant model
+(models/scenes/3r2s_circle.yaml), C backend, Radau at rtol 1e-6 and 1e-8 (atol = rtol / 2,
+as the scenes): the largest distance of the angles from the closed-form IK of the model's own
+p3 (tests/reference/ik3r2s.py), of p3 from the sphere |p3 - P4| = l4, the steps and the wall
+time of the run (compiles excluded; the cache keeps them).
+
+    PYTHONPATH=src .venv/bin/python bench/bench_closed_loops.py [--drift] [--compare] [--3r2s]
 """
 from __future__ import annotations
 
@@ -98,14 +105,38 @@ def compare() -> None:
                   flush=True)
 
 
+def three_r_two_s() -> None:
+    import ik3r2s
+
+    from bgc.run.runner import run_scene
+
+    print("| model | rtol | max angle from IK (rad) | max sphere residual (m) | steps | run (s) |")
+    print("|---|---|---|---|---|---|")
+    for rtol in (1e-6, 1e-8):
+        for name, scene in (("rigid joints", "3r2s_circle_rigid.yaml"),
+                            ("compliant joints", "3r2s_circle.yaml")):
+            res = run_scene(ROOT / "models" / "scenes" / scene, backend="c", rtol=rtol,
+                            atol=rtol / 2)
+            p3 = np.asarray(res.y["p3"])
+            th = ik3r2s.ik(p3)
+            ang = max(np.abs(np.angle(np.exp(1j * (th[i] - np.asarray(res.y[f"theta{i + 1}"])))
+                                      )).max() for i in range(4))
+            sph = np.abs(np.linalg.norm(p3 - ik3r2s.P4[:, None], axis=0) - ik3r2s.L[3]).max()
+            print(f"| {name} | {rtol:g} | {ang:.2e} | {sph:.2e} | {res.stats.get('nsteps')} | "
+                  f"{res.run_time:.3f} |", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--drift", action="store_true")
     ap.add_argument("--compare", action="store_true")
+    ap.add_argument("--3r2s", dest="r3r2s", action="store_true")
     a = ap.parse_args()
     if a.compare:
         compare()
-    if a.drift or not a.compare:
+    if a.r3r2s:
+        three_r_two_s()
+    if a.drift or not (a.compare or a.r3r2s):
         drift()
 
 
