@@ -24,6 +24,7 @@ from bgc.format.reader import (  # noqa: F401
     check_name,
     finite_number,
     param_value,
+    read_stabilisation,
     require,
     short,
 )
@@ -266,7 +267,8 @@ def parse_text(text: str, path: str = "<model>", _imports: _Imports | None = Non
                 default = r.expr(vn, f"input {iname!r}")
             inputs.append(Input(iname, default, shape, r.coord(kn), unit))
 
-    stabilisation = _constraints(r, top["constraints"][1]) if "constraints" in top else None
+    stabilisation = (read_stabilisation(r, top["constraints"][1]) if "constraints" in top
+                     else None)
     body = _body(r, top, root, "the model", is_component=False)
     body, events, modes = _hybrid(r, top, body)
     _check_unique(body, inputs)
@@ -275,20 +277,6 @@ def parse_text(text: str, path: str = "<model>", _imports: _Imports | None = Non
                   source_hash=hashlib.sha256(text.encode()).hexdigest()[:16],
                   coord=r.coord(root), strict_causality=strict, events=events, modes=modes,
                   strict_units=strict_units, stabilisation=stabilisation)
-
-
-def _constraints(r: Reader, node) -> float | None:
-    """``constraints: {stabilisation: alpha}``: a positive rate in 1/s, at most 1e6."""
-    m = r.mapping(node, "constraints")
-    require(r, m, node, ("stabilisation",), "constraints")
-    if "stabilisation" not in m:
-        return None
-    vn = m["stabilisation"][1]
-    alpha = r.number(vn, "constraints: stabilisation")
-    if not (0 < alpha <= 1e6):
-        raise ModelError(r.coord(vn), f"constraints: stabilisation {alpha!r} is not a rate in "
-                                      "(0, 1e6] 1/s (the constraint violation's decay rate)")
-    return float(alpha)
 
 
 def _hybrid(r: Reader, top: dict, body: Body):
