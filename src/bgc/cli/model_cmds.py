@@ -112,6 +112,9 @@ def check_cmd(model, strict_causality, show_units):
             states.append(f"{el.id}.{'p' if el.type == 'I' else 'q'}" + (f" ({n})" if n > 1 else ""))
     for st in bg.states:
         states.append(f"{st.id}" + (f" {list(st.shape)}" if st.shape else ""))
+    for src in caus.constraints:
+        n = bg.bonds_of(src)[0].n
+        states.append(f"{src}.q" + (f" ({n})" if n > 1 else "") + " (constraint violation)")
     out.write(f"\nstates ({len(eqs.states)} scalars):\n")
     for s in states:
         out.write(f"  {s}\n")
@@ -122,6 +125,11 @@ def check_cmd(model, strict_causality, show_units):
         from bgc.core.causality import dependent_report
 
         out.write(dependent_report(bg, caus, eqs))
+    if caus.constraints:
+        # lazy: the compile path, which a warm run never loads
+        from bgc.core.constraints import constraint_report
+
+        out.write(constraint_report(bg, caus, eqs))
     for loop in eqs.loops:
         out.write(f"note: {loop}\n")
     for wmsg in eqs.warnings:  # what the equations leave standing of causality's warnings

@@ -29,6 +29,10 @@ class Causality:
     arbitrary: tuple[str, ...]  # R elements whose causality SCAP chose (step 3)
     open_bonds: tuple[str, ...]  # bonds chosen in step 4
     warnings: tuple[str, ...]
+    #: zero-flow (or driven) sources that close a kinematic loop or lock part of a multibond,
+    #: turned into constraints: causally effort sources whose effort is an unknown reaction
+    #: (bgc.core.constraints); in the order they were chosen
+    constraints: tuple[str, ...] = ()
 
     def sets_effort(self, bond: FlatBond, el: str) -> bool:
         return self.effort_by[bond.id] == el
@@ -46,6 +50,8 @@ class Causality:
         if t in ("TF", "MTF"):
             b_in = next(b for b in bonds if b.dst == el.id)
             return "flow forward" if self.effort_by[b_in.id] == el.id else "effort forward"
+        if t == "Sf" and el.id in self.constraints:
+            return "constraint (reaction effort)"
         if t in ("GY", "MGY"):
             return ("flows in" if all(self.effort_by[b.id] == el.id for b in bonds)
                     else "efforts in")
@@ -172,11 +178,31 @@ class _Scap:
         self.propagate(q, el.id)
 
 
+class _Constrain(Exception):
+    """SCAP met a conflict that a flow source resolves by becoming a constraint."""
+
+    def __init__(self, source: str):
+        super().__init__(source)
+        self.source = source
+
+
 def assign_causality(bg: BondGraph, allow_derivative: bool = False) -> Causality:
+    """SCAP; a closed kinematic loop or a partly determined multibond turns the flow source
+    that closes it into a constraint (one at a time, SCAP again after each), so models that
+    compile without constraints get exactly the causality they always had."""
+    constraints: tuple[str, ...] = ()
+    while True:
+        try:
+            return _assign(bg, allow_derivative, constraints)
+        except _Constrain as c:
+            constraints = constraints + (c.source,)
+
+
+def _assign(bg: BondGraph, allow_derivative: bool, constraints: tuple) -> Causality:
     s = _Scap(bg)
-    # 1. sources and R elements whose law fixes their form
+    # 1. sources and R elements whose law fixes their form; a constraint sets its effort
     for el in bg.elements:
-        if el.type == "Se":
+        if el.type == "Se" or (el.type == "Sf" and el.id in constraints):
             s.decide(el, True)
         elif el.type == "Sf":
             s.decide(el, False)
@@ -199,6 +225,11 @@ def assign_causality(bg: BondGraph, allow_derivative: bool = False) -> Causality
             arbitrary, open_bonds = _finish(s, [])
         except CausalConflict as err:
             loop = closed_loop(bg, err.at)
+            closing = _closing_source(bg, loop, constraints)
+            if closing is None and plain_err is None:  # a lock the plain order left partial
+                closing = _partial_in(bg, trial, constraints)
+            if closing is not None:
+                raise _Constrain(closing) from None
             if loop:
                 coord, message, advice = closed_loop_error(bg, loop, err.message)
                 raise ModelError(coord or err.coord, message, advice) from None
@@ -209,7 +240,7 @@ def assign_causality(bg: BondGraph, allow_derivative: bool = False) -> Causality
             if plain_err is not None:
                 raise plain_err from None
             raise
-    _check_partial(bg, s)
+    _check_partial(bg, s, constraints)
     # Derivative causality
     derivative, forced = [], {}
     for el in bg.elements:
@@ -227,7 +258,7 @@ def assign_causality(bg: BondGraph, allow_derivative: bool = False) -> Causality
         warnings.append("bonds with arbitrary causality (zero-order causal paths): "
                         + ", ".join(open_bonds))
     caus = Causality(dict(s.effort_by), tuple(derivative), forced, tuple(arbitrary),
-                     tuple(open_bonds), tuple(warnings))
+                     tuple(open_bonds), tuple(warnings), tuple(constraints))
     if derivative and not allow_derivative:
         culprit = fixed_r_culprit(bg, caus)
         if culprit is not None:
@@ -326,13 +357,47 @@ def _choose_independent(bg: BondGraph, s: _Scap) -> None:
         s.decide(best, best.type == "C")
 
 
-def _check_partial(bg: BondGraph, s: _Scap) -> None:
+def _closing_source(bg: BondGraph, loop: list, constraints: tuple) -> str | None:
+    """The flow source that becomes the loop's constraint: a fixed one (its flow a constant:
+    a pivot, not a drive) before a driven one, then the last one written on the loop (the
+    first is the loop's anchor, as a user reads it), never one that is already."""
+    order = {e.id: i for i, e in enumerate(bg.elements)}
+    srcs = [x for x in loop if x != "ground" and bg.element(x).type == "Sf"
+            and x not in constraints]
+    fixed = [x for x in srcs if not bg.element(x).law[1].names()]
+    return max(fixed or srcs, key=order.get) if srcs else None
+
+
+def _partial_source(bg: BondGraph, s: _Scap, bond: FlatBond, constraints: tuple) -> str | None:
+    """The flow source whose imposed flow reached a non-square modulus from its small side."""
+    origin = s.origin.get(bond.id, (None, None))[0]
+    if origin is not None and bg.element(origin).type == "Sf" and origin not in constraints:
+        return origin
+    return None
+
+
+def _partial_in(bg: BondGraph, s: _Scap, constraints: tuple) -> str | None:
+    """The flow source behind a non-square modulus that ``s`` leaves inverted, if any."""
+    try:
+        _check_partial(bg, s, constraints)
+    except _Constrain as c:
+        return c.source
+    except ModelError:
+        return None
+    return None
+
+
+def _check_partial(bg: BondGraph, s: _Scap, constraints: tuple = ()) -> None:
     for el in bg.elements:  # a non-square modulus left inverted: partly determined
         if el.type in ("MTF", "MGY"):
             b1, b2 = sorted(bg.bonds_of(el.id), key=lambda b: b.dst != el.id)
             inv = (s.effort_by[b1.id] != el.id if el.type == "MTF" else
                    not (s.effort_by[b1.id] == el.id and s.effort_by[b2.id] == el.id))
             if inv and b1.n != b2.n:
+                small = b1 if b1.n < b2.n else b2
+                src = _partial_source(bg, s, small, constraints)
+                if src is not None:
+                    raise _Constrain(src)
                 big = b1 if b1.n > b2.n else b2
                 why = (f"multibond {big.id!r} ({big.src} -> {big.dst}, n={big.n}) is only "
                        f"partly determined: causality reaches {el.type} {el.id!r} from its "

@@ -68,6 +68,8 @@ class Context:
         self.inputs: dict[str, InputVar] = {}
         self.cache: dict = {}
         self.dependent: list = []  # (element id, state symbols, their dt_ symbols)
+        self.constraints: list = []  # bgc.core.constraints.Constraint
+        self.redundant: list = []  # (constraint source, component): dropped, reaction 0
 
     # -- parameters -------------------------------------------------------------------------
     def param(self, pid: str, coord: Coord):

@@ -110,6 +110,8 @@ class Equations:
     #: (state symbol, its time derivative, its value) of each storage element in derivative
     #: causality (bgc.core.modes: such a state follows its constraint in a switch's mode)
     rates: tuple = field(default=())
+    #: constraint components found redundant (their reaction is zero): (source, component)
+    redundant: tuple = field(default=())
 
 
 class LinSolve(sp.Function):

@@ -22,6 +22,7 @@ import sympy as sp
 
 from bgc.base.errors import ModelError
 from bgc.core.causality import Causality
+from bgc.core.constraints import alpha_of, check_initial, constraint_states, stabilise
 from bgc.core.context import Context, check_names
 from bgc.core.eqtypes import (
     SYMBOLIC_MAX,
@@ -67,19 +68,24 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
     for el in bg.elements:
         element_equations(ctx, el, define, derivs, state_vars)
     _auxiliary_states(ctx, derivs, state_vars)
+    constraint_states(ctx, derivs, state_vars)
     outputs = _outputs(ctx)
 
     tear_sets = ()
     dependent = []
-    if ctx.dependent:
+    residual = frozenset()
+    if ctx.dependent or ctx.constraints:
         dependent = _dependent(ctx, defs, state_vars)
         if progress:
             progress("differentiating along the causal paths of dependent storage elements")
-        tear_sets = time_derivatives(ctx, defs, owner, derivs, state_vars)
+        seeds = [f for c in ctx.constraints for f in c.flow]
+        tear_sets = time_derivatives(ctx, defs, owner, derivs, state_vars, seeds)
+        if ctx.constraints:
+            residual = stabilise(ctx, defs, owner, alpha_of(bg.model))
     if progress:
         progress("ordering assignments")
     nloops: list = [] if newton else None
-    order, loops = causal_order(bg, defs, owner, tear_sets, symbolic_max, nloops)
+    order, loops = causal_order(bg, defs, owner, tear_sets, symbolic_max, nloops, residual)
     events = build_events(ctx, bg, state_vars, T, switched) if flat_events(bg) else ()
     kept, subs = _inline(order, defs)
     events = tuple(ev.replace(subs) for ev in events)
@@ -91,6 +97,7 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
     ctx_derived = [ctx.derived[k] for k in ctx.derived_order]
     _check_declared(ctx, state_vars, ctx_derived, kept, derivatives, outputs,
                     [e for ev in events for e in ev.exprs()])
+    check_initial(ctx, state_vars, kept, derivatives)
 
     if progress:
         progress("deriving the Jacobian")
@@ -102,7 +109,8 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
                      tuple(ctx_derived), tuple(ctx.inputs[i.name] for i in bg.model.inputs),
                      tuple(kept), derivatives, outputs, jac, tuple(jac_assign), tuple(loops),
                      warnings=standing, dependent=tuple(dependent), newton=tuple(nloops),
-                     events=events, modes=mode_ids(bg), rates=rates)
+                     events=events, modes=mode_ids(bg), rates=rates,
+                     redundant=tuple(ctx.redundant))
 
 
 def _declare(ctx: Context) -> None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import sympy as sp
 
 from bgc.base.errors import ModelError
+from bgc.core.constraints import constraint_source
 from bgc.core.context import Context, zero_value
 from bgc.core.eqtypes import StateVar, flat, shape_name, symbol_vector
 from bgc.core.graph import FlatElement, code_name
@@ -59,7 +60,11 @@ def element_equations(ctx: Context, el: FlatElement, define, derivs, state_vars)
         define(e, _card(ctx.build(law, el.scope, what), n, el, key), el, f"{el.id} (Se): effort")
         return
     if t == "Sf":
-        define(f, _card(ctx.build(law, el.scope, what), n, el, key), el, f"{el.id} (Sf): flow")
+        val = _card(ctx.build(law, el.scope, what), n, el, key)
+        if el.id in caus.constraints:
+            constraint_source(ctx, el, b, val, define)
+            return
+        define(f, val, el, f"{el.id} (Sf): flow")
         return
     if t in ("I", "C"):
         letter = "p" if t == "I" else "q"

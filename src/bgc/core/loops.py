@@ -33,7 +33,8 @@ from bgc.core.eqtypes import (
 from bgc.core.graph import BondGraph, FlatElement
 
 
-def time_derivatives(ctx: Context, defs: dict, owner: dict, derivs: dict, state_vars) -> tuple:
+def time_derivatives(ctx: Context, defs: dict, owner: dict, derivs: dict, state_vars,
+                     seeds=()) -> tuple:
     """Define the ``dt_`` symbols of the dependent storage elements by the chain rule.
 
     Forward mode in time along the causal assignments: for every assignment v = g(...) that a
@@ -41,6 +42,7 @@ def time_derivatives(ctx: Context, defs: dict, owner: dict, derivs: dict, state_
     derivative is the symbol ``_dx_<state>``, itself assigned the state's derivative. The
     loop this closes (state derivatives -> dependent efforts -> junctions -> state
     derivatives) is linear in its unknowns and solved by ``_tear_solve``.
+    ``seeds``: further symbols whose ``_dt_`` a constraint needs (the flows it holds).
     Returns the tear candidates: (the _dx_ symbols, the dependent dt_ symbols)."""
     bg = ctx.bg
     state_syms = {sv.symbol: sv for sv in state_vars}
@@ -50,7 +52,7 @@ def time_derivatives(ctx: Context, defs: dict, owner: dict, derivs: dict, state_
     for eid, states, dots in ctx.dependent:
         dep_of.update(zip(states, dots))
     # closure of the assignments the dependent states depend on
-    need, stack = set(), [s for s in dep_of]
+    need, stack = set(), [s for s in dep_of] + list(seeds)
     while stack:
         s = stack.pop()
         if s in need or s not in defs:
@@ -72,10 +74,10 @@ def time_derivatives(ctx: Context, defs: dict, owner: dict, derivs: dict, state_
         for d in free:
             if d in input_syms:
                 who = owner[s]
-                deps = sorted({e for e, st, _ in ctx.dependent})
+                deps = sorted({e for e, st, _ in ctx.dependent}) or list(ctx.caus.constraints)
                 raise ModelError(bg.element(who).coord,
                                  f"derivative causality of {', '.join(map(repr, deps))}: its "
-                                 f"state follows from input {input_syms[d]!r} through "
+                                 f"state (or the constraint's flow) follows from input {input_syms[d]!r} through "
                                  f"{_kind(bg.element(who))}, whose time derivative bgc would "
                                  "need; drive it through a compliant coupling, or make the "
                                  "signal an expression of t")
@@ -97,7 +99,7 @@ def time_derivatives(ctx: Context, defs: dict, owner: dict, derivs: dict, state_
     return (frozenset(dx), frozenset(dt_syms))
 
 
-def _tear_solve(bg, g, defs, owner, comp, index, tear_sets, symbolic_max):
+def _tear_solve(bg, g, defs, owner, comp, index, tear_sets, symbolic_max, residual=frozenset()):
     """Solve an algebraic loop that is linear in its unknowns by tearing.
 
     With the tear variables known, the rest of the loop is acyclic; every value in it is
@@ -105,9 +107,11 @@ def _tear_solve(bg, g, defs, owner, comp, index, tear_sets, symbolic_max):
     along the loop (new assignments, free of loop variables: otherwise the loop is
     nonlinear). The loop evaluated at tear = 0 gives the constant part. That leaves
     (I - A) tear = b, solved symbolically on symbols standing for the entries while small,
-    else numerically in the generated code. Returns (description or None)."""
+    else numerically in the generated code. ``residual``: unknowns whose assignment is a
+    residual, zero at the solution (a constraint's reaction), always torn. Returns
+    (description or None)."""
     cset = set(comp)
-    tear = _tear_choice(g, comp, index, tear_sets)
+    tear = _tear_choice(g, comp, index, tear_sets, residual)
     if tear is None:
         return None
     tset = set(tear)
@@ -163,7 +167,7 @@ def _tear_solve(bg, g, defs, owner, comp, index, tear_sets, symbolic_max):
         add(z, defs[s].expr.xreplace(zero), defs[s].why + " (loop at zero)", owner[s])
         zero[s] = z
     n = len(tear)
-    how = _solve_torn(tear, defs, owner, a_rows, zero, tag, add, symbolic_max)
+    how = _solve_torn(tear, defs, owner, a_rows, zero, tag, add, symbolic_max, residual)
     # rebuild the dependency edges of everything touched
     for s in list(comp) + new:
         g.add_node(s)
@@ -177,12 +181,14 @@ def _tear_solve(bg, g, defs, owner, comp, index, tear_sets, symbolic_max):
             f"({', '.join(str(t).lstrip('_') for t in tear)}) solved {how}, through {desc}")
 
 
-def _tear_choice(g, comp: list, index: dict, tear_sets) -> list | None:
+def _tear_choice(g, comp: list, index: dict, tear_sets, residual=frozenset()) -> list | None:
     """The smallest set of tear candidates (state derivatives, dependent time derivatives, or
-    both) in the loop that leaves the rest of it acyclic; None if there is none."""
+    both) in the loop that leaves the rest of it acyclic, always with the residual unknowns;
+    None if there is none."""
     cset = set(comp)
     best = None
-    cands = [sorted(cset & ts, key=index.get) for ts in tear_sets]
+    forced = cset & residual
+    cands = [sorted((cset & ts) | forced, key=index.get) for ts in tear_sets]
     cands = [c for c in cands if c]
     if len(cands) > 1:
         cands.append(sorted(set(cands[0]) | set(cands[1]), key=index.get))
@@ -194,14 +200,19 @@ def _tear_choice(g, comp: list, index: dict, tear_sets) -> list | None:
     return best
 
 
-def _solve_torn(tear, defs, owner, a_rows, zero, tag, add, symbolic_max) -> str:
+def _solve_torn(tear, defs, owner, a_rows, zero, tag, add, symbolic_max,
+                residual=frozenset()) -> str:
     """(I - A) tear = b: the right-hand side and the matrix as new assignments (``add``), the
     solution symbolic while small, else one numeric solve; the tear variables redefined by it.
+    A residual row (r(tear) = R tear + r0 = 0) enters as R tear = -r0.
     Returns how it was solved."""
     n = len(tear)
     bsyms, A = [], sp.zeros(n, n)
     for i, t in enumerate(tear):
+        res = t in residual
         bexpr = defs[t].expr.xreplace(zero)
+        if res:
+            bexpr = -bexpr
         if is_trivial(bexpr):
             bsyms.append(bexpr)
         else:
@@ -210,7 +221,8 @@ def _solve_torn(tear, defs, owner, a_rows, zero, tag, add, symbolic_max) -> str:
                 owner[t])
             bsyms.append(b)
         for k in range(n):
-            v = (1 if i == k else 0) - a_rows[i].get(k, 0)
+            v = (sp.sympify(a_rows[i].get(k, 0)) if res
+                 else (1 if i == k else 0) - a_rows[i].get(k, 0))
             if v == 0 or v.is_Number:
                 A[i, k] = v
             else:
@@ -323,10 +335,13 @@ def _deps(expr):
 
 
 def causal_order(bg: BondGraph, defs: dict, owner: dict, tear_sets=(),
-                  symbolic_max: int = SYMBOLIC_MAX, newton: list | None = None):
+                  symbolic_max: int = SYMBOLIC_MAX, newton: list | None = None,
+                  residual=frozenset()):
     """Assignments in causal order; algebraic loops solved where linear (symbolically), and
     nonlinear ones by Newton's method in the generated code when ``newton`` (a list that
-    receives the loops) is given."""
+    receives the loops) is given. ``residual``: unknowns defined by a residual (constraint
+    reactions), each of which must lie in a loop torn at it."""
+    torn: set = set()
     g = nx.DiGraph()
     index = {s: i for i, s in enumerate(defs)}
     for s, a in defs.items():
@@ -341,8 +356,10 @@ def causal_order(bg: BondGraph, defs: dict, owner: dict, tear_sets=(),
             if not g.has_edge(s, s):
                 continue
         comp = sorted(comp, key=index.get)
-        if any(cset_t & set(comp) for cset_t in tear_sets):
-            done = _tear_solve(bg, g, defs, owner, comp, index, tear_sets, symbolic_max)
+        if any(cset_t & set(comp) for cset_t in tear_sets) or residual & set(comp):
+            done = _tear_solve(bg, g, defs, owner, comp, index, tear_sets, symbolic_max,
+                               residual)
+            torn |= residual & set(comp)
             if done is None:
                 els = sorted({owner[s] for s in comp})
                 raise ModelError(_coord(bg, els[0]), "derivative causality: the loop "
@@ -384,6 +401,14 @@ def causal_order(bg: BondGraph, defs: dict, owner: dict, tear_sets=(),
             for dep in defs[s].expr.free_symbols:
                 if dep in defs:
                     g.add_edge(dep, s)
+    loose = sorted(residual - torn, key=str)
+    if loose:
+        src = owner[loose[0]]
+        raise ModelError(_coord(bg, src), f"constraint {src!r}: its reaction "
+                         f"({', '.join(map(str, loose))}) does not act on the motion it "
+                         "constrains (no loop from the reaction through the accelerations back "
+                         "to the constraint): the constraint is singular or redundant; remove "
+                         "it or make the connection compliant")
     order = schedule(g, index)
     return order, loops
 

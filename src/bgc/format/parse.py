@@ -25,6 +25,7 @@ from bgc.format.reader import (  # noqa: F401
     check_name,
     finite_number,
     param_value,
+    read_stabilisation,
     require,
     short,
 )
@@ -158,6 +159,9 @@ class Model:
     events: tuple = ()  # bgc.format.events.Event: zero crossings and time events, with actions
     modes: tuple[str, ...] = ()  # the discrete mode variables (states whose derivative is 0)
     strict_units: bool = False  # `units: strict`: every parameter needs a unit
+    #: `constraints: {stabilisation: alpha}`: the rate (1/s) at which a closed loop's constraint
+    #: violation decays (bgc.core.constraints); None: the default
+    stabilisation: float | None = None
 
     def component(self, name: str) -> Component | None:
         for c in self.components:
@@ -213,7 +217,7 @@ def parse_root(r: Reader, root, source_hash: str, _imports: _Imports | None = No
     top = r.mapping(root, "the model")
     allowed = ("bgc", "name", "description", "parameters", "inputs", "elements", "bonds",
                "states", "outputs", "components", "imports", "causality", "modes", "events",
-               "units")
+               "units", "constraints")
     require(r, top, root, allowed, "the model", required=("bgc", "name", "elements", "bonds"))
     strict = False
     if "causality" in top:
@@ -281,6 +285,8 @@ def parse_root(r: Reader, root, source_hash: str, _imports: _Imports | None = No
                 default = r.expr(vn, f"input {iname!r}")
             inputs.append(Input(iname, default, shape, r.coord(kn), unit))
 
+    stabilisation = (read_stabilisation(r, top["constraints"][1]) if "constraints" in top
+                     else None)
     body = _body(r, top, root, "the model", is_component=False)
     body, events, modes = _hybrid(r, top, body)
     _check_unique(body, inputs)
@@ -288,7 +294,7 @@ def parse_root(r: Reader, root, source_hash: str, _imports: _Imports | None = No
                   components=tuple(components), description=description,
                   source_hash=source_hash,
                   coord=r.coord(root), strict_causality=strict, events=events, modes=modes,
-                  strict_units=strict_units)
+                  strict_units=strict_units, stabilisation=stabilisation)
 
 
 def _hybrid(r: Reader, top: dict, body: Body):

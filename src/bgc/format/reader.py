@@ -353,3 +353,17 @@ def param_value(r: Reader, pname: str, node):
         return r.expr(node, f"parameter {pname!r}")
     raise ModelError(r.coord(node), f"parameter {pname!r} must be a number, a matrix or an "
                                     "expression")
+
+
+def read_stabilisation(r: Reader, node) -> float | None:
+    """A model's ``constraints: {stabilisation: alpha}``: a positive rate in 1/s, at most 1e6."""
+    m = r.mapping(node, "constraints")
+    require(r, m, node, ("stabilisation",), "constraints")
+    if "stabilisation" not in m:
+        return None
+    vn = m["stabilisation"][1]
+    alpha = r.number(vn, "constraints: stabilisation")
+    if not (0 < alpha <= 1e6):
+        raise ModelError(r.coord(vn), f"constraints: stabilisation {alpha!r} is not a rate in "
+                                      "(0, 1e6] 1/s (the constraint violation's decay rate)")
+    return float(alpha)

@@ -1,0 +1,243 @@
+"""Constraints: flow sources that close a kinematic loop, held by an unknown reaction.
+
+When SCAP meets a closed kinematic loop, or a non-square modulus that a zero-flow source
+would have to invert (a joint that locks only part of a multibond), causality
+(bgc.core.causality) turns that source into a *constraint*: causally an effort source whose
+effort is an unknown reaction lambda, one per component of its bond. What the source imposed
+becomes an equation: the bond's flow f (now computed by the other end) must equal the
+source's flow s(t).
+
+The constraint's violation q (the relative displacement of the two sides, q(0) = 0: the given
+configuration is the assembled one) is a state, q' = f - s. The reaction follows from the
+acceleration-level constraint, stabilised (Baumgarte):
+
+    q'' + 2 alpha q' + alpha^2 q = 0,
+
+linear in lambda: q'' = d/dt f - s', and d/dt f reaches the efforts through the state
+derivatives. Its ``_dt_`` symbols come from the chain rule of bgc.core.loops
+(``time_derivatives``) and the system is solved with the dependent storage elements'
+derivatives by tearing (a residual row per component). The result is an ODE that every
+backend, solver and the FMU carry as they are; q decays critically damped at rate alpha
+instead of drifting.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import sympy as sp
+
+from bgc.base.errors import ModelError
+from bgc.core.causality import closed_loop
+from bgc.core.context import Context
+from bgc.core.eqtypes import Assignment, StateVar, T, clean_derivative, flat, real_symbol, symbol_vector
+from bgc.core.graph import FlatElement, code_name
+
+#: The default stabilisation rate alpha (1/s), chosen by measurement (docs/closed_loops.md).
+DEFAULT_ALPHA = 20.0
+
+
+@dataclass(frozen=True)
+class Constraint:
+    source: str  # the flow source's element id
+    bond: str  # its bond
+    lam: tuple  # the reaction (the bond's effort), one symbol per component
+    flow: tuple  # the bond's flow, computed by the other end
+    target: tuple  # the source's flow: expressions of t and parameters
+    q: tuple  # the violation's state symbols
+
+
+def constraint_source(ctx: Context, el: FlatElement, b, target, define) -> None:
+    """The law of a flow source turned constraint: its effort is the unknown reaction."""
+    n = b.n
+    lam = symbol_vector(f"lam_{code_name(el.id)}", n)
+    define(ctx.e[b.id], lam, el, f"{el.id} (constraint): reaction effort")
+    q = symbol_vector(f"q_{code_name(el.id)}", n)
+    ctx.constraints.append(Constraint(el.id, b.id, tuple(flat(lam)), tuple(flat(ctx.f[b.id])),
+                                      tuple(flat(target)), tuple(flat(q))))
+
+
+def constraint_states(ctx: Context, derivs: dict, state_vars: list) -> None:
+    """The violation states q, q' = f - s, q(0) = 0."""
+    for c in ctx.constraints:
+        n = len(c.q)
+        for k, (q, f, s) in enumerate(zip(c.q, c.flow, c.target)):
+            derivs[q] = f - s
+            label = f"{c.source}.q" + (f"[{k}]" if n > 1 else "")
+            state_vars.append(StateVar(label, q, c.source, sp.Integer(0)))
+
+
+def stabilise(ctx: Context, defs: dict, owner: dict, alpha: float) -> frozenset:
+    """Each reaction component defined by its residual q'' + 2 alpha q' + alpha^2 q (its
+    ``_dt_`` flows defined by ``time_derivatives`` beforehand). Returns the reactions."""
+    bg = ctx.bg
+    lams = {lam for c in ctx.constraints for lam in c.lam}
+    inputs = {s for iv in ctx.inputs.values() for s in iv.symbols}
+    out: set = set()
+    residuals: dict = {}
+    owner_of = {lam: c.source for c in ctx.constraints for lam in c.lam}
+    c_index = {lam: k for c in ctx.constraints for k, lam in enumerate(c.lam)}
+    for c in ctx.constraints:
+        el = bg.element(c.source)
+        reach = _closure(defs, c.flow)
+        own = reach & lams
+        if own:
+            raise ModelError(el.coord, f"constraint {c.source!r} (the flow source that closes "
+                             "a kinematic loop): the flow it holds depends on a reaction "
+                             f"({', '.join(sorted(map(str, own)))}) through a resistive path, "
+                             "not only on the motion; bgc cannot hold it (index > 3): make a "
+                             "connection on that path compliant")
+        for lam, f, s, q in zip(c.lam, c.flow, c.target, c.q):
+            if sp.sympify(s).free_symbols & inputs:
+                raise ModelError(el.coord, f"constraint {c.source!r}: its flow follows input "
+                                 "signals, whose time derivative a rigid constraint needs; make "
+                                 "the signal an expression of t, or the connection compliant")
+            ds = clean_derivative(sp.diff(s, T))
+            qdot = f - s
+            r = real_symbol(f"_dt_{f}") - ds + 2 * alpha * qdot + alpha ** 2 * q
+            residuals[lam] = r
+    for lam, r in residuals.items():
+        src = owner_of[lam]
+        if not (_closure(defs, r.free_symbols) & lams):
+            # no reaction reaches this component's acceleration: the motion already holds it
+            # (an out-of-plane component of a planar loop written with 3-D bonds)
+            defs[lam] = Assignment(lam, sp.Integer(0), f"{src} (constraint): redundant "
+                                   "component, its reaction is zero")
+            ctx.redundant.append((src, c_index[lam]))
+        else:
+            defs[lam] = Assignment(lam, r, f"{src} (constraint): reaction, from "
+                                   f"q'' + 2 alpha q' + alpha^2 q = 0 (alpha = {alpha:g} 1/s)")
+            out.add(lam)
+        owner[lam] = src
+    return frozenset(out)
+
+
+def _closure(defs: dict, syms) -> set:
+    seen, stack = set(), list(syms)
+    while stack:
+        s = stack.pop()
+        if s in seen:
+            continue
+        seen.add(s)
+        if s in defs:
+            stack.extend(defs[s].expr.free_symbols)
+    return seen
+
+
+def alpha_of(model) -> float:
+    return model.stabilisation if model.stabilisation is not None else DEFAULT_ALPHA
+
+
+def check_initial(ctx: Context, state_vars, kept, derivatives) -> None:
+    """The initial velocities against each constraint: q'(0) = f - s at the model's initial
+    state and parameters must vanish (to 1e-9 of the velocities along the loop), else a located
+    error at the source naming the loop and the residual. Skipped where a value cannot be
+    evaluated at compile time (a Newton loop on the way)."""
+    if not ctx.constraints:
+        return
+    vals = _initial_values(ctx, state_vars)
+    if vals is None:
+        return
+    index = {sv.symbol: k for k, sv in enumerate(state_vars)}
+    need = _closure({a.symbol: a for a in kept},
+                    [s for c in ctx.constraints for q in c.q
+                     for s in sp.sympify(derivatives[index[q]]).free_symbols])
+    scale = 0.0
+    for a in kept:
+        if a.symbol not in need:
+            continue
+        v = _number(a.expr, vals)
+        if v is None:
+            return
+        vals[a.symbol] = v
+        if str(a.symbol).startswith("f_"):
+            scale = max(scale, abs(float(v)))
+    for c in ctx.constraints:
+        res = [_number(derivatives[index[q]], vals) for q in c.q]
+        if any(r is None for r in res):
+            return
+        res = [float(r) for r in res]
+        worst = max(abs(r) for r in res)
+        if worst > 1e-9 * max(1.0, scale):
+            el = ctx.bg.element(c.source)
+            shown = ", ".join(f"{r:.6g}" for r in res)
+            raise ModelError(el.coord, f"constraint {c.source!r} closing the kinematic loop "
+                             f"{loop_text(ctx.bg, c.source)}: the initial velocities violate "
+                             f"it: the flow of bond {c.bond!r} differs from the source's by "
+                             f"[{shown}] (SI units of the bond's flow); give initial "
+                             "velocities (momenta) that satisfy the loop")
+
+
+def _initial_values(ctx: Context, state_vars) -> dict | None:
+    vals: dict = {T: sp.Float(0)}
+    for pv in ctx.params.values():
+        flatv = (np.asarray(pv.value, dtype=float).ravel() if isinstance(pv.value, tuple)
+                 else [pv.value])
+        for s, v in zip(pv.symbols, flatv):
+            vals[s] = sp.Float(float(v))
+    for key in ctx.derived_order:
+        a = ctx.derived[key]
+        for s, e in zip(flat(a.symbol), flat(a.expr)):
+            v = _number(e, vals)
+            if v is None:
+                return None
+            vals[s] = v
+    for iv in ctx.inputs.values():
+        if iv.table is not None:
+            return None
+        for s, e in zip(iv.symbols, iv.default):
+            v = _number(e, vals)
+            if v is None:
+                return None
+            vals[s] = v
+    for sv in state_vars:
+        v = _number(sv.initial, vals)
+        if v is None:
+            return None
+        vals[sv.symbol] = v
+    return vals
+
+
+def _number(expr, vals) -> float | None:
+    try:
+        v = complex(sp.sympify(expr).xreplace(vals).evalf())
+    except (TypeError, ValueError, AttributeError):
+        return None
+    return sp.Float(v.real) if abs(v.imag) <= 1e-300 and np.isfinite(v.real) else None
+
+
+def loop_text(bg, source: str) -> str:
+    """The loop a constraint closes, by its elements (at most 24 named)."""
+    names = [x for x in closed_loop(bg, source) if x != "ground"]
+    if not names:
+        return f"at {source!r}"
+    more = f", ... ({len(names)} elements)" if len(names) > 24 else ""
+    return "through " + ", ".join(names[:24]) + more
+
+
+def constraint_report(bg, caus, eqs) -> str:
+    """What `bgc check` says about closed loops: each loop by its elements, its constraint
+    (source, bond, components), the coordinates kept independent (the states in integral
+    causality), the dependent storage elements, the redundant components dropped, alpha."""
+    if not caus.constraints:
+        return ""
+    alpha = alpha_of(bg.model)
+    lines = [f"closed loops (constraints held by reactions; violation q stabilised by "
+             f"q'' + 2 alpha q' + alpha^2 q = 0, alpha = {alpha:g} 1/s):"]
+    qs = {c: [sv.name for sv in eqs.states if sv.owner == c] for c in caus.constraints}
+    for k, src in enumerate(caus.constraints, 1):
+        el = bg.element(src)
+        (b,) = bg.bonds_of(src)
+        lines.append(f"  loop {k} {loop_text(bg, src)}")
+        lines.append(f"    constraint: Sf {src} (line {el.coord.line}) on bond {b.id} "
+                     f"({b.src} -> {b.dst}), {b.n} component(s): its flow held, its effort the "
+                     f"reaction; violation state(s) {', '.join(qs[src])}")
+    cons = {n for v in qs.values() for n in v}
+    kept = [sv.name for sv in eqs.states if sv.name not in cons]
+    lines.append(f"  coordinates kept independent: {', '.join(kept) or 'none'}")
+    lines.append(f"  dependent storage elements: {', '.join(caus.derivative) or 'none'}")
+    red = [f"{src}.q[{k}]" if bg.bonds_of(src)[0].n > 1 else f"{src}.q"
+           for src, k in getattr(eqs, "redundant", ())]
+    lines.append("  redundant constraint components dropped (reaction 0): "
+                 + (", ".join(red) if red else "none"))
+    return "\n".join(lines) + "\n"
