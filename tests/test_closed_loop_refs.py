@@ -37,6 +37,17 @@ ANGLES = ("th1", "th2", "th3")
 RATES = ("w1", "w2", "w3")
 
 _compiled: dict = {}
+_runs: dict = {}
+
+
+def _reference(form="reduced", free=False):
+    """The reference over 5 s (251 samples), driven or free (no torque, no friction); each
+    run once per session."""
+    key = (form, free)
+    if key not in _runs:
+        params = {"tau0": 0.0, "c1": 0.0, "c2": 0.0, "c3": 0.0, "c4": 0.0} if free else None
+        _runs[key] = fl.simulate(np.linspace(0.0, 5.0, 251), form=form, params=params)
+    return _runs[key]
 
 
 def _compile(path):
@@ -84,9 +95,8 @@ def test_fourbar_assembly_closes_the_loop_at_every_crank_angle():
 
 
 def test_fourbar_reference_formulations_agree():
-    t = np.linspace(0.0, 5.0, 251)
-    a = fl.simulate(t, form="reduced")
-    b = fl.simulate(t, form="multiplier")
+    a = _reference("reduced")
+    b = _reference("multiplier")
     for n in ANGLES:
         assert np.max(np.abs(a[n] - b[n])) < 1e-9, n
     for n in RATES:
@@ -99,12 +109,10 @@ def test_fourbar_reference_formulations_agree():
 
 @pytest.mark.parametrize("form", ["reduced", "multiplier"])
 def test_fourbar_reference_energy(form):
-    t = np.linspace(0.0, 5.0, 251)
-    free = fl.simulate(t, form=form, params={"tau0": 0.0, "c1": 0.0, "c2": 0.0, "c3": 0.0,
-                                             "c4": 0.0})
+    free = _reference(form, free=True)
     scale = np.max(np.abs(free["energy"]))
     assert np.ptp(free["energy"]) < 1e-9 * scale and np.ptp(free["th1"]) > 1.0
-    run = fl.simulate(t, form=form)
+    run = _reference(form)
     balance = run["energy"] - run["work_in"] + run["dissipated"]
     assert np.ptp(balance) < 1e-9 * np.max(np.abs(run["energy"]))
 
@@ -232,6 +240,39 @@ def test_rigid_fourbar_against_the_reference():
     # energy - work in + dissipated is constant
     e = res.y["energy"] - res.y["work_in"] + res.y["dissipated"]
     assert np.ptp(e) < 1e-8 * np.max(np.abs(res.y["energy"]))
+
+
+def test_compliant_fourbar_converges_to_the_rigid_model():
+    rigid = _rigid_or_skip(MODELS / "fourbar_rigid.yaml")
+    compliant = _compile(MODELS / "fourbar_compliant.yaml")
+    t = np.linspace(0.0, 2.0, 201)
+    kw = dict(t_eval=t, method="Radau", rtol=1e-10, atol=1e-12)
+    ref = rigid.simulate((0.0, 2.0), **kw).y
+    errs = {k: _errors(compliant.simulate((0.0, 2.0), p={"k": k}, **kw), ref)
+            for k in (1e6, 1e7)}
+    for n in ANGLES + RATES:
+        assert 9.0 < errs[1e6][n] / errs[1e7][n] < 11.0, (n, errs)
+
+
+@pytest.mark.slow
+def test_compliant_3r2s_converges_to_the_rigid_3r2s():
+    """The circle scene's first 0.5 s: the compliant model's angles approach the rigid
+    model's as both coupling stiffnesses grow ten-fold."""
+    _rigid_or_skip(MODELS / "3r2s_rigid.yaml")
+    rigid = bgc.compile(str(MODELS / "3r2s_rigid.yaml"),
+                        scene=str(MODELS / "scenes" / "3r2s_circle_rigid.yaml"), target=BACKEND)
+    compliant = bgc.compile(str(MODELS / "3r2s.yaml"),
+                            scene=str(MODELS / "scenes" / "3r2s_circle.yaml"), target=BACKEND)
+    t = np.linspace(0.0, 0.5, 26)
+    kw = dict(t_eval=t, method="Radau", rtol=1e-8, atol=1e-10)
+    ref = rigid.simulate((0.0, 0.5), **kw).y
+    out = []
+    for kt, kr in ((1e8, 1e3), (1e9, 1e4)):
+        y = compliant.simulate((0.0, 0.5), p={"k_t": kt, "k_r": kr}, **kw).y
+        out.append(np.array([np.max(np.abs(y[f"theta{i}"] - ref[f"theta{i}"]))
+                             for i in (2, 3, 4)]))
+    ratio = out[0] / out[1]
+    assert np.all((ratio > 8.0) & (ratio < 12.0)), (out, ratio)
 
 
 @pytest.mark.slow
