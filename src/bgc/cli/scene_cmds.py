@@ -47,7 +47,8 @@ from bgc.run.runner import explain_scene, run_scene
               help="stop with an error once the integration has taken this many seconds")
 @click.option("--backend", type=click.Choice(BACKENDS), default=None,
               help="numpy module, or C (the step loop in a compiled library); default: the "
-                   "scene's solver backend, else numpy")
+                   "scene's solver backend, else c where a C compiler works and the method's "
+                   "step loop runs in C (Radau, Rodas4, DOP853), else numpy")
 @click.option("--no-cache", is_flag=True, help="compile afresh, without the compile cache")
 @click.option("--strict-causality", is_flag=True,
               help="refuse derivative causality (every storage element independent) instead of "
@@ -70,7 +71,8 @@ def simulate_cmd(scene, t_end, max_steps, out, plot_dir, method, rtol, atol, max
         check_folder(out_folder(plot_dir, "--plot", create=False), "--plot")
     res = run_scene(sc, progress=prog, method=method, rtol=rtol, max_wall=max_wall,
                     atol=atol, backend=backend, use_cache=not no_cache,
-                    strict_causality=strict_causality, max_steps=max_steps)
+                    strict_causality=strict_causality, max_steps=max_steps,
+                    choose_backend=True)
     ins = model_inputs(scene, sc.model_path)
     figures = None
     if plot_dir is not None:  # every figure drawn before anything is written
@@ -91,7 +93,7 @@ def simulate_cmd(scene, t_end, max_steps, out, plot_dir, method, rtol, atol, max
                                  t_end=t_end, max_steps=max_steps), res)
 
     click.echo(summary_line(res.scene.name, res.t, res.method, res.rtol, res.atol, res.backend,
-                            res.stats, res.compile_time, res.run_time))
+                            res.stats, res.compile_time, res.run_time, res.backend_why))
 
 
 def _scene_or_model(path, t_end, max_steps, say):

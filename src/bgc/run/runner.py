@@ -15,7 +15,7 @@ from bgc.format.scene import (
     param_values,
     parse_scene,
 )
-from bgc.run.driver import build, module_name, scene_compiled
+from bgc.run.driver import build, default_backend, module_name, scene_compiled
 from bgc.run.progress import simulating_line
 from bgc.run.steps import STEPS_PER_PERIOD, fastest_input, scene_max_step, stepped_over
 
@@ -42,6 +42,9 @@ class SceneResult:
     run_args: dict | None = None
     #: a hybrid model's event log: (t, event, instance index, x before, x after) per event
     events: tuple = ()
+    #: why the run used its backend when the command and the scene named none, or C failed
+    #: ("" when the backend was named and used)
+    backend_why: str = ""
 
 
 def compile_scene(scene: Scene, progress=None, specialise: bool = True,
@@ -89,20 +92,30 @@ def _compiled(scene: Scene, progress=None, strict_causality: bool = False):
 
 def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=None,
               backend=None, use_cache: bool = True,
-              strict_causality: bool = False, max_steps: int | None = None) -> SceneResult:
+              strict_causality: bool = False, max_steps: int | None = None,
+              choose_backend: bool = False) -> SceneResult:
+    """Compile (or take from the cache) and run a scene. backend: "numpy" or "c", else the
+    scene's; where neither names one, numpy, or with ``choose_backend`` (`bgc simulate`)
+    C where a C compiler works (:func:`bgc.run.driver.default_backend`), the reason kept in
+    the result's backend_why."""
     say = progress or (lambda msg: None)
     scene = path if isinstance(path, Scene) else parse_scene(path)
 
     t0 = time.perf_counter()
-    built = build(scene=scene, backend=backend or scene.backend, use_cache=use_cache,
+    method = method or scene.method
+    asked, why = backend or scene.backend, ""
+    if asked is None:  # neither the command nor the scene names one
+        asked, why = default_backend(method) if choose_backend else ("numpy", "")
+    built = build(scene=scene, backend=asked, use_cache=use_cache,
                   strict_causality=strict_causality, progress=progress, fallback=True)
     backend, mod, entry = built.backend, built.module, built.entry
+    if backend != asked:  # the build said why (no compiler, a model C does not print, ...)
+        why = f"{why + '; ' if why else ''}fell back from c, see above"
     t1 = time.perf_counter()
-    method = method or scene.method
     rtol = rtol or scene.rtol
     atol = scene.atol if atol is None else atol
 
-    say(simulating_line(scene.name, method, backend, rtol, atol))
+    say(simulating_line(scene.name, method, backend, rtol, atol, why))
     if backend == "c" and method not in getattr(mod, "C_METHODS", (method,)):
         say(f"note: {method} runs in scipy's Python step loop, calling the C functions (little "
             "faster than numpy); the C step loop runs Radau and Rodas4")
@@ -133,7 +146,7 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
                        dict(t_span=scene.t_span, dt=dt, method=method, rtol=rtol, atol=atol,
                             p=p, breakpoints=scene.breakpoints, x0=x0,
                             max_step=max_step, max_steps=max_steps, max_wall=max_wall),
-                       tuple(getattr(res, "events", ())))
+                       tuple(getattr(res, "events", ())), why)
 
 
 # ---------------------------------------------------------------------------------------------
