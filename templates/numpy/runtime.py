@@ -302,22 +302,24 @@ def _block_pattern(nb):
     return (rows[:, None] * nb + b).ravel(), (cols[:, None] * nb + b).ravel()
 
 
-#: The sparse linear algebra's threshold (bench/bench_sparse.py measures it): an implicit
-#: method factorises a sparse Jacobian (scipy's splu) when the flat state (states x instances)
-#: has at least SPARSE_MIN_SIZE entries and at most SPARSE_MAX_DENSITY of the Jacobian's
-#: entries can be nonzero; below, a dense LU (LAPACK) is faster.
-SPARSE_MIN_SIZE = 200
+#: Where sparse linear algebra pays (bench/bench_sparse.py, bench/RESULTS_sparse.md): an
+#: implicit method factorises a sparse Jacobian (scipy's splu) when the flat state (states x
+#: instances) has at least SPARSE_MIN_SIZE[method] entries and at most SPARSE_MAX_DENSITY of
+#: the Jacobian's entries can be nonzero; below, a dense LU (LAPACK) is as fast or faster.
+#: Rodas4 factorises at every step, where splu's fixed cost weighs more: its threshold is
+#: higher.
+SPARSE_MIN_SIZE = {"Radau": 100, "BDF": 100, "Rodas4": 200}
 SPARSE_MAX_DENSITY = 0.05
 
 
-def _use_sparse(nb, sparse=None):
+def _use_sparse(nb, sparse=None, method="Radau"):
     """Does an implicit method get a sparse Jacobian? sparse=True/False forces the choice;
     None decides by size and density (SPARSE_MIN_SIZE, SPARSE_MAX_DENSITY)."""
     if sparse is not None:
         return bool(sparse)
     size = N_STATES * nb
     nnz = int(np.count_nonzero(JAC_SPARSITY)) * nb
-    return size >= SPARSE_MIN_SIZE and nnz <= SPARSE_MAX_DENSITY * size * size
+    return size >= SPARSE_MIN_SIZE.get(method, 100) and nnz <= SPARSE_MAX_DENSITY * size * size
 
 
 def _csc_plan(nb):
@@ -369,7 +371,7 @@ def _jacobian_options(method, jac, at, shape, p, u, stats, sparse=None):
     nb = int(np.prod(shape[1:]))
     if method in _STABILITY:
         return {}  # explicit: no Jacobian
-    use = method != "LSODA" and _use_sparse(nb, sparse)
+    use = method != "LSODA" and _use_sparse(nb, sparse, method)
     if method == "Rodas4":
         if not jac:
             raise ValueError("Rodas4 needs the analytic Jacobian (jac=True): a Rosenbrock "

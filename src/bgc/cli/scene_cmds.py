@@ -38,7 +38,8 @@ from bgc.run.runner import explain_scene, run_scene
 @click.option("--out", type=click.Path(), help="results .npz (t and outputs)")
 @click.option("--plot", "plot_dir", type=click.Path(), help="write PNG plots here")
 @click.option("--method", type=click.Choice(SOLVER_METHODS), default=None,
-              help="override the scene's solver method (Rodas4: the generated module's own)")
+              help="override the scene's solver method (Rodas4: the generated module's own; "
+                   "auto: DOP853, or Radau where a stiffness probe finds the model stiff)")
 @click.option("--rtol", type=float, default=None,
               help="relative tolerance, finite, within the limit of tolerances (1e-14..1)")
 @click.option("--atol", type=POSITIVE, default=None,

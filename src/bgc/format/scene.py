@@ -21,7 +21,9 @@ from bgc.format.parse import Model, parse_file
 from bgc.format.reader import Reader, check_name, param_value, require
 from bgc.format.whitelist import Expr
 
-METHODS = ("Radau", "BDF", "LSODA", "RK45", "RK23", "DOP853", "Rodas4")
+#: the solver methods a scene or --method may name; "auto": DOP853 or Radau by a stiffness probe
+#: (bgc.run.method_choice; a sweep, which runs a batch, takes Radau)
+METHODS = ("Radau", "BDF", "LSODA", "RK45", "RK23", "DOP853", "Rodas4", "auto")
 PLOT_KINDS = ("time", "path3d", "loci")
 
 

@@ -393,7 +393,7 @@ def default_backend(method: str) -> tuple[str, str]:
     (the probe kept in the compile cache) and the method's step loop runs in C, else "numpy";
     why says which in a few words (the summary line shows it). A C build that then fails
     still falls back to numpy (:func:`build` with ``fallback``)."""
-    if method not in C_STEP_METHODS:
+    if method not in C_STEP_METHODS + ("auto",):  # (auto: DOP853 or Radau, both in C)
         return "numpy", f"default: {method} has no C step loop"
     if not cbuild.available():
         return "numpy", f"default: no C compiler ({cbuild.cc_text()!r} cannot run)"

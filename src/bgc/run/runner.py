@@ -15,6 +15,7 @@ from bgc.format.scene import (
     param_values,
     parse_scene,
 )
+from bgc.run import method_choice
 from bgc.run.driver import build, default_backend, module_name, scene_compiled
 from bgc.run.progress import simulating_line
 from bgc.run.steps import STEPS_PER_PERIOD, fastest_input, scene_max_step, stepped_over
@@ -110,15 +111,15 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
                   strict_causality=strict_causality, progress=progress, fallback=True)
     backend, mod, entry = built.backend, built.module, built.entry
     if backend != asked:  # the build said why (no compiler, a model C does not print, ...)
-        why = f"{why + '; ' if why else ''}fell back from c, see above"
+        why = "fell back from c, see above"
     t1 = time.perf_counter()
     rtol = rtol or scene.rtol
     atol = scene.atol if atol is None else atol
 
     say(simulating_line(scene.name, method, backend, rtol, atol, why))
-    if backend == "c" and method not in getattr(mod, "C_METHODS", (method,)):
+    if backend == "c" and method not in (*getattr(mod, "C_METHODS", (method,)), "auto"):
         say(f"note: {method} runs in scipy's Python step loop, calling the C functions (little "
-            "faster than numpy); the C step loop runs Radau and Rodas4")
+            "faster than numpy); the C step loop runs Radau, Rodas4 and DOP853")
     dt = scene.dt or (scene.t_span[1] - scene.t_span[0]) / 1000
     p = runtime_params(scene, mod)
     x0 = initial_state(scene, mod, p)  # the scene's initial: values, or equilibrium
@@ -127,10 +128,25 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
     if max_step < scene.max_step:
         say(f"max_step {max_step:.3g} s: {STEPS_PER_PERIOD} steps per period of the input "
             f"{fastest_input(mod)!r} (solver max_step in the scene overrides it)")
+    auto = method == "auto"
+    if auto:  # DOP853 or Radau, by the model's Jacobian along a short probe
+        method, mwhy = method_choice.choose(mod, scene.t_span, p, x0, scene.breakpoints,
+                                            max_step)
+        why = f"{why}; {mwhy}" if why else mwhy
+        say(f"method {method} ({mwhy})")
+    run = dict(dt=dt, rtol=rtol, atol=atol, p=p, breakpoints=scene.breakpoints, x0=x0,
+               max_step=max_step, max_steps=max_steps, max_wall=max_wall)
     try:
-        res = mod.simulate(scene.t_span, dt=dt, method=method, rtol=rtol, atol=atol,
-                           p=p, breakpoints=scene.breakpoints, x0=x0,
-                           max_step=max_step, max_steps=max_steps, max_wall=max_wall)
+        try:
+            res = mod.simulate(scene.t_span, method=method, **run)
+        except mod.SimulationError as exc:
+            if not (auto and method == method_choice.EXPLICIT):
+                raise
+            # the probe missed it (a contact later in the span): Radau it is
+            method = method_choice.IMPLICIT
+            why += f"; {method_choice.EXPLICIT} failed at t = {exc.t:.6g}, rerun with Radau"
+            say(f"{method_choice.EXPLICIT} failed ({exc}): rerunning with Radau")
+            res = mod.simulate(scene.t_span, method=method, **run)
     except mod.SimulationError as exc:
         # the diagnosis reads the model's equations: compiled now if the module came from
         # the cache (a failed run can afford it)
