@@ -274,6 +274,16 @@ def test_simulate_defaults_to_c_where_a_compiler_works(tmp_path):
     assert np.max(np.abs(a["position"] - b["position"])) < 1e-5 * np.max(np.abs(b["position"]))
 
 
+@needs_cc
+def test_a_big_models_units_build_at_O0(tmp_path):
+    """Units that together pass BIG_MODEL_BYTES get -O0 in place of -O2; smaller ones -O2."""
+    (tmp_path / "a.c").write_text("int a;\n")
+    assert "-O2" in cbuild.model_flags(tmp_path, ["a.c"])
+    (tmp_path / "b.c").write_text("/*" + "x" * cbuild.BIG_MODEL_BYTES + "*/\nint b;\n")
+    fl = cbuild.model_flags(tmp_path, ["a.c", "b.c"])
+    assert "-O0" in fl and "-O2" not in fl and "-fPIC" in fl
+
+
 @pytest.mark.parametrize("cc", ["/nonexistent/cc", "/bin/false"])
 def test_without_a_working_compiler_simulate_defaults_to_numpy_with_a_note(tmp_path, cc):
     """CC naming nothing, or a program that is no compiler (`false --version` fails): the
