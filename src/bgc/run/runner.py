@@ -151,6 +151,8 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
         # the diagnosis reads the model's equations: compiled now if the module came from
         # the cache (a failed run can afford it)
         c, _ = _compiled(scene, None, strict_causality)
+        if backend == "c" and getattr(exc, "where", None) is None and "non-finite" in str(exc):
+            mod, exc = _numpy_diagnosis(c, scene, method, run, mod, exc)
         raise simulation_failed(c, mod, scene, exc, p) from None
     t2 = time.perf_counter()
     t, x, y = res
@@ -163,6 +165,20 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
                             p=p, breakpoints=scene.breakpoints, x0=x0,
                             max_step=max_step, max_steps=max_steps, max_wall=max_wall),
                        tuple(getattr(res, "events", ())), why)
+
+
+def _numpy_diagnosis(c, scene, method, run, mod, exc):
+    """(module, error) to diagnose a C run that a value not finite stopped: the C runtime
+    names only the state, the numpy module's run of the same scene the entry, which bgc's
+    diagnosis traces to a law and a remedy. Rerun there (a failed run's path only); should
+    the numpy run not fail, the C error stands."""
+    npmod = load_module(c.source, scene_module_name(scene) + "_diagnosis")
+    try:
+        with np.errstate(all="ignore"):
+            npmod.simulate(scene.t_span, method=method, **run)
+    except npmod.SimulationError as np_exc:
+        return npmod, np_exc
+    return mod, exc
 
 
 # ---------------------------------------------------------------------------------------------
