@@ -172,12 +172,12 @@ def _numpy_diagnosis(c, scene, method, run, mod, exc):
     names only the state, the numpy module's run of the same scene the entry, which bgc's
     diagnosis traces to a law and a remedy. Rerun there (a failed run's path only); should
     the numpy run not fail, the C error stands."""
-    npmod = load_module(c.source, scene_module_name(scene) + "_diagnosis")
-    try:
-        with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"):  # X0 is computed on import: no numpy warnings
+        npmod = load_module(c.source, scene_module_name(scene) + "_diagnosis")
+        try:
             npmod.simulate(scene.t_span, method=method, **run)
-    except npmod.SimulationError as np_exc:
-        return npmod, np_exc
+        except npmod.SimulationError as np_exc:
+            return npmod, np_exc
     return mod, exc
 
 
