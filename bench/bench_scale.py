@@ -6,6 +6,8 @@ For each size, side by side in one run, each a whole command in a fresh process:
 - ``warm``: the same command again (the run record replays it);
 - ``script``: a hand-written scipy model of the same system (the ladder only: the node
   equations written by hand, scipy's Radau with the sparse Jacobian), as a whole process.
+- ``compile``, ``first``: the cold command's own split (its summary line): the compile with
+  the C build, and the first integration.
 Growth exponents are the slopes of log(time) against log(size) over the two largest sizes.
 
 The RC ladder (the circuit of SciMLBenchmarks' RC-circuit benchmark): a source V(t) through
@@ -24,6 +26,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -82,12 +85,17 @@ def scene_yaml(model_file: str, method: str = "Radau") -> str:
             f"solver: {{method: {method}, rtol: 1.0e-6, atol: 1.0e-9, dt: 0.01}}\n")
 
 
-def timed(cmd, env) -> float:
+def timed(cmd, env, parts=None) -> float:
+    """The command's wall time; parts (a dict) gets the summary line's compile (with the C
+    build) and integrate seconds, the run's own split."""
     t0 = time.perf_counter()
     r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=3600)
     wall = time.perf_counter() - t0
     if r.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed: {r.stderr[-800:]}")
+    m = re.search(r"compile ([0-9.]+) s, integrate ([0-9.]+) s", r.stdout)
+    if parts is not None and m:
+        parts["compile"], parts["integrate"] = float(m.group(1)), float(m.group(2))
     return wall
 
 
@@ -103,7 +111,10 @@ def measure(family: str, size: int, text: str, backends, workdir: Path) -> dict:
         env = {**os.environ, "BGC_CACHE_DIR": str(cache), "PYTHONPATH": str(ROOT / "src")}
         cmd = BGC + ["simulate", str(scene), "--backend", b, "--out",
                      str(workdir / f"{family}{size}_{b}.npz"), "-q"]
-        row[f"{b}_cold"] = timed(cmd, env)
+        parts = {}
+        row[f"{b}_cold"] = timed(cmd, env, parts)
+        row[f"{b}_compile"] = parts.get("compile", float("nan"))
+        row[f"{b}_first"] = parts.get("integrate", float("nan"))
         row[f"{b}_warm"] = timed(cmd, env)
     if family == "ladder":
         script = workdir / "ladder_script.py"
@@ -123,19 +134,18 @@ def exponent(rows, key) -> str:
 
 def table(rows, backends) -> list[str]:
     fam = rows[0]["family"]
-    head = ["size"] + [f"{b} {k} [s]" for b in backends for k in ("cold", "warm")]
+    keys = ("cold", "compile", "first", "warm")
+    head = ["size"] + [f"{b} {k} [s]" for b in backends for k in keys]
     if fam == "ladder":
         head += ["script [s]"] + [f"{b} cold / script" for b in backends]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
-        cells = [str(r["size"])] + [f"{r[f'{b}_{k}']:.2f}" for b in backends
-                                    for k in ("cold", "warm")]
+        cells = [str(r["size"])] + [f"{r[f'{b}_{k}']:.2f}" for b in backends for k in keys]
         if fam == "ladder":
             cells += [f"{r['script']:.2f}"] + [f"{r[f'{b}_cold'] / r['script']:.1f}x"
                                                for b in backends]
         lines.append("| " + " | ".join(cells) + " |")
-    exps = ["growth exponent"] + [exponent(rows, f"{b}_{k}") for b in backends
-                                  for k in ("cold", "warm")]
+    exps = ["growth exponent"] + [exponent(rows, f"{b}_{k}") for b in backends for k in keys]
     if fam == "ladder":
         exps += [exponent(rows, "script")] + ["" for _ in backends]
     lines.append("| " + " | ".join(exps) + " |")
@@ -158,7 +168,10 @@ def main():
                     f"--backends {a.backends}"])
     lines = ["# Scale: compile and run time against model size", "",
              f"`{cmd}` (one run, side by side; every time a whole command in a fresh process; "
-             "cold = empty compile cache, warm = the same command again).", ""]
+             "cold = empty compile cache, warm = the same command again (the run record's "
+             "replay); compile and first = the cold run's own split from its summary line: "
+             "the compile with the C build, and the integration; load average "
+             f"{os.getloadavg()[0]:.1f} at the end on {os.cpu_count()} cores).", ""]
     if ladders:
         lines += ["## RC ladders (states = size)", ""] + table(ladders, backends) + [""]
     if chains:

@@ -251,8 +251,49 @@ def test_without_a_compiler_simulate_falls_back_to_numpy(tmp_path):
              str(out), env={"CC": "/nonexistent/cc", "BGC_CACHE_DIR": str(tmp_path / "cache")})
     assert p.returncode == 0, p.stderr
     assert "no C compiler" in p.stderr and "numpy" in p.stderr
-    assert "(numpy backend)" in p.stdout
+    assert "(numpy backend; fell back from c, see above)" in p.stdout
     assert out.is_file()
+
+
+@needs_cc
+@needs_runtime
+def test_simulate_defaults_to_c_where_a_compiler_works(tmp_path):
+    """No --backend and no solver backend in the scene: C for a method the C step loop runs,
+    numpy for one it does not; the summary line says which and why."""
+    env = {"BGC_CACHE_DIR": str(tmp_path / "cache")}
+    scene = str(ROOT / "models/scenes/msd_step.yaml")
+    p = _bgc("simulate", scene, "--out", str(tmp_path / "c.npz"), env=env)
+    assert p.returncode == 0, p.stderr
+    assert "(c backend; default: a C compiler works)" in p.stdout
+    q = _bgc("simulate", scene, "--method", "BDF", env=env)
+    assert q.returncode == 0, q.stderr
+    assert "(numpy backend; default: BDF has no C step loop)" in q.stdout
+    r = _bgc("simulate", scene, "--backend", "numpy", "--out", str(tmp_path / "n.npz"), env=env)
+    assert r.returncode == 0 and "(numpy backend)" in r.stdout, r.stderr
+    a, b = np.load(tmp_path / "c.npz"), np.load(tmp_path / "n.npz")
+    assert np.max(np.abs(a["position"] - b["position"])) < 1e-5 * np.max(np.abs(b["position"]))
+
+
+@needs_cc
+def test_a_big_models_units_build_at_O0(tmp_path):
+    """Units that together pass BIG_MODEL_BYTES get -O0 in place of -O2; smaller ones -O2."""
+    (tmp_path / "a.c").write_text("int a;\n")
+    assert "-O2" in cbuild.model_flags(tmp_path, ["a.c"])
+    (tmp_path / "b.c").write_text("/*" + "x" * cbuild.BIG_MODEL_BYTES + "*/\nint b;\n")
+    fl = cbuild.model_flags(tmp_path, ["a.c", "b.c"])
+    assert "-O0" in fl and "-O2" not in fl and "-fPIC" in fl
+
+
+@pytest.mark.parametrize("cc", ["/nonexistent/cc", "/bin/false"])
+def test_without_a_working_compiler_simulate_defaults_to_numpy_with_a_note(tmp_path, cc):
+    """CC naming nothing, or a program that is no compiler (`false --version` fails): the
+    default is numpy, said on the summary line, and the run completes."""
+    out = tmp_path / "r.npz"
+    p = _bgc("simulate", str(ROOT / "models/scenes/msd_step.yaml"), "--out", str(out),
+             env={"CC": cc, "BGC_CACHE_DIR": str(tmp_path / "cache")})
+    assert p.returncode == 0, p.stderr
+    assert f"(numpy backend; default: no C compiler ({cc!r} cannot run))" in p.stdout
+    assert out.is_file() and "Traceback" not in p.stderr
 
 
 def test_compile_target_c_without_a_compiler_is_one_clear_error(tmp_path):
@@ -288,8 +329,8 @@ def test_simulate_backend_c_agrees_with_numpy(tmp_path):
     scene = str(ROOT / "models/scenes/msd_step.yaml")
     a = _bgc("simulate", scene, "--backend", "c", "--out", str(tmp_path / "c.npz"),
              "--rtol", "1e-9", "--atol", "1e-12", env=env)
-    b = _bgc("simulate", scene, "--out", str(tmp_path / "n.npz"), "--rtol", "1e-9",
-             "--atol", "1e-12", env=env)
+    b = _bgc("simulate", scene, "--backend", "numpy", "--out", str(tmp_path / "n.npz"),
+             "--rtol", "1e-9", "--atol", "1e-12", env=env)
     assert a.returncode == 0 and b.returncode == 0, a.stderr + b.stderr
     assert "(c backend)" in a.stdout and "atol=1e-12" in a.stdout and "compile" in a.stdout
     ra, rb = np.load(tmp_path / "c.npz"), np.load(tmp_path / "n.npz")

@@ -22,6 +22,10 @@ SCENE = ROOT / "models" / "scenes" / "msd_step.yaml"
 
 
 def _bgc(*args, cache_dir, extra_env=None):
+    """bgc ARGS; a simulate that names no backend runs numpy's (these tests count the numpy
+    entries; the default backend's choice is tested in tests/test_c_backend.py)."""
+    if args and args[0] == "simulate" and "--backend" not in args:
+        args = (*args, "--backend", "numpy")
     env = {**os.environ, "BGC_CACHE_DIR": str(cache_dir), **(extra_env or {})}
     return subprocess.run([sys.executable, "-m", "bgc", *map(str, args)], capture_output=True,
                           text=True, env=env, timeout=600)
@@ -139,7 +143,7 @@ def test_concurrent_writers(tmp_path):
     cdir = tmp_path / "cache"
     env = {**os.environ, "BGC_CACHE_DIR": str(cdir)}
     procs = [subprocess.Popen([sys.executable, "-m", "bgc", "simulate", str(SCENE), "--out",
-                               str(tmp_path / f"{k}.npz"), "-q"], env=env,
+                               str(tmp_path / f"{k}.npz"), "-q", "--backend", "numpy"], env=env,
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
              for k in range(2)]
     outs = [p.communicate(timeout=600) for p in procs]

@@ -71,8 +71,9 @@ def test_simulate_options_are_checked_and_errors_have_a_place(tmp_path):
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "'Euler' is not one of" in r.stderr and "'Rodas4'" in r.stderr
     out = tmp_path / "r.npz"
+    # (numpy: the C step loop finishes the circle within 0.2 s)
     r = bgc("simulate", ROOT / "models" / "scenes" / "3r2s_circle.yaml", "--max-wall", "0.2",
-            "--out", out, "-q")
+            "--out", out, "-q", "--backend", "numpy")
     assert r.returncode == 1 and "Traceback" not in r.stderr
     last = r.stderr.strip().splitlines()[-1]
     assert last.startswith(f"{ROOT / 'models' / 'scenes' / '3r2s_circle.yaml'}:")

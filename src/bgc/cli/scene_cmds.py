@@ -39,7 +39,8 @@ from bgc.run.runner import explain_scene, run_scene
 @click.option("--out", type=click.Path(), help="results .npz (t and outputs)")
 @click.option("--plot", "plot_dir", type=click.Path(), help="write PNG plots here")
 @click.option("--method", type=click.Choice(SOLVER_METHODS), default=None,
-              help="override the scene's solver method (Rodas4: the generated module's own)")
+              help="override the scene's solver method (Rodas4: the generated module's own; "
+                   "auto: DOP853, or Radau where a stiffness probe finds the model stiff)")
 @click.option("--rtol", type=float, default=None,
               help="relative tolerance, finite, within the limit of tolerances (1e-14..1)")
 @click.option("--atol", type=POSITIVE, default=None,
@@ -48,7 +49,8 @@ from bgc.run.runner import explain_scene, run_scene
               help="stop with an error once the integration has taken this many seconds")
 @click.option("--backend", type=click.Choice(BACKENDS), default=None,
               help="numpy module, or C (the step loop in a compiled library); default: the "
-                   "scene's solver backend, else numpy")
+                   "scene's solver backend, else c where a C compiler works and the method's "
+                   "step loop runs in C (Radau, Rodas4, DOP853), else numpy")
 @click.option("--no-cache", is_flag=True, help="compile afresh, without the compile cache")
 @click.option("--strict-causality", is_flag=True,
               help="refuse derivative causality (every storage element independent) instead of "
@@ -71,7 +73,8 @@ def simulate_cmd(scene, t_end, max_steps, out, plot_dir, method, rtol, atol, max
         check_folder(out_folder(plot_dir, "--plot", create=False), "--plot")
     res = run_scene(sc, progress=prog, method=method, rtol=rtol, max_wall=max_wall,
                     atol=atol, backend=backend, use_cache=not no_cache,
-                    strict_causality=strict_causality, max_steps=max_steps)
+                    strict_causality=strict_causality, max_steps=max_steps,
+                    choose_backend=True)
     ins = model_inputs(scene, sc.model_path)
     figures = None
     if plot_dir is not None:  # every figure drawn before anything is written
@@ -92,7 +95,7 @@ def simulate_cmd(scene, t_end, max_steps, out, plot_dir, method, rtol, atol, max
                                  t_end=t_end, max_steps=max_steps), res)
 
     click.echo(summary_line(res.scene.name, res.t, res.method, res.rtol, res.atol, res.backend,
-                            res.stats, res.compile_time, res.run_time))
+                            res.stats, res.compile_time, res.run_time, res.backend_why))
 
 
 def _scene_or_model(path, t_end, max_steps, say):

@@ -21,7 +21,9 @@ from bgc.format.parse import Model, parse_file
 from bgc.format.reader import Reader, check_name, param_value, require
 from bgc.format.whitelist import Expr
 
-METHODS = ("Radau", "BDF", "LSODA", "RK45", "RK23", "DOP853", "Rodas4")
+#: the solver methods a scene or --method may name; "auto": DOP853 or Radau by a stiffness probe
+#: (bgc.run.method_choice; a sweep, which runs a batch, takes Radau)
+METHODS = ("Radau", "BDF", "LSODA", "RK45", "RK23", "DOP853", "Rodas4", "auto")
 PLOT_KINDS = ("time", "path3d", "loci")
 
 
@@ -60,7 +62,9 @@ class Scene:
     # initial states: None (the model's), "equilibrium", or {state or element: (value, Coord)}
     initial: object = None
     initial_coord: Coord | None = None
-    backend: str = "numpy"  # solver.backend: numpy, or c (the C step loop)
+    #: solver.backend: numpy, or c (the C step loop); None when the scene names none (a run
+    #: then takes C where a C compiler works: bgc.run.driver.default_backend)
+    backend: str | None = None
     max_steps: int = 50_000  # solver.max_steps: the most steps a run may take (explicit methods)
 
 
@@ -199,7 +203,7 @@ def _solver(r: Reader, top: dict, length: float) -> tuple:
     """solver: (method, rtol, atol, dt, max_step, backend, max_steps), each checked against
     the span."""
     method, rtol, atol, dt, max_step = "Radau", 1e-6, 1e-9, None, float("inf")
-    backend, max_steps = "numpy", Scene.max_steps
+    backend, max_steps = None, Scene.max_steps
     if "solver" in top:
         sm = r.mapping(top["solver"][1], "solver")
         require(r, sm, top["solver"][1], ("method", "rtol", "atol", "dt", "max_step", "backend",

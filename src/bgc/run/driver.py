@@ -389,6 +389,25 @@ def usable_backend(backend: str, progress=None) -> str:
     return backend
 
 
+#: The methods whose step loop runs in C (templates/c/binding.py's C_METHODS); the others run
+#: scipy's step loop over the C functions, no faster than numpy's.
+C_STEP_METHODS = ("Radau", "Rodas4", "DOP853")
+
+
+def default_backend(method: str) -> tuple[str, str]:
+    """(backend, why) for a run that names no backend: "c" where the system C compiler works
+    (the probe kept in the compile cache) and the method's step loop runs in C, else "numpy";
+    why says which in a few words (the summary line shows it). A C build that then fails
+    still falls back to numpy (:func:`build` with ``fallback``)."""
+    if method not in C_STEP_METHODS + ("auto",):  # (auto: DOP853 or Radau, both in C)
+        return "numpy", f"default: {method} has no C step loop"
+    if not cbuild.available():
+        return "numpy", f"default: no C compiler ({cbuild.cc_text()!r} cannot run)"
+    if not cbuild.runtime_sources():
+        return "numpy", "default: the C runtime is not installed"
+    return "c", "default: a C compiler works"
+
+
 def module_name(model, scene=None, specialise: bool = True) -> str:
     """The loaded module's name: the model file's stem (and the scene's name)."""
     if scene is not None:

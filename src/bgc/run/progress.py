@@ -19,14 +19,18 @@ class Progress:
             print(f"[{time.perf_counter() - self.t0:6.2f} s] {msg}", file=sys.stderr, flush=True)
 
 
-def simulating_line(name: str, method: str, backend: str, rtol: float, atol: float) -> str:
-    return f"simulating {name} with {method} ({backend}), rtol {rtol:g}, atol {atol:g}"
+def simulating_line(name: str, method: str, backend: str, rtol: float, atol: float,
+                    why: str = "") -> str:
+    why = f"; {why}" if why else ""
+    return f"simulating {name} with {method} ({backend}{why}), rtol {rtol:g}, atol {atol:g}"
 
 
 def summary_line(name: str, t, method: str, rtol: float, atol: float, backend: str,
-                 stats: dict, compile_time: float, run_time: float) -> str:
+                 stats: dict, compile_time: float, run_time: float, why: str = "") -> str:
+    """The one line a run ends with; why: how the backend was chosen, when no one named it."""
+    why = f"; {why}" if why else ""
     return (f"{name}: t = {t[0]:g}..{t[-1]:g} s, {len(t)} points, {method} rtol={rtol:g} "
-            f"atol={atol:g} ({backend} backend): {stats['nfev']} rhs calls, "
+            f"atol={atol:g} ({backend} backend{why}): {stats['nfev']} rhs calls, "
             f"{stats['njev']} Jacobians, {stats.get('nlu', 0)} LU"
             + (f", {stats['nevents']} events" if "nevents" in stats else "")
             + f"; compile {compile_time:.2f} s, "

@@ -265,7 +265,8 @@ def keep(scene_path, options: str, result) -> bool:
     rec = {"format": FORMAT, "files": [[f.path, f.resolved, digest(f.data)] for f in files],
            "scene_digest": digest(scene_bytes), "inputs": [f.resolved for f in files],
            "backend": backend, "key": mkey, "name": result.module_name, "compiler": comp,
-           "scene_name": result.scene.name, "run": result.run_args}
+           "scene_name": result.scene.name, "run": result.run_args,
+           "why": result.backend_why}
     try:  # a record is an optimisation: a file of bgc's that vanished meanwhile skips it
         key = record_key(scene_path, scene_bytes, options)
     except OSError:
@@ -383,7 +384,8 @@ def _run(rec: dict, opts: dict, store, entry, scene: str, t0: float) -> int | No
         mod = load_entry(entry, backend, rec["name"], trusted=True)
     t1 = time.perf_counter()
     method, rtol, atol = run["method"], run["rtol"], run["atol"]
-    say(simulating_line(rec["scene_name"], method, backend, rtol, atol))
+    why = rec.get("why") if isinstance(rec.get("why"), str) else ""
+    say(simulating_line(rec["scene_name"], method, backend, rtol, atol, why))
     x0 = run["x0"]
     p = run["p"]
     try:
@@ -405,7 +407,7 @@ def _run(rec: dict, opts: dict, store, entry, scene: str, t0: float) -> int | No
         write_output(out, buf.getvalue(), ins, "--out")
         say(f"wrote {out}")
     print(summary_line(rec["scene_name"], t, method, rtol, atol, backend, res.stats, t1 - t0,
-                       t2 - t1), flush=True)
+                       t2 - t1, why), flush=True)
     return 0
 
 

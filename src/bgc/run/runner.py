@@ -15,7 +15,8 @@ from bgc.format.scene import (
     param_values,
     parse_scene,
 )
-from bgc.run.driver import build, module_name, scene_compiled
+from bgc.run import method_choice
+from bgc.run.driver import build, default_backend, module_name, scene_compiled
 from bgc.run.progress import simulating_line
 from bgc.run.steps import STEPS_PER_PERIOD, fastest_input, scene_max_step, stepped_over
 
@@ -42,6 +43,9 @@ class SceneResult:
     run_args: dict | None = None
     #: a hybrid model's event log: (t, event, instance index, x before, x after) per event
     events: tuple = ()
+    #: why the run used its backend when the command and the scene named none, or C failed
+    #: ("" when the backend was named and used)
+    backend_why: str = ""
 
 
 def compile_scene(scene: Scene, progress=None, specialise: bool = True,
@@ -89,23 +93,33 @@ def _compiled(scene: Scene, progress=None, strict_causality: bool = False):
 
 def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=None,
               backend=None, use_cache: bool = True,
-              strict_causality: bool = False, max_steps: int | None = None) -> SceneResult:
+              strict_causality: bool = False, max_steps: int | None = None,
+              choose_backend: bool = False) -> SceneResult:
+    """Compile (or take from the cache) and run a scene. backend: "numpy" or "c", else the
+    scene's; where neither names one, numpy, or with ``choose_backend`` (`bgc simulate`)
+    C where a C compiler works (:func:`bgc.run.driver.default_backend`), the reason kept in
+    the result's backend_why."""
     say = progress or (lambda msg: None)
     scene = path if isinstance(path, Scene) else parse_scene(path)
 
     t0 = time.perf_counter()
-    built = build(scene=scene, backend=backend or scene.backend, use_cache=use_cache,
+    method = method or scene.method
+    asked, why = backend or scene.backend, ""
+    if asked is None:  # neither the command nor the scene names one
+        asked, why = default_backend(method) if choose_backend else ("numpy", "")
+    built = build(scene=scene, backend=asked, use_cache=use_cache,
                   strict_causality=strict_causality, progress=progress, fallback=True)
     backend, mod, entry = built.backend, built.module, built.entry
+    if backend != asked:  # the build said why (no compiler, a model C does not print, ...)
+        why = "fell back from c, see above"
     t1 = time.perf_counter()
-    method = method or scene.method
     rtol = rtol or scene.rtol
     atol = scene.atol if atol is None else atol
 
-    say(simulating_line(scene.name, method, backend, rtol, atol))
-    if backend == "c" and method not in getattr(mod, "C_METHODS", (method,)):
+    say(simulating_line(scene.name, method, backend, rtol, atol, why))
+    if backend == "c" and method not in (*getattr(mod, "C_METHODS", (method,)), "auto"):
         say(f"note: {method} runs in scipy's Python step loop, calling the C functions (little "
-            "faster than numpy); the C step loop runs Radau and Rodas4")
+            "faster than numpy); the C step loop runs Radau, Rodas4 and DOP853")
     dt = scene.dt or (scene.t_span[1] - scene.t_span[0]) / 1000
     p = runtime_params(scene, mod)
     x0 = initial_state(scene, mod, p)  # the scene's initial: values, or equilibrium
@@ -114,14 +128,31 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
     if max_step < scene.max_step:
         say(f"max_step {max_step:.3g} s: {STEPS_PER_PERIOD} steps per period of the input "
             f"{fastest_input(mod)!r} (solver max_step in the scene overrides it)")
+    auto = method == "auto"
+    if auto:  # DOP853 or Radau, by the model's Jacobian along a short probe
+        method, mwhy = method_choice.choose(mod, scene.t_span, p, x0, scene.breakpoints,
+                                            max_step)
+        why = f"{why}; {mwhy}" if why else mwhy
+        say(f"method {method} ({mwhy})")
+    run = dict(dt=dt, rtol=rtol, atol=atol, p=p, breakpoints=scene.breakpoints, x0=x0,
+               max_step=max_step, max_steps=max_steps, max_wall=max_wall)
     try:
-        res = mod.simulate(scene.t_span, dt=dt, method=method, rtol=rtol, atol=atol,
-                           p=p, breakpoints=scene.breakpoints, x0=x0,
-                           max_step=max_step, max_steps=max_steps, max_wall=max_wall)
+        try:
+            res = mod.simulate(scene.t_span, method=method, **run)
+        except mod.SimulationError as exc:
+            if not (auto and method == method_choice.EXPLICIT):
+                raise
+            # the probe missed it (a contact later in the span): Radau it is
+            method = method_choice.IMPLICIT
+            why += f"; {method_choice.EXPLICIT} failed at t = {exc.t:.6g}, rerun with Radau"
+            say(f"{method_choice.EXPLICIT} failed ({exc}): rerunning with Radau")
+            res = mod.simulate(scene.t_span, method=method, **run)
     except mod.SimulationError as exc:
         # the diagnosis reads the model's equations: compiled now if the module came from
         # the cache (a failed run can afford it)
         c, _ = _compiled(scene, None, strict_causality)
+        if backend == "c" and getattr(exc, "where", None) is None and "non-finite" in str(exc):
+            mod, exc = _numpy_diagnosis(c, scene, method, run, mod, exc)
         raise simulation_failed(c, mod, scene, exc, p) from None
     t2 = time.perf_counter()
     t, x, y = res
@@ -133,7 +164,21 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
                        dict(t_span=scene.t_span, dt=dt, method=method, rtol=rtol, atol=atol,
                             p=p, breakpoints=scene.breakpoints, x0=x0,
                             max_step=max_step, max_steps=max_steps, max_wall=max_wall),
-                       tuple(getattr(res, "events", ())))
+                       tuple(getattr(res, "events", ())), why)
+
+
+def _numpy_diagnosis(c, scene, method, run, mod, exc):
+    """(module, error) to diagnose a C run that a value not finite stopped: the C runtime
+    names only the state, the numpy module's run of the same scene the entry, which bgc's
+    diagnosis traces to a law and a remedy. Rerun there (a failed run's path only); should
+    the numpy run not fail, the C error stands."""
+    with np.errstate(all="ignore"):  # X0 is computed on import: no numpy warnings
+        npmod = load_module(c.source, scene_module_name(scene) + "_diagnosis")
+        try:
+            npmod.simulate(scene.t_span, method=method, **run)
+        except npmod.SimulationError as np_exc:
+            return npmod, np_exc
+    return mod, exc
 
 
 # ---------------------------------------------------------------------------------------------

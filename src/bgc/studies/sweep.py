@@ -230,7 +230,8 @@ def prepare(scene_path, progress=None, backend: str | None = None) -> Prepared:
         backend = solver_backend(scene_path)
     backend, files, wrapper, ckey = choose_backend(c, backend, progress)
     prep = Prepared(scene.name, backend, c.source, f"{c.model.name}_{scene.name}_sweep",
-                    tuple(scene.t_span), dt, scene.method, scene.rtol, scene.atol,
+                    tuple(scene.t_span), dt,
+                    "Radau" if scene.method == "auto" else scene.method, scene.rtol, scene.atol,
                     scene.max_step, tuple(scene.breakpoints),
                     runtime_params(scene2, mod) or {},
                     {e.label: e.name for e in spec.entries if e.kind == "param"}, states,
