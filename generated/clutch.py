@@ -708,47 +708,87 @@ def _block_pattern(nb):
     return (rows[:, None] * nb + b).ravel(), (cols[:, None] * nb + b).ravel()
 
 
+#: Where sparse linear algebra pays (bench/bench_sparse.py, bench/RESULTS_sparse.md): an
+#: implicit method factorises a sparse Jacobian (scipy's splu) when the flat state (states x
+#: instances) has at least SPARSE_MIN_SIZE[method] entries and at most SPARSE_MAX_DENSITY of
+#: the Jacobian's entries can be nonzero; below, a dense LU (LAPACK) is as fast or faster.
+#: Rodas4 factorises at every step, where splu's fixed cost weighs more: its threshold is
+#: higher.
+SPARSE_MIN_SIZE = {"Radau": 100, "BDF": 100, "Rodas4": 200}
+SPARSE_MAX_DENSITY = 0.05
+
+
+def _use_sparse(nb, sparse=None, method="Radau"):
+    """Does an implicit method get a sparse Jacobian? sparse=True/False forces the choice;
+    None decides by size and density (SPARSE_MIN_SIZE, SPARSE_MAX_DENSITY)."""
+    if sparse is not None:
+        return bool(sparse)
+    size = N_STATES * nb
+    nnz = int(np.count_nonzero(JAC_SPARSITY)) * nb
+    return size >= SPARSE_MIN_SIZE.get(method, 100) and nnz <= SPARSE_MAX_DENSITY * size * size
+
+
+def _csc_plan(nb):
+    """The flat Jacobian's compressed-column structure, built once: (rows, cols of the
+    pattern in JAC_SPARSITY, the order that sorts the gathered values by column, indices,
+    indptr); a call only gathers its values and puts them in that order."""
+    rows, cols = np.nonzero(JAC_SPARSITY)
+    R, C = _block_pattern(nb)
+    order = np.lexsort((R, C))
+    size = N_STATES * nb
+    indptr = np.zeros(size + 1, dtype=np.int32)
+    np.cumsum(np.bincount(C, minlength=size), out=indptr[1:])
+    return rows, cols, order, R[order].astype(np.int32), indptr
+
+
 def _flat_jacobian(at, shape, p, u, sparse, method, stats):
-    """The analytic Jacobian on the flat state: block diagonal over a batch (sparse or dense).
-    An entry that is not finite stops the run (NonFiniteError): one check per call."""
+    """The analytic Jacobian on the flat state: block diagonal over a batch, a
+    scipy.sparse.csc_matrix when ``sparse`` (its pattern JAC_SPARSITY's), else a dense array.
+    An entry that is not finite stops the run (NonFiniteError): one check per call (on the
+    pattern's entries only when sparse: the others are zero by construction)."""
     import scipy.sparse as sps
 
     nb = int(np.prod(shape[1:]))
-    rows, cols = np.nonzero(JAC_SPARSITY)
-    R, C = _block_pattern(nb)
+    size = N_STATES * nb
+    rows, cols, order, indices, indptr = _csc_plan(nb)
 
     def jac(t, y):
         J = jacobian(at(t), y.reshape(shape), p, u).reshape(N_STATES, N_STATES, nb)
-        if not _all_finite(J):
-            raise _nonfinite(method, "jacobian", at(t), y, J, shape, stats)
-        if nb == 1:
-            return J[:, :, 0]
+        if not sparse:
+            if not _all_finite(J):
+                raise _nonfinite(method, "jacobian", at(t), y, J, shape, stats)
+            if nb == 1:
+                return J[:, :, 0]
+            M = np.zeros((size, size))
+            M[indices, np.repeat(np.arange(size), np.diff(indptr))] = J[rows, cols].ravel()[order]
+            return M
         vals = J[rows, cols].ravel()
-        if sparse:
-            return sps.csc_matrix((vals, (R, C)), shape=(len(y), len(y)))
-        M = np.zeros((len(y), len(y)))
-        M[R, C] = vals
-        return M
+        if not _all_finite(vals):
+            raise _nonfinite(method, "jacobian", at(t), y, J, shape, stats)
+        return sps.csc_matrix((vals[order], indices, indptr), shape=(size, size))
     return jac
 
 
-def _jacobian_options(method, jac, at, shape, p, u, stats):
-    """The solver's Jacobian: analytic (jac=True), else finite differences over JAC_SPARSITY."""
+def _jacobian_options(method, jac, at, shape, p, u, stats, sparse=None):
+    """The solver's Jacobian: analytic (jac=True), else finite differences over JAC_SPARSITY;
+    sparse or dense by _use_sparse (LSODA's always dense: it takes no sparse matrix)."""
     import scipy.sparse as sps
 
     nb = int(np.prod(shape[1:]))
     if method in _STABILITY:
         return {}  # explicit: no Jacobian
+    use = method != "LSODA" and _use_sparse(nb, sparse, method)
     if method == "Rodas4":
         if not jac:
             raise ValueError("Rodas4 needs the analytic Jacobian (jac=True): a Rosenbrock "
                              "method's order rests on the exact Jacobian")
-        return {"jac": _flat_jacobian(at, shape, p, u, True, method, stats),
+        return {"jac": _flat_jacobian(at, shape, p, u, use, method, stats),
                 "time_dependent": bool(INPUT_NAMES) or RHS_USES_T}
     if jac:
-        return {"jac": _flat_jacobian(at, shape, p, u, method != "LSODA", method, stats)}
+        return {"jac": _flat_jacobian(at, shape, p, u, use, method, stats)}
     if method == "LSODA":
         return {}  # LSODA differences densely (it takes no sparsity pattern)
+    # finite differences over the pattern (grouped columns: few rhs calls), at any size
     if nb == 1:
         return {"jac_sparsity": JAC_SPARSITY}
     R, C = _block_pattern(nb)
@@ -949,7 +989,7 @@ def _rodas_class():
             self.h_abs = (self._initial_step() if first_step is None
                           else float(first_step))
             self.J = self.dfdt = None
-            self.dense = None
+            self.dense = self._eye = None
 
         def _scale(self, y, y_new=None):
             size = np.abs(y) if y_new is None else np.maximum(np.abs(y), np.abs(y_new))
@@ -989,9 +1029,10 @@ def _rodas_class():
             self.nlu += 1
             c = 1.0 / (h * _RODAS_GAMMA)
             if sps.issparse(self.J):
+                if self._eye is None:
+                    self._eye = sps.identity(self.n, format="csc")
                 try:
-                    lu = scipy.sparse.linalg.splu(sps.identity(self.n, format="csc") * c
-                                                  - self.J)
+                    lu = scipy.sparse.linalg.splu(self._eye * c - self.J)
                 except RuntimeError:  # exactly singular W: the step is tried smaller
                     return None
                 return lu.solve
@@ -1064,7 +1105,7 @@ _RODAS4 = None
 
 def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, u=None,
              x0=None, dt=None, breakpoints=(), jac=True, max_step=np.inf, max_steps=50_000,
-             stiff_check=True, max_wall=None):
+             stiff_check=True, max_wall=None, sparse=None):
     """Integrate over t_span with one of scipy's OdeSolver classes or bgc's Rosenbrock method
     Rodas4 (L-stable, order 4; see above); returns SimResult (t, x, y).
 
@@ -1080,7 +1121,9 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
     stiff_check (explicit methods): raise StiffnessError when stability would hold the steps
     down so far that the rest of the span needs more than max_steps of them, judged from the
     Jacobian at the start and, while integrating, from steps held at the stability limit.
-    max_wall: seconds; SimulationError once the wall time is exceeded.
+    max_wall: seconds; SimulationError once the wall time is exceeded. sparse: the implicit
+    methods' linear algebra, sparse (scipy.sparse, splu) or dense (LAPACK); None chooses by
+    the flat state's size and the Jacobian's density (SPARSE_MIN_SIZE, SPARSE_MAX_DENSITY).
     Statistics in result.stats: nfev (rhs calls), njev, nlu, nsteps (accepted steps), nstiff
     (stiffness checks), summed over the segments.
     """
@@ -1138,7 +1181,8 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
                             else getattr(scipy.integrate, method))
             solver = solver_class(
                 _flat_rhs(at, shape, p, u, stats, method), a, y, c, rtol=rtol, atol=atol,
-                max_step=max_step, **_jacobian_options(method, jac, at, shape, p, u, stats))
+                max_step=max_step, **_jacobian_options(method, jac, at, shape, p, u, stats,
+                                                       sparse))
             _guard_solves(solver, method, stats, shape)
             while solver.status == "running":
                 if stats["nsteps"] >= max_steps:  # as the C step loop: a located stop
