@@ -57,7 +57,7 @@ def mass_chain(n: int) -> dict:
 
 
 def link_chain(n: int) -> dict:
-    base = yaml.safe_load((ROOT / "models" / "3r2s.yaml").read_text())
+    base = yaml.safe_load((ROOT / "tests" / "data" / "3r2s_before_library.yaml").read_text())
     comps = {k: base["components"][k] for k in ("link", "tcoupling")}
     el = {"ground": {"type": "Sf", "flow": "[0, 0, 0]"}}
     params = {"d": {"value": 0.05, "unit": "m"}}  # the links' length: rC0's unit

@@ -25,7 +25,7 @@ from bgc.run.driver import compile_file
 
 ROOT = Path(__file__).resolve().parents[1]
 MODELS = sorted(p.stem for p in (ROOT / "models").glob("*.yaml"))
-SLOW = {"3r2s"}  # the C build of its Jacobian takes tens of seconds on a loaded machine
+SLOW = {"3r2s", "3r2s_rigid"}  # the C build of its Jacobian takes tens of seconds on a loaded machine
 HAVE_CC = cbuild.available()
 HAVE_RUNTIME = bool(cbuild.runtime_sources())
 
@@ -56,7 +56,8 @@ def _close(a, b, rel=1e-12):
     a, b = np.asarray(a, float), np.asarray(b, float)
     scale = np.maximum(np.maximum(np.abs(a), np.abs(b)), 1e-300)
     floor = rel * max(float(np.max(np.abs(b))) if b.size else 0.0, 1e-300) * 1e-3
-    return bool(np.all(np.abs(a - b) <= rel * scale + floor))
+    both_nan = np.isnan(a) & np.isnan(b)  # an output undefined at a random state in both
+    return bool(np.all((np.abs(a - b) <= rel * scale + floor) | both_nan))
 
 
 def _points(m, rng, k=4):
@@ -66,7 +67,9 @@ def _points(m, rng, k=4):
         0.2 * rng.standard_normal((len(x0), k)) * (np.abs(x0[:, None]) + 0.1)
     if "rectifier" in m.__name__:  # the 1 mF capacitor across +-100 V: the diode's exp()
         xs = x0[:, None] + 0.1 * rng.uniform(-1, 1, (len(x0), k))  # loop from far off
-    return np.abs(xs) if "tanks" in m.__name__ else xs
+    if "3r2s_rigid" in m.__name__:  # near the assembled pose: far from it the reactions'
+        xs = x0[:, None] * (1 + 1e-3 * rng.standard_normal((len(x0), k)))  # system is near
+    return np.abs(xs) if "tanks" in m.__name__ else xs  # singular (entries ~1e5)
 
 
 @needs_cc
@@ -74,20 +77,23 @@ def _points(m, rng, k=4):
 @pytest.mark.parametrize("name", [_param(n) for n in MODELS])
 def test_rhs_jacobian_outputs_match_numpy(name):
     npm, cm = _pair(name)
+    # the rigid 3R2S: its rhs and Jacobian go through a 21x21 numeric solve, whose rounding
+    # differs between the C runtime's LU and LAPACK's
+    rel = 1e-9 if name == "3r2s_rigid" else 1e-12
     rng = np.random.default_rng(11)
     X = _points(npm, rng)
     for k in range(X.shape[1]):
         t = float(rng.uniform(0, 2))
         x = X[:, k]
-        assert _close(cm.rhs(t, x), npm.rhs(t, x)), (name, k)
-        assert _close(cm.jacobian(t, x), npm.jacobian(t, x)), (name, k)
+        assert _close(cm.rhs(t, x), npm.rhs(t, x), rel), (name, k)
+        assert _close(cm.jacobian(t, x), npm.jacobian(t, x), rel), (name, k)
         yc, yn = cm.outputs(t, x), npm.outputs(t, x)
         assert set(yc) == set(yn)
         for o in yn:
-            assert yc[o].shape == yn[o].shape and _close(yc[o], yn[o]), (name, o)
+            assert yc[o].shape == yn[o].shape and _close(yc[o], yn[o], rel), (name, o)
     # a batch of states at once, and the initial state
-    assert _close(cm.rhs(0.5, X), npm.rhs(0.5, X))
-    assert _close(cm.jacobian(0.5, X), npm.jacobian(0.5, X))
+    assert _close(cm.rhs(0.5, X), npm.rhs(0.5, X), rel)
+    assert _close(cm.jacobian(0.5, X), npm.jacobian(0.5, X), rel)
     assert _close(cm.initial_state(), npm.initial_state())
 
 

@@ -45,7 +45,7 @@ def link_chain(n: int) -> str:
     """n spatial links of the 3R2S (its `link` and `tcoupling` components) end to end."""
     import yaml
 
-    base = yaml.safe_load((ROOT / "models" / "3r2s.yaml").read_text())
+    base = yaml.safe_load((ROOT / "tests" / "data" / "3r2s_before_library.yaml").read_text())
     el = {"ground": {"type": "Sf", "flow": "[0, 0, 0]"},
           "tip": {"type": "Se", "effort": "[0, 0, 0]"}}
     bonds = []

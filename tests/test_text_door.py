@@ -55,7 +55,7 @@ def _hostile_model(tmp_path: Path, field: str, text: str) -> Path:
     elif field == "unit":
         d["parameters"]["m"] = {"value": 2.0, "unit": text}
     elif field == "param_description":
-        d["parameters"]["k"] = {"value": 200.0, "description": text}
+        d["parameters"]["k"] = {"value": 200.0, "unit": "N/m", "description": text}
     out = tmp_path / "m.yaml"
     out.write_text(yaml.safe_dump(d, allow_unicode=False), encoding="utf-8")
     return out

@@ -231,8 +231,12 @@ def test_undamped_oscillator_at_tight_tolerance_is_not_stiff(tmp_path):
     would call it stiff; an undamped mode is not (implicit methods must resolve it too)."""
     mod = compile_yaml(tmp_path, OSCILLATOR, "oscillator")
     t_eval = np.linspace(0.0, 30.0, 301)
-    res = mod.simulate((0.0, 30.0), t_eval=t_eval, method="DOP853", rtol=1e-10, atol=1e-14,
-                       max_steps=100)
+    # max_steps = 100 stops the run as too long (max_steps is enforced), never as stiff
+    with pytest.raises(mod.SimulationError) as exc:
+        mod.simulate((0.0, 30.0), t_eval=t_eval, method="DOP853", rtol=1e-10, atol=1e-14,
+                     max_steps=100)
+    assert not isinstance(exc.value, mod.StiffnessError) and "max_steps = 100" in str(exc.value)
+    res = mod.simulate((0.0, 30.0), t_eval=t_eval, method="DOP853", rtol=1e-10, atol=1e-14)
     assert res.stats["nsteps"] > 100
     # x = F0/k (1 - cos(omega t))
     np.testing.assert_allclose(res.y["position"], 0.01 * (1 - np.cos(100.0 * t_eval)),

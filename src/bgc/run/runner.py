@@ -151,7 +151,9 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
         # the diagnosis reads the model's equations: compiled now if the module came from
         # the cache (a failed run can afford it)
         c, _ = _compiled(scene, None, strict_causality)
-        if backend == "c" and getattr(exc, "where", None) is None and "non-finite" in str(exc):
+        if backend == "c" and getattr(exc, "where", None) is None and (
+                "non-finite" in str(exc) or "step size fell below" in str(exc)):
+            # a diverging run: C names the state or the step size, numpy's run the law
             mod, exc = _numpy_diagnosis(c, scene, method, run, mod, exc)
         raise simulation_failed(c, mod, scene, exc, p) from None
     t2 = time.perf_counter()
@@ -168,7 +170,8 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
 
 
 def _numpy_diagnosis(c, scene, method, run, mod, exc):
-    """(module, error) to diagnose a C run that a value not finite stopped: the C runtime
+    """(module, error) to diagnose a C run that a value not finite (or a step size collapsing
+    on a diverging run) stopped: the C runtime
     names only the state, the numpy module's run of the same scene the entry, which bgc's
     diagnosis traces to a law and a remedy. Rerun there (a failed run's path only); should
     the numpy run not fail, the C error stands."""
