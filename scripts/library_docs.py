@@ -1,7 +1,7 @@
 """Write docs/library.md, the component library's reference, from the library's own files
 (src/bgc/format/library/*.yaml: each component's description, ports, parameters, states and
-laws, through bgc.format.catalogue). Run `python scripts/library_docs.py` after changing the
-library; tests/test_library.py checks that the committed page is what this script writes."""
+laws, a hybrid component's modes and events, through bgc.format.catalogue). Run
+`python scripts/library_docs.py` after changing the library; tests/test_library.py checks that the committed page is what this script writes."""
 from __future__ import annotations
 
 import sys
@@ -40,10 +40,16 @@ says so, a port left unbonded is the ground. Sources are bonded out of their por
 parameter has a unit, and every component checks clean under `units: strict`. An element a
 component defines is named `instance.element` in outputs (`f(cart.I)`, `q(j1.C)`).
 
-Not in the library yet: an electrical switch (a hybrid component needs events inside
-components; until then a switch is a model's own `modes:` and `events:`, as in
-models/stick_slip.yaml); a rigid spatial revolute joint compiles only once bgc eliminates
-rigid constraints inside closed kinematic loops (`revolute_lock` below documents it).
+Hybrid components (switches, the ideal diode, hard stops, stick-slip friction) hold modes and
+events of their own ([model-format.md](model-format.md#events-and-modes-hybrid-models)):
+each instance gets its own, named after it (the mode `on` of instance `d1` is the state
+`d1.on`, its event `turn_off` is `d1.turn_off` in the event log). Their guards and resets are
+listed under **Events**; a switch's position changes the circuit's causality (an ideal switch,
+`Sw`: bgc compiles every position). Both backends and FMUs run them.
+
+Not in the library yet: a rigid spatial revolute joint compiles only once bgc eliminates
+rigid constraints inside closed kinematic loops (`revolute_lock` below documents it); a
+hydraulic check valve.
 
 ## Contents
 

@@ -2,7 +2,7 @@
 docs/library.md (scripts/library_docs.py) print what :func:`describe`, :func:`library_text`
 and :func:`catalogue` make of the component files in bgc/format/library (bgc.format.library):
 each component's description, ports with their domains, parameters with their units, defaults
-and descriptions, states and laws."""
+and descriptions, states and laws, and a hybrid component's modes and events."""
 from __future__ import annotations
 
 import textwrap
@@ -56,15 +56,48 @@ def describe(comp, lib: str, markdown: bool = False) -> str:
                        f"{p.description}", markdown)
     if not comp.body.params:
         lines.append(f"{item}(none)")
-    if comp.body.states:
+    discrete = set(comp.modes) | {ev.count_state for ev in comp.events if ev.every is not None}
+    states = [s for s in comp.body.states if s.name not in discrete]
+    if states:
         lines += ["", head("States")]
-        for s in comp.body.states:
+        for s in states:
             lines += _para(f"{item}{code(s.name)} [{s.unit or '-'}]: d/dt = "
                            f"{code(s.derivative.text)}", markdown)
     lines += ["", head("Laws")]
     for law in comp.laws:
         lines += _para(f"{item}{law}", markdown)
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + _hybrid_text(comp, code, head, item, markdown)) + "\n"
+
+
+def _hybrid_text(comp, code, head, item, markdown: bool) -> list[str]:
+    """A hybrid component's modes (initial value, meaning) and events (guard or time, the
+    resets, meaning): what each instance owns as ``instance.name``."""
+    lines = []
+    if comp.mode_docs:
+        lines += ["", head("Modes")]
+        for m in comp.mode_docs:
+            lines += _para(f"{item}{code(m.name)} (initially {code(m.initial.text)}): "
+                           f"{m.description}", markdown)
+    if comp.events:
+        lines += ["", head("Events")]
+        way = {1: "rises", -1: "falls", 0: "crosses"}
+        for ev in comp.events:
+            if ev.condition is not None:
+                when = f"when {code(ev.condition.text)} {way[ev.direction]} through 0"
+            elif ev.every is not None:
+                when = f"every {code(ev.every.text)}" + (f" from {code(ev.at.text)}"
+                                                          if ev.at is not None else "")
+            else:
+                when = f"at t = {code(ev.at.text)}"
+            acts = ", ".join(f"{code(_target(a) + ' = ' + a.value.text)}" for a in ev.actions)
+            lines += _para(f"{item}{code(ev.name)}: {when}, sets {acts}"
+                           + (f" ({ev.description})" if ev.description else ""), markdown)
+    return lines
+
+
+def _target(action) -> str:
+    path = ".".join(action.path)
+    return f"{action.func}({path})" if action.func else path
 
 
 def load(name: str):

@@ -26,7 +26,7 @@ every law, output and event may read it (``where(stuck == 1, ...)``) and only an
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import yaml
 
@@ -64,6 +64,7 @@ class Event:
     actions: tuple[Action, ...]
     coord: Coord
     every: Expr | None = None  # periodic time event: the period (from ``at``, default one period)
+    description: str = field(default="", compare=False)  # documentation only (bgc library)
 
     @property
     def count_state(self) -> str:
@@ -77,6 +78,7 @@ class Mode:
     name: str
     initial: Expr
     coord: Coord
+    description: str = field(default="", compare=False)  # documentation only (bgc library)
 
 
 def read_modes(r: Reader, node) -> tuple[Mode, ...]:
@@ -84,12 +86,15 @@ def read_modes(r: Reader, node) -> tuple[Mode, ...]:
     modes = []
     for mname, (kn, vn) in r.mapping(node, "modes").items():
         check_name(mname, r.coord(kn), "mode")
+        desc = ""
         if isinstance(vn, yaml.MappingNode):
             mm = r.mapping(vn, f"mode {mname!r}")
             require(r, mm, vn, ("initial", "description"), f"mode {mname!r}",
                     required=("initial",))
+            if "description" in mm:
+                desc = r.string(mm["description"][1], f"mode {mname!r} description")
             vn = mm["initial"][1]
-        modes.append(Mode(mname, r.expr(vn, f"mode {mname!r} initial"), r.coord(kn)))
+        modes.append(Mode(mname, r.expr(vn, f"mode {mname!r} initial"), r.coord(kn), desc))
     return tuple(modes)
 
 
@@ -134,8 +139,9 @@ def _event(r: Reader, ename: str, kn, vn) -> Event:
         func, path = _target(r, target, tk, what)
         actions.append(Action(func, path, r.expr(tv, f"{what}, action on {target.strip()!r}"),
                               r.coord(tk)))
+    desc = r.string(m["description"][1], f"{what} description") if "description" in m else ""
     return Event(ename, cond, at, direction if cond is not None else 1, tuple(actions),
-                 r.coord(kn), every)
+                 r.coord(kn), every, desc)
 
 
 def _target(r: Reader, text: str, node, what: str) -> tuple[str, tuple[str, ...]]:

@@ -140,6 +140,7 @@ class Component:
     port_docs: tuple[tuple[str, str, str], ...] = ()  # (port, domain, description)
     events: tuple = ()  # bgc.format.events.Event: each instance gets its own (names prefixed)
     modes: tuple[str, ...] = ()  # mode variables (the body's states whose derivative is 0)
+    mode_docs: tuple = ()  # bgc.format.events.Mode of each of them (bgc library's docs)
 
     def port_doc(self, port: str) -> tuple[str, str]:
         return next(((d, t) for p, d, t in self.port_docs if p == port), ("", ""))
@@ -292,14 +293,13 @@ def parse_root(r: Reader, root, source_hash: str, _imports: _Imports | None = No
     _check_unique(body, inputs)
     return Model(name=name, file=path, body=body, inputs=tuple(inputs),
                   components=tuple(components), description=description,
-                  source_hash=source_hash,
-                  coord=r.coord(root), strict_causality=strict, events=events, modes=modes,
+                  source_hash=source_hash, coord=r.coord(root), strict_causality=strict,
+                  events=events, modes=tuple(m.name for m in modes),
                   strict_units=strict_units, stabilisation=stabilisation)
 
 
 def _hybrid(r: Reader, top: dict, body: Body):
-    """The ``modes:`` and ``events:`` sections (bgc.format.events): each mode joins the body's
-    states as a state whose derivative is zero (an event is the only thing that changes it)."""
+    """``modes:`` and ``events:`` (bgc.format.events); each mode joins the states (d/dt = 0)."""
     from dataclasses import replace
 
     # lazy: the compile path, which a warm run never loads
@@ -315,7 +315,7 @@ def _hybrid(r: Reader, top: dict, body: Body):
                     for ev in events if ev.every is not None)
     if states:
         body = replace(body, states=body.states + states)
-    return body, events, tuple(m.name for m in modes)
+    return body, events, modes
 
 
 def _check_encodable(text: str, path: str) -> None:
@@ -392,7 +392,7 @@ def _component(r: Reader, cname: str, kn, vn) -> Component:
                          "laws", "modes", "events"),
             f"component {cname!r}", required=("ports", "elements", "bonds"))
     body = _body(r, cm, vn, f"component {cname!r}", is_component=True)
-    body, events, modes = _hybrid(r, cm, body)
+    body, events, mode_docs = _hybrid(r, cm, body)
     _check_unique(body, ())
     ports, docs = [], []
     elnames = {e.name for e in body.elements}
@@ -409,7 +409,7 @@ def _component(r: Reader, cname: str, kn, vn) -> Component:
     desc = r.string(cm["description"][1], "description") if "description" in cm else ""
     laws = _library.read_laws(r, cname, cm["laws"][1]) if "laws" in cm else ()
     return Component(cname, body, tuple(ports), r.coord(kn), desc, laws, tuple(docs),
-                     events, modes)
+                     events, tuple(m.name for m in mode_docs), mode_docs)
 
 
 def _body(r: Reader, top: dict, node, what: str, is_component: bool) -> Body:
