@@ -401,3 +401,48 @@ def test_periodic_time_event_hits_its_times_exactly(target, method):
     r = shifted.simulate((0.0, 1.0), dt=0.01, rtol=1e-10, atol=1e-12, method=method)
     assert np.allclose([ev[0] for ev in r.events], 0.05 + 0.1 * np.arange(10), rtol=0,
                        atol=4e-16)
+
+
+# --- two crossings in one step: only the earliest fires there -----------------------------------
+
+TWO_CROSSINGS = """bgc: 1
+name: two_crossings
+parameters:
+  C1: {value: 1.0, unit: F}
+  R1: {value: 1.0e+9, unit: Ohm}
+elements:
+  cap:  {type: C, compliance: "C1", initial: "1"}
+  n:    {type: "0"}
+  load: {type: R, resistance: "R1"}
+bonds: [[n, cap], [n, load]]
+modes:
+  a: 0
+  b: 0
+events:
+  first:
+    when: "t - 0.2"
+    direction: rising
+    do: {a: 1}
+  second:
+    when: "t - 0.3"
+    direction: rising
+    do: {b: "b + 1"}
+outputs:
+  na: {expr: "a", unit: "1"}
+"""
+
+
+@pytest.mark.parametrize("target", TARGETS)
+@pytest.mark.parametrize("method", ["Radau", "Rodas4", "DOP853"])
+def test_a_later_crossing_in_the_same_step_waits_for_its_time(target, method):
+    """A capacitor at rest lets the steps grow past both guards' zeros (t = 0.2 and 0.3,
+    linear in t: the root finder lands on them exactly). Each event fires once, at its own
+    time (numpy once fired the second at the first's time too: an exact zero ended the search
+    with its bracket's start still at the step's start)."""
+    model = bgc.compile(TWO_CROSSINGS, target=target)
+    r = model.simulate((0.0, 1.0), t_eval=np.linspace(0.0, 1.0, 5), rtol=1e-8, atol=1e-10,
+                       method=method)
+    assert [ev[1] for ev in r.events] == ["first", "second"]
+    assert np.allclose([ev[0] for ev in r.events], [0.2, 0.3], rtol=0, atol=1e-12)
+    b = list(model.STATE_NAMES).index("b")
+    assert r.events[-1][4][b] == 1.0  # the second fired once

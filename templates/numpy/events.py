@@ -113,6 +113,8 @@ def _locate(guards, dense, k, i, ta, tb, side):
         else:
             tb, gb = tm, gm
             ga, stale = (ga / 2 if stale == -1 else ga), -1
+    if gb == 0:  # an exact zero (a guard linear in t): the bracket is that time alone, so that
+        ta = tb  # _fire does not take an event that a wide bracket's start puts before t_stop
     return ta, tb
 
 
