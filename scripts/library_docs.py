@@ -45,7 +45,10 @@ events of their own ([model-format.md](model-format.md#events-and-modes-hybrid-m
 each instance gets its own, named after it (the mode `on` of instance `d1` is the state
 `d1.on`, its event `turn_off` is `d1.turn_off` in the event log). Their guards and resets are
 listed under **Events**; a switch's position changes the circuit's causality (an ideal switch,
-`Sw`: bgc compiles every position). Both backends and FMUs run them.
+`Sw`: bgc compiles every position). Both backends and FMUs run them. The runtimes look
+for a guard's change of sign at the end of each step: where nothing else keeps the steps
+short (a circuit at rest between two switchings), give the run a `max_step` below the
+shortest time between two events of one guard, or a step may pass over both.
 
 Not in the library yet: a rigid spatial revolute joint compiles only once bgc eliminates
 rigid constraints inside closed kinematic loops (`revolute_lock` below documents it); a
