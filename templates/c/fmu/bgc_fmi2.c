@@ -13,6 +13,7 @@
  * Exchange and integrator restarts in Co-Simulation; between two of them the model sees t
  * one-sided (as bgc's own runs do).
  */
+#include <float.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -164,8 +165,10 @@ static int evaluate(inst_t *c)
  * seen before it (falling: positive), by any evaluation, and fires in event mode when armed and
  * its guard has reached zero or passed it; it is then disarmed until its guard is seen before
  * it again. (The environment may evaluate the indicators past a crossing before it locates it:
- * that never disarms.) An event in either direction keeps the side its guard had at the last
- * event mode and fires when the guard has left it. */
+ * that never disarms.) A guard zero where the run starts counts as before its event (as in
+ * bgc's own runtimes): it fires once the guard has left zero in its direction. An event in
+ * either direction keeps the side its guard had at the last event mode and fires when the
+ * guard has left it. */
 static int guards_now(inst_t *c)
 {
     int bad = -1;
@@ -181,8 +184,12 @@ static int events_start(inst_t *c)
     if (D->nev == 0) return 0;
     for (int k = 0; k < D->nev; k++) c->side[k] = D->ev_dir[k];  /* disarmed */
     if (guards_now(c)) return 1;
-    for (int k = 0; k < D->nev; k++)
+    for (int k = 0; k < D->nev; k++) {
         if (D->ev_dir[k] == 0) c->side[k] = c->g[k] > 0 ? 1.0 : c->g[k] < 0 ? -1.0 : 0.0;
+        /* a guard zero at the start counts as before its event, as in bgc's own runs: armed
+         * at zero (half a side), it fires once it has left zero in its direction */
+        else if (c->g[k] == 0.0) c->side[k] = -0.5 * D->ev_dir[k];
+    }
     return 0;
 }
 
@@ -196,7 +203,8 @@ static int events_fire(inst_t *c)
     for (int k = 0; k < D->nev; k++) {
         int d = D->ev_dir[k];
         double s = c->side[k], g = c->g[k];
-        int fire = d != 0 ? s == -d && g * d >= 0 : s != 0.0 && !(g * s > 0.0);
+        int fire = d != 0 ? (s == -d && g * d >= 0) || (s == -0.5 * d && g * d > 0)
+                          : s != 0.0 && !(g * s > 0.0);
         if (fire) {
             if (D->reset(k, t_model(c), c->x, c->p, c->xnew) != 0 ||
                     !all_finite(c->xnew, D->n, &bad))
@@ -770,6 +778,10 @@ fmi2Status fmi2GetEventIndicators(fmi2Component comp, fmi2Real ind[], size_t ni)
     if (guards_now(c)) return ERR(c, "fmi2GetEventIndicators: an indicator is not finite at "
                                      "t = %g", c->t);
     memcpy(ind, c->g, sizeof(double) * ni);
+    /* a guard still zero where the run started is shown on the side before its event (the
+     * smallest normal number): leaving zero, it changes sign for the environment to find */
+    for (int k = 0; k < D->nev; k++)
+        if (c->side[k] == -0.5 * D->ev_dir[k] && ind[k] == 0.0) ind[k] = -D->ev_dir[k] * DBL_MIN;
     return fmi2OK;
 }
 
@@ -825,6 +837,32 @@ static int fd_jac(double t, const double *x, const double *p, double *jv)
     return rc;
 }
 
+/* one communication step: the runtime sees a step's guards at most up to the last double
+ * before t1 (its one-sided window), and the next step starts from their signs at t1, so a
+ * guard crossing zero in that last ulp (a source's zero at a communication point) would be
+ * lost between two steps: its event fires here, at t1, in declaration order. */
+static int step_to(inst_t *c, double t1, bgc_options *opt, bgc_stats *st)
+{
+    int rc = bgc_integrate(D->model, c->p, c->t, t1, c->x, opt, c->xnew, st);
+    if (rc != BGC_OK || D->nev == 0 || !(t1 > c->t)) return rc;
+    double *g = malloc(sizeof(double) * (2 * (size_t)D->nev + (size_t)D->n));
+    if (!g) return BGC_ERR_ARGS;
+    double *g1 = g + D->nev, *xa = g1 + D->nev;
+    if (D->guards(nextafter(t1, c->t), c->xnew, c->p, g) == 0) {
+        for (int k = 0; k < D->nev; k++) {
+            if (D->model->ev_timed && D->model->ev_timed[k]) continue;
+            if (D->guards(t1, c->xnew, c->p, g1) != 0) break;
+            int d = D->ev_dir[k];
+            if (!(g[k] * g1[k] < 0) || (d != 0 && (g1[k] > 0 ? 1 : -1) != d)) continue;
+            memcpy(xa, c->xnew, sizeof(double) * (size_t)D->n);
+            if (D->reset(k, t1, xa, c->p, c->xnew) != 0) { rc = BGC_ERR_MODEL; break; }
+            logf_(c, fmi2OK, "logAll", "event %d at t = %.17g (a communication point)", k, t1);
+        }
+    }
+    free(g);
+    return rc;
+}
+
 fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real currentCommunicationPoint,
                       fmi2Real communicationStepSize, fmi2Boolean noSetFMUStatePriorToCurrentPoint)
 {
@@ -855,7 +893,7 @@ fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real currentCommunicationPoint,
     opt.n_breaks = D->n_breaks;
     bgc_stats st;
     memset(&st, 0, sizeof st);
-    int rc = bgc_integrate(D->model, c->p, c->t, t1, c->x, &opt, c->xnew, &st);
+    int rc = step_to(c, t1, &opt, &st);
     if (rc == BGC_ERR_NONFINITE && st.bad_where == 1) {
         /* the analytic Jacobian is not finite somewhere on the way: again with differences */
         bgc_model fd = *D->model;
