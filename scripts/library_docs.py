@@ -40,9 +40,10 @@ says so, a port left unbonded is the ground. Sources are bonded out of their por
 parameter has a unit, and every component checks clean under `units: strict`. An element a
 component defines is named `instance.element` in outputs (`f(cart.I)`, `q(j1.C)`).
 
-Hybrid components (switches, the ideal diode, hard stops, stick-slip friction) hold modes and
-events of their own ([model-format.md](model-format.md#events-and-modes-hybrid-models)):
-each instance gets its own, named after it (the mode `on` of instance `d1` is the state
+Hybrid components (switches, the ideal diode, the check valve, hard stops, stick-slip
+friction) hold modes and events of their own
+([model-format.md](model-format.md#events-and-modes-hybrid-models)): each instance gets its
+own, named after it (the mode `on` of instance `d1` is the state
 `d1.on`, its event `turn_off` is `d1.turn_off` in the event log). Their guards and resets are
 listed under **Events**; a switch's position changes the circuit's causality (an ideal switch,
 `Sw`: bgc compiles every position). Both backends and FMUs run them. The runtimes look
@@ -51,8 +52,7 @@ short (a circuit at rest between two switchings), give the run a `max_step` belo
 shortest time between two events of one guard, or a step may pass over both.
 
 Not in the library yet: a rigid spatial revolute joint compiles only once bgc eliminates
-rigid constraints inside closed kinematic loops (`revolute_lock` below documents it); a
-hydraulic check valve.
+rigid constraints inside closed kinematic loops (`revolute_lock` below documents it).
 
 ## Contents
 

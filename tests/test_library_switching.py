@@ -47,6 +47,10 @@ def _events(r, prefix):
     return [(float(ev[0]), ev[1]) for ev in r.events if ev[1].startswith(prefix + ".")]
 
 
+def _times(r, prefix):
+    return np.array([x for x, _ in _events(r, prefix)])
+
+
 # ---------------------------------------------------------------------------------------------
 # Electrical: switches and the ideal diode
 
@@ -67,7 +71,7 @@ elements:
   r3: {type: resistor, R: 1000.0}
   c3: {type: capacitor, C: 1.0e-4}
   vs4: {type: voltage_source, V: "V0 * sin(2 * pi * f0 * t)"}
-  d4: {type: ideal_diode, Ron: 1.0, Goff: 1.0e-3}
+  d4: {type: switched_diode, Ron: 1.0, Goff: 1.0e-3}
   r4: {type: resistor, R: 100.0}
 bonds: [[vs1.p, s1.p], [s1.n, r1.p], [r1.n, c1.p], [vs2.p, d2.p], [d2.n, r2.p],
         [vs3.p, s3.p], [s3.n, r3.p], [r3.n, c3.p], [vs4.p, d4.p], [d4.n, r4.p]]
@@ -158,6 +162,44 @@ def test_switches_and_ideal_diodes_match_their_closed_forms(electrical, method):
 
 
 # ---------------------------------------------------------------------------------------------
+# Hydraulics: the check valve
+
+HYDRAULIC = """
+parameters:
+  P0: {value: 1.0e+6, unit: Pa, description: the third source's amplitude}
+elements:
+  ps2: {type: pressure_source, P: 1.0e+6}
+  cv2: {type: check_valve, G_leak: 1.0e-12}
+  ch2: {type: chamber, V: 1.0e-3, beta: 1.0e+9, p0: 2.0e+6}
+  ps3: {type: pressure_source, P: "P0 * sin(2 * pi * t)"}
+  cv3: {type: check_valve, open0: 1}
+  ch3: {type: chamber, V: 1.0e-3, beta: 1.0e+9}
+bonds: [[ps2.p, cv2.a], [cv2.b, ch2.p], [ps3.p, cv3.a], [cv3.b, ch3.p]]
+outputs:
+  p2: {expr: "e(ch2.C)", unit: Pa}
+  p3: {expr: "e(ch3.C)", unit: Pa}
+"""
+
+
+@pytest.mark.parametrize("target", TARGETS)
+def test_check_valve_holds_and_leaks_as_the_closed_form(target, tmp_path_factory):
+    path = _write(tmp_path_factory, "valves", ["hydraulic"], HYDRAULIC)
+    model = bgc.compile(str(path), target=target)
+    t = np.linspace(0.0, 1.0, 201)
+    r = model.simulate((0.0, 1.0), t_eval=t, rtol=1e-10, atol=1e-12, max_step=1e-2)
+    C = 1.0e-3 / 1.0e9  # the chambers' capacitance V / beta
+    # closed against a higher pressure, only the leakage: p = P + (p0 - P) exp(-G t / C)
+    assert np.max(np.abs(r.y["p2"] - (1.0e6 + 1.0e6 * np.exp(-1.0e-12 * r.t / C)))) < 1e-2
+    # an ideal valve into a chamber: it follows the source up to its peak (t = 1/4), where
+    # the flow C dP/dt falls through zero, and holds P0 from then on
+    assert [n for _, n in _events(r, "cv3")] == ["cv3.closing"]
+    assert abs(_times(r, "cv3")[0] - 0.25) < 1e-8
+    exact = np.where(r.t < 0.25, 1.0e6 * np.sin(2 * np.pi * r.t), 1.0e6)
+    assert np.max(np.abs(r.y["p3"] - exact)) < 1e-2
+    assert not _events(r, "cv2")
+
+
+# ---------------------------------------------------------------------------------------------
 # Mechanics: hard stops and stick-slip friction
 
 MECHANICS = """
@@ -240,10 +282,6 @@ def mechanics(request, tmp_path_factory):
     path = _write(tmp_path_factory, "stops", ["mechanics.translational",
                                               "mechanics.rotational"], MECHANICS)
     return bgc.compile(str(path), target=request.param)
-
-
-def _times(r, prefix):
-    return np.array([x for x, _ in _events(r, prefix)])
 
 
 @pytest.mark.parametrize("method", ["Radau", "Rodas4"])
