@@ -3,7 +3,9 @@ instance its own) against closed forms derived here by hand, on both backends (n
 as FMUs under FMPy: RC charging through a switch closed and opened by a time schedule or by a
 signal crossing a threshold (exponentials joined where the switch moves), a half-wave
 rectifier with an ideal diode and a resistive load (the source's voltage divided while
-conducting, the off conductance's share while blocking), a ball and an inertia bouncing on a
+conducting, the off conductance's share while blocking), a check valve (a chamber following a
+sine source to its peak and holding it; one leaking towards a lower supply through the closed
+valve, exponentially), a ball and an inertia bouncing on a
 hard stop (free flights joined at impacts, apex heights e_r^(2 n) h0), and stick-slip friction
 (a mass on a belt held by a spring; a disk driven through a torsion spring: harmonic slips
 and linear sticks of closed-form lengths)."""
@@ -356,6 +358,18 @@ def test_switching_parts_as_fmus_under_fmpy(tmp_path_factory):
                           output_interval=1e-3, output=outs)
     assert np.max(np.abs(r["v1"] - rc_timed(r["time"]))) < 1e-6
     assert np.max(np.abs(r["v2"] - rectified(r["time"]))) < 1e-6
+
+    hy = export_fmu(_write(tmp_path_factory, "valves", ["hydraulic"], HYDRAULIC),
+                    d / "valves.fmu")
+    for kind in ("ModelExchange", "CoSimulation"):
+        r = fmpy.simulate_fmu(str(hy), fmi_type=kind, solver="CVode", stop_time=1.0,
+                              output_interval=1e-3, relative_tolerance=1e-10,
+                              output=["p2", "p3"])
+        t = r["time"]
+        C = 1.0e-3 / 1.0e9
+        assert np.max(np.abs(r["p2"] - (1.0e6 + 1.0e6 * np.exp(-1.0e-12 * t / C)))) < 1.0
+        exact = np.where(t < 0.25, 1.0e6 * np.sin(2 * np.pi * t), 1.0e6)
+        assert np.max(np.abs(r["p3"] - exact)) < 1.0, kind
 
     me = export_fmu(_write(tmp_path_factory, "stops", ["mechanics.translational",
                                                       "mechanics.rotational"], MECHANICS),
