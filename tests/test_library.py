@@ -209,6 +209,16 @@ def test_bgc_library_lists_and_shows_from_the_files_own_text():
     for law in orifice.laws:
         assert law in text
     assert "a (hydraulic): upstream side (bond into it)" in text
+    # a hybrid component: its modes and events, guards and resets from the file's own text
+    r = run(main, ["library", "ideal_diode"])
+    diode = next(c for c in load("electrical").components if c.name == "ideal_diode")
+    text = " ".join(r.output.split())
+    assert r.exit_code == 0 and "Modes:" in text and "Events:" in text
+    assert "on (initially on0): 1 conducting, 0 blocking" in text
+    for ev in diode.events:
+        assert f"{ev.name}: when {ev.condition.text} " in text and ev.description in text
+    r = run(main, ["library", "switch"])
+    assert "closing: at t = t_close, sets on = 1" in " ".join(r.output.split())
     r = run(main, ["library", "bgc:thermal"])
     assert r.exit_code == 0 and "heat_capacity (bgc:thermal)" in r.output
     r = run(main, ["library", "../../etc/passwd"])
