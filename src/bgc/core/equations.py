@@ -22,7 +22,8 @@ import sympy as sp
 
 from bgc.base.errors import ModelError
 from bgc.core.causality import Causality
-from bgc.core.constraints import alpha_of, check_initial, constraint_states, stabilise
+from bgc.core.assembly import consistent_initial
+from bgc.core.constraints import alpha_of, constraint_states, stabilise
 from bgc.core.context import Context, check_names
 from bgc.core.eqtypes import (
     SYMBOLIC_MAX,
@@ -97,7 +98,7 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
     ctx_derived = [ctx.derived[k] for k in ctx.derived_order]
     _check_declared(ctx, state_vars, ctx_derived, kept, derivatives, outputs,
                     [e for ev in events for e in ev.exprs()])
-    check_initial(ctx, state_vars, kept, derivatives)
+    notes = consistent_initial(ctx, state_vars, kept, derivatives, bg.model.project)
 
     if progress:
         progress("deriving the Jacobian")
@@ -105,6 +106,7 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
     jac, jac_assign = jacobian(kept, state_vars, derivatives, nloops)
     check_names(bg, ctx, state_vars)
     standing = tuple(w for w in caus.warnings if not w.startswith("R elements with causality"))
+    standing += tuple(notes)
     return Equations(bg.model.name, tuple(state_vars), tuple(ctx.params.values()),
                      tuple(ctx_derived), tuple(ctx.inputs[i.name] for i in bg.model.inputs),
                      tuple(kept), derivatives, outputs, jac, tuple(jac_assign), tuple(loops),

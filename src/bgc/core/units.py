@@ -203,6 +203,12 @@ def _element(chk: Checker, el) -> None:
         chk.equate(got, rule(e, f), expr.coord,
                    lambda x, y: f"{what}: {key} {short_text(expr.text)} is {x}, but {words} on "
                                 f"its bond is {y}")
+        if getattr(el, "closure", None) is not None:
+            cl = el.closure
+            got = chk.eval(cl, el.scope, f"{what} (closure)")
+            chk.equate(got, f + SECOND, cl.coord,
+                       lambda x, y: f"{what}: closure {short_text(cl.text)} is {x}, but the "
+                                    f"displacement of its bond (flow x time) is {y}")
         return
     bin_ = next(b for b in bonds if b.dst == el.id)
     bout = next(b for b in bonds if b.src == el.id)
