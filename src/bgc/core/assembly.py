@@ -205,3 +205,78 @@ def _project_velocities(ctx, state_vars, vals, velocity: _Velocity) -> list[str]
             notes.append(f"{_name_of(state_vars, p)} {old:.10g} -> {old + float(d):.10g}")
     return [f"initial momenta projected onto the velocity constraints: {', '.join(notes)}"] \
         if notes else []
+
+
+def numeric_redundancy(ctx: Context, defs: dict, state_vars) -> set:
+    """The constraint components that are redundant at the model's initial state: the rows of
+    the velocity constraints' Jacobian G = d(f - s)/d(momenta) (numeric: the flows are linear
+    in the momenta at fixed positions) that add nothing to its rank (SVD, relative tolerance
+    1e-9), taken greedily in declaration order, so the first written constraints are kept.
+    Their reactions are then 0 (bgc.core.constraints.stabilise) instead of a singular solve
+    at run time. Empty where the initial state cannot be evaluated at compile time."""
+    if not ctx.constraints:
+        return set()
+    vals = initial_values(ctx, state_vars)
+    if vals is None:
+        return set()
+    types = {el.id: el.type for el in ctx.bg.elements}
+    momenta = [sv.symbol for sv in state_vars if types.get(sv.owner) == "I"]
+    rows = [(c.source, k, f - s) for c in ctx.constraints
+            for k, (f, s) in enumerate(zip(c.flow, c.target))]
+
+    def residuals(at):
+        memo: dict = {}
+        out = []
+        for _, _, e in rows:
+            v = _evaluate(e, at, defs, memo)
+            if v is None:
+                return None
+            out.append(v)
+        return np.array(out)
+
+    r0 = residuals(vals)
+    if r0 is None or not momenta:
+        return set()
+    cols = []
+    for p in momenta:
+        trial = dict(vals)
+        trial[p] = vals[p] + 1
+        rk = residuals(trial)
+        if rk is None:
+            return set()
+        cols.append(rk - r0)
+    g = np.array(cols).T
+    top = np.linalg.svd(g, compute_uv=False)[0] if g.size else 0.0
+    tol = 1e-9 * max(top, 1e-300)
+    kept: list = []
+    redundant = set()
+    for i, (src, k, _) in enumerate(rows):
+        trial = np.array(kept + [g[i]])
+        if np.linalg.matrix_rank(trial, tol=tol) > len(kept):
+            kept.append(g[i])
+        else:
+            redundant.add((src, k))
+    return redundant
+
+
+def _evaluate(expr, vals: dict, defs: dict, memo: dict) -> float | None:
+    """The value of ``expr`` with its defined symbols evaluated through ``defs`` (memoised)."""
+    stack = [s for s in sp.sympify(expr).free_symbols if s not in vals]
+    while stack:
+        s = stack[-1]
+        if s in memo or s in vals:
+            stack.pop()
+            continue
+        if s not in defs:
+            return None
+        todo = [d for d in defs[s].expr.free_symbols if d not in vals and d not in memo]
+        if todo:
+            stack.extend(todo)
+            continue
+        v = number_of(defs[s].expr, {**vals, **memo})
+        if v is None:
+            return None
+        memo[s] = v
+        stack.pop()
+    v = number_of(expr, {**vals, **memo})
+    return None if v is None else float(v)

@@ -79,9 +79,13 @@ def constraint_states(ctx: Context, derivs: dict, state_vars: list) -> None:
             state_vars.append(StateVar(label, q, c.source, sp.Integer(0)))
 
 
-def stabilise(ctx: Context, defs: dict, owner: dict, alpha: float) -> frozenset:
-    """Each reaction component defined by its residual q'' + 2 alpha q' + alpha^2 q (its
-    ``_dt_`` flows defined by ``time_derivatives`` beforehand). Returns the reactions."""
+def stabilise(ctx: Context, defs: dict, owner: dict, alpha: float,
+              dropped: set = frozenset()) -> frozenset:
+    """Each reaction component defined by its residual q'' + 2 alpha q' + alpha^2 q (q the
+    closure where one is given; its ``_dt_`` flows defined by ``time_derivatives``
+    beforehand). ``dropped``: (source, component) found numerically redundant at the initial
+    state (bgc.core.assembly), whose reaction is 0 like a structurally redundant one's.
+    Returns the reactions."""
     bg = ctx.bg
     lams = {lam for c in ctx.constraints for lam in c.lam}
     inputs = {s for iv in ctx.inputs.values() for s in iv.symbols}
@@ -110,7 +114,7 @@ def stabilise(ctx: Context, defs: dict, owner: dict, alpha: float) -> frozenset:
             residuals[lam] = r
     for lam, r in residuals.items():
         src = owner_of[lam]
-        if not (closure_of(defs, r.free_symbols) & lams):
+        if (src, c_index[lam]) in dropped or not (closure_of(defs, r.free_symbols) & lams):
             # no reaction reaches this component's acceleration: the motion already holds it
             # (an out-of-plane component of a planar loop written with 3-D bonds)
             defs[lam] = Assignment(lam, sp.Integer(0), f"{src} (constraint): redundant "

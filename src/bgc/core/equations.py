@@ -22,7 +22,7 @@ import sympy as sp
 
 from bgc.base.errors import ModelError
 from bgc.core.causality import Causality
-from bgc.core.assembly import consistent_initial
+from bgc.core.assembly import consistent_initial, numeric_redundancy
 from bgc.core.constraints import alpha_of, constraint_states, stabilise
 from bgc.core.context import Context, check_names
 from bgc.core.eqtypes import (
@@ -82,7 +82,8 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
         seeds = [f for c in ctx.constraints for f in c.flow]
         tear_sets = time_derivatives(ctx, defs, owner, derivs, state_vars, seeds)
         if ctx.constraints:
-            residual = stabilise(ctx, defs, owner, alpha_of(bg.model))
+            dropped = numeric_redundancy(ctx, defs, state_vars)
+            residual = stabilise(ctx, defs, owner, alpha_of(bg.model), dropped)
     if progress:
         progress("ordering assignments")
     nloops: list = [] if newton else None
