@@ -202,3 +202,52 @@ def test_redundant_parallelogram_against_its_closed_form():
     for name in ("th1", "th2", "th3"):
         assert np.abs(r.y[name] - ref).max() < 1e-6
     assert np.abs(r.y["thc"]).max() < 1e-8
+
+
+# ---------------------------------------------------------------------------------------------
+# linearisation on the constraint manifold
+
+
+def _reference_small_oscillation():
+    """The reference's one-degree-of-freedom form (crank angle and rate) without the torque:
+    its stable equilibrium (a sign change of w1' from + to -) and the eigenvalues of its
+    Jacobian there (central differences)."""
+    from scipy.optimize import brentq
+
+    p = fl.model_params()
+    p["tau0"] = 0.0
+    fb = fl.FourBar(p)
+
+    def acc(a):
+        return fb.rhs_reduced(0.0, np.array([a, 0.0, 0.0, 0.0]))[1]
+
+    grid = np.linspace(-np.pi, np.pi, 73)
+    a, b = next((a, b) for a, b in zip(grid, grid[1:]) if acc(a) > 0 > acc(b))
+    th1 = brentq(acc, a, b, xtol=1e-15)
+    h, jac = 1e-6, np.zeros((2, 2))
+    for k in range(2):
+        e = np.zeros(4)
+        e[k] = h
+        y = np.array([th1, 0.0, 0.0, 0.0])
+        jac[:, k] = (fb.rhs_reduced(0.0, y + e)[:2] - fb.rhs_reduced(0.0, y - e)[:2]) / (2 * h)
+    return fb.assemble(th1), np.linalg.eigvals(jac)
+
+
+def test_linearize_reduces_to_the_constraint_manifold(fourbar_numpy):
+    th, ref = _reference_small_oscillation()
+    m = fourbar_numpy
+    x0 = np.array(m.initial_state(), dtype=float)
+    names = list(m.STATE_NAMES)
+    for n, v in zip(("crank.th", "coupler.th", "rocker.th"), th):
+        x0[names.index(n)] = v
+    lin = bgc.linearize(m, x0=x0)
+    full = np.linalg.eigvals(lin.A)
+    assert np.sum(np.abs(full + 20.0) < 1e-3) == 4  # the stabilisation's modes, in A
+    assert lin.reduced is not None and "constraint manifold" in lin.reduced.note
+    red = np.linalg.eigvals(lin.reduced.A)
+    assert len(red) == 4 and not np.any(np.abs(red + 20.0) < 1.0)
+    pair = max(ref, key=lambda z: z.imag)
+    got = [md.eigenvalue for md in lin.modes]
+    assert min(abs(z - pair) for z in got) < 1e-6 * abs(pair)
+    # the rest: the two energy integrators W_in, W_diss
+    assert sorted(abs(z) for z in got)[:2] == pytest.approx([0.0, 0.0], abs=1e-9)

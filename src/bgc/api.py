@@ -26,6 +26,7 @@ from bgc.format.scene import initial_state, parse_scene
 from bgc.linear import (
     load_target,
     modes,
+    on_manifold,
     operating_point,
     point_warnings,
     scene_start,
@@ -298,6 +299,9 @@ class Linearization:
     outputs: tuple
     modes: tuple
     statespace: object = None
+    #: a model with closed loops: the reduction to its constraint manifold (bgc.linear.Reduced:
+    #: N, A, B, C, note), whose A ``modes`` are; None without constraints
+    reduced: object = None
 
 
 def linearize(model, at="equilibrium", p=None, u=None, x0=None) -> Linearization:
@@ -329,5 +333,8 @@ def linearize(model, at="equilibrium", p=None, u=None, x0=None) -> Linearization
         ss = to_statespace(mod, A, B, C, D)
     except ImportError:
         ss = None
+    red = on_manifold(mod, A, B, C)
+    ms = modes(A, mod.STATE_NAMES) if red is None else modes(red.A, mod.STATE_NAMES,
+                                                              basis=red.N)
     return Linearization(A, B, C, D, t, x, tuple(mod.STATE_NAMES), tuple(mod.INPUT_LABELS),
-                         tuple(mod.OUTPUT_LABELS), tuple(modes(A, mod.STATE_NAMES)), ss)
+                         tuple(mod.OUTPUT_LABELS), tuple(ms), ss, red)

@@ -113,7 +113,9 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
                      tuple(kept), derivatives, outputs, jac, tuple(jac_assign), tuple(loops),
                      warnings=standing, dependent=tuple(dependent), newton=tuple(nloops),
                      events=events, modes=mode_ids(bg), rates=rates,
-                     redundant=tuple(ctx.redundant))
+                     redundant=tuple(ctx.redundant),
+                     constraint_states=tuple(sv.name for sv in state_vars
+                                             if sv.owner in {c.source for c in ctx.constraints}))
 
 
 def _declare(ctx: Context) -> None:
