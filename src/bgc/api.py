@@ -14,6 +14,8 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from bgc.backends.load import BACKENDS as targets
 from bgc.base.errors import Coord, ModelError
 from bgc.builder import Builder, Component  # noqa: F401 (bgc.Builder, bgc.Component)
@@ -32,6 +34,7 @@ from bgc.linear import (
     scene_start,
     to_statespace,
 )
+from bgc.run.consistency import check_loop_start
 from bgc.run.driver import build, check_model, check_scene_for
 
 BgcError = ModelError
@@ -113,6 +116,14 @@ class CompiledModel:
             return self.compiled.graph, self.compiled.causality
         bg = build_graph(_model(self.origin))
         return bg, assign_causality(bg, allow_derivative=True)
+
+    def simulate(self, t_span, *args, x0=None, p=None, **kw):
+        """The module's ``simulate``; a given x0 is first checked against the model's
+        closed-loop constraints (positions and velocities: a ModelError naming the constraint
+        and the residual), as the compile checks the model's own initial state."""
+        if x0 is not None and np.ndim(x0) == 1:
+            check_loop_start(self.module, float(t_span[0]), x0, p, None, "x0")
+        return self.module.simulate(t_span, *args, x0=x0, p=p, **kw)
 
     def __getattr__(self, name):
         if name.startswith("__"):

@@ -114,6 +114,7 @@ class Equations:
     redundant: tuple = field(default=())
     #: the names of the constraints' violation states (q): the linearisation reduces them out
     constraint_states: tuple = field(default=())
+    constraint_alpha: float = 0.0  # their stabilisation rate (1/s)
 
 
 class LinSolve(sp.Function):

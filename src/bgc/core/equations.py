@@ -115,7 +115,8 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
                      events=events, modes=mode_ids(bg), rates=rates,
                      redundant=tuple(ctx.redundant),
                      constraint_states=tuple(sv.name for sv in state_vars
-                                             if sv.owner in {c.source for c in ctx.constraints}))
+                                             if sv.owner in {c.source for c in ctx.constraints}),
+                     constraint_alpha=alpha_of(bg.model) if ctx.constraints else 0.0)
 
 
 def _declare(ctx: Context) -> None:
