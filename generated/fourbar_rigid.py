@@ -84,11 +84,13 @@ STATE_OWNERS = (
     'pivot2',
     'pivot2',
 )
-# the violation states of closed loops' constraints (bgc.linearize reduces them out)
+# the violation states of closed loops' constraints (bgc.linearize reduces them out) and the
+# rate alpha (1/s) of their stabilised law q'' + 2 alpha q' + alpha^2 q = 0
 CONSTRAINT_STATES = (
     'pivot2.q[0]',
     'pivot2.q[1]',
 )
+CONSTRAINT_ALPHA = 20.0
 PARAM_DEFAULTS = {
     'g': 9.81,
     'd': 1.0,
