@@ -2,7 +2,8 @@
 sources of a few small models under generated/c/<name>/.
 
 Run `python scripts/regenerate.py` after a reviewed change to bgc's code generation, then
-review `git diff generated/` before committing.
+review `git diff generated/` before committing. `python scripts/regenerate.py fourbar_rigid ...`
+regenerates only the models of those file stems (models/<stem>.yaml).
 """
 from __future__ import annotations
 
@@ -20,7 +21,10 @@ C_GOLDEN = ("msd", "dc_motor")
 
 
 def main() -> None:
+    only = set(sys.argv[1:])
     for model in sorted((ROOT / "models").glob("*.yaml")):
+        if only and model.stem not in only:
+            continue
         c = compile_file(model)
         out = ROOT / "generated" / f"{c.model.name}.py"
         write_output(out, c.source)

@@ -14,6 +14,8 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from bgc.backends.load import BACKENDS as targets
 from bgc.base.errors import Coord, ModelError
 from bgc.builder import Builder, Component  # noqa: F401 (bgc.Builder, bgc.Component)
@@ -26,11 +28,13 @@ from bgc.format.scene import initial_state, parse_scene
 from bgc.linear import (
     load_target,
     modes,
+    on_manifold,
     operating_point,
     point_warnings,
     scene_start,
     to_statespace,
 )
+from bgc.run.consistency import check_loop_start
 from bgc.run.driver import build, check_model, check_scene_for
 
 BgcError = ModelError
@@ -112,6 +116,14 @@ class CompiledModel:
             return self.compiled.graph, self.compiled.causality
         bg = build_graph(_model(self.origin))
         return bg, assign_causality(bg, allow_derivative=True)
+
+    def simulate(self, t_span, *args, x0=None, p=None, **kw):
+        """The module's ``simulate``; a given x0 is first checked against the model's
+        closed-loop constraints (positions and velocities: a ModelError naming the constraint
+        and the residual), as the compile checks the model's own initial state."""
+        if x0 is not None and np.ndim(x0) == 1:
+            check_loop_start(self.module, float(t_span[0]), x0, p, None, "x0")
+        return self.module.simulate(t_span, *args, x0=x0, p=p, **kw)
 
     def __getattr__(self, name):
         if name.startswith("__"):
@@ -298,6 +310,9 @@ class Linearization:
     outputs: tuple
     modes: tuple
     statespace: object = None
+    #: a model with closed loops: the reduction to its constraint manifold (bgc.linear.Reduced:
+    #: N, A, B, C, note), whose A ``modes`` are; None without constraints
+    reduced: object = None
 
 
 def linearize(model, at="equilibrium", p=None, u=None, x0=None) -> Linearization:
@@ -329,5 +344,8 @@ def linearize(model, at="equilibrium", p=None, u=None, x0=None) -> Linearization
         ss = to_statespace(mod, A, B, C, D)
     except ImportError:
         ss = None
+    red = on_manifold(mod, A, B, C)
+    ms = modes(A, mod.STATE_NAMES) if red is None else modes(red.A, mod.STATE_NAMES,
+                                                              basis=red.N)
     return Linearization(A, B, C, D, t, x, tuple(mod.STATE_NAMES), tuple(mod.INPUT_LABELS),
-                         tuple(mod.OUTPUT_LABELS), tuple(modes(A, mod.STATE_NAMES)), ss)
+                         tuple(mod.OUTPUT_LABELS), tuple(ms), ss, red)

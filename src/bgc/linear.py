@@ -28,17 +28,22 @@ class Mode:
         return self.wn / (2 * np.pi)
 
 
-def modes(A, state_names, top: int = 3) -> list[Mode]:
+def modes(A, state_names, top: int = 3, basis=None) -> list[Mode]:
     """The eigenvalues of A (one per complex pair), slowest first, with natural frequency,
     damping ratio and the states that dominate it: the largest participation factors
-    |v_ik w_ki| (right and left eigenvectors), relative to the largest."""
+    |v_ik w_ki| (right and left eigenvectors), relative to the largest. ``basis``: A is the
+    reduction N^T A N of a model's A onto the columns of N (x = N z, :func:`on_manifold`); the
+    dominant states are then read in x."""
     lam, V = np.linalg.eig(np.asarray(A, dtype=float))
     # participation factors |v_ik w_ki| (right and left eigenvectors): unlike the raw
     # eigenvector they do not depend on the states' units
     try:
-        part = np.abs(V * np.linalg.inv(V).T)
+        W = np.linalg.inv(V)
+        if basis is not None:
+            V, W = basis @ V, W @ basis.T
+        part = np.abs(V * W.T)
     except np.linalg.LinAlgError:  # defective A: fall back to the eigenvectors
-        part = np.abs(V)
+        part = np.abs(V if basis is None else basis @ V)
     out = []
     for k in np.argsort(np.abs(lam), kind="stable"):
         if lam[k].imag < 0:
@@ -52,6 +57,52 @@ def modes(A, state_names, top: int = 3) -> list[Mode]:
                         tuple((state_names[i], float(v[i] / vmax)) for i in big
                               if v[i] >= 0.05 * vmax)))
     return out
+
+
+@dataclass(frozen=True)
+class Reduced:
+    """A linearisation reduced to a closed loop's constraint manifold: x = N z, with
+    A_r = N^T A N, B_r = N^T B, C_r = C N (N orthonormal, its range invariant under A)."""
+
+    N: object
+    A: object
+    B: object
+    C: object
+    note: str
+
+
+def on_manifold(mod, A, B, C) -> Reduced | None:
+    """The linearisation of a model with constraints (closed kinematic loops) reduced to the
+    constraint manifold, None without constraints. With q the constraints' violation states,
+    V = dq'/dx = A[q, :] the velocity constraints' rows and V A their accelerations' (which,
+    under the stabilised law q'' + 2 alpha q' + alpha^2 Phi = 0, span the position constraints
+    Phi with V), the states with q = 0, V x = 0 and V A x = 0 form a subspace that A maps into
+    itself; its orthonormal basis N (the null space of those rows, by SVD, each row scaled to
+    unit length) eliminates the constraint coordinates and with them the stabilisation's modes
+    at -alpha, which are not the mechanism's."""
+    names = tuple(getattr(mod, "CONSTRAINT_STATES", ()))
+    idx = [i for i, s in enumerate(mod.STATE_NAMES) if s in names]
+    if not idx:
+        return None
+    A = np.asarray(A, dtype=float)
+    n = A.shape[0]
+    V = A[idx, :]
+    rows = np.vstack([np.eye(n)[idx], V, V @ A])
+    norms = np.linalg.norm(rows, axis=1)
+    rows = rows[norms > 0] / norms[norms > 0, None]
+    _, s, vt = np.linalg.svd(rows)
+    rank = int((s > 1e-9 * s[0]).sum()) if s.size else 0
+    N = vt[rank:].T
+    Ar = N.T @ A @ N
+    scale = max(np.abs(A).max(), 1e-300)
+    if np.abs(A @ N - N @ Ar).max() > 1e-6 * scale:
+        return None  # not invariant here (off the manifold): leave A as it is
+    note = (f"reduced to the constraint manifold of {len({s.split('.q')[0] for s in names})} "
+            f"closed-loop constraint(s): {rank} constraint coordinates eliminated (the "
+            f"violation states, the velocity and position constraints), {n - rank} left; the "
+            "stabilisation's modes at -alpha are not the mechanism's")
+    return Reduced(N, Ar, N.T @ np.asarray(B, dtype=float), np.asarray(C, dtype=float) @ N,
+                   note)
 
 
 def frequency_response(A, B, C, D, i_in: int, i_out: int, w):

@@ -185,7 +185,7 @@ def linearize_cmd(target, at, out, bode, freq_range, x0_items, quiet):
     """Linearise SCENE_OR_MODEL: eigenvalues with natural frequencies and damping ratios and
     the states that dominate each mode; matrices and Bode plots with --out."""
     # lazy: the compile path, which a warm run never loads
-    from bgc.linear import modes, operating_point, point_warnings, start_guess
+    from bgc.linear import modes, on_manifold, operating_point, point_warnings, start_guess
 
     prog = Progress(quiet)
     mod, p, t0, sc = _load_target(target, prog)
@@ -227,10 +227,14 @@ def linearize_cmd(target, at, out, bode, freq_range, x0_items, quiet):
                                "be below FMAX")
     lin = guards.linearization(mod, t, x, p, coord, where)
     _warn_unstable(lin[0], where, prog)
-    ms = modes(lin[0], mod.STATE_NAMES)
+    red = on_manifold(mod, lin[0], lin[1], lin[2])
+    ms = (modes(lin[0], mod.STATE_NAMES) if red is None
+          else modes(red.A, mod.STATE_NAMES, basis=red.N))
     buf = io.StringIO()
     buf.write(f"linearised at {where}: {mod.N_STATES} states, {len(mod.INPUT_LABELS)} inputs, "
               f"{len(mod.OUTPUT_LABELS)} outputs\n")
+    if red is not None:
+        buf.write(f"{red.note}\n")
     buf.write(f"{'eigenvalue [1/s]':>30}  {'wn [rad/s]':>11}  {'f [Hz]':>10}  {'damping':>8}"
               "  dominant states\n")
     for md in ms:

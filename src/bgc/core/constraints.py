@@ -45,16 +45,28 @@ class Constraint:
     flow: tuple  # the bond's flow, computed by the other end
     target: tuple  # the source's flow: expressions of t and parameters
     q: tuple  # the violation's state symbols
+    closure: tuple | None = None  # the position residual (`closure:`), in states and parameters
 
 
-def constraint_source(ctx: Context, el: FlatElement, b, target, define) -> None:
-    """The law of a flow source turned constraint: its effort is the unknown reaction."""
+def constraint_source(ctx: Context, el: FlatElement, b, target, define, closure=None) -> None:
+    """The law of a flow source turned constraint: its effort is the unknown reaction.
+    ``closure``: the position residual the user gives (`closure:`), n expressions that may read
+    states, parameters and t only (not flows or efforts: it is a position)."""
     n = b.n
     lam = symbol_vector(f"lam_{code_name(el.id)}", n)
     define(ctx.e[b.id], lam, el, f"{el.id} (constraint): reaction effort")
     q = symbol_vector(f"q_{code_name(el.id)}", n)
+    if closure is not None:
+        closure = tuple(sp.sympify(x) for x in flat(closure))
+        allowed = {T} | {s for v in ctx.states.values() for s in flat(v)}
+        allowed |= {s for pv in ctx.params.values() for s in pv.symbols}
+        allowed |= {a.symbol for a in ctx.derived.values()}
+        bad = sorted(str(x) for c in closure for x in c.free_symbols if x not in allowed)
+        if bad:
+            raise ModelError(el.closure.coord, f"Sf {el.id!r}: its closure may read states, "
+                             f"parameters and t only (a position), not {', '.join(bad)}")
     ctx.constraints.append(Constraint(el.id, b.id, tuple(flat(lam)), tuple(flat(ctx.f[b.id])),
-                                      tuple(flat(target)), tuple(flat(q))))
+                                      tuple(flat(target)), tuple(flat(q)), closure))
 
 
 def constraint_states(ctx: Context, derivs: dict, state_vars: list) -> None:
@@ -67,9 +79,13 @@ def constraint_states(ctx: Context, derivs: dict, state_vars: list) -> None:
             state_vars.append(StateVar(label, q, c.source, sp.Integer(0)))
 
 
-def stabilise(ctx: Context, defs: dict, owner: dict, alpha: float) -> frozenset:
-    """Each reaction component defined by its residual q'' + 2 alpha q' + alpha^2 q (its
-    ``_dt_`` flows defined by ``time_derivatives`` beforehand). Returns the reactions."""
+def stabilise(ctx: Context, defs: dict, owner: dict, alpha: float,
+              dropped: set = frozenset()) -> frozenset:
+    """Each reaction component defined by its residual q'' + 2 alpha q' + alpha^2 q (q the
+    closure where one is given; its ``_dt_`` flows defined by ``time_derivatives``
+    beforehand). ``dropped``: (source, component) found numerically redundant at the initial
+    state (bgc.core.assembly), whose reaction is 0 like a structurally redundant one's.
+    Returns the reactions."""
     bg = ctx.bg
     lams = {lam for c in ctx.constraints for lam in c.lam}
     inputs = {s for iv in ctx.inputs.values() for s in iv.symbols}
@@ -79,7 +95,7 @@ def stabilise(ctx: Context, defs: dict, owner: dict, alpha: float) -> frozenset:
     c_index = {lam: k for c in ctx.constraints for k, lam in enumerate(c.lam)}
     for c in ctx.constraints:
         el = bg.element(c.source)
-        reach = _closure(defs, c.flow)
+        reach = closure_of(defs, c.flow)
         own = reach & lams
         if own:
             raise ModelError(el.coord, f"constraint {c.source!r} (the flow source that closes "
@@ -87,18 +103,18 @@ def stabilise(ctx: Context, defs: dict, owner: dict, alpha: float) -> frozenset:
                              f"({', '.join(sorted(map(str, own)))}) through a resistive path, "
                              "not only on the motion; bgc cannot hold it (index > 3): make a "
                              "connection on that path compliant")
-        for lam, f, s, q in zip(c.lam, c.flow, c.target, c.q):
+        for lam, f, s, q, pos in zip(c.lam, c.flow, c.target, c.q, c.closure or c.q):
             if sp.sympify(s).free_symbols & inputs:
                 raise ModelError(el.coord, f"constraint {c.source!r}: its flow follows input "
                                  "signals, whose time derivative a rigid constraint needs; make "
                                  "the signal an expression of t, or the connection compliant")
             ds = clean_derivative(sp.diff(s, T))
             qdot = f - s
-            r = real_symbol(f"_dt_{f}") - ds + 2 * alpha * qdot + alpha ** 2 * q
+            r = real_symbol(f"_dt_{f}") - ds + 2 * alpha * qdot + alpha ** 2 * pos
             residuals[lam] = r
     for lam, r in residuals.items():
         src = owner_of[lam]
-        if not (_closure(defs, r.free_symbols) & lams):
+        if (src, c_index[lam]) in dropped or not (closure_of(defs, r.free_symbols) & lams):
             # no reaction reaches this component's acceleration: the motion already holds it
             # (an out-of-plane component of a planar loop written with 3-D bonds)
             defs[lam] = Assignment(lam, sp.Integer(0), f"{src} (constraint): redundant "
@@ -112,7 +128,7 @@ def stabilise(ctx: Context, defs: dict, owner: dict, alpha: float) -> frozenset:
     return frozenset(out)
 
 
-def _closure(defs: dict, syms) -> set:
+def closure_of(defs: dict, syms) -> set:
     seen, stack = set(), list(syms)
     while stack:
         s = stack.pop()
@@ -128,47 +144,7 @@ def alpha_of(model) -> float:
     return model.stabilisation if model.stabilisation is not None else DEFAULT_ALPHA
 
 
-def check_initial(ctx: Context, state_vars, kept, derivatives) -> None:
-    """The initial velocities against each constraint: q'(0) = f - s at the model's initial
-    state and parameters must vanish (to 1e-9 of the velocities along the loop), else a located
-    error at the source naming the loop and the residual. Skipped where a value cannot be
-    evaluated at compile time (a Newton loop on the way)."""
-    if not ctx.constraints:
-        return
-    vals = _initial_values(ctx, state_vars)
-    if vals is None:
-        return
-    index = {sv.symbol: k for k, sv in enumerate(state_vars)}
-    need = _closure({a.symbol: a for a in kept},
-                    [s for c in ctx.constraints for q in c.q
-                     for s in sp.sympify(derivatives[index[q]]).free_symbols])
-    scale = 0.0
-    for a in kept:
-        if a.symbol not in need:
-            continue
-        v = _number(a.expr, vals)
-        if v is None:
-            return
-        vals[a.symbol] = v
-        if str(a.symbol).startswith("f_"):
-            scale = max(scale, abs(float(v)))
-    for c in ctx.constraints:
-        res = [_number(derivatives[index[q]], vals) for q in c.q]
-        if any(r is None for r in res):
-            return
-        res = [float(r) for r in res]
-        worst = max(abs(r) for r in res)
-        if worst > 1e-9 * max(1.0, scale):
-            el = ctx.bg.element(c.source)
-            shown = ", ".join(f"{r:.6g}" for r in res)
-            raise ModelError(el.coord, f"constraint {c.source!r} closing the kinematic loop "
-                             f"{loop_text(ctx.bg, c.source)}: the initial velocities violate "
-                             f"it: the flow of bond {c.bond!r} differs from the source's by "
-                             f"[{shown}] (SI units of the bond's flow); give initial "
-                             "velocities (momenta) that satisfy the loop")
-
-
-def _initial_values(ctx: Context, state_vars) -> dict | None:
+def initial_values(ctx: Context, state_vars) -> dict | None:
     vals: dict = {T: sp.Float(0)}
     for pv in ctx.params.values():
         flatv = (np.asarray(pv.value, dtype=float).ravel() if isinstance(pv.value, tuple)
@@ -178,7 +154,7 @@ def _initial_values(ctx: Context, state_vars) -> dict | None:
     for key in ctx.derived_order:
         a = ctx.derived[key]
         for s, e in zip(flat(a.symbol), flat(a.expr)):
-            v = _number(e, vals)
+            v = number_of(e, vals)
             if v is None:
                 return None
             vals[s] = v
@@ -186,19 +162,19 @@ def _initial_values(ctx: Context, state_vars) -> dict | None:
         if iv.table is not None:
             return None
         for s, e in zip(iv.symbols, iv.default):
-            v = _number(e, vals)
+            v = number_of(e, vals)
             if v is None:
                 return None
             vals[s] = v
     for sv in state_vars:
-        v = _number(sv.initial, vals)
+        v = number_of(sv.initial, vals)
         if v is None:
             return None
         vals[sv.symbol] = v
     return vals
 
 
-def _number(expr, vals) -> float | None:
+def number_of(expr, vals) -> float | None:
     try:
         v = complex(sp.sympify(expr).xreplace(vals).evalf())
     except (TypeError, ValueError, AttributeError):

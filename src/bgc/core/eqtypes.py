@@ -112,6 +112,9 @@ class Equations:
     rates: tuple = field(default=())
     #: constraint components found redundant (their reaction is zero): (source, component)
     redundant: tuple = field(default=())
+    #: the names of the constraints' violation states (q): the linearisation reduces them out
+    constraint_states: tuple = field(default=())
+    constraint_alpha: float = 0.0  # their stabilisation rate (1/s)
 
 
 class LinSolve(sp.Function):

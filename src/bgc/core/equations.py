@@ -22,7 +22,8 @@ import sympy as sp
 
 from bgc.base.errors import ModelError
 from bgc.core.causality import Causality
-from bgc.core.constraints import alpha_of, check_initial, constraint_states, stabilise
+from bgc.core.assembly import consistent_initial, numeric_redundancy
+from bgc.core.constraints import alpha_of, constraint_states, stabilise
 from bgc.core.context import Context, check_names
 from bgc.core.eqtypes import (
     SYMBOLIC_MAX,
@@ -81,7 +82,8 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
         seeds = [f for c in ctx.constraints for f in c.flow]
         tear_sets = time_derivatives(ctx, defs, owner, derivs, state_vars, seeds)
         if ctx.constraints:
-            residual = stabilise(ctx, defs, owner, alpha_of(bg.model))
+            dropped = numeric_redundancy(ctx, defs, state_vars)
+            residual = stabilise(ctx, defs, owner, alpha_of(bg.model), dropped)
     if progress:
         progress("ordering assignments")
     nloops: list = [] if newton else None
@@ -97,7 +99,7 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
     ctx_derived = [ctx.derived[k] for k in ctx.derived_order]
     _check_declared(ctx, state_vars, ctx_derived, kept, derivatives, outputs,
                     [e for ev in events for e in ev.exprs()])
-    check_initial(ctx, state_vars, kept, derivatives)
+    notes = consistent_initial(ctx, state_vars, kept, derivatives, bg.model.project)
 
     if progress:
         progress("deriving the Jacobian")
@@ -105,12 +107,16 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
     jac, jac_assign = jacobian(kept, state_vars, derivatives, nloops)
     check_names(bg, ctx, state_vars)
     standing = tuple(w for w in caus.warnings if not w.startswith("R elements with causality"))
+    standing += tuple(notes)
     return Equations(bg.model.name, tuple(state_vars), tuple(ctx.params.values()),
                      tuple(ctx_derived), tuple(ctx.inputs[i.name] for i in bg.model.inputs),
                      tuple(kept), derivatives, outputs, jac, tuple(jac_assign), tuple(loops),
                      warnings=standing, dependent=tuple(dependent), newton=tuple(nloops),
                      events=events, modes=mode_ids(bg), rates=rates,
-                     redundant=tuple(ctx.redundant))
+                     redundant=tuple(ctx.redundant),
+                     constraint_states=tuple(sv.name for sv in state_vars
+                                             if sv.owner in {c.source for c in ctx.constraints}),
+                     constraint_alpha=alpha_of(bg.model) if ctx.constraints else 0.0)
 
 
 def _declare(ctx: Context) -> None:

@@ -62,6 +62,7 @@ class FlatElement:
     initial: Expr | None
     effects: tuple[str, ...]
     component: str = ""
+    closure: Expr | None = None  # Sf: the position residual of the loop it may close
 
 
 @dataclass(frozen=True)
@@ -194,7 +195,7 @@ class _Flattener:
             if el.type in _TYPES:
                 self.elements.append(FlatElement(join(prefix, el.name), el.type, prefix,
                                                  el.coord, el.law(), el.initial, eff,
-                                                 comp.name if comp else ""))
+                                                 comp.name if comp else "", el.closure))
                 continue
             sub = self.model.component(el.type)
             if sub is None:

@@ -62,8 +62,14 @@ def element_equations(ctx: Context, el: FlatElement, define, derivs, state_vars)
     if t == "Sf":
         val = _card(ctx.build(law, el.scope, what), n, el, key)
         if el.id in caus.constraints:
-            constraint_source(ctx, el, b, val, define)
+            closure = (_card(ctx.build(el.closure, el.scope, f"{what} (closure)"), n, el,
+                             "closure") if el.closure is not None else None)
+            constraint_source(ctx, el, b, val, define, closure)
             return
+        if el.closure is not None:
+            raise ModelError(el.closure.coord, f"{what}: a closure (position residual) is given, "
+                             "but the source closes no kinematic loop: it is an ordinary flow "
+                             "source; remove the closure")
         define(f, val, el, f"{el.id} (Sf): flow")
         return
     if t in ("I", "C"):

@@ -109,12 +109,26 @@ def check_units(bg) -> UnitReport:
     _inputs(chk)
     _initials(chk)
     outs = _outputs(chk)
+    _closures(chk)
     chk.sys.settle()
     val = chk.sys.value
     return UnitReport(tuple(BondUnits(b.id, b.src, b.dst, val(chk.e(b.id)), val(chk.f(b.id)))
                             for b in bg.bonds),
                       {name: val(form) for name, form in outs.items()},
                       {key: val(form) for key, form in _state_forms(chk).items()})
+
+
+def _closures(chk: Checker) -> None:
+    """A flow source's closure (a loop's position residual) is its bond's displacement: checked
+    last, so that a wrong closure is blamed, not the laws it would contradict."""
+    for el in chk.bg.elements:
+        cl = el.closure if el.type == "Sf" else None
+        if cl is not None:
+            (b,) = chk.bg.bonds_of(el.id)
+            got = chk.eval(cl, el.scope, f"Sf {el.id!r} (closure)")
+            chk.equate(got, chk.f(b.id) + SECOND, cl.coord,
+                       lambda x, y, el=el, cl=cl: f"Sf {el.id!r}: closure {short_text(cl.text)} "
+                       f"is {x}, but the displacement of its bond (flow x time) is {y}")
 
 
 def _state_forms(chk: Checker) -> dict:

@@ -42,6 +42,7 @@ LAWS: dict[str, tuple[str, ...]] = {
     "0": (), "1": (),
     "Sw": ("closed",),  # an ideal switch: Se(0) where closed, Sf(0) where open (bgc.core.modes)
 }
+CLOSURE = {"Sf": ("closure",)}  # a flow source's optional position residual (a loop's closure)
 STORAGE = ("I", "C")
 TWO_PORTS = ("TF", "GY", "MTF", "MGY")
 JUNCTIONS = ("0", "1")
@@ -84,6 +85,7 @@ class Element:
     initial: Expr | None = None
     args: tuple[tuple[str, object, Coord], ...] = ()  # component instance parameter values
     effects: tuple[str, ...] = ()
+    closure: Expr | None = None  # Sf: the loop's position residual (bgc.core.constraints)
 
     def law(self) -> tuple[str, Expr] | None:
         return self.laws[0] if self.laws else None
@@ -160,9 +162,9 @@ class Model:
     events: tuple = ()  # bgc.format.events.Event: zero crossings and time events, with actions
     modes: tuple[str, ...] = ()  # the discrete mode variables (states whose derivative is 0)
     strict_units: bool = False  # `units: strict`: every parameter needs a unit
-    #: `constraints: {stabilisation: alpha}`: the rate (1/s) at which a closed loop's constraint
-    #: violation decays (bgc.core.constraints); None: the default
-    stabilisation: float | None = None
+    #: `constraints: {stabilisation: alpha, initial: project}` (bgc.core.constraints): the rate
+    stabilisation: float | None = None  # (1/s) of a loop's violation decay; None: the default
+    project: bool = False  # project the initial state onto the constraints
 
     def component(self, name: str) -> Component | None:
         for c in self.components:
@@ -286,8 +288,8 @@ def parse_root(r: Reader, root, source_hash: str, _imports: _Imports | None = No
                 default = r.expr(vn, f"input {iname!r}")
             inputs.append(Input(iname, default, shape, r.coord(kn), unit))
 
-    stabilisation = (read_stabilisation(r, top["constraints"][1]) if "constraints" in top
-                     else None)
+    stabilisation, project = (read_stabilisation(r, top["constraints"][1]) if "constraints"
+                              in top else (None, False))
     body = _body(r, top, root, "the model", is_component=False)
     body, events, modes = _hybrid(r, top, body)
     _check_unique(body, inputs)
@@ -295,7 +297,7 @@ def parse_root(r: Reader, root, source_hash: str, _imports: _Imports | None = No
                   components=tuple(components), description=description,
                   source_hash=source_hash, coord=r.coord(root), strict_causality=strict,
                   events=events, modes=tuple(m.name for m in modes),
-                  strict_units=strict_units, stabilisation=stabilisation)
+                  strict_units=strict_units, stabilisation=stabilisation, project=project)
 
 
 def _hybrid(r: Reader, top: dict, body: Body):
@@ -511,24 +513,22 @@ def _element(r: Reader, ename: str, kn, vn) -> Element:
             check_name(key, r.coord(ak), "parameter")
             args.append((key, r.expr(av, f"{ename}.{key}"), r.coord(av)))
         return Element(ename, etype, r.coord(kn), args=tuple(args), effects=effects)
-    allowed = ("type", "initial", "effects", "description") + LAWS[etype]
+    allowed = ("type", "initial", "effects", "description", *LAWS[etype], *CLOSURE.get(etype, ()))
     for key, (ak, _) in em.items():
         if key not in allowed:
             hint = (f" ({etype} elements take {' or '.join(LAWS[etype])})" if LAWS[etype]
                     else f" (a {etype}-junction takes no law)")
             raise ModelError(r.coord(ak), f"element {ename!r}: unknown key {key!r}{hint}")
-    laws = tuple((k, r.expr(em[k][1], f"element {ename!r} ({k})")) for k in LAWS[etype]
-                 if k in em)
+    laws = tuple((k, r.expr(em[k][1], f"element {ename!r} ({k})")) for k in LAWS[etype] if k in em)
     if LAWS[etype] and len(laws) != 1:
         raise ModelError(r.coord(kn), f"element {ename!r} ({etype}) needs exactly one of: "
                                       f"{', '.join(LAWS[etype])}")
-    initial = None
-    if "initial" in em:
-        if etype not in STORAGE:
-            raise ModelError(r.coord(em["initial"][0]), f"element {ename!r}: only I and C "
-                                                        "elements have an initial state")
-        initial = r.expr(em["initial"][1], f"element {ename!r} (initial)")
-    return Element(ename, etype, r.coord(kn), laws=laws, initial=initial, effects=effects)
+    if "initial" in em and etype not in STORAGE:
+        raise ModelError(r.coord(em["initial"][0]), f"element {ename!r}: only I and C elements "
+                                                    "have an initial state")
+    initial = r.expr(em["initial"][1], f"element {ename!r} (initial)") if "initial" in em else None
+    closure = r.expr(em["closure"][1], f"element {ename!r} (closure)") if "closure" in em else None
+    return Element(ename, etype, r.coord(kn), laws, initial, effects=effects, closure=closure)
 
 
 def _endpoint(r: Reader, node, what) -> tuple[str, ...]:

@@ -355,15 +355,25 @@ def param_value(r: Reader, pname: str, node):
                                     "expression")
 
 
-def read_stabilisation(r: Reader, node) -> float | None:
-    """A model's ``constraints: {stabilisation: alpha}``: a positive rate in 1/s, at most 1e6."""
+def read_stabilisation(r: Reader, node) -> tuple[float | None, bool]:
+    """A model's ``constraints: {stabilisation: alpha, initial: check | project}``: alpha a
+    positive rate in 1/s, at most 1e6 (None: the default); True where the initial state is to be
+    projected onto the constraints."""
     m = r.mapping(node, "constraints")
-    require(r, m, node, ("stabilisation",), "constraints")
+    require(r, m, node, ("stabilisation", "initial"), "constraints")
+    project = False
+    if "initial" in m:
+        vn = m["initial"][1]
+        word = r.scalar(vn, "constraints: initial")
+        if word not in ("check", "project"):
+            raise ModelError(r.coord(vn), f"constraints: initial must be 'check' or 'project', "
+                                          f"got {short(str(word))!r}")
+        project = word == "project"
     if "stabilisation" not in m:
-        return None
+        return None, project
     vn = m["stabilisation"][1]
     alpha = r.number(vn, "constraints: stabilisation")
     if not (0 < alpha <= 1e6):
         raise ModelError(r.coord(vn), f"constraints: stabilisation {alpha!r} is not a rate in "
                                       "(0, 1e6] 1/s (the constraint violation's decay rate)")
-    return float(alpha)
+    return float(alpha), project

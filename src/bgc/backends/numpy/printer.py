@@ -309,6 +309,8 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
         name=eq.name, version=__version__, source=source, source_hash=source_hash,
         description=description, notes=list(header_notes) + list(eq.loops),
         states=eq.states, params=params, derived=derived, inputs=inputs,
+        constraint_states=getattr(eq, "constraint_states", ()),
+        constraint_alpha=repr(float(getattr(eq, "constraint_alpha", 0.0))),
         input_params=input_params, outputs=outputs, rhs=rhs, jac=jac, outs=outs, init=init,
         jac_keys=jkeys, n=n, imports=imports, ujac=ujac, yjac=yjac,
         tables=tables, input_periods=input_periods(eq), input_labels=lin.input_labels,

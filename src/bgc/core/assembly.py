@@ -1,0 +1,282 @@
+"""Consistent initial conditions of closed kinematic loops (issue 24).
+
+A constraint (bgc.core.constraints) holds a loop at velocity and acceleration level; its
+position level is the user's ``closure:`` residual Phi(x) where one is given. At compile time,
+at the model's initial state and parameters:
+
+- positions: Phi(x0) must vanish (to 1e-9 of the residual's terms), else a located error at the
+  source naming the loop and the residual;
+- velocities: q'(0) = f - s must vanish (to 1e-9 of the velocities along the loop), else the
+  same kind of error;
+- with ``constraints: {initial: project}`` the initial state is first projected: the positions
+  by Newton's method with the minimum-norm correction (least squares on the closure residuals'
+  Jacobian, over the states they read), then the momenta by the minimum-norm correction onto
+  the velocity constraints (linear in the momenta at fixed positions). What changed is returned
+  as notes (``bgc check`` and the compile print them); the states' initial values become the
+  projected numbers.
+
+Skipped where a value cannot be evaluated at compile time (an input table, a Newton loop on the
+way), as the velocity check always was.
+"""
+from __future__ import annotations
+
+from dataclasses import replace as dc_replace
+
+import numpy as np
+import sympy as sp
+
+from bgc.base.errors import ModelError
+from bgc.core.constraints import closure_of, initial_values, loop_text, number_of
+from bgc.core.context import Context
+
+_TOL = 1e-9  # relative tolerance of the checks
+_NEWTON_ITER = 50
+
+
+def consistent_initial(ctx: Context, state_vars: list, kept, derivatives,
+                       project: bool) -> list[str]:
+    """Check (and, where ``project``, first project) the initial state against the
+    constraints. ``state_vars`` is updated in place when projecting. Returns the notes."""
+    if not ctx.constraints:
+        return []
+    vals = initial_values(ctx, state_vars)
+    if vals is None:
+        return []
+    notes: list[str] = []
+    closing = [c for c in ctx.constraints if c.closure]
+    if closing and project:
+        notes += _project_positions(ctx, state_vars, vals, closing)
+    for c in closing:
+        _check_positions(ctx, vals, c)
+    velocity = _Velocity(ctx, state_vars, kept, derivatives)
+    if project:
+        notes += _project_velocities(ctx, state_vars, vals, velocity)
+    res = velocity.residuals(vals)
+    if res is None:
+        return notes
+    scale = velocity.scale
+    for c in ctx.constraints:
+        worst = max(abs(r) for r in res[c.source])
+        if worst > _TOL * max(1.0, scale):
+            raise ModelError(ctx.bg.element(c.source).coord, _message(
+                ctx, c, "the initial velocities violate it: the flow of bond "
+                f"{c.bond!r} differs from the source's by [{_shown(res[c.source])}] (SI units of "
+                "the bond's flow); give initial velocities (momenta) that satisfy the loop"))
+    return notes
+
+
+def _message(ctx, c, what: str) -> str:
+    return (f"constraint {c.source!r} closing the kinematic loop {loop_text(ctx.bg, c.source)}: "
+            f"{what}, or set `constraints: {{initial: project}}`")
+
+
+def _shown(values) -> str:
+    return ", ".join(f"{float(v):.6g}" for v in values)
+
+
+def _check_positions(ctx, vals, c) -> None:
+    res, scale = [], 1.0
+    for phi in c.closure:
+        v = number_of(phi, vals)
+        if v is None:
+            return
+        res.append(float(v))
+        terms = sp.Add.make_args(sp.expand(phi, deep=False, mul=False, power_exp=False))
+        for term in terms:
+            tv = number_of(term, vals)
+            scale = max(scale, abs(float(tv)) if tv is not None else 0.0)
+    if max(abs(r) for r in res) > _TOL * scale:
+        raise ModelError(ctx.bg.element(c.source).coord, _message(
+            ctx, c, f"the initial positions violate its closure: the residual is [{_shown(res)}] "
+            "(SI units of the bond's displacement); give initial positions that close the loop"))
+
+
+def _name_of(state_vars, sym) -> str:
+    return next(sv.name for sv in state_vars if sv.symbol == sym)
+
+
+def _set_initial(state_vars, vals, sym, value: float) -> None:
+    for k, sv in enumerate(state_vars):
+        if sv.symbol == sym:
+            state_vars[k] = dc_replace(sv, initial=sp.Float(value))
+    vals[sym] = sp.Float(value)
+
+
+def _project_positions(ctx, state_vars, vals, closing) -> list[str]:
+    """Newton's method on Phi(x) = 0 over the states the closures read; each step the
+    minimum-norm correction (least squares)."""
+    phis = [phi for c in closing for phi in c.closure]
+    states = {sv.symbol for sv in state_vars}
+    xs = sorted({s for phi in phis for s in phi.free_symbols if s in states}, key=str)
+    if not xs:
+        return []
+    fixed = {s: v for s, v in vals.items() if s not in set(xs)}
+    phi_x = [phi.xreplace(fixed) for phi in phis]
+    if any(f.free_symbols - set(xs) for f in phi_x):
+        return []
+    f = sp.lambdify(xs, phi_x, "numpy")
+    jac = sp.lambdify(xs, sp.Matrix(phi_x).jacobian(xs), "numpy")
+    x0 = np.array([float(vals[s]) for s in xs])
+    x = x0.copy()
+    for _ in range(_NEWTON_ITER):
+        r = np.asarray(f(*x), dtype=float)
+        dx = np.linalg.lstsq(np.asarray(jac(*x), dtype=float), -r, rcond=None)[0]
+        x = x + dx
+        if np.abs(dx).max() <= 1e-15 * max(1.0, np.abs(x).max()):
+            break
+    r = np.asarray(f(*x), dtype=float)
+    if not np.isfinite(x).all() or np.abs(r).max() > 1e-12 * max(1.0, np.abs(x).max()):
+        c = closing[0]
+        raise ModelError(ctx.bg.element(c.source).coord, f"constraint {c.source!r}: "
+                         "`initial: project` found no configuration that closes the loop near "
+                         f"the given one (residual [{_shown(r)}] after {_NEWTON_ITER} Newton "
+                         "steps); give initial positions closer to an assembled one")
+    notes = []
+    for s, a, b in zip(xs, x0, x):
+        if a != b:
+            _set_initial(state_vars, vals, s, float(b))
+            notes.append(f"{_name_of(state_vars, s)} {a:.10g} -> {b:.10g}")
+    return [f"initial positions projected onto the loop closure: {', '.join(notes)}"] if notes \
+        else []
+
+
+class _Velocity:
+    """The velocity constraints q' = f - s at given values: the kept assignments they read,
+    evaluated in causal order."""
+
+    def __init__(self, ctx, state_vars, kept, derivatives):
+        index = {sv.symbol: k for k, sv in enumerate(state_vars)}
+        self.ctx = ctx
+        self.exprs = {c.source: [derivatives[index[q]] for q in c.q] for c in ctx.constraints}
+        need = closure_of({a.symbol: a for a in kept},
+                          [s for es in self.exprs.values() for e in es
+                           for s in sp.sympify(e).free_symbols])
+        self.kept = [a for a in kept if a.symbol in need]
+        states = {sv.symbol: sv for sv in state_vars}
+        types = {el.id: el.type for el in ctx.bg.elements}
+        self.momenta = sorted((s for s in need if s in states
+                               and types.get(states[s].owner) == "I"), key=str)
+        self.scale = 0.0
+
+    def residuals(self, vals) -> dict | None:
+        vals = dict(vals)
+        scale = 0.0
+        for a in self.kept:
+            v = number_of(a.expr, vals)
+            if v is None:
+                return None
+            vals[a.symbol] = v
+            if str(a.symbol).startswith("f_"):
+                scale = max(scale, abs(float(v)))
+        self.scale = scale
+        out = {}
+        for src, es in self.exprs.items():
+            rs = [number_of(e, vals) for e in es]
+            if any(r is None for r in rs):
+                return None
+            out[src] = [float(r) for r in rs]
+        return out
+
+
+def _project_velocities(ctx, state_vars, vals, velocity: _Velocity) -> list[str]:
+    """The minimum-norm correction of the momenta onto the velocity constraints (linear in
+    the momenta at fixed positions: A p + b = 0)."""
+    ps = velocity.momenta
+    base = velocity.residuals(vals)
+    if base is None or not ps:
+        return []
+    srcs = [c.source for c in ctx.constraints]
+    r0 = np.array([r for s in srcs for r in base[s]])
+    cols = []
+    for p in ps:
+        trial = dict(vals)
+        trial[p] = vals[p] + 1
+        rk = velocity.residuals(trial)
+        if rk is None:
+            return []
+        cols.append(np.array([r for s in srcs for r in rk[s]]) - r0)
+    a = np.array(cols).T
+    dp = np.linalg.lstsq(a, -r0, rcond=None)[0]
+    notes = []
+    for p, d in zip(ps, dp):
+        if d != 0.0 and abs(d) > 1e-300:
+            old = float(vals[p])
+            _set_initial(state_vars, vals, p, old + float(d))
+            notes.append(f"{_name_of(state_vars, p)} {old:.10g} -> {old + float(d):.10g}")
+    return [f"initial momenta projected onto the velocity constraints: {', '.join(notes)}"] \
+        if notes else []
+
+
+def numeric_redundancy(ctx: Context, defs: dict, state_vars) -> set:
+    """The constraint components that are redundant at the model's initial state: the rows of
+    the velocity constraints' Jacobian G = d(f - s)/d(momenta) (numeric: the flows are linear
+    in the momenta at fixed positions) that add nothing to its rank (SVD, relative tolerance
+    1e-9), taken greedily in declaration order, so the first written constraints are kept.
+    Their reactions are then 0 (bgc.core.constraints.stabilise) instead of a singular solve
+    at run time. Empty where the initial state cannot be evaluated at compile time."""
+    if not ctx.constraints:
+        return set()
+    vals = initial_values(ctx, state_vars)
+    if vals is None:
+        return set()
+    types = {el.id: el.type for el in ctx.bg.elements}
+    momenta = [sv.symbol for sv in state_vars if types.get(sv.owner) == "I"]
+    rows = [(c.source, k, f - s) for c in ctx.constraints
+            for k, (f, s) in enumerate(zip(c.flow, c.target))]
+
+    def residuals(at):
+        memo: dict = {}
+        out = []
+        for _, _, e in rows:
+            v = _evaluate(e, at, defs, memo)
+            if v is None:
+                return None
+            out.append(v)
+        return np.array(out)
+
+    r0 = residuals(vals)
+    if r0 is None or not momenta:
+        return set()
+    cols = []
+    for p in momenta:
+        trial = dict(vals)
+        trial[p] = vals[p] + 1
+        rk = residuals(trial)
+        if rk is None:
+            return set()
+        cols.append(rk - r0)
+    g = np.array(cols).T
+    top = np.linalg.svd(g, compute_uv=False)[0] if g.size else 0.0
+    tol = 1e-9 * max(top, 1e-300)
+    kept: list = []
+    redundant = set()
+    for i, (src, k, _) in enumerate(rows):
+        trial = np.array(kept + [g[i]])
+        if np.linalg.matrix_rank(trial, tol=tol) > len(kept):
+            kept.append(g[i])
+        else:
+            redundant.add((src, k))
+    return redundant
+
+
+def _evaluate(expr, vals: dict, defs: dict, memo: dict) -> float | None:
+    """The value of ``expr`` with its defined symbols evaluated through ``defs`` (memoised)."""
+    stack = [s for s in sp.sympify(expr).free_symbols if s not in vals]
+    while stack:
+        s = stack[-1]
+        if s in memo or s in vals:
+            stack.pop()
+            continue
+        if s not in defs:
+            return None
+        todo = [d for d in defs[s].expr.free_symbols if d not in vals and d not in memo]
+        if todo:
+            stack.extend(todo)
+            continue
+        v = number_of(defs[s].expr, {**vals, **memo})
+        if v is None:
+            return None
+        memo[s] = v
+        stack.pop()
+    v = number_of(expr, {**vals, **memo})
+    return None if v is None else float(v)
