@@ -482,22 +482,16 @@ def _unpack(_P):
     k_d = _P['k_d']
     r_d = _P['r_d']
     gamma_R = _P['gamma_R']
+    # derived parameter link1.vC0
+    link1__vC0_0 = 0
+    # derived parameter link1.vC0
+    link1__vC0_1 = 0
+    # derived parameter link1.vC0
+    link1__vC0_2 = 0
     # derived parameter link1.Ixx
     link1__Ixx = (1/2)*m1*rho*rho
     # derived parameter link1.Iyy
     link1__Iyy = (1/12)*m1*(l1*l1 + 3*rho*rho)
-    # derived parameter link2.Ixx
-    link2__Ixx = (1/2)*m2*rho*rho
-    # derived parameter link2.Iyy
-    link2__Iyy = (1/12)*m2*(l2*l2 + 3*rho*rho)
-    # derived parameter link3.Ixx
-    link3__Ixx = (1/2)*m3*rho*rho
-    # derived parameter link3.Iyy
-    link3__Iyy = (1/12)*m3*(l3*l3 + 3*rho*rho)
-    # derived parameter link4.Ixx
-    link4__Ixx = (1/2)*m4*rho*rho
-    # derived parameter link4.Iyy
-    link4__Iyy = (1/12)*m4*(l4*l4 + 3*rho*rho)
     # derived parameter Rz
     Rz_0_0 = xp.cos(th1)
     # derived parameter Rz
@@ -516,37 +510,91 @@ def _unpack(_P):
     Rz_2_1 = 0
     # derived parameter Rz
     Rz_2_2 = 1
+    # derived parameter link1.w0
+    link1__w0_0 = 0
+    # derived parameter link1.w0
+    link1__w0_1 = 0
+    # derived parameter link1.w0
+    link1__w0_2 = 0
+    # derived parameter link2.vC0
+    link2__vC0_0 = 0
+    # derived parameter link2.vC0
+    link2__vC0_1 = 0
+    # derived parameter link2.vC0
+    link2__vC0_2 = 0
+    # derived parameter link2.Ixx
+    link2__Ixx = (1/2)*m2*rho*rho
+    # derived parameter link2.Iyy
+    link2__Iyy = (1/12)*m2*(l2*l2 + 3*rho*rho)
+    # derived parameter phi2
+    phi2 = th2
+    # derived parameter link2.w0
+    link2__w0_0 = 0
+    # derived parameter link2.w0
+    link2__w0_1 = 0
+    # derived parameter link2.w0
+    link2__w0_2 = 0
+    # derived parameter link3.vC0
+    link3__vC0_0 = 0
+    # derived parameter link3.vC0
+    link3__vC0_1 = 0
+    # derived parameter link3.vC0
+    link3__vC0_2 = 0
+    # derived parameter link3.Ixx
+    link3__Ixx = (1/2)*m3*rho*rho
+    # derived parameter link3.Iyy
+    link3__Iyy = (1/12)*m3*(l3*l3 + 3*rho*rho)
+    # derived parameter phi3
+    phi3 = th2 + th3
+    # derived parameter link3.w0
+    link3__w0_0 = 0
+    # derived parameter link3.w0
+    link3__w0_1 = 0
+    # derived parameter link3.w0
+    link3__w0_2 = 0
+    # derived parameter link4.vC0
+    link4__vC0_0 = 0
+    # derived parameter link4.vC0
+    link4__vC0_1 = 0
+    # derived parameter link4.vC0
+    link4__vC0_2 = 0
+    # derived parameter link4.Ixx
+    link4__Ixx = (1/2)*m4*rho*rho
+    # derived parameter link4.Iyy
+    link4__Iyy = (1/12)*m4*(l4*l4 + 3*rho*rho)
+    # derived parameter phi4
+    phi4 = th2 + th3 + th4
+    # derived parameter link4.w0
+    link4__w0_0 = 0
+    # derived parameter link4.w0
+    link4__w0_1 = 0
+    # derived parameter link4.w0
+    link4__w0_2 = 0
     # derived parameter P1
     P1_0 = Rz_0_0*l1
     # derived parameter P1
     P1_1 = Rz_1_0*l1
     # derived parameter P1
     P1_2 = Rz_2_0*l1
-    # derived parameter phi2
-    phi2 = th2
     # derived parameter P2
     P2_0 = P1_0 + Rz_0_0*l2*xp.cos(phi2) + Rz_0_2*l2*xp.sin(phi2)
     # derived parameter P2
     P2_1 = P1_1 + Rz_1_0*l2*xp.cos(phi2) + Rz_1_2*l2*xp.sin(phi2)
     # derived parameter P2
     P2_2 = P1_2 + Rz_2_0*l2*xp.cos(phi2) + Rz_2_2*l2*xp.sin(phi2)
-    # derived parameter phi3
-    phi3 = th2 + th3
     # derived parameter P3
     P3_0 = P2_0 + Rz_0_0*l3*xp.cos(phi3) + Rz_0_2*l3*xp.sin(phi3)
     # derived parameter P3
     P3_1 = P2_1 + Rz_1_0*l3*xp.cos(phi3) + Rz_1_2*l3*xp.sin(phi3)
     # derived parameter P3
     P3_2 = P2_2 + Rz_2_0*l3*xp.cos(phi3) + Rz_2_2*l3*xp.sin(phi3)
-    # derived parameter phi4
-    phi4 = th2 + th3 + th4
     # derived parameter P4
     P4_0 = P3_0 + Rz_0_0*l4*xp.cos(phi4) + Rz_0_2*l4*xp.sin(phi4)
     # derived parameter P4
     P4_1 = P3_1 + Rz_1_0*l4*xp.cos(phi4) + Rz_1_2*l4*xp.sin(phi4)
     # derived parameter P4
     P4_2 = P3_2 + Rz_2_0*l4*xp.cos(phi4) + Rz_2_2*l4*xp.sin(phi4)
-    _vals = (l1, l2, l3, l4, m1, m2, m3, m4, rho, g, th1, th2, th3, th4, k_t, r_t, r_t5, k_r, r_r, k_d, r_d, gamma_R, link1__Ixx, link1__Iyy, link2__Ixx, link2__Iyy, link3__Ixx, link3__Iyy, link4__Ixx, link4__Iyy, Rz_0_0, Rz_0_1, Rz_0_2, Rz_1_0, Rz_1_1, Rz_1_2, Rz_2_0, Rz_2_1, Rz_2_2, P1_0, P1_1, P1_2, phi2, P2_0, P2_1, P2_2, phi3, P3_0, P3_1, P3_2, phi4, P4_0, P4_1, P4_2, )
+    _vals = (l1, l2, l3, l4, m1, m2, m3, m4, rho, g, th1, th2, th3, th4, k_t, r_t, r_t5, k_r, r_r, k_d, r_d, gamma_R, link1__vC0_0, link1__vC0_1, link1__vC0_2, link1__Ixx, link1__Iyy, Rz_0_0, Rz_0_1, Rz_0_2, Rz_1_0, Rz_1_1, Rz_1_2, Rz_2_0, Rz_2_1, Rz_2_2, link1__w0_0, link1__w0_1, link1__w0_2, link2__vC0_0, link2__vC0_1, link2__vC0_2, link2__Ixx, link2__Iyy, phi2, link2__w0_0, link2__w0_1, link2__w0_2, link3__vC0_0, link3__vC0_1, link3__vC0_2, link3__Ixx, link3__Iyy, phi3, link3__w0_0, link3__w0_1, link3__w0_2, link4__vC0_0, link4__vC0_1, link4__vC0_2, link4__Ixx, link4__Iyy, phi4, link4__w0_0, link4__w0_1, link4__w0_2, P1_0, P1_1, P1_2, P2_0, P2_1, P2_2, P3_0, P3_1, P3_2, P4_0, P4_1, P4_2, )
     _bshape = np.broadcast_shapes(*(np.shape(_v) for _v in _vals))
     return _vals, _bshape
 
@@ -594,56 +642,92 @@ def _inputs(t, _pv, u, xp=np):
 def initial_state(p=None):
     """The initial state x0 (n, *batch) from the parameters."""
     _pv, _bshape = _params(p)
-    Rz_0_0 = _pv[30]
-    Rz_0_1 = _pv[31]
-    Rz_0_2 = _pv[32]
-    Rz_1_0 = _pv[33]
-    Rz_1_1 = _pv[34]
-    Rz_1_2 = _pv[35]
-    Rz_2_0 = _pv[36]
-    Rz_2_1 = _pv[37]
-    Rz_2_2 = _pv[38]
-    P1_0 = _pv[39]
-    P1_1 = _pv[40]
-    P1_2 = _pv[41]
-    phi2 = _pv[42]
-    P2_0 = _pv[43]
-    P2_1 = _pv[44]
-    P2_2 = _pv[45]
-    phi3 = _pv[46]
-    P3_0 = _pv[47]
-    P3_1 = _pv[48]
-    P3_2 = _pv[49]
-    phi4 = _pv[50]
-    P4_0 = _pv[51]
-    P4_1 = _pv[52]
-    P4_2 = _pv[53]
+    m1 = _pv[4]
+    m2 = _pv[5]
+    m3 = _pv[6]
+    m4 = _pv[7]
+    link1__vC0_0 = _pv[22]
+    link1__vC0_1 = _pv[23]
+    link1__vC0_2 = _pv[24]
+    link1__Ixx = _pv[25]
+    link1__Iyy = _pv[26]
+    Rz_0_0 = _pv[27]
+    Rz_0_1 = _pv[28]
+    Rz_0_2 = _pv[29]
+    Rz_1_0 = _pv[30]
+    Rz_1_1 = _pv[31]
+    Rz_1_2 = _pv[32]
+    Rz_2_0 = _pv[33]
+    Rz_2_1 = _pv[34]
+    Rz_2_2 = _pv[35]
+    link1__w0_0 = _pv[36]
+    link1__w0_1 = _pv[37]
+    link1__w0_2 = _pv[38]
+    link2__vC0_0 = _pv[39]
+    link2__vC0_1 = _pv[40]
+    link2__vC0_2 = _pv[41]
+    link2__Ixx = _pv[42]
+    link2__Iyy = _pv[43]
+    phi2 = _pv[44]
+    link2__w0_0 = _pv[45]
+    link2__w0_1 = _pv[46]
+    link2__w0_2 = _pv[47]
+    link3__vC0_0 = _pv[48]
+    link3__vC0_1 = _pv[49]
+    link3__vC0_2 = _pv[50]
+    link3__Ixx = _pv[51]
+    link3__Iyy = _pv[52]
+    phi3 = _pv[53]
+    link3__w0_0 = _pv[54]
+    link3__w0_1 = _pv[55]
+    link3__w0_2 = _pv[56]
+    link4__vC0_0 = _pv[57]
+    link4__vC0_1 = _pv[58]
+    link4__vC0_2 = _pv[59]
+    link4__Ixx = _pv[60]
+    link4__Iyy = _pv[61]
+    phi4 = _pv[62]
+    link4__w0_0 = _pv[63]
+    link4__w0_1 = _pv[64]
+    link4__w0_2 = _pv[65]
+    P1_0 = _pv[66]
+    P1_1 = _pv[67]
+    P1_2 = _pv[68]
+    P2_0 = _pv[69]
+    P2_1 = _pv[70]
+    P2_2 = _pv[71]
+    P3_0 = _pv[72]
+    P3_1 = _pv[73]
+    P3_2 = _pv[74]
+    P4_0 = _pv[75]
+    P4_1 = _pv[76]
+    P4_2 = _pv[77]
 
     _x0 = np.empty((101,) + _bshape)
-    _x0[0] = 0
-    _x0[1] = 0
-    _x0[2] = 0
-    _x0[3] = 0
-    _x0[4] = 0
-    _x0[5] = 0
-    _x0[6] = 0
-    _x0[7] = 0
-    _x0[8] = 0
-    _x0[9] = 0
-    _x0[10] = 0
-    _x0[11] = 0
-    _x0[12] = 0
-    _x0[13] = 0
-    _x0[14] = 0
-    _x0[15] = 0
-    _x0[16] = 0
-    _x0[17] = 0
-    _x0[18] = 0
-    _x0[19] = 0
-    _x0[20] = 0
-    _x0[21] = 0
-    _x0[22] = 0
-    _x0[23] = 0
+    _x0[0] = link1__vC0_0*m1
+    _x0[1] = link1__vC0_1*m1
+    _x0[2] = link1__vC0_2*m1
+    _x0[3] = link1__w0_0*(link1__Ixx*Rz_0_0*Rz_0_0 + link1__Iyy*Rz_0_1*Rz_0_1 + link1__Iyy*Rz_0_2*Rz_0_2) + link1__w0_1*(Rz_0_0*Rz_1_0*link1__Ixx + Rz_0_1*Rz_1_1*link1__Iyy + Rz_0_2*Rz_1_2*link1__Iyy) + link1__w0_2*(Rz_0_0*Rz_2_0*link1__Ixx + Rz_0_1*Rz_2_1*link1__Iyy + Rz_0_2*Rz_2_2*link1__Iyy)
+    _x0[4] = link1__w0_0*(Rz_0_0*Rz_1_0*link1__Ixx + Rz_0_1*Rz_1_1*link1__Iyy + Rz_0_2*Rz_1_2*link1__Iyy) + link1__w0_1*(link1__Ixx*Rz_1_0*Rz_1_0 + link1__Iyy*Rz_1_1*Rz_1_1 + link1__Iyy*Rz_1_2*Rz_1_2) + link1__w0_2*(Rz_1_0*Rz_2_0*link1__Ixx + Rz_1_1*Rz_2_1*link1__Iyy + Rz_1_2*Rz_2_2*link1__Iyy)
+    _x0[5] = link1__w0_0*(Rz_0_0*Rz_2_0*link1__Ixx + Rz_0_1*Rz_2_1*link1__Iyy + Rz_0_2*Rz_2_2*link1__Iyy) + link1__w0_1*(Rz_1_0*Rz_2_0*link1__Ixx + Rz_1_1*Rz_2_1*link1__Iyy + Rz_1_2*Rz_2_2*link1__Iyy) + link1__w0_2*(link1__Ixx*Rz_2_0*Rz_2_0 + link1__Iyy*Rz_2_1*Rz_2_1 + link1__Iyy*Rz_2_2*Rz_2_2)
+    _x0[6] = link2__vC0_0*m2
+    _x0[7] = link2__vC0_1*m2
+    _x0[8] = link2__vC0_2*m2
+    _x0[9] = link2__w0_0*(link2__Ixx*(Rz_0_0*xp.cos(phi2) + Rz_0_2*xp.sin(phi2))*(Rz_0_0*xp.cos(phi2) + Rz_0_2*xp.sin(phi2)) + link2__Iyy*Rz_0_1*Rz_0_1 + link2__Iyy*(Rz_0_2*xp.cos(phi2) - Rz_0_0*xp.sin(phi2))*(Rz_0_2*xp.cos(phi2) - Rz_0_0*xp.sin(phi2))) + link2__w0_1*(Rz_0_1*Rz_1_1*link2__Iyy + link2__Ixx*(Rz_0_0*xp.cos(phi2) + Rz_0_2*xp.sin(phi2))*(Rz_1_0*xp.cos(phi2) + Rz_1_2*xp.sin(phi2)) + link2__Iyy*(Rz_0_2*xp.cos(phi2) - Rz_0_0*xp.sin(phi2))*(Rz_1_2*xp.cos(phi2) - Rz_1_0*xp.sin(phi2))) + link2__w0_2*(Rz_0_1*Rz_2_1*link2__Iyy + link2__Ixx*(Rz_0_0*xp.cos(phi2) + Rz_0_2*xp.sin(phi2))*(Rz_2_0*xp.cos(phi2) + Rz_2_2*xp.sin(phi2)) + link2__Iyy*(Rz_0_2*xp.cos(phi2) - Rz_0_0*xp.sin(phi2))*(Rz_2_2*xp.cos(phi2) - Rz_2_0*xp.sin(phi2)))
+    _x0[10] = link2__w0_0*(Rz_0_1*Rz_1_1*link2__Iyy + link2__Ixx*(Rz_0_0*xp.cos(phi2) + Rz_0_2*xp.sin(phi2))*(Rz_1_0*xp.cos(phi2) + Rz_1_2*xp.sin(phi2)) + link2__Iyy*(Rz_0_2*xp.cos(phi2) - Rz_0_0*xp.sin(phi2))*(Rz_1_2*xp.cos(phi2) - Rz_1_0*xp.sin(phi2))) + link2__w0_1*(link2__Ixx*(Rz_1_0*xp.cos(phi2) + Rz_1_2*xp.sin(phi2))*(Rz_1_0*xp.cos(phi2) + Rz_1_2*xp.sin(phi2)) + link2__Iyy*Rz_1_1*Rz_1_1 + link2__Iyy*(Rz_1_2*xp.cos(phi2) - Rz_1_0*xp.sin(phi2))*(Rz_1_2*xp.cos(phi2) - Rz_1_0*xp.sin(phi2))) + link2__w0_2*(Rz_1_1*Rz_2_1*link2__Iyy + link2__Ixx*(Rz_1_0*xp.cos(phi2) + Rz_1_2*xp.sin(phi2))*(Rz_2_0*xp.cos(phi2) + Rz_2_2*xp.sin(phi2)) + link2__Iyy*(Rz_1_2*xp.cos(phi2) - Rz_1_0*xp.sin(phi2))*(Rz_2_2*xp.cos(phi2) - Rz_2_0*xp.sin(phi2)))
+    _x0[11] = link2__w0_0*(Rz_0_1*Rz_2_1*link2__Iyy + link2__Ixx*(Rz_0_0*xp.cos(phi2) + Rz_0_2*xp.sin(phi2))*(Rz_2_0*xp.cos(phi2) + Rz_2_2*xp.sin(phi2)) + link2__Iyy*(Rz_0_2*xp.cos(phi2) - Rz_0_0*xp.sin(phi2))*(Rz_2_2*xp.cos(phi2) - Rz_2_0*xp.sin(phi2))) + link2__w0_1*(Rz_1_1*Rz_2_1*link2__Iyy + link2__Ixx*(Rz_1_0*xp.cos(phi2) + Rz_1_2*xp.sin(phi2))*(Rz_2_0*xp.cos(phi2) + Rz_2_2*xp.sin(phi2)) + link2__Iyy*(Rz_1_2*xp.cos(phi2) - Rz_1_0*xp.sin(phi2))*(Rz_2_2*xp.cos(phi2) - Rz_2_0*xp.sin(phi2))) + link2__w0_2*(link2__Ixx*(Rz_2_0*xp.cos(phi2) + Rz_2_2*xp.sin(phi2))*(Rz_2_0*xp.cos(phi2) + Rz_2_2*xp.sin(phi2)) + link2__Iyy*Rz_2_1*Rz_2_1 + link2__Iyy*(Rz_2_2*xp.cos(phi2) - Rz_2_0*xp.sin(phi2))*(Rz_2_2*xp.cos(phi2) - Rz_2_0*xp.sin(phi2)))
+    _x0[12] = link3__vC0_0*m3
+    _x0[13] = link3__vC0_1*m3
+    _x0[14] = link3__vC0_2*m3
+    _x0[15] = link3__w0_0*(link3__Ixx*(Rz_0_0*xp.cos(phi3) + Rz_0_2*xp.sin(phi3))*(Rz_0_0*xp.cos(phi3) + Rz_0_2*xp.sin(phi3)) + link3__Iyy*Rz_0_1*Rz_0_1 + link3__Iyy*(Rz_0_2*xp.cos(phi3) - Rz_0_0*xp.sin(phi3))*(Rz_0_2*xp.cos(phi3) - Rz_0_0*xp.sin(phi3))) + link3__w0_1*(Rz_0_1*Rz_1_1*link3__Iyy + link3__Ixx*(Rz_0_0*xp.cos(phi3) + Rz_0_2*xp.sin(phi3))*(Rz_1_0*xp.cos(phi3) + Rz_1_2*xp.sin(phi3)) + link3__Iyy*(Rz_0_2*xp.cos(phi3) - Rz_0_0*xp.sin(phi3))*(Rz_1_2*xp.cos(phi3) - Rz_1_0*xp.sin(phi3))) + link3__w0_2*(Rz_0_1*Rz_2_1*link3__Iyy + link3__Ixx*(Rz_0_0*xp.cos(phi3) + Rz_0_2*xp.sin(phi3))*(Rz_2_0*xp.cos(phi3) + Rz_2_2*xp.sin(phi3)) + link3__Iyy*(Rz_0_2*xp.cos(phi3) - Rz_0_0*xp.sin(phi3))*(Rz_2_2*xp.cos(phi3) - Rz_2_0*xp.sin(phi3)))
+    _x0[16] = link3__w0_0*(Rz_0_1*Rz_1_1*link3__Iyy + link3__Ixx*(Rz_0_0*xp.cos(phi3) + Rz_0_2*xp.sin(phi3))*(Rz_1_0*xp.cos(phi3) + Rz_1_2*xp.sin(phi3)) + link3__Iyy*(Rz_0_2*xp.cos(phi3) - Rz_0_0*xp.sin(phi3))*(Rz_1_2*xp.cos(phi3) - Rz_1_0*xp.sin(phi3))) + link3__w0_1*(link3__Ixx*(Rz_1_0*xp.cos(phi3) + Rz_1_2*xp.sin(phi3))*(Rz_1_0*xp.cos(phi3) + Rz_1_2*xp.sin(phi3)) + link3__Iyy*Rz_1_1*Rz_1_1 + link3__Iyy*(Rz_1_2*xp.cos(phi3) - Rz_1_0*xp.sin(phi3))*(Rz_1_2*xp.cos(phi3) - Rz_1_0*xp.sin(phi3))) + link3__w0_2*(Rz_1_1*Rz_2_1*link3__Iyy + link3__Ixx*(Rz_1_0*xp.cos(phi3) + Rz_1_2*xp.sin(phi3))*(Rz_2_0*xp.cos(phi3) + Rz_2_2*xp.sin(phi3)) + link3__Iyy*(Rz_1_2*xp.cos(phi3) - Rz_1_0*xp.sin(phi3))*(Rz_2_2*xp.cos(phi3) - Rz_2_0*xp.sin(phi3)))
+    _x0[17] = link3__w0_0*(Rz_0_1*Rz_2_1*link3__Iyy + link3__Ixx*(Rz_0_0*xp.cos(phi3) + Rz_0_2*xp.sin(phi3))*(Rz_2_0*xp.cos(phi3) + Rz_2_2*xp.sin(phi3)) + link3__Iyy*(Rz_0_2*xp.cos(phi3) - Rz_0_0*xp.sin(phi3))*(Rz_2_2*xp.cos(phi3) - Rz_2_0*xp.sin(phi3))) + link3__w0_1*(Rz_1_1*Rz_2_1*link3__Iyy + link3__Ixx*(Rz_1_0*xp.cos(phi3) + Rz_1_2*xp.sin(phi3))*(Rz_2_0*xp.cos(phi3) + Rz_2_2*xp.sin(phi3)) + link3__Iyy*(Rz_1_2*xp.cos(phi3) - Rz_1_0*xp.sin(phi3))*(Rz_2_2*xp.cos(phi3) - Rz_2_0*xp.sin(phi3))) + link3__w0_2*(link3__Ixx*(Rz_2_0*xp.cos(phi3) + Rz_2_2*xp.sin(phi3))*(Rz_2_0*xp.cos(phi3) + Rz_2_2*xp.sin(phi3)) + link3__Iyy*Rz_2_1*Rz_2_1 + link3__Iyy*(Rz_2_2*xp.cos(phi3) - Rz_2_0*xp.sin(phi3))*(Rz_2_2*xp.cos(phi3) - Rz_2_0*xp.sin(phi3)))
+    _x0[18] = link4__vC0_0*m4
+    _x0[19] = link4__vC0_1*m4
+    _x0[20] = link4__vC0_2*m4
+    _x0[21] = link4__w0_0*(link4__Ixx*(Rz_0_0*xp.cos(phi4) + Rz_0_2*xp.sin(phi4))*(Rz_0_0*xp.cos(phi4) + Rz_0_2*xp.sin(phi4)) + link4__Iyy*Rz_0_1*Rz_0_1 + link4__Iyy*(Rz_0_2*xp.cos(phi4) - Rz_0_0*xp.sin(phi4))*(Rz_0_2*xp.cos(phi4) - Rz_0_0*xp.sin(phi4))) + link4__w0_1*(Rz_0_1*Rz_1_1*link4__Iyy + link4__Ixx*(Rz_0_0*xp.cos(phi4) + Rz_0_2*xp.sin(phi4))*(Rz_1_0*xp.cos(phi4) + Rz_1_2*xp.sin(phi4)) + link4__Iyy*(Rz_0_2*xp.cos(phi4) - Rz_0_0*xp.sin(phi4))*(Rz_1_2*xp.cos(phi4) - Rz_1_0*xp.sin(phi4))) + link4__w0_2*(Rz_0_1*Rz_2_1*link4__Iyy + link4__Ixx*(Rz_0_0*xp.cos(phi4) + Rz_0_2*xp.sin(phi4))*(Rz_2_0*xp.cos(phi4) + Rz_2_2*xp.sin(phi4)) + link4__Iyy*(Rz_0_2*xp.cos(phi4) - Rz_0_0*xp.sin(phi4))*(Rz_2_2*xp.cos(phi4) - Rz_2_0*xp.sin(phi4)))
+    _x0[22] = link4__w0_0*(Rz_0_1*Rz_1_1*link4__Iyy + link4__Ixx*(Rz_0_0*xp.cos(phi4) + Rz_0_2*xp.sin(phi4))*(Rz_1_0*xp.cos(phi4) + Rz_1_2*xp.sin(phi4)) + link4__Iyy*(Rz_0_2*xp.cos(phi4) - Rz_0_0*xp.sin(phi4))*(Rz_1_2*xp.cos(phi4) - Rz_1_0*xp.sin(phi4))) + link4__w0_1*(link4__Ixx*(Rz_1_0*xp.cos(phi4) + Rz_1_2*xp.sin(phi4))*(Rz_1_0*xp.cos(phi4) + Rz_1_2*xp.sin(phi4)) + link4__Iyy*Rz_1_1*Rz_1_1 + link4__Iyy*(Rz_1_2*xp.cos(phi4) - Rz_1_0*xp.sin(phi4))*(Rz_1_2*xp.cos(phi4) - Rz_1_0*xp.sin(phi4))) + link4__w0_2*(Rz_1_1*Rz_2_1*link4__Iyy + link4__Ixx*(Rz_1_0*xp.cos(phi4) + Rz_1_2*xp.sin(phi4))*(Rz_2_0*xp.cos(phi4) + Rz_2_2*xp.sin(phi4)) + link4__Iyy*(Rz_1_2*xp.cos(phi4) - Rz_1_0*xp.sin(phi4))*(Rz_2_2*xp.cos(phi4) - Rz_2_0*xp.sin(phi4)))
+    _x0[23] = link4__w0_0*(Rz_0_1*Rz_2_1*link4__Iyy + link4__Ixx*(Rz_0_0*xp.cos(phi4) + Rz_0_2*xp.sin(phi4))*(Rz_2_0*xp.cos(phi4) + Rz_2_2*xp.sin(phi4)) + link4__Iyy*(Rz_0_2*xp.cos(phi4) - Rz_0_0*xp.sin(phi4))*(Rz_2_2*xp.cos(phi4) - Rz_2_0*xp.sin(phi4))) + link4__w0_1*(Rz_1_1*Rz_2_1*link4__Iyy + link4__Ixx*(Rz_1_0*xp.cos(phi4) + Rz_1_2*xp.sin(phi4))*(Rz_2_0*xp.cos(phi4) + Rz_2_2*xp.sin(phi4)) + link4__Iyy*(Rz_1_2*xp.cos(phi4) - Rz_1_0*xp.sin(phi4))*(Rz_2_2*xp.cos(phi4) - Rz_2_0*xp.sin(phi4))) + link4__w0_2*(link4__Ixx*(Rz_2_0*xp.cos(phi4) + Rz_2_2*xp.sin(phi4))*(Rz_2_0*xp.cos(phi4) + Rz_2_2*xp.sin(phi4)) + link4__Iyy*Rz_2_1*Rz_2_1 + link4__Iyy*(Rz_2_2*xp.cos(phi4) - Rz_2_0*xp.sin(phi4))*(Rz_2_2*xp.cos(phi4) - Rz_2_0*xp.sin(phi4)))
     _x0[24] = 0
     _x0[25] = 0
     _x0[26] = 0
@@ -749,14 +833,14 @@ def rhs(t, x, p=None, u=None):
     k_d = _pv[19]
     r_d = _pv[20]
     gamma_R = _pv[21]
-    link1__Ixx = _pv[22]
-    link1__Iyy = _pv[23]
-    link2__Ixx = _pv[24]
-    link2__Iyy = _pv[25]
-    link3__Ixx = _pv[26]
-    link3__Iyy = _pv[27]
-    link4__Ixx = _pv[28]
-    link4__Iyy = _pv[29]
+    link1__Ixx = _pv[25]
+    link1__Iyy = _pv[26]
+    link2__Ixx = _pv[42]
+    link2__Iyy = _pv[43]
+    link3__Ixx = _pv[51]
+    link3__Iyy = _pv[52]
+    link4__Ixx = _pv[60]
+    link4__Iyy = _pv[61]
     _uv = _inputs(t, _pv, u, xp)
     u_vd_0 = _uv[0]
     u_vd_1 = _uv[1]
@@ -1524,14 +1608,14 @@ def jacobian(t, x, p=None, u=None):
     k_d = _pv[19]
     r_d = _pv[20]
     gamma_R = _pv[21]
-    link1__Ixx = _pv[22]
-    link1__Iyy = _pv[23]
-    link2__Ixx = _pv[24]
-    link2__Iyy = _pv[25]
-    link3__Ixx = _pv[26]
-    link3__Iyy = _pv[27]
-    link4__Ixx = _pv[28]
-    link4__Iyy = _pv[29]
+    link1__Ixx = _pv[25]
+    link1__Iyy = _pv[26]
+    link2__Ixx = _pv[42]
+    link2__Iyy = _pv[43]
+    link3__Ixx = _pv[51]
+    link3__Iyy = _pv[52]
+    link4__Ixx = _pv[60]
+    link4__Iyy = _pv[61]
     _uv = _inputs(t, _pv, u, xp)
     u_vd_0 = _uv[0]
     u_vd_1 = _uv[1]
@@ -7449,17 +7533,17 @@ def outputs(t, x, p=None, u=None):
     r_r = _pv[18]
     k_d = _pv[19]
     r_d = _pv[20]
-    link1__Ixx = _pv[22]
-    link1__Iyy = _pv[23]
-    link2__Ixx = _pv[24]
-    link2__Iyy = _pv[25]
-    link3__Ixx = _pv[26]
-    link3__Iyy = _pv[27]
-    link4__Ixx = _pv[28]
-    link4__Iyy = _pv[29]
-    P4_0 = _pv[51]
-    P4_1 = _pv[52]
-    P4_2 = _pv[53]
+    link1__Ixx = _pv[25]
+    link1__Iyy = _pv[26]
+    link2__Ixx = _pv[42]
+    link2__Iyy = _pv[43]
+    link3__Ixx = _pv[51]
+    link3__Iyy = _pv[52]
+    link4__Ixx = _pv[60]
+    link4__Iyy = _pv[61]
+    P4_0 = _pv[75]
+    P4_1 = _pv[76]
+    P4_2 = _pv[77]
     _uv = _inputs(t, _pv, u, xp)
     u_vd_0 = _uv[0]
     u_vd_1 = _uv[1]
@@ -7858,8 +7942,8 @@ def input_jacobian(t, x, p=None, u=None):
     m3 = _pv[6]
     k_d = _pv[19]
     r_d = _pv[20]
-    link3__Ixx = _pv[26]
-    link3__Iyy = _pv[27]
+    link3__Ixx = _pv[51]
+    link3__Iyy = _pv[52]
     _uv = _inputs(t, _pv, u)
     u_vd_0 = _uv[0]
     u_vd_1 = _uv[1]
@@ -7988,17 +8072,17 @@ def output_jacobian(t, x, p=None, u=None):
     r_r = _pv[18]
     k_d = _pv[19]
     r_d = _pv[20]
-    link1__Ixx = _pv[22]
-    link1__Iyy = _pv[23]
-    link2__Ixx = _pv[24]
-    link2__Iyy = _pv[25]
-    link3__Ixx = _pv[26]
-    link3__Iyy = _pv[27]
-    link4__Ixx = _pv[28]
-    link4__Iyy = _pv[29]
-    P4_0 = _pv[51]
-    P4_1 = _pv[52]
-    P4_2 = _pv[53]
+    link1__Ixx = _pv[25]
+    link1__Iyy = _pv[26]
+    link2__Ixx = _pv[42]
+    link2__Iyy = _pv[43]
+    link3__Ixx = _pv[51]
+    link3__Iyy = _pv[52]
+    link4__Ixx = _pv[60]
+    link4__Iyy = _pv[61]
+    P4_0 = _pv[75]
+    P4_1 = _pv[76]
+    P4_2 = _pv[77]
     _uv = _inputs(t, _pv, u)
     u_vd_0 = _uv[0]
     u_vd_1 = _uv[1]

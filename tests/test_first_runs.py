@@ -443,7 +443,7 @@ def test_first_fourbar_against_the_lagrange_reference(tmp_path):
 @pytest.mark.slow  # a compile and a stiff 2 s run: about 20 s on 2 shared cores
 def test_first_top_precesses_at_the_closed_form_rate(tmp_path):
     """The library rigid_rod held at its end Q by a stiff spherical joint, started in steady
-    precession: its axis turns about the vertical at the slow root Omega of
+    precession (the rod's w0 and vC0): its axis turns about the vertical at the slow root Omega of
     I1 cos(th) Omega^2 - I3 w3 Omega + m g L = 0 (Goldstein, sec. 5.7; I1 about the fixed point,
     computed here from the cylinder's dimensions), and its tilt stays th."""
     m, l, rho, g, th, w3 = 1.0, 0.1, 0.05, 9.81, 0.5, 200.0
