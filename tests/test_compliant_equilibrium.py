@@ -81,3 +81,20 @@ def test_undamped_continuum_keeps_newton_answer():
     x, info = mod.equilibrium(p={"k1": 0.0, "F0": 0.0, "c1": 0.0}, x0=x0)
     assert info.converged and info.settled is None and info.rank == 3
     assert x[mod.STATE_NAMES.index("wall_spring.q")] == pytest.approx(0.7, abs=1e-12)
+
+
+@pytest.mark.slow  # a compile and the settle: about 20 s on 2 shared cores
+def test_linearize_cli_on_the_spring_closed_fourbar(bgc_cli):
+    """`bgc linearize MODEL` at its defaults: no unstable-mode or far-guess warning, the
+    settle said, and the slow oscillation printed is the rigid four-bar's (within 0.2 %)."""
+    _, lam_ref, _ = _rigid_equilibrium()
+    (w_ref,) = lam_ref[lam_ref.imag > 0]
+    r = bgc_cli("linearize", str(MODEL))
+    assert r.returncode == 0, r.stderr
+    assert "unstable" not in r.stderr and "far from its initial guess" not in r.stderr
+    assert "reached by letting the damped dynamics come to rest" in r.stderr
+    rows = [ln.split() for ln in r.stdout.splitlines() if "+/-" in ln]
+    slow = [(float(w[0]), float(w[2].rstrip("j"))) for w in rows if float(w[3]) < 100]
+    assert len(slow) == 1, r.stdout
+    re_, im = slow[0]
+    assert abs(complex(re_, im) - w_ref) < 2e-3 * abs(w_ref), (slow, w_ref)
