@@ -54,6 +54,20 @@ def test_free_position_is_reported_and_kept(gen):
         assert np.max(np.abs(m.rhs(0.0, x, p))) < 1e-8
 
 
+def test_settle_per_batch_instance(gen):
+    """A batch over the wall damper c1: each moving instance comes to rest at its own
+    q0 + P0 / c1; without the damper (c1 = 0) nothing dissipates the momentum, the settle
+    gives up (settled None) and Newton's answer keeps x0's position."""
+    m = gen("two_mass_chain")
+    c1 = np.array([0.1, 0.2, 0.0])
+    x0 = np.array([0.3, -0.2, 0.7, 1e-4])
+    x, info = m.equilibrium(p={"k1": 0.0, "F0": 0.0, "c1": c1}, x0=x0)
+    assert x.shape == (4, 3) and np.all(info.converged)
+    i = m.STATE_NAMES.index("wall_spring.q")
+    np.testing.assert_allclose(x[i], [0.7 + 0.1 / 0.1, 0.7 + 0.1 / 0.2, 0.7], atol=1e-9)
+    assert info.settled[0] > 0 and info.settled[1] > 0 and info.settled[2] is None
+
+
 def test_no_equilibrium_is_not_converged(gen):
     """A steady force on a chain held by nothing accelerates it for ever."""
     m = gen("two_mass_chain")
