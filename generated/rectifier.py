@@ -1488,6 +1488,9 @@ def _newton(f, jac, x, scale, tol, max_iter, rcond, hold=False):
 #: Newton (max |rhs| below SETTLE_TOL times the scale of rhs at x0) and its budget in rhs
 #: calls per instance.
 SETTLE_RTOL, SETTLE_TOL, SETTLE_MAX_RHS = 1e-6, 1e-6, 200_000
+#: A non-isolated answer of Newton that moved less than this from x0 (max |x - x0| over
+#: 1 + max |x0|) stands without a settle: the invariants barely moved with it.
+SETTLE_MOVED = 0.1
 
 
 def _settle(f1, j1, x0, scale):
@@ -1531,7 +1534,8 @@ def equilibrium(u=None, p=None, x0=None, t=0.0, tol=1e-10, max_iter=100, rcond=1
     minimum-norm one (pseudo-inverse by SVD, singular values below rcond times the largest
     treated as zero), so the free directions keep their values from x0; they are reported in
     info.free by state name. Where the equilibria form a continuum (a singular Jacobian at
-    Newton's answer) or Newton fails, and settle is true, the dynamics are first integrated
+    Newton's answer) and Newton's answer moved far from x0 (SETTLE_MOVED), or Newton fails,
+    and settle is true, the dynamics are first integrated
     from x0 until they come to rest (_settle), then Newton polishes from there: the answer is
     the equilibrium on x0's invariant leaf (a closing spring's deflection consistent with the
     angles), where the model dissipates; info.settled gives the time run. The polish's steps
@@ -1568,7 +1572,9 @@ def equilibrium(u=None, p=None, x0=None, t=0.0, tol=1e-10, max_iter=100, rcond=1
     settled = [None] * nb
     if settle and n:
         again = start.copy()
-        for b in np.flatnonzero((res > tol * scale) | (rank < n)):
+        moved = np.max(np.abs(x - start), axis=1) / (1.0 + np.max(np.abs(start), axis=1))
+        suspect = (res > tol * scale) | ((rank < n) & (moved > SETTLE_MOVED))
+        for b in np.flatnonzero(suspect):
             def f1(y, b=b):  # one instance, the others at their start
                 xb = start.copy()
                 xb[b] = y
