@@ -482,22 +482,16 @@ def _unpack(_P):
     k_d = _P['k_d']
     r_d = _P['r_d']
     gamma_R = _P['gamma_R']
+    # derived parameter link1.vC0
+    link1__vC0_0 = 0
+    # derived parameter link1.vC0
+    link1__vC0_1 = 0
+    # derived parameter link1.vC0
+    link1__vC0_2 = 0
     # derived parameter link1.Ixx
     link1__Ixx = (1/2)*m1*rho*rho
     # derived parameter link1.Iyy
     link1__Iyy = (1/12)*m1*(l1*l1 + 3*rho*rho)
-    # derived parameter link2.Ixx
-    link2__Ixx = (1/2)*m2*rho*rho
-    # derived parameter link2.Iyy
-    link2__Iyy = (1/12)*m2*(l2*l2 + 3*rho*rho)
-    # derived parameter link3.Ixx
-    link3__Ixx = (1/2)*m3*rho*rho
-    # derived parameter link3.Iyy
-    link3__Iyy = (1/12)*m3*(l3*l3 + 3*rho*rho)
-    # derived parameter link4.Ixx
-    link4__Ixx = (1/2)*m4*rho*rho
-    # derived parameter link4.Iyy
-    link4__Iyy = (1/12)*m4*(l4*l4 + 3*rho*rho)
     # derived parameter Rz
     Rz_0_0 = xp.cos(th1)
     # derived parameter Rz
@@ -516,37 +510,91 @@ def _unpack(_P):
     Rz_2_1 = 0
     # derived parameter Rz
     Rz_2_2 = 1
+    # derived parameter link1.w0
+    link1__w0_0 = 0
+    # derived parameter link1.w0
+    link1__w0_1 = 0
+    # derived parameter link1.w0
+    link1__w0_2 = 0
+    # derived parameter link2.vC0
+    link2__vC0_0 = 0
+    # derived parameter link2.vC0
+    link2__vC0_1 = 0
+    # derived parameter link2.vC0
+    link2__vC0_2 = 0
+    # derived parameter link2.Ixx
+    link2__Ixx = (1/2)*m2*rho*rho
+    # derived parameter link2.Iyy
+    link2__Iyy = (1/12)*m2*(l2*l2 + 3*rho*rho)
+    # derived parameter phi2
+    phi2 = th2
+    # derived parameter link2.w0
+    link2__w0_0 = 0
+    # derived parameter link2.w0
+    link2__w0_1 = 0
+    # derived parameter link2.w0
+    link2__w0_2 = 0
+    # derived parameter link3.vC0
+    link3__vC0_0 = 0
+    # derived parameter link3.vC0
+    link3__vC0_1 = 0
+    # derived parameter link3.vC0
+    link3__vC0_2 = 0
+    # derived parameter link3.Ixx
+    link3__Ixx = (1/2)*m3*rho*rho
+    # derived parameter link3.Iyy
+    link3__Iyy = (1/12)*m3*(l3*l3 + 3*rho*rho)
+    # derived parameter phi3
+    phi3 = th2 + th3
+    # derived parameter link3.w0
+    link3__w0_0 = 0
+    # derived parameter link3.w0
+    link3__w0_1 = 0
+    # derived parameter link3.w0
+    link3__w0_2 = 0
+    # derived parameter link4.vC0
+    link4__vC0_0 = 0
+    # derived parameter link4.vC0
+    link4__vC0_1 = 0
+    # derived parameter link4.vC0
+    link4__vC0_2 = 0
+    # derived parameter link4.Ixx
+    link4__Ixx = (1/2)*m4*rho*rho
+    # derived parameter link4.Iyy
+    link4__Iyy = (1/12)*m4*(l4*l4 + 3*rho*rho)
+    # derived parameter phi4
+    phi4 = th2 + th3 + th4
+    # derived parameter link4.w0
+    link4__w0_0 = 0
+    # derived parameter link4.w0
+    link4__w0_1 = 0
+    # derived parameter link4.w0
+    link4__w0_2 = 0
     # derived parameter P1
     P1_0 = Rz_0_0*l1
     # derived parameter P1
     P1_1 = Rz_1_0*l1
     # derived parameter P1
     P1_2 = Rz_2_0*l1
-    # derived parameter phi2
-    phi2 = th2
     # derived parameter P2
     P2_0 = P1_0 + Rz_0_0*l2*xp.cos(phi2) + Rz_0_2*l2*xp.sin(phi2)
     # derived parameter P2
     P2_1 = P1_1 + Rz_1_0*l2*xp.cos(phi2) + Rz_1_2*l2*xp.sin(phi2)
     # derived parameter P2
     P2_2 = P1_2 + Rz_2_0*l2*xp.cos(phi2) + Rz_2_2*l2*xp.sin(phi2)
-    # derived parameter phi3
-    phi3 = th2 + th3
     # derived parameter P3
     P3_0 = P2_0 + Rz_0_0*l3*xp.cos(phi3) + Rz_0_2*l3*xp.sin(phi3)
     # derived parameter P3
     P3_1 = P2_1 + Rz_1_0*l3*xp.cos(phi3) + Rz_1_2*l3*xp.sin(phi3)
     # derived parameter P3
     P3_2 = P2_2 + Rz_2_0*l3*xp.cos(phi3) + Rz_2_2*l3*xp.sin(phi3)
-    # derived parameter phi4
-    phi4 = th2 + th3 + th4
     # derived parameter P4
     P4_0 = P3_0 + Rz_0_0*l4*xp.cos(phi4) + Rz_0_2*l4*xp.sin(phi4)
     # derived parameter P4
     P4_1 = P3_1 + Rz_1_0*l4*xp.cos(phi4) + Rz_1_2*l4*xp.sin(phi4)
     # derived parameter P4
     P4_2 = P3_2 + Rz_2_0*l4*xp.cos(phi4) + Rz_2_2*l4*xp.sin(phi4)
-    _vals = (l1, l2, l3, l4, m1, m2, m3, m4, rho, g, th1, th2, th3, th4, k_t, r_t, r_t5, k_r, r_r, k_d, r_d, gamma_R, link1__Ixx, link1__Iyy, link2__Ixx, link2__Iyy, link3__Ixx, link3__Iyy, link4__Ixx, link4__Iyy, Rz_0_0, Rz_0_1, Rz_0_2, Rz_1_0, Rz_1_1, Rz_1_2, Rz_2_0, Rz_2_1, Rz_2_2, P1_0, P1_1, P1_2, phi2, P2_0, P2_1, P2_2, phi3, P3_0, P3_1, P3_2, phi4, P4_0, P4_1, P4_2, )
+    _vals = (l1, l2, l3, l4, m1, m2, m3, m4, rho, g, th1, th2, th3, th4, k_t, r_t, r_t5, k_r, r_r, k_d, r_d, gamma_R, link1__vC0_0, link1__vC0_1, link1__vC0_2, link1__Ixx, link1__Iyy, Rz_0_0, Rz_0_1, Rz_0_2, Rz_1_0, Rz_1_1, Rz_1_2, Rz_2_0, Rz_2_1, Rz_2_2, link1__w0_0, link1__w0_1, link1__w0_2, link2__vC0_0, link2__vC0_1, link2__vC0_2, link2__Ixx, link2__Iyy, phi2, link2__w0_0, link2__w0_1, link2__w0_2, link3__vC0_0, link3__vC0_1, link3__vC0_2, link3__Ixx, link3__Iyy, phi3, link3__w0_0, link3__w0_1, link3__w0_2, link4__vC0_0, link4__vC0_1, link4__vC0_2, link4__Ixx, link4__Iyy, phi4, link4__w0_0, link4__w0_1, link4__w0_2, P1_0, P1_1, P1_2, P2_0, P2_1, P2_2, P3_0, P3_1, P3_2, P4_0, P4_1, P4_2, )
     _bshape = np.broadcast_shapes(*(np.shape(_v) for _v in _vals))
     return _vals, _bshape
 
@@ -594,56 +642,92 @@ def _inputs(t, _pv, u, xp=np):
 def initial_state(p=None):
     """The initial state x0 (n, *batch) from the parameters."""
     _pv, _bshape = _params(p)
-    Rz_0_0 = _pv[30]
-    Rz_0_1 = _pv[31]
-    Rz_0_2 = _pv[32]
-    Rz_1_0 = _pv[33]
-    Rz_1_1 = _pv[34]
-    Rz_1_2 = _pv[35]
-    Rz_2_0 = _pv[36]
-    Rz_2_1 = _pv[37]
-    Rz_2_2 = _pv[38]
-    P1_0 = _pv[39]
-    P1_1 = _pv[40]
-    P1_2 = _pv[41]
-    phi2 = _pv[42]
-    P2_0 = _pv[43]
-    P2_1 = _pv[44]
-    P2_2 = _pv[45]
-    phi3 = _pv[46]
-    P3_0 = _pv[47]
-    P3_1 = _pv[48]
-    P3_2 = _pv[49]
-    phi4 = _pv[50]
-    P4_0 = _pv[51]
-    P4_1 = _pv[52]
-    P4_2 = _pv[53]
+    m1 = _pv[4]
+    m2 = _pv[5]
+    m3 = _pv[6]
+    m4 = _pv[7]
+    link1__vC0_0 = _pv[22]
+    link1__vC0_1 = _pv[23]
+    link1__vC0_2 = _pv[24]
+    link1__Ixx = _pv[25]
+    link1__Iyy = _pv[26]
+    Rz_0_0 = _pv[27]
+    Rz_0_1 = _pv[28]
+    Rz_0_2 = _pv[29]
+    Rz_1_0 = _pv[30]
+    Rz_1_1 = _pv[31]
+    Rz_1_2 = _pv[32]
+    Rz_2_0 = _pv[33]
+    Rz_2_1 = _pv[34]
+    Rz_2_2 = _pv[35]
+    link1__w0_0 = _pv[36]
+    link1__w0_1 = _pv[37]
+    link1__w0_2 = _pv[38]
+    link2__vC0_0 = _pv[39]
+    link2__vC0_1 = _pv[40]
+    link2__vC0_2 = _pv[41]
+    link2__Ixx = _pv[42]
+    link2__Iyy = _pv[43]
+    phi2 = _pv[44]
+    link2__w0_0 = _pv[45]
+    link2__w0_1 = _pv[46]
+    link2__w0_2 = _pv[47]
+    link3__vC0_0 = _pv[48]
+    link3__vC0_1 = _pv[49]
+    link3__vC0_2 = _pv[50]
+    link3__Ixx = _pv[51]
+    link3__Iyy = _pv[52]
+    phi3 = _pv[53]
+    link3__w0_0 = _pv[54]
+    link3__w0_1 = _pv[55]
+    link3__w0_2 = _pv[56]
+    link4__vC0_0 = _pv[57]
+    link4__vC0_1 = _pv[58]
+    link4__vC0_2 = _pv[59]
+    link4__Ixx = _pv[60]
+    link4__Iyy = _pv[61]
+    phi4 = _pv[62]
+    link4__w0_0 = _pv[63]
+    link4__w0_1 = _pv[64]
+    link4__w0_2 = _pv[65]
+    P1_0 = _pv[66]
+    P1_1 = _pv[67]
+    P1_2 = _pv[68]
+    P2_0 = _pv[69]
+    P2_1 = _pv[70]
+    P2_2 = _pv[71]
+    P3_0 = _pv[72]
+    P3_1 = _pv[73]
+    P3_2 = _pv[74]
+    P4_0 = _pv[75]
+    P4_1 = _pv[76]
+    P4_2 = _pv[77]
 
     _x0 = np.empty((101,) + _bshape)
-    _x0[0] = 0
-    _x0[1] = 0
-    _x0[2] = 0
-    _x0[3] = 0
-    _x0[4] = 0
-    _x0[5] = 0
-    _x0[6] = 0
-    _x0[7] = 0
-    _x0[8] = 0
-    _x0[9] = 0
-    _x0[10] = 0
-    _x0[11] = 0
-    _x0[12] = 0
-    _x0[13] = 0
-    _x0[14] = 0
-    _x0[15] = 0
-    _x0[16] = 0
-    _x0[17] = 0
-    _x0[18] = 0
-    _x0[19] = 0
-    _x0[20] = 0
-    _x0[21] = 0
-    _x0[22] = 0
-    _x0[23] = 0
+    _x0[0] = link1__vC0_0*m1
+    _x0[1] = link1__vC0_1*m1
+    _x0[2] = link1__vC0_2*m1
+    _x0[3] = link1__w0_0*(link1__Ixx*Rz_0_0*Rz_0_0 + link1__Iyy*Rz_0_1*Rz_0_1 + link1__Iyy*Rz_0_2*Rz_0_2) + link1__w0_1*(Rz_0_0*Rz_1_0*link1__Ixx + Rz_0_1*Rz_1_1*link1__Iyy + Rz_0_2*Rz_1_2*link1__Iyy) + link1__w0_2*(Rz_0_0*Rz_2_0*link1__Ixx + Rz_0_1*Rz_2_1*link1__Iyy + Rz_0_2*Rz_2_2*link1__Iyy)
+    _x0[4] = link1__w0_0*(Rz_0_0*Rz_1_0*link1__Ixx + Rz_0_1*Rz_1_1*link1__Iyy + Rz_0_2*Rz_1_2*link1__Iyy) + link1__w0_1*(link1__Ixx*Rz_1_0*Rz_1_0 + link1__Iyy*Rz_1_1*Rz_1_1 + link1__Iyy*Rz_1_2*Rz_1_2) + link1__w0_2*(Rz_1_0*Rz_2_0*link1__Ixx + Rz_1_1*Rz_2_1*link1__Iyy + Rz_1_2*Rz_2_2*link1__Iyy)
+    _x0[5] = link1__w0_0*(Rz_0_0*Rz_2_0*link1__Ixx + Rz_0_1*Rz_2_1*link1__Iyy + Rz_0_2*Rz_2_2*link1__Iyy) + link1__w0_1*(Rz_1_0*Rz_2_0*link1__Ixx + Rz_1_1*Rz_2_1*link1__Iyy + Rz_1_2*Rz_2_2*link1__Iyy) + link1__w0_2*(link1__Ixx*Rz_2_0*Rz_2_0 + link1__Iyy*Rz_2_1*Rz_2_1 + link1__Iyy*Rz_2_2*Rz_2_2)
+    _x0[6] = link2__vC0_0*m2
+    _x0[7] = link2__vC0_1*m2
+    _x0[8] = link2__vC0_2*m2
+    _x0[9] = link2__w0_0*(link2__Ixx*(Rz_0_0*xp.cos(phi2) + Rz_0_2*xp.sin(phi2))*(Rz_0_0*xp.cos(phi2) + Rz_0_2*xp.sin(phi2)) + link2__Iyy*Rz_0_1*Rz_0_1 + link2__Iyy*(Rz_0_2*xp.cos(phi2) - Rz_0_0*xp.sin(phi2))*(Rz_0_2*xp.cos(phi2) - Rz_0_0*xp.sin(phi2))) + link2__w0_1*(Rz_0_1*Rz_1_1*link2__Iyy + link2__Ixx*(Rz_0_0*xp.cos(phi2) + Rz_0_2*xp.sin(phi2))*(Rz_1_0*xp.cos(phi2) + Rz_1_2*xp.sin(phi2)) + link2__Iyy*(Rz_0_2*xp.cos(phi2) - Rz_0_0*xp.sin(phi2))*(Rz_1_2*xp.cos(phi2) - Rz_1_0*xp.sin(phi2))) + link2__w0_2*(Rz_0_1*Rz_2_1*link2__Iyy + link2__Ixx*(Rz_0_0*xp.cos(phi2) + Rz_0_2*xp.sin(phi2))*(Rz_2_0*xp.cos(phi2) + Rz_2_2*xp.sin(phi2)) + link2__Iyy*(Rz_0_2*xp.cos(phi2) - Rz_0_0*xp.sin(phi2))*(Rz_2_2*xp.cos(phi2) - Rz_2_0*xp.sin(phi2)))
+    _x0[10] = link2__w0_0*(Rz_0_1*Rz_1_1*link2__Iyy + link2__Ixx*(Rz_0_0*xp.cos(phi2) + Rz_0_2*xp.sin(phi2))*(Rz_1_0*xp.cos(phi2) + Rz_1_2*xp.sin(phi2)) + link2__Iyy*(Rz_0_2*xp.cos(phi2) - Rz_0_0*xp.sin(phi2))*(Rz_1_2*xp.cos(phi2) - Rz_1_0*xp.sin(phi2))) + link2__w0_1*(link2__Ixx*(Rz_1_0*xp.cos(phi2) + Rz_1_2*xp.sin(phi2))*(Rz_1_0*xp.cos(phi2) + Rz_1_2*xp.sin(phi2)) + link2__Iyy*Rz_1_1*Rz_1_1 + link2__Iyy*(Rz_1_2*xp.cos(phi2) - Rz_1_0*xp.sin(phi2))*(Rz_1_2*xp.cos(phi2) - Rz_1_0*xp.sin(phi2))) + link2__w0_2*(Rz_1_1*Rz_2_1*link2__Iyy + link2__Ixx*(Rz_1_0*xp.cos(phi2) + Rz_1_2*xp.sin(phi2))*(Rz_2_0*xp.cos(phi2) + Rz_2_2*xp.sin(phi2)) + link2__Iyy*(Rz_1_2*xp.cos(phi2) - Rz_1_0*xp.sin(phi2))*(Rz_2_2*xp.cos(phi2) - Rz_2_0*xp.sin(phi2)))
+    _x0[11] = link2__w0_0*(Rz_0_1*Rz_2_1*link2__Iyy + link2__Ixx*(Rz_0_0*xp.cos(phi2) + Rz_0_2*xp.sin(phi2))*(Rz_2_0*xp.cos(phi2) + Rz_2_2*xp.sin(phi2)) + link2__Iyy*(Rz_0_2*xp.cos(phi2) - Rz_0_0*xp.sin(phi2))*(Rz_2_2*xp.cos(phi2) - Rz_2_0*xp.sin(phi2))) + link2__w0_1*(Rz_1_1*Rz_2_1*link2__Iyy + link2__Ixx*(Rz_1_0*xp.cos(phi2) + Rz_1_2*xp.sin(phi2))*(Rz_2_0*xp.cos(phi2) + Rz_2_2*xp.sin(phi2)) + link2__Iyy*(Rz_1_2*xp.cos(phi2) - Rz_1_0*xp.sin(phi2))*(Rz_2_2*xp.cos(phi2) - Rz_2_0*xp.sin(phi2))) + link2__w0_2*(link2__Ixx*(Rz_2_0*xp.cos(phi2) + Rz_2_2*xp.sin(phi2))*(Rz_2_0*xp.cos(phi2) + Rz_2_2*xp.sin(phi2)) + link2__Iyy*Rz_2_1*Rz_2_1 + link2__Iyy*(Rz_2_2*xp.cos(phi2) - Rz_2_0*xp.sin(phi2))*(Rz_2_2*xp.cos(phi2) - Rz_2_0*xp.sin(phi2)))
+    _x0[12] = link3__vC0_0*m3
+    _x0[13] = link3__vC0_1*m3
+    _x0[14] = link3__vC0_2*m3
+    _x0[15] = link3__w0_0*(link3__Ixx*(Rz_0_0*xp.cos(phi3) + Rz_0_2*xp.sin(phi3))*(Rz_0_0*xp.cos(phi3) + Rz_0_2*xp.sin(phi3)) + link3__Iyy*Rz_0_1*Rz_0_1 + link3__Iyy*(Rz_0_2*xp.cos(phi3) - Rz_0_0*xp.sin(phi3))*(Rz_0_2*xp.cos(phi3) - Rz_0_0*xp.sin(phi3))) + link3__w0_1*(Rz_0_1*Rz_1_1*link3__Iyy + link3__Ixx*(Rz_0_0*xp.cos(phi3) + Rz_0_2*xp.sin(phi3))*(Rz_1_0*xp.cos(phi3) + Rz_1_2*xp.sin(phi3)) + link3__Iyy*(Rz_0_2*xp.cos(phi3) - Rz_0_0*xp.sin(phi3))*(Rz_1_2*xp.cos(phi3) - Rz_1_0*xp.sin(phi3))) + link3__w0_2*(Rz_0_1*Rz_2_1*link3__Iyy + link3__Ixx*(Rz_0_0*xp.cos(phi3) + Rz_0_2*xp.sin(phi3))*(Rz_2_0*xp.cos(phi3) + Rz_2_2*xp.sin(phi3)) + link3__Iyy*(Rz_0_2*xp.cos(phi3) - Rz_0_0*xp.sin(phi3))*(Rz_2_2*xp.cos(phi3) - Rz_2_0*xp.sin(phi3)))
+    _x0[16] = link3__w0_0*(Rz_0_1*Rz_1_1*link3__Iyy + link3__Ixx*(Rz_0_0*xp.cos(phi3) + Rz_0_2*xp.sin(phi3))*(Rz_1_0*xp.cos(phi3) + Rz_1_2*xp.sin(phi3)) + link3__Iyy*(Rz_0_2*xp.cos(phi3) - Rz_0_0*xp.sin(phi3))*(Rz_1_2*xp.cos(phi3) - Rz_1_0*xp.sin(phi3))) + link3__w0_1*(link3__Ixx*(Rz_1_0*xp.cos(phi3) + Rz_1_2*xp.sin(phi3))*(Rz_1_0*xp.cos(phi3) + Rz_1_2*xp.sin(phi3)) + link3__Iyy*Rz_1_1*Rz_1_1 + link3__Iyy*(Rz_1_2*xp.cos(phi3) - Rz_1_0*xp.sin(phi3))*(Rz_1_2*xp.cos(phi3) - Rz_1_0*xp.sin(phi3))) + link3__w0_2*(Rz_1_1*Rz_2_1*link3__Iyy + link3__Ixx*(Rz_1_0*xp.cos(phi3) + Rz_1_2*xp.sin(phi3))*(Rz_2_0*xp.cos(phi3) + Rz_2_2*xp.sin(phi3)) + link3__Iyy*(Rz_1_2*xp.cos(phi3) - Rz_1_0*xp.sin(phi3))*(Rz_2_2*xp.cos(phi3) - Rz_2_0*xp.sin(phi3)))
+    _x0[17] = link3__w0_0*(Rz_0_1*Rz_2_1*link3__Iyy + link3__Ixx*(Rz_0_0*xp.cos(phi3) + Rz_0_2*xp.sin(phi3))*(Rz_2_0*xp.cos(phi3) + Rz_2_2*xp.sin(phi3)) + link3__Iyy*(Rz_0_2*xp.cos(phi3) - Rz_0_0*xp.sin(phi3))*(Rz_2_2*xp.cos(phi3) - Rz_2_0*xp.sin(phi3))) + link3__w0_1*(Rz_1_1*Rz_2_1*link3__Iyy + link3__Ixx*(Rz_1_0*xp.cos(phi3) + Rz_1_2*xp.sin(phi3))*(Rz_2_0*xp.cos(phi3) + Rz_2_2*xp.sin(phi3)) + link3__Iyy*(Rz_1_2*xp.cos(phi3) - Rz_1_0*xp.sin(phi3))*(Rz_2_2*xp.cos(phi3) - Rz_2_0*xp.sin(phi3))) + link3__w0_2*(link3__Ixx*(Rz_2_0*xp.cos(phi3) + Rz_2_2*xp.sin(phi3))*(Rz_2_0*xp.cos(phi3) + Rz_2_2*xp.sin(phi3)) + link3__Iyy*Rz_2_1*Rz_2_1 + link3__Iyy*(Rz_2_2*xp.cos(phi3) - Rz_2_0*xp.sin(phi3))*(Rz_2_2*xp.cos(phi3) - Rz_2_0*xp.sin(phi3)))
+    _x0[18] = link4__vC0_0*m4
+    _x0[19] = link4__vC0_1*m4
+    _x0[20] = link4__vC0_2*m4
+    _x0[21] = link4__w0_0*(link4__Ixx*(Rz_0_0*xp.cos(phi4) + Rz_0_2*xp.sin(phi4))*(Rz_0_0*xp.cos(phi4) + Rz_0_2*xp.sin(phi4)) + link4__Iyy*Rz_0_1*Rz_0_1 + link4__Iyy*(Rz_0_2*xp.cos(phi4) - Rz_0_0*xp.sin(phi4))*(Rz_0_2*xp.cos(phi4) - Rz_0_0*xp.sin(phi4))) + link4__w0_1*(Rz_0_1*Rz_1_1*link4__Iyy + link4__Ixx*(Rz_0_0*xp.cos(phi4) + Rz_0_2*xp.sin(phi4))*(Rz_1_0*xp.cos(phi4) + Rz_1_2*xp.sin(phi4)) + link4__Iyy*(Rz_0_2*xp.cos(phi4) - Rz_0_0*xp.sin(phi4))*(Rz_1_2*xp.cos(phi4) - Rz_1_0*xp.sin(phi4))) + link4__w0_2*(Rz_0_1*Rz_2_1*link4__Iyy + link4__Ixx*(Rz_0_0*xp.cos(phi4) + Rz_0_2*xp.sin(phi4))*(Rz_2_0*xp.cos(phi4) + Rz_2_2*xp.sin(phi4)) + link4__Iyy*(Rz_0_2*xp.cos(phi4) - Rz_0_0*xp.sin(phi4))*(Rz_2_2*xp.cos(phi4) - Rz_2_0*xp.sin(phi4)))
+    _x0[22] = link4__w0_0*(Rz_0_1*Rz_1_1*link4__Iyy + link4__Ixx*(Rz_0_0*xp.cos(phi4) + Rz_0_2*xp.sin(phi4))*(Rz_1_0*xp.cos(phi4) + Rz_1_2*xp.sin(phi4)) + link4__Iyy*(Rz_0_2*xp.cos(phi4) - Rz_0_0*xp.sin(phi4))*(Rz_1_2*xp.cos(phi4) - Rz_1_0*xp.sin(phi4))) + link4__w0_1*(link4__Ixx*(Rz_1_0*xp.cos(phi4) + Rz_1_2*xp.sin(phi4))*(Rz_1_0*xp.cos(phi4) + Rz_1_2*xp.sin(phi4)) + link4__Iyy*Rz_1_1*Rz_1_1 + link4__Iyy*(Rz_1_2*xp.cos(phi4) - Rz_1_0*xp.sin(phi4))*(Rz_1_2*xp.cos(phi4) - Rz_1_0*xp.sin(phi4))) + link4__w0_2*(Rz_1_1*Rz_2_1*link4__Iyy + link4__Ixx*(Rz_1_0*xp.cos(phi4) + Rz_1_2*xp.sin(phi4))*(Rz_2_0*xp.cos(phi4) + Rz_2_2*xp.sin(phi4)) + link4__Iyy*(Rz_1_2*xp.cos(phi4) - Rz_1_0*xp.sin(phi4))*(Rz_2_2*xp.cos(phi4) - Rz_2_0*xp.sin(phi4)))
+    _x0[23] = link4__w0_0*(Rz_0_1*Rz_2_1*link4__Iyy + link4__Ixx*(Rz_0_0*xp.cos(phi4) + Rz_0_2*xp.sin(phi4))*(Rz_2_0*xp.cos(phi4) + Rz_2_2*xp.sin(phi4)) + link4__Iyy*(Rz_0_2*xp.cos(phi4) - Rz_0_0*xp.sin(phi4))*(Rz_2_2*xp.cos(phi4) - Rz_2_0*xp.sin(phi4))) + link4__w0_1*(Rz_1_1*Rz_2_1*link4__Iyy + link4__Ixx*(Rz_1_0*xp.cos(phi4) + Rz_1_2*xp.sin(phi4))*(Rz_2_0*xp.cos(phi4) + Rz_2_2*xp.sin(phi4)) + link4__Iyy*(Rz_1_2*xp.cos(phi4) - Rz_1_0*xp.sin(phi4))*(Rz_2_2*xp.cos(phi4) - Rz_2_0*xp.sin(phi4))) + link4__w0_2*(link4__Ixx*(Rz_2_0*xp.cos(phi4) + Rz_2_2*xp.sin(phi4))*(Rz_2_0*xp.cos(phi4) + Rz_2_2*xp.sin(phi4)) + link4__Iyy*Rz_2_1*Rz_2_1 + link4__Iyy*(Rz_2_2*xp.cos(phi4) - Rz_2_0*xp.sin(phi4))*(Rz_2_2*xp.cos(phi4) - Rz_2_0*xp.sin(phi4)))
     _x0[24] = 0
     _x0[25] = 0
     _x0[26] = 0
@@ -749,14 +833,14 @@ def rhs(t, x, p=None, u=None):
     k_d = _pv[19]
     r_d = _pv[20]
     gamma_R = _pv[21]
-    link1__Ixx = _pv[22]
-    link1__Iyy = _pv[23]
-    link2__Ixx = _pv[24]
-    link2__Iyy = _pv[25]
-    link3__Ixx = _pv[26]
-    link3__Iyy = _pv[27]
-    link4__Ixx = _pv[28]
-    link4__Iyy = _pv[29]
+    link1__Ixx = _pv[25]
+    link1__Iyy = _pv[26]
+    link2__Ixx = _pv[42]
+    link2__Iyy = _pv[43]
+    link3__Ixx = _pv[51]
+    link3__Iyy = _pv[52]
+    link4__Ixx = _pv[60]
+    link4__Iyy = _pv[61]
     _uv = _inputs(t, _pv, u, xp)
     u_vd_0 = _uv[0]
     u_vd_1 = _uv[1]
@@ -1524,14 +1608,14 @@ def jacobian(t, x, p=None, u=None):
     k_d = _pv[19]
     r_d = _pv[20]
     gamma_R = _pv[21]
-    link1__Ixx = _pv[22]
-    link1__Iyy = _pv[23]
-    link2__Ixx = _pv[24]
-    link2__Iyy = _pv[25]
-    link3__Ixx = _pv[26]
-    link3__Iyy = _pv[27]
-    link4__Ixx = _pv[28]
-    link4__Iyy = _pv[29]
+    link1__Ixx = _pv[25]
+    link1__Iyy = _pv[26]
+    link2__Ixx = _pv[42]
+    link2__Iyy = _pv[43]
+    link3__Ixx = _pv[51]
+    link3__Iyy = _pv[52]
+    link4__Ixx = _pv[60]
+    link4__Iyy = _pv[61]
     _uv = _inputs(t, _pv, u, xp)
     u_vd_0 = _uv[0]
     u_vd_1 = _uv[1]
@@ -7449,17 +7533,17 @@ def outputs(t, x, p=None, u=None):
     r_r = _pv[18]
     k_d = _pv[19]
     r_d = _pv[20]
-    link1__Ixx = _pv[22]
-    link1__Iyy = _pv[23]
-    link2__Ixx = _pv[24]
-    link2__Iyy = _pv[25]
-    link3__Ixx = _pv[26]
-    link3__Iyy = _pv[27]
-    link4__Ixx = _pv[28]
-    link4__Iyy = _pv[29]
-    P4_0 = _pv[51]
-    P4_1 = _pv[52]
-    P4_2 = _pv[53]
+    link1__Ixx = _pv[25]
+    link1__Iyy = _pv[26]
+    link2__Ixx = _pv[42]
+    link2__Iyy = _pv[43]
+    link3__Ixx = _pv[51]
+    link3__Iyy = _pv[52]
+    link4__Ixx = _pv[60]
+    link4__Iyy = _pv[61]
+    P4_0 = _pv[75]
+    P4_1 = _pv[76]
+    P4_2 = _pv[77]
     _uv = _inputs(t, _pv, u, xp)
     u_vd_0 = _uv[0]
     u_vd_1 = _uv[1]
@@ -7858,8 +7942,8 @@ def input_jacobian(t, x, p=None, u=None):
     m3 = _pv[6]
     k_d = _pv[19]
     r_d = _pv[20]
-    link3__Ixx = _pv[26]
-    link3__Iyy = _pv[27]
+    link3__Ixx = _pv[51]
+    link3__Iyy = _pv[52]
     _uv = _inputs(t, _pv, u)
     u_vd_0 = _uv[0]
     u_vd_1 = _uv[1]
@@ -7988,17 +8072,17 @@ def output_jacobian(t, x, p=None, u=None):
     r_r = _pv[18]
     k_d = _pv[19]
     r_d = _pv[20]
-    link1__Ixx = _pv[22]
-    link1__Iyy = _pv[23]
-    link2__Ixx = _pv[24]
-    link2__Iyy = _pv[25]
-    link3__Ixx = _pv[26]
-    link3__Iyy = _pv[27]
-    link4__Ixx = _pv[28]
-    link4__Iyy = _pv[29]
-    P4_0 = _pv[51]
-    P4_1 = _pv[52]
-    P4_2 = _pv[53]
+    link1__Ixx = _pv[25]
+    link1__Iyy = _pv[26]
+    link2__Ixx = _pv[42]
+    link2__Iyy = _pv[43]
+    link3__Ixx = _pv[51]
+    link3__Iyy = _pv[52]
+    link4__Ixx = _pv[60]
+    link4__Iyy = _pv[61]
+    P4_0 = _pv[75]
+    P4_1 = _pv[76]
+    P4_2 = _pv[77]
     _uv = _inputs(t, _pv, u)
     u_vd_0 = _uv[0]
     u_vd_1 = _uv[1]
@@ -11041,18 +11125,22 @@ def linearize(t, x, u=None, p=None):
 
 class EquilibriumInfo:
     """What equilibrium() found: converged (bool per batch instance), residual (max |rhs|),
-    iterations, rank of the Jacobian, and free: per instance, the free directions (the null
-    space of the Jacobian, where the equilibrium is not unique: a position with no stiffness),
-    each a dict {state name: component} of its largest components. For an unbatched call,
-    converged, residual and rank are scalars and free is one list."""
+    iterations, rank of the Jacobian, free: per instance, the free directions (the null
+    space of the Jacobian, where the equilibrium is not unique: a position with no stiffness,
+    a continuum of equilibria), each a dict {state name: component} of its largest
+    components, and settled: per instance, the time the damped dynamics ran from x0 before
+    Newton's polish (None where Newton alone found it). For an unbatched call, converged,
+    residual, rank and settled are scalars and free is one list."""
 
-    def __init__(self, converged, residual, iterations, rank, free, null_space):
+    def __init__(self, converged, residual, iterations, rank, free, null_space, settled=None):
         self.converged, self.residual, self.iterations = converged, residual, iterations
         self.rank, self.free, self.null_space = rank, free, null_space
+        self.settled = settled
 
     def __repr__(self):
         return (f"EquilibriumInfo(converged={self.converged!r}, residual={self.residual!r}, "
-                f"iterations={self.iterations}, rank={self.rank!r}, free={self.free!r})")
+                f"iterations={self.iterations}, rank={self.rank!r}, free={self.free!r}, "
+                f"settled={self.settled!r})")
 
 
 def _free_directions(V, names, top=4):
@@ -11063,33 +11151,26 @@ def _free_directions(V, names, top=4):
     return out
 
 
-def equilibrium(u=None, p=None, x0=None, t=0.0, tol=1e-10, max_iter=100, rcond=1e-9):
-    """A state where rhs = 0, inputs held at their values at t: Newton's method with the
-    analytic Jacobian and a backtracking line search on |rhs|^2. Where the Jacobian is
-    singular (a free position: no stiffness holds it), each step is the least-squares,
-    minimum-norm one (pseudo-inverse by SVD, singular values below rcond times the largest
-    treated as zero), so the free directions keep their values from x0; they are reported in
-    info.free by state name. Batched like rhs: x0 (n, *batch) and array parameters.
-    Returns (x, info); converged where max |rhs| <= tol * (1 + max |rhs(x0)|)."""
-    u = _signals(u)
-    p = _params(p)
-    x0 = initial_state(p) if x0 is None else np.asarray(x0, dtype=float)
-    x0, batch = _batched(x0, p)
-    n = N_STATES
-    nb = int(np.prod(batch)) if batch else 1
+def _hold_invariants(step, U, Vt, keep):
+    """The step moved along the null space (columns N of V where S is dropped) so that it
+    leaves the invariants' linearisation alone: L^T step = 0, L the left null space (columns
+    of U where S is dropped), which spans the invariants' gradients at an equilibrium."""
+    for b in range(step.shape[0]):
+        drop = ~keep[b]
+        if drop.any():
+            L, N = U[b][:, drop], Vt[b][drop].T
+            a = np.linalg.lstsq(L.T @ N, -(L.T @ step[b]), rcond=None)[0]
+            step[b] = step[b] + N @ a
+    return step
 
-    def f(xf):  # (nb, n) -> (nb, n)
-        return np.moveaxis(rhs(t, np.moveaxis(xf.reshape(batch + (n,)), -1, 0), p, u)
-                           .reshape((n,) + batch), 0, -1).reshape(nb, n)
 
-    def jac(xf):  # (nb, n) -> (nb, n, n)
-        J = jacobian(t, np.moveaxis(xf.reshape(batch + (n,)), -1, 0), p, u)
-        J = np.broadcast_to(J, (n, n) + batch).reshape(n, n, nb)
-        return np.moveaxis(J, -1, 0)
-
-    x = np.moveaxis(np.array(x0, dtype=float).reshape(n, nb), 0, -1).copy()
+def _newton(f, jac, x, scale, tol, max_iter, rcond, hold=False):
+    """Newton on f(x) = 0 from x (nb, n), minimum-norm steps (pseudo-inverse by SVD) with a
+    backtracking line search on |f|^2; returns (x, max |f| per instance, iterations). hold:
+    each step keeps the invariants' linearisation (_hold_invariants): a polish that stays on
+    the invariant leaf it starts on."""
+    nb = x.shape[0]
     r = f(x)
-    scale = 1.0 + np.max(np.abs(r), axis=1)
     res = np.max(np.abs(r), axis=1)
     done = res <= tol * scale
     it = 0
@@ -11097,11 +11178,12 @@ def equilibrium(u=None, p=None, x0=None, t=0.0, tol=1e-10, max_iter=100, rcond=1
         if np.all(done):
             it -= 1
             break
-        J = jac(x)
-        U, S, Vt = np.linalg.svd(J)
+        U, S, Vt = np.linalg.svd(jac(x))
         keep = S > rcond * np.maximum(S[:, :1], 1e-300)
         Sinv = np.where(keep, 1.0 / np.where(keep, S, 1.0), 0.0)
         step = -np.einsum("bji,bj,bkj,bk->bi", Vt, Sinv, U, r)
+        if hold:
+            step = _hold_invariants(step, U, Vt, keep)
         step[done] = 0.0
         phi = np.sum(r * r, axis=1)
         lam = np.ones(nb)
@@ -11120,16 +11202,129 @@ def equilibrium(u=None, p=None, x0=None, t=0.0, tol=1e-10, max_iter=100, rcond=1
         res = np.max(np.abs(r), axis=1)
         small = np.max(np.abs(step), axis=1) <= 1e-14 * (1 + np.max(np.abs(x), axis=1))
         done = done | (res <= tol * scale) | ~better | small
-    J = jac(x)
-    _, S, Vt = np.linalg.svd(J)
-    keep = S > rcond * np.maximum(S[:, :1], 1e-300)
-    rank = keep.sum(axis=1)
-    null = [Vt[b][~keep[b]].T for b in range(nb)]
+    return x, res, it
+
+
+#: The settle's accuracy (Radau's rtol; atol is SETTLE_RTOL * 1e-4), where it hands over to
+#: Newton (max |rhs| below SETTLE_TOL times the scale of rhs at x0) and its budget in rhs
+#: calls per instance.
+SETTLE_RTOL, SETTLE_TOL, SETTLE_MAX_RHS = 1e-6, 1e-6, 200_000
+#: A non-isolated answer of Newton that moved less than this from x0 (max |x - x0| over
+#: 1 + max |x0|) stands without a settle: the invariants barely moved with it.
+SETTLE_MOVED = 0.1
+
+
+def _settle(f1, j1, x0, scale):
+    """Integrate dx/dt = f1(x) (the inputs held) from x0 until it comes to rest: chunks of
+    doubling length, from the longest time scale of the Jacobian at x0 (its smallest eigenvalue
+    that is not zero) up. A trajectory keeps
+    every invariant of the dynamics (a spring's deflection tied to the angles it closes, a
+    conserved momentum), so where the model dissipates it ends on the equilibrium of x0's
+    invariant leaf. Returns (x, time run), or (None, time) when it does not come to rest
+    (no dissipation, no equilibrium, a failed step) within SETTLE_MAX_RHS calls."""
+    import scipy.integrate as si  # lazy: only a non-isolated equilibrium settles
+
+    x = np.array(x0, dtype=float)
+    res = float(np.max(np.abs(f1(x)))) if x.size else 0.0
+    if res <= SETTLE_TOL * scale:
+        return x, 0.0
+    lam = np.abs(np.linalg.eigvals(j1(x)))
+    lam = lam[np.isfinite(lam) & (lam > 1e-9 * max(float(np.max(lam, initial=0.0)), 1e-300))]
+    span = 1.0 / float(np.min(lam)) if lam.size else 1.0
+    t, best, stale, calls = 0.0, res, 0, 0
+    while calls < SETTLE_MAX_RHS and stale < 6:
+        sol = si.solve_ivp(lambda _t, y: f1(y), (0.0, span), x, method="Radau",
+                           jac=lambda _t, y: j1(y), rtol=SETTLE_RTOL, atol=SETTLE_RTOL * 1e-4)
+        calls += sol.nfev
+        if not sol.success or not np.all(np.isfinite(sol.y[:, -1])):
+            return None, t
+        x, t = sol.y[:, -1], t + span
+        res = float(np.max(np.abs(f1(x))))
+        if res <= SETTLE_TOL * scale:
+            return x, t
+        stale = 0 if res < 0.5 * best else stale + 1
+        best, span = min(best, res), 2.0 * span
+    return None, t
+
+
+def equilibrium(u=None, p=None, x0=None, t=0.0, tol=1e-10, max_iter=100, rcond=1e-9,
+                settle=True):
+    """A state where rhs = 0, inputs held at their values at t: Newton's method with the
+    analytic Jacobian and a backtracking line search on |rhs|^2. Where the Jacobian is
+    singular (a free position: no stiffness holds it), each step is the least-squares,
+    minimum-norm one (pseudo-inverse by SVD, singular values below rcond times the largest
+    treated as zero), so the free directions keep their values from x0; they are reported in
+    info.free by state name. Where the equilibria form a continuum (a singular Jacobian at
+    Newton's answer) and Newton's answer moved far from x0 (SETTLE_MOVED), or Newton fails,
+    and settle is true, the dynamics are first integrated
+    from x0 until they come to rest (_settle), then Newton polishes from there: the answer is
+    the equilibrium on x0's invariant leaf (a closing spring's deflection consistent with the
+    angles), where the model dissipates; info.settled gives the time run. The polish's steps
+    hold the invariants: each is moved along the Jacobian's null space until it is orthogonal
+    to the left null space (the invariants' gradients), so the last stretch of the way to rest
+    stays on the leaf too. Batched like rhs:
+    x0 (n, *batch) and array parameters. Returns (x, info); converged where max |rhs| <= tol
+    * (1 + max |rhs(x0)|)."""
+    u = _signals(u)
+    p = _params(p)
+    x0 = initial_state(p) if x0 is None else np.asarray(x0, dtype=float)
+    x0, batch = _batched(x0, p)
+    n = N_STATES
+    nb = int(np.prod(batch)) if batch else 1
+
+    def f(xf):  # (nb, n) -> (nb, n)
+        return np.moveaxis(rhs(t, np.moveaxis(xf.reshape(batch + (n,)), -1, 0), p, u)
+                           .reshape((n,) + batch), 0, -1).reshape(nb, n)
+
+    def jac(xf):  # (nb, n) -> (nb, n, n)
+        J = jacobian(t, np.moveaxis(xf.reshape(batch + (n,)), -1, 0), p, u)
+        J = np.broadcast_to(J, (n, n) + batch).reshape(n, n, nb)
+        return np.moveaxis(J, -1, 0)
+
+    def rank_null(x):
+        _, S, Vt = np.linalg.svd(jac(x))
+        keep = S > rcond * np.maximum(S[:, :1], 1e-300)
+        return keep.sum(axis=1), [Vt[b][~keep[b]].T for b in range(nb)]
+
+    start = np.moveaxis(np.array(x0, dtype=float).reshape(n, nb), 0, -1).copy()
+    scale = 1.0 + np.max(np.abs(f(start)), axis=1)
+    x, res, it = _newton(f, jac, start, scale, tol, max_iter, rcond)
+    rank, null = rank_null(x)
+    settled = [None] * nb
+    if settle and n:
+        again = start.copy()
+        moved = np.max(np.abs(x - start), axis=1) / (1.0 + np.max(np.abs(start), axis=1))
+        suspect = (res > tol * scale) | ((rank < n) & (moved > SETTLE_MOVED))
+        for b in np.flatnonzero(suspect):
+            def f1(y, b=b):  # one instance, the others at their start
+                xb = start.copy()
+                xb[b] = y
+                return f(xb)[b]
+
+            def j1(y, b=b):
+                xb = start.copy()
+                xb[b] = y
+                return jac(xb)[b]
+
+            xs, ts = _settle(f1, j1, start[b], scale[b])
+            if xs is not None:
+                again[b], settled[b] = xs, ts
+        if any(s is not None for s in settled):
+            # the polish aims at tol relative to where the settle stopped (the start's scale
+            # may be a stiff spring's force, far above what is left), and is judged as Newton
+            tight = 1.0 + np.max(np.abs(f(again)), axis=1)
+            x2, res2, it2 = _newton(f, jac, again, tight, tol, max_iter, rcond, hold=True)
+            use = np.array([s is not None for s in settled]) & (res2 <= tol * scale)
+            settled = [s if use[b] else None for b, s in enumerate(settled)]
+            x = np.where(use[:, None], x2, x)
+            res = np.where(use, res2, res)
+            it = max(it, it2)
+            rank, null = rank_null(x)
     free = [_free_directions(V, STATE_NAMES) for V in null]
     conv = res <= tol * scale
     xs = np.moveaxis(x.reshape(batch + (n,)), -1, 0)
     if not batch:
         return xs, EquilibriumInfo(bool(conv[0]), float(res[0]), it, int(rank[0]), free[0],
-                                   null[0])
+                                   null[0], settled[0])
     return xs, EquilibriumInfo(conv.reshape(batch), res.reshape(batch), it,
-                               rank.reshape(batch), free, null)
+                               rank.reshape(batch), free, null, settled)

@@ -1138,18 +1138,22 @@ def linearize(t, x, u=None, p=None):
 
 class EquilibriumInfo:
     """What equilibrium() found: converged (bool per batch instance), residual (max |rhs|),
-    iterations, rank of the Jacobian, and free: per instance, the free directions (the null
-    space of the Jacobian, where the equilibrium is not unique: a position with no stiffness),
-    each a dict {state name: component} of its largest components. For an unbatched call,
-    converged, residual and rank are scalars and free is one list."""
+    iterations, rank of the Jacobian, free: per instance, the free directions (the null
+    space of the Jacobian, where the equilibrium is not unique: a position with no stiffness,
+    a continuum of equilibria), each a dict {state name: component} of its largest
+    components, and settled: per instance, the time the damped dynamics ran from x0 before
+    Newton's polish (None where Newton alone found it). For an unbatched call, converged,
+    residual, rank and settled are scalars and free is one list."""
 
-    def __init__(self, converged, residual, iterations, rank, free, null_space):
+    def __init__(self, converged, residual, iterations, rank, free, null_space, settled=None):
         self.converged, self.residual, self.iterations = converged, residual, iterations
         self.rank, self.free, self.null_space = rank, free, null_space
+        self.settled = settled
 
     def __repr__(self):
         return (f"EquilibriumInfo(converged={self.converged!r}, residual={self.residual!r}, "
-                f"iterations={self.iterations}, rank={self.rank!r}, free={self.free!r})")
+                f"iterations={self.iterations}, rank={self.rank!r}, free={self.free!r}, "
+                f"settled={self.settled!r})")
 
 
 def _free_directions(V, names, top=4):
@@ -1160,33 +1164,26 @@ def _free_directions(V, names, top=4):
     return out
 
 
-def equilibrium(u=None, p=None, x0=None, t=0.0, tol=1e-10, max_iter=100, rcond=1e-9):
-    """A state where rhs = 0, inputs held at their values at t: Newton's method with the
-    analytic Jacobian and a backtracking line search on |rhs|^2. Where the Jacobian is
-    singular (a free position: no stiffness holds it), each step is the least-squares,
-    minimum-norm one (pseudo-inverse by SVD, singular values below rcond times the largest
-    treated as zero), so the free directions keep their values from x0; they are reported in
-    info.free by state name. Batched like rhs: x0 (n, *batch) and array parameters.
-    Returns (x, info); converged where max |rhs| <= tol * (1 + max |rhs(x0)|)."""
-    u = _signals(u)
-    p = _params(p)
-    x0 = initial_state(p) if x0 is None else np.asarray(x0, dtype=float)
-    x0, batch = _batched(x0, p)
-    n = N_STATES
-    nb = int(np.prod(batch)) if batch else 1
+def _hold_invariants(step, U, Vt, keep):
+    """The step moved along the null space (columns N of V where S is dropped) so that it
+    leaves the invariants' linearisation alone: L^T step = 0, L the left null space (columns
+    of U where S is dropped), which spans the invariants' gradients at an equilibrium."""
+    for b in range(step.shape[0]):
+        drop = ~keep[b]
+        if drop.any():
+            L, N = U[b][:, drop], Vt[b][drop].T
+            a = np.linalg.lstsq(L.T @ N, -(L.T @ step[b]), rcond=None)[0]
+            step[b] = step[b] + N @ a
+    return step
 
-    def f(xf):  # (nb, n) -> (nb, n)
-        return np.moveaxis(rhs(t, np.moveaxis(xf.reshape(batch + (n,)), -1, 0), p, u)
-                           .reshape((n,) + batch), 0, -1).reshape(nb, n)
 
-    def jac(xf):  # (nb, n) -> (nb, n, n)
-        J = jacobian(t, np.moveaxis(xf.reshape(batch + (n,)), -1, 0), p, u)
-        J = np.broadcast_to(J, (n, n) + batch).reshape(n, n, nb)
-        return np.moveaxis(J, -1, 0)
-
-    x = np.moveaxis(np.array(x0, dtype=float).reshape(n, nb), 0, -1).copy()
+def _newton(f, jac, x, scale, tol, max_iter, rcond, hold=False):
+    """Newton on f(x) = 0 from x (nb, n), minimum-norm steps (pseudo-inverse by SVD) with a
+    backtracking line search on |f|^2; returns (x, max |f| per instance, iterations). hold:
+    each step keeps the invariants' linearisation (_hold_invariants): a polish that stays on
+    the invariant leaf it starts on."""
+    nb = x.shape[0]
     r = f(x)
-    scale = 1.0 + np.max(np.abs(r), axis=1)
     res = np.max(np.abs(r), axis=1)
     done = res <= tol * scale
     it = 0
@@ -1194,11 +1191,12 @@ def equilibrium(u=None, p=None, x0=None, t=0.0, tol=1e-10, max_iter=100, rcond=1
         if np.all(done):
             it -= 1
             break
-        J = jac(x)
-        U, S, Vt = np.linalg.svd(J)
+        U, S, Vt = np.linalg.svd(jac(x))
         keep = S > rcond * np.maximum(S[:, :1], 1e-300)
         Sinv = np.where(keep, 1.0 / np.where(keep, S, 1.0), 0.0)
         step = -np.einsum("bji,bj,bkj,bk->bi", Vt, Sinv, U, r)
+        if hold:
+            step = _hold_invariants(step, U, Vt, keep)
         step[done] = 0.0
         phi = np.sum(r * r, axis=1)
         lam = np.ones(nb)
@@ -1217,16 +1215,129 @@ def equilibrium(u=None, p=None, x0=None, t=0.0, tol=1e-10, max_iter=100, rcond=1
         res = np.max(np.abs(r), axis=1)
         small = np.max(np.abs(step), axis=1) <= 1e-14 * (1 + np.max(np.abs(x), axis=1))
         done = done | (res <= tol * scale) | ~better | small
-    J = jac(x)
-    _, S, Vt = np.linalg.svd(J)
-    keep = S > rcond * np.maximum(S[:, :1], 1e-300)
-    rank = keep.sum(axis=1)
-    null = [Vt[b][~keep[b]].T for b in range(nb)]
+    return x, res, it
+
+
+#: The settle's accuracy (Radau's rtol; atol is SETTLE_RTOL * 1e-4), where it hands over to
+#: Newton (max |rhs| below SETTLE_TOL times the scale of rhs at x0) and its budget in rhs
+#: calls per instance.
+SETTLE_RTOL, SETTLE_TOL, SETTLE_MAX_RHS = 1e-6, 1e-6, 200_000
+#: A non-isolated answer of Newton that moved less than this from x0 (max |x - x0| over
+#: 1 + max |x0|) stands without a settle: the invariants barely moved with it.
+SETTLE_MOVED = 0.1
+
+
+def _settle(f1, j1, x0, scale):
+    """Integrate dx/dt = f1(x) (the inputs held) from x0 until it comes to rest: chunks of
+    doubling length, from the longest time scale of the Jacobian at x0 (its smallest eigenvalue
+    that is not zero) up. A trajectory keeps
+    every invariant of the dynamics (a spring's deflection tied to the angles it closes, a
+    conserved momentum), so where the model dissipates it ends on the equilibrium of x0's
+    invariant leaf. Returns (x, time run), or (None, time) when it does not come to rest
+    (no dissipation, no equilibrium, a failed step) within SETTLE_MAX_RHS calls."""
+    import scipy.integrate as si  # lazy: only a non-isolated equilibrium settles
+
+    x = np.array(x0, dtype=float)
+    res = float(np.max(np.abs(f1(x)))) if x.size else 0.0
+    if res <= SETTLE_TOL * scale:
+        return x, 0.0
+    lam = np.abs(np.linalg.eigvals(j1(x)))
+    lam = lam[np.isfinite(lam) & (lam > 1e-9 * max(float(np.max(lam, initial=0.0)), 1e-300))]
+    span = 1.0 / float(np.min(lam)) if lam.size else 1.0
+    t, best, stale, calls = 0.0, res, 0, 0
+    while calls < SETTLE_MAX_RHS and stale < 6:
+        sol = si.solve_ivp(lambda _t, y: f1(y), (0.0, span), x, method="Radau",
+                           jac=lambda _t, y: j1(y), rtol=SETTLE_RTOL, atol=SETTLE_RTOL * 1e-4)
+        calls += sol.nfev
+        if not sol.success or not np.all(np.isfinite(sol.y[:, -1])):
+            return None, t
+        x, t = sol.y[:, -1], t + span
+        res = float(np.max(np.abs(f1(x))))
+        if res <= SETTLE_TOL * scale:
+            return x, t
+        stale = 0 if res < 0.5 * best else stale + 1
+        best, span = min(best, res), 2.0 * span
+    return None, t
+
+
+def equilibrium(u=None, p=None, x0=None, t=0.0, tol=1e-10, max_iter=100, rcond=1e-9,
+                settle=True):
+    """A state where rhs = 0, inputs held at their values at t: Newton's method with the
+    analytic Jacobian and a backtracking line search on |rhs|^2. Where the Jacobian is
+    singular (a free position: no stiffness holds it), each step is the least-squares,
+    minimum-norm one (pseudo-inverse by SVD, singular values below rcond times the largest
+    treated as zero), so the free directions keep their values from x0; they are reported in
+    info.free by state name. Where the equilibria form a continuum (a singular Jacobian at
+    Newton's answer) and Newton's answer moved far from x0 (SETTLE_MOVED), or Newton fails,
+    and settle is true, the dynamics are first integrated
+    from x0 until they come to rest (_settle), then Newton polishes from there: the answer is
+    the equilibrium on x0's invariant leaf (a closing spring's deflection consistent with the
+    angles), where the model dissipates; info.settled gives the time run. The polish's steps
+    hold the invariants: each is moved along the Jacobian's null space until it is orthogonal
+    to the left null space (the invariants' gradients), so the last stretch of the way to rest
+    stays on the leaf too. Batched like rhs:
+    x0 (n, *batch) and array parameters. Returns (x, info); converged where max |rhs| <= tol
+    * (1 + max |rhs(x0)|)."""
+    u = _signals(u)
+    p = _params(p)
+    x0 = initial_state(p) if x0 is None else np.asarray(x0, dtype=float)
+    x0, batch = _batched(x0, p)
+    n = N_STATES
+    nb = int(np.prod(batch)) if batch else 1
+
+    def f(xf):  # (nb, n) -> (nb, n)
+        return np.moveaxis(rhs(t, np.moveaxis(xf.reshape(batch + (n,)), -1, 0), p, u)
+                           .reshape((n,) + batch), 0, -1).reshape(nb, n)
+
+    def jac(xf):  # (nb, n) -> (nb, n, n)
+        J = jacobian(t, np.moveaxis(xf.reshape(batch + (n,)), -1, 0), p, u)
+        J = np.broadcast_to(J, (n, n) + batch).reshape(n, n, nb)
+        return np.moveaxis(J, -1, 0)
+
+    def rank_null(x):
+        _, S, Vt = np.linalg.svd(jac(x))
+        keep = S > rcond * np.maximum(S[:, :1], 1e-300)
+        return keep.sum(axis=1), [Vt[b][~keep[b]].T for b in range(nb)]
+
+    start = np.moveaxis(np.array(x0, dtype=float).reshape(n, nb), 0, -1).copy()
+    scale = 1.0 + np.max(np.abs(f(start)), axis=1)
+    x, res, it = _newton(f, jac, start, scale, tol, max_iter, rcond)
+    rank, null = rank_null(x)
+    settled = [None] * nb
+    if settle and n:
+        again = start.copy()
+        moved = np.max(np.abs(x - start), axis=1) / (1.0 + np.max(np.abs(start), axis=1))
+        suspect = (res > tol * scale) | ((rank < n) & (moved > SETTLE_MOVED))
+        for b in np.flatnonzero(suspect):
+            def f1(y, b=b):  # one instance, the others at their start
+                xb = start.copy()
+                xb[b] = y
+                return f(xb)[b]
+
+            def j1(y, b=b):
+                xb = start.copy()
+                xb[b] = y
+                return jac(xb)[b]
+
+            xs, ts = _settle(f1, j1, start[b], scale[b])
+            if xs is not None:
+                again[b], settled[b] = xs, ts
+        if any(s is not None for s in settled):
+            # the polish aims at tol relative to where the settle stopped (the start's scale
+            # may be a stiff spring's force, far above what is left), and is judged as Newton
+            tight = 1.0 + np.max(np.abs(f(again)), axis=1)
+            x2, res2, it2 = _newton(f, jac, again, tight, tol, max_iter, rcond, hold=True)
+            use = np.array([s is not None for s in settled]) & (res2 <= tol * scale)
+            settled = [s if use[b] else None for b, s in enumerate(settled)]
+            x = np.where(use[:, None], x2, x)
+            res = np.where(use, res2, res)
+            it = max(it, it2)
+            rank, null = rank_null(x)
     free = [_free_directions(V, STATE_NAMES) for V in null]
     conv = res <= tol * scale
     xs = np.moveaxis(x.reshape(batch + (n,)), -1, 0)
     if not batch:
         return xs, EquilibriumInfo(bool(conv[0]), float(res[0]), it, int(rank[0]), free[0],
-                                   null[0])
+                                   null[0], settled[0])
     return xs, EquilibriumInfo(conv.reshape(batch), res.reshape(batch), it,
-                               rank.reshape(batch), free, null)
+                               rank.reshape(batch), free, null, settled)

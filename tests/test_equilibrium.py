@@ -33,20 +33,39 @@ def test_batched_over_parameters(gen):
 
 def test_free_position_is_reported_and_kept(gen):
     """Two masses with no wall spring (k1 = 0) and no force: the chain's position is free.
-    Newton's least-squares steps keep it where x0 put it and name it."""
+    From a state at rest Newton's least-squares steps keep it where x0 put it and name it;
+    from a moving state the chain comes to rest where the wall damper's impulse says: the
+    position plus the total momentum over c1 is invariant (dq/dt = v1, dP/dt = -c1 v1), so it
+    rests at q0 + P0 / c1."""
     m = gen("two_mass_chain")
-    x0 = np.array([0.3, -0.2, 0.7, 1e-4])  # names: see STATE_NAMES
     names = m.STATE_NAMES
-    x, info = m.equilibrium(p={"k1": 0.0, "F0": 0.0}, x0=x0)
-    assert info.converged and info.rank == 3
-    (free,) = info.free
-    (name, comp), = free.items()
-    assert name == "wall_spring.q" and abs(abs(comp) - 1) < 1e-12
     i = names.index("wall_spring.q")
-    assert x[i] == pytest.approx(x0[i], abs=1e-12)
-    rest = [k for k in range(4) if k != i]
-    assert np.all(np.abs(x[rest]) < 1e-9)  # momenta and stretch (k2 = 1e8: conditioning)
-    assert np.max(np.abs(m.rhs(0.0, x, {"k1": 0.0, "F0": 0.0}))) < 1e-8
+    p = {"k1": 0.0, "F0": 0.0}
+    for x0 in (np.array([0.0, 0.0, 0.7, 1e-4]), np.array([0.3, -0.2, 0.7, 1e-4])):
+        x, info = m.equilibrium(p=p, x0=x0)
+        assert info.converged and info.rank == 3
+        (free,) = info.free
+        (name, comp), = free.items()
+        assert name == "wall_spring.q" and abs(abs(comp) - 1) < 1e-12
+        p0 = x0[names.index("mass1.p")] + x0[names.index("mass2.p")]
+        assert x[i] == pytest.approx(x0[i] + p0 / m.PARAM_DEFAULTS["c1"], abs=1e-9)
+        rest = [k for k in range(4) if k != i]
+        assert np.all(np.abs(x[rest]) < 1e-9)  # momenta and stretch (k2 = 1e8: conditioning)
+        assert np.max(np.abs(m.rhs(0.0, x, p))) < 1e-8
+
+
+def test_settle_per_batch_instance(gen):
+    """A batch over the wall damper c1: each moving instance comes to rest at its own
+    q0 + P0 / c1; without the damper (c1 = 0) nothing dissipates the momentum, the settle
+    gives up (settled None) and Newton's answer keeps x0's position."""
+    m = gen("two_mass_chain")
+    c1 = np.array([0.1, 0.2, 0.0])
+    x0 = np.array([0.3, -0.2, 0.7, 1e-4])
+    x, info = m.equilibrium(p={"k1": 0.0, "F0": 0.0, "c1": c1}, x0=x0)
+    assert x.shape == (4, 3) and np.all(info.converged)
+    i = m.STATE_NAMES.index("wall_spring.q")
+    np.testing.assert_allclose(x[i], [0.7 + 0.1 / 0.1, 0.7 + 0.1 / 0.2, 0.7], atol=1e-9)
+    assert info.settled[0] > 0 and info.settled[1] > 0 and info.settled[2] is None
 
 
 def test_no_equilibrium_is_not_converged(gen):

@@ -102,6 +102,46 @@ def test_max_steps_on_the_numpy_backend(tmp_path, method):
                         max_steps=n).stats["nsteps"] == n
 
 
+EVENT_BACKENDS = ["numpy", pytest.param("c", marks=pytest.mark.skipif(not HAS_C,
+                                                                      reason="no C compiler"))]
+
+
+@pytest.mark.parametrize("backend", EVENT_BACKENDS)
+def test_max_steps_on_the_events_path(tmp_path, backend):
+    """A hybrid model (the bouncing ball: its impacts are events, each a restart) holds
+    max_steps over the whole run, across its restarts, like the plain path: a scene's 20 cannot
+    cover the 3 s of bounces (exit 1, the plain path's message at the scene's line 1), the
+    command line's --max-steps 1000 can (the module's own step count: below)."""
+    scene = tmp_path / "s.yaml"
+    scene.write_text(f"bgc_scene: 1\nmodel: {ROOT / 'models' / 'bouncing_ball.yaml'}\n"
+                     "duration: 3.0\noutputs: [height]\n"
+                     f"solver: {{method: Radau, rtol: 1.0e-8, max_steps: 20, backend: {backend}}}\n")
+    cache = tmp_path / "cache"
+    few = _bgc("simulate", scene, cache_dir=cache)
+    assert few.returncode == 1 and "Traceback" not in few.stderr, few.stderr
+    line = few.stderr.strip().splitlines()[-1]
+    assert line.startswith(f"{scene}:1:1: ") and "Radau stopped at t = " in line
+    assert "max_steps = 20 steps (raise the scene's solver max_steps or --max-steps)" in line
+    many = _bgc("simulate", scene, "--max-steps", "1000", cache_dir=cache)
+    assert many.returncode == 0 and "events" in many.stdout, many.stderr
+
+
+def test_max_steps_on_the_events_path_of_the_module():
+    """The module's events simulate: the run's own step count n passes with max_steps = n and
+    stops with n - 1 (Radau and an explicit method)."""
+    import bgc
+
+    mod = bgc.compile(str(ROOT / "models" / "bouncing_ball.yaml"))
+    for method in ("Radau", "RK45"):
+        res = mod.simulate((0.0, 3.0), method=method, rtol=1e-8, max_steps=100_000)
+        n = int(res.stats["nsteps"])
+        assert n > 20 and res.stats["nevents"] >= 3
+        with pytest.raises(mod.SimulationError, match=f"max_steps = {n - 1} steps"):
+            mod.simulate((0.0, 3.0), method=method, rtol=1e-8, max_steps=n - 1)
+        assert mod.simulate((0.0, 3.0), method=method, rtol=1e-8,
+                            max_steps=n).stats["nsteps"] == n
+
+
 @pytest.mark.parametrize("path", MODELS, ids=[p.stem for p in MODELS])
 def test_equations_on_every_model(path):
     """bgc.equations (what `bgc equations` prints) accepts every model in models/, rigid
@@ -334,3 +374,84 @@ def test_linearize_cli_warns_of_unstable_modes_and_takes_a_freq_range(tmp_path):
     bad = _bgc("linearize", model, "--out", tmp_path / "lin", "--bode", "F:position",
                "--freq-range", "100", "1", cache_dir=tmp_path / "c")
     assert bad.returncode == 2 and "--freq-range" in bad.stderr
+
+
+# ---------------------------------------------------------------------------------------------
+# The newcomer's three models (docs/first_models.md), written from the docs alone and run with
+# the documented command at default settings (no method, tolerances, max_step or backend),
+# each against an answer obtained outside bgc.
+
+FIRST = ROOT / "docs" / "first_models"
+
+
+def _first_run(tmp_path, scene):
+    out = tmp_path / "r.npz"
+    res = _bgc("simulate", FIRST / scene, "--out", out, cache_dir=tmp_path / "cache")
+    assert res.returncode == 0, res.stderr
+    return np.load(out)
+
+
+@pytest.mark.slow  # a compile and a tight scipy reference: about 30 s on 2 shared cores
+def test_first_rectifier_ripple_and_diode_current(tmp_path):
+    """The library-built half-wave rectifier against a scipy model written here: the capacitor
+    voltage by LSODA (rtol 1e-10, max_step 5e-5), the loop current of the Shockley diode in
+    series with Rs by a bracketed root (brentq). The ripple of the last two periods and the
+    diode's peak current agree within 0.5 %, the load voltage within 1 mV."""
+    import scipy.integrate as si
+    import scipy.optimize as so
+
+    i_s, vt, rs, rl, c1, v0, f0 = 1e-12, 0.025852, 1.0, 1000.0, 1e-3, 10.0, 50.0
+
+    def current(vs, vc):
+        g = lambda i: i - i_s * np.expm1((vs - vc - rs * i) / vt)  # noqa: E731
+        return so.brentq(g, -i_s, max((vs - vc) / rs, 0.0) + 1.0, xtol=1e-15, rtol=1e-14)
+
+    r = _first_run(tmp_path, "rectifier_scene.yaml")
+    t = r["t"]
+    sol = si.solve_ivp(lambda tt, y: [(current(v0 * np.sin(2 * np.pi * f0 * tt), y[0])
+                                       - y[0] / rl) / c1],
+                       (0.0, float(t[-1])), [0.0], method="LSODA", rtol=1e-10, atol=1e-13,
+                       t_eval=t, max_step=5e-5)
+    assert sol.success
+    v = sol.y[0]
+    i = np.array([current(v0 * np.sin(2 * np.pi * f0 * a), b) for a, b in zip(t, v)])
+    last = t >= 0.16
+    ripple, ripple_ref = np.ptp(r["v_load"][last]), np.ptp(v[last])
+    assert 0.1 < ripple_ref < 0.25  # the physics: a 1 mF, 1 kohm load on a 50 Hz half wave
+    assert abs(ripple - ripple_ref) < 5e-3 * ripple_ref, (ripple, ripple_ref)
+    peak, peak_ref = r["i_diode"][last].max(), i[last].max()
+    assert abs(peak - peak_ref) < 5e-3 * peak_ref, (peak, peak_ref)
+    assert np.max(np.abs(r["v_load"] - v)) < 1e-3
+
+
+@pytest.mark.slow  # a compile and the reference: about 30 s on 2 shared cores
+def test_first_fourbar_against_the_lagrange_reference(tmp_path):
+    """The four-bar of library rods and rigid pins (its second ground pin closes the loop)
+    against tests/reference/fourbar_lagrange.py (reduced Lagrange model, rtol 1e-12) with this
+    model's friction: ground pivots only (c2 = c3 = 0). The angles within 1e-5 rad over 5 s
+    of a crank swinging through 4.8 rad."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    from reference import fourbar_lagrange as fl
+
+    r = _first_run(tmp_path, "fourbar_scene.yaml")
+    ref = fl.simulate(r["t"], params={"c2": 0.0, "c3": 0.0})
+    assert np.ptp(ref["th1"]) > 3.0  # the crank turns over: a real motion
+    for k in ("th1", "th2", "th3"):
+        assert np.max(np.abs(r[k] - ref[k])) < 1e-5, k
+
+
+@pytest.mark.slow  # a compile and a stiff 2 s run: about 20 s on 2 shared cores
+def test_first_top_precesses_at_the_closed_form_rate(tmp_path):
+    """The library rigid_rod held at its end Q by a stiff spherical joint, started in steady
+    precession (the rod's w0 and vC0): its axis turns about the vertical at the slow root Omega of
+    I1 cos(th) Omega^2 - I3 w3 Omega + m g L = 0 (Goldstein, sec. 5.7; I1 about the fixed point,
+    computed here from the cylinder's dimensions), and its tilt stays th."""
+    m, l, rho, g, th, w3 = 1.0, 0.1, 0.05, 9.81, 0.5, 200.0
+    i3 = m * rho ** 2 / 2
+    i1 = m * (3 * rho ** 2 + l ** 2) / 12 + m * (l / 2) ** 2
+    a, b, c = i1 * np.cos(th), -i3 * w3, m * g * l / 2
+    omega = (-b - np.sqrt(b * b - 4 * a * c)) / (2 * a)
+    r = _first_run(tmp_path, "top_scene.yaml")
+    rate = np.polyfit(r["t"], np.unwrap(r["azimuth"]), 1)[0]
+    assert abs(rate - omega) < 1e-5 * omega, (rate, omega)
+    assert np.max(np.abs(r["tilt"] - th)) < 1e-4

@@ -335,9 +335,11 @@ def linearize(model, at="equilibrium", p=None, u=None, x0=None) -> Linearization
         pv = {**(pv or {}), **p}
     if x0 is None and sc is not None and isinstance(sc.initial, dict):
         x0 = initial_state(sc, mod, pv)  # the scene's `initial:` values: the guess
-    t, x, _ = operating_point(mod, at, pv, u, t0, hint=")", x0=x0)
+    found = []
+    t, x, _ = operating_point(mod, at, pv, u, t0, hint=")", x0=x0, on_equilibrium=found.append)
     guess = mod.initial_state(pv) if x0 is None else x0
-    for msg in point_warnings(mod, t, x, pv, u, guess, at == "equilibrium"):
+    settled = getattr(found[0], "settled", None) if found else None
+    for msg in point_warnings(mod, t, x, pv, u, guess, at == "equilibrium", settled):
         warnings.warn(msg, RuntimeWarning, stacklevel=2)
     A, B, C, D = mod.linearize(t, x, u, pv)
     try:

@@ -260,11 +260,13 @@ MOVED_WARN = 0.1
 COND_WARN = 1e8
 
 
-def point_warnings(mod, t, x, p=None, u=None, guess=None, equilibrium=False) -> list[str]:
+def point_warnings(mod, t, x, p=None, u=None, guess=None, equilibrium=False,
+                   settled=None) -> list[str]:
     """Warnings (text) about the point (t, x) a model is linearised at: not an equilibrium
     (max |dx/dt| and its state); an equilibrium found far from its initial guess ``guess`` with
     an ill-conditioned Jacobian (a near-free direction: the solve may have moved angles while a
-    spring's deflection did not, inconsistent with the geometry)."""
+    spring's deflection did not, inconsistent with the geometry), unless the equilibrium was
+    ``settled`` (reached by the dynamics from the guess, which keep the geometry)."""
     x = np.asarray(x, dtype=float).reshape(-1)
     names = list(mod.STATE_NAMES)
     with np.errstate(all="ignore"):
@@ -278,7 +280,7 @@ def point_warnings(mod, t, x, p=None, u=None, guess=None, equilibrium=False) -> 
             out.append(f"{what} is not an equilibrium: max |dx/dt| = {r:.3g} (in "
                        f"{names[k]}); the linearisation describes deviations from a moving "
                        "state")
-    if equilibrium and guess is not None and x.size:
+    if equilibrium and guess is not None and x.size and settled is None:
         g = np.asarray(guess, dtype=float).reshape(-1)
         moved = np.abs(x - g)
         rel = float(np.max(moved)) / (1.0 + float(np.max(np.abs(g))))

@@ -324,8 +324,8 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
         k = int(failed[0])
         if int(S[k, 6]) == 6 and int(S[k, 9]) == 2 and \
                 _lib().bgcm_fail_is_value_error(int(S[k, 8])):  # a table input, as numpy says
-            raise ValueError(_c_message(method, S, failed, msg.value, batch))
-        raise _error(SimulationError, _c_message(method, S, failed, msg.value, batch),
+            raise ValueError(_c_message(method, S, failed, msg.value, batch, max_steps))
+        raise _error(SimulationError, _c_message(method, S, failed, msg.value, batch, max_steps),
                      float(S[failed[0], 7]), stats)
     X = Y.transpose(2, 0, 1).reshape((N_STATES,) + batch + (len(times),))
     pt = None if p is None else {
@@ -349,7 +349,7 @@ def _event_log(log, counts, batch):
     return rows
 
 
-def _c_message(method, S, failed, raw, batch):
+def _c_message(method, S, failed, raw, batch, max_steps=0):
     """The located diagnostic of the first failed instance: state name and time, as the numpy
     module gives them."""
     k = int(failed[0])
@@ -366,6 +366,9 @@ def _c_message(method, S, failed, raw, batch):
         rest = raw.decode("utf-8", "replace").split(": ", 1)[-1]
         return (f"{EVENT_WHERE[bad]}: event {EVENT_NAMES[bad]!r} at t = {t:.9g}: {rest}; raise "
                 f"max_events or change the model{inst}")
+    if status == 2:  # max_steps: the numpy module's words (its plain and events paths)
+        return (f"{method} stopped at t = {t:.17g}: max_steps = {int(max_steps)} steps (raise "
+                f"the scene's solver max_steps or --max-steps){inst}")
     if status == 6 and where == 2 and bad > 0:  # a numeric solve failed: located first
         return f"{_fail_message(bad)} ({method}, at t = {t:.6g}){inst}"
     detail = raw.decode("utf-8", "replace") or _C_STATUS.get(status, f"status {status}")

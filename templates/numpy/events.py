@@ -273,7 +273,7 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
                     atol=atol, max_step=max_step,
                     **_jacobian_options(method, jac, at, shape, p, u, stats))
                 stop = _run_to_event(solver, guards, path, log, stats, method, deadline,
-                                     max_wall)
+                                     max_wall, max_steps)
                 stats.update(_counts(stats, solver))
                 if stop is not None:
                     start, y = stop
@@ -329,12 +329,17 @@ def _separately(kw, x0, batch, p_raw, atol, deadline):
     return _result(t, X, p_raw, kw["u"], stats, records)
 
 
-def _run_to_event(solver, guards, path, log, stats, method, deadline, max_wall):
+def _run_to_event(solver, guards, path, log, stats, method, deadline, max_wall, max_steps):
     """Step the solver to its end, or to the first event: (t, state after the event) to restart
-    from, or None at the end."""
+    from, or None at the end. max_steps bounds the steps of the whole run (stats["nsteps"]
+    counts them over every restart), as the plain path's step loop does."""
     import time
 
     while solver.status == "running":
+        if stats["nsteps"] >= max_steps:  # as the plain path and the C step loop
+            raise _error(SimulationError, f"{method} stopped at t = {solver.t:.17g}: "
+                         f"max_steps = {max_steps} steps (raise the scene's solver "
+                         "max_steps or --max-steps)", solver.t, _counts(stats, solver))
         message = solver.step()
         if solver.status == "failed":
             raise _error(SimulationError, f"{method} failed at t = {solver.t:.6g}: "

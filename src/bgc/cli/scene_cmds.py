@@ -211,13 +211,17 @@ def linearize_cmd(target, at, out, bode, freq_range, x0_items, quiet):
     from bgc.cli import guards
 
     coord = sc.coord if sc is not None and getattr(sc, "coord", None) else Coord(str(target), 1, 1)
+    found = []
     with np.errstate(all="ignore"):
         try:
             t, x, where = operating_point(mod, at, p, None, t0, prog, " after Newton): "
                                           "linearise at a time instead (--at TIME)",
                                           x0=guess,
-                                          on_equilibrium=lambda info: _warn_free(info, prog))
-            for msg in point_warnings(mod, t, x, p, None, guess, at == "equilibrium"):
+                                          on_equilibrium=found.append)
+            settled = getattr(found[0], "settled", None) if found else None
+            if found:
+                _warn_free(found[0], prog)
+            for msg in point_warnings(mod, t, x, p, None, guess, at == "equilibrium", settled):
                 prog(f"warning: {msg}")
         except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
             raise ModelError(coord, f"no operating point found: the search failed ({exc}); is "
@@ -257,7 +261,13 @@ def _warn_free(info, say) -> None:
     holds the state (they keep the initial state's values, which the model's geometry may not
     agree with: a closing spring's deflection and the angles it ties together)."""
     free = [d for d in (info.free or []) if d]
-    if free:
+    settled = getattr(info, "settled", None)
+    if free and settled is not None:
+        say(f"the equilibrium is not isolated ({len(free)} free direction(s)): reached by "
+            f"letting the damped dynamics come to rest from the initial state ({settled:.3g} s), "
+            "then Newton's minimum-norm steps, so the states the geometry ties together (a "
+            "closing spring's deflection and the angles) stay consistent")
+    elif free:
         names = ", ".join(sorted({nm for d in free for nm in d})[:6])
         say(f"warning: the equilibrium is not isolated: {len(free)} free direction(s) ("
             f"{names}) keep their initial values; check they agree with the model's geometry, "
