@@ -48,19 +48,22 @@ def test_the_c_compile_prints_no_numpy_module_and_the_wrapper_no_equations():
     assert c.source == (ROOT / "generated" / "msd.py").read_text(encoding="utf-8")
 
 
-def test_each_text_is_parsed_once(monkeypatch, fresh_cache):
+def test_each_text_is_checked_once(monkeypatch, fresh_cache):
+    """A syntax tree is built only for a text's model part, once: rendering checks it, loading
+    finds it checked (the template's verbatim parts are compared as text)."""
     parsed = []
     real = skeleton._parse
     monkeypatch.setattr(skeleton, "_parse", lambda t, w: (parsed.append(w), real(t, w))[1])
     monkeypatch.setattr(skeleton, "_PASSED", set())
-    monkeypatch.setattr(skeleton, "_TREES", {})
     b = driver.build(MSD, backend="numpy", use_cache=False)
-    assert parsed == ["generated module"]  # checked when rendered, compiled from that tree
+    assert parsed == ["generated module"]
     assert b.module.rhs(0.0, b.module.X0).shape == (2,)
     if cbuild.available() and cbuild.runtime_sources():
         parsed.clear()
         b = driver.build(MSD, backend="c")
-        assert parsed == ["the wrapper"]  # its numpy part is not checked on its own
+        # the wrapper's two parts, once each; no numpy module with equations printed or parsed
+        assert parsed == ["generated module", "the wrapper's C part"]
+        assert b.compiled.text is None
 
 
 @pytest.mark.parametrize("where, edit", [

@@ -4,8 +4,10 @@ warm run can check a cached module before it runs it).
 After rendering (or before a module is loaded, for a text that was not checked in this
 process), its top-level statements must be exactly the template's. Model text can only ever
 appear inside literals; if escaping were ever wrong, a stray statement would show here and
-nothing would be written or run. Each text is parsed once: the check keeps its syntax tree,
-and :func:`checked_code` compiles the module from it.
+nothing would be written or run. Each text is checked once per process (a digest memo); only
+its model part is parsed into a syntax tree, the template's verbatim parts (the runtime, a C
+wrapper's binding) are compared as text, and :func:`checked_code` compiles the module from
+its text.
 """
 from __future__ import annotations
 
@@ -96,22 +98,10 @@ def _top_names(node) -> tuple[str, set]:
 #: and loading it would check it again; the second check of the same text is a lookup
 #: (parsing the 3R2S module takes 0.4 s). In memory only, never persisted.
 _PASSED: set[tuple[str, bytes]] = set()
-#: the syntax trees of texts that passed, kept for :func:`checked_code` (a few, taken once):
-#: the text is parsed once, for the check, and compiled from that tree
-_TREES: dict[tuple[str, bytes], ast.Module] = {}
-_KEEP_TREES = 4
 
 
 def _digest(text: str, kind: str) -> tuple[str, bytes]:
     return kind, hashlib.sha256(text.encode("utf-8", "surrogatepass")).digest()
-
-
-def _passed(digest, tree) -> None:
-    _PASSED.add(digest)
-    if tree is not None:
-        while len(_TREES) >= _KEEP_TREES:
-            _TREES.pop(next(iter(_TREES)))
-        _TREES[digest] = tree
 
 
 def check_skeleton(text: str, backend: str = _TEMPLATES) -> None:
@@ -121,20 +111,18 @@ def check_skeleton(text: str, backend: str = _TEMPLATES) -> None:
     digest = _digest(text, backend)
     if digest in _PASSED:
         return
-    tree = _check_skeleton(text, backend)
-    _passed(digest, tree if isinstance(tree, ast.Module) else None)
+    _check_skeleton(text, backend)
+    _PASSED.add(digest)
 
 
 def checked_code(text: str, filename: str, wrapper: bool = False):
-    """The code object of a generated module (``wrapper``: a C wrapper), checked first: the
-    text is parsed once, for the check (or was, by the check that rendering ran), and compiled
-    from that tree. Raises SkeletonError for a text whose top level is not the template's."""
-    digest = _digest(text, "wrapper" if wrapper else _TEMPLATES)
-    tree = _TREES.pop(digest, None)
-    if tree is None:
-        tree = _check_wrapper(text) if wrapper else _check_skeleton(text, _TEMPLATES)
-        _PASSED.add(digest)
-    return compile(tree, filename, "exec")
+    """The code object of a generated module (``wrapper``: a C wrapper), its text checked
+    first (a lookup when rendering checked it already in this process). Only the model's part
+    is parsed into a syntax tree for the check (the template's verbatim parts are compared as
+    text); the code is compiled from the text, which costs a fraction of building the tree.
+    Raises SkeletonError for a text whose top level is not the template's."""
+    (check_wrapper if wrapper else check_skeleton)(text)
+    return compile(text, filename, "exec")
 
 
 def _parse(text: str, what: str) -> ast.Module:
@@ -144,35 +132,15 @@ def _parse(text: str, what: str) -> ast.Module:
         raise SkeletonError(f"{what} does not parse: {exc}") from None
 
 
-def _check_skeleton(text: str, backend: str) -> ast.Module:
-    """Check a whole module; its tree (one parse of the text)."""
-    tree = _parse(text, "generated module")
-    _check_module(tree.body, text.rstrip("\n"), backend)
-    return tree
-
-
-def _fixed_tail(stmts: list, body: str, fixed: str, what: str) -> list:
-    """The statements of ``body`` (text from line 1) before its verbatim ending ``fixed`` (a
-    runtime, a binding: compared as text). None of them may reach into ``fixed``: then the
-    tokenizer enters it at a clean statement boundary and parses it exactly as on its own."""
-    if not body.endswith("\n" + fixed):
-        raise SkeletonError(f"the {what} part differs from its template")
-    offset = body[:len(body) - len(fixed)].count("\n")  # fixed's line 1 is offset + 1
-    head = [n for n in stmts if n.lineno <= offset]
-    if head and head[-1].end_lineno > offset:
-        raise SkeletonError(f"the part before the {what} reaches into it")
-    return head
-
-
-def _check_module(stmts: list, body: str, backend: str) -> None:
-    """The statements of a module whose text is ``body`` (starting at line 1): the model part,
-    then exactly the runtime, verbatim."""
+def _check_skeleton(text: str, backend: str) -> None:
     runtime = runtime_source(backend)
+    body = text.rstrip("\n")  # (a C wrapper continues after the module: see check_wrapper)
     if backend == _TEMPLATES and "\nEVENT_NAMES = (" in body:  # a hybrid model's events
         runtime += "\n\n\n" + events_runtime_source()
     if not body.endswith("\n\n\n" + runtime):  # the runtime, verbatim, at the end
         raise SkeletonError(f"the runtime part differs from templates/{backend}/runtime.py")
-    _check_head(_fixed_tail(stmts, body, runtime, "runtime"))
+    # the model part must parse on its own: nothing in it can reach into the runtime
+    _check_head(_parse(body[:-len(runtime)], "generated module").body)
 
 
 def _check_head(head: list) -> None:
@@ -222,26 +190,24 @@ _C_TOP = {"C_LIBRARY", "C_DIGEST", "_C_NP", "_C_NNZ", "_C_NOUT", "_C_NWS"}
 
 def check_wrapper(text: str) -> None:
     """The wrapper's skeleton: the numpy module (checked as such), then the C constants, then
-    exactly templates/c/binding.py's part."""
+    exactly templates/c/binding.py's part (compared as text)."""
     digest = _digest(text, "wrapper")
     if digest in _PASSED:
         return
-    _passed(digest, _check_wrapper(text))
+    _check_wrapper(text)
+    _PASSED.add(digest)
 
 
-def _check_wrapper(text: str) -> ast.Module:
-    """Check a whole wrapper; its tree (one parse of the text)."""
-    head, sep, _ = text.rpartition(WRAPPER_MARK)
+def _check_wrapper(text: str) -> None:
+    head, sep, tail = text.rpartition(WRAPPER_MARK)
     if not sep:
         raise SkeletonError("the wrapper has no C part")
-    tree = _parse(text, "the wrapper")
-    mark = head.count("\n") + 1  # the marker's line
-    numpy_part = [n for n in tree.body if n.lineno < mark]
-    if numpy_part and numpy_part[-1].end_lineno >= mark:
-        raise SkeletonError("the wrapper's numpy part reaches into its C part")
-    _check_module(numpy_part, head.rstrip("\n"), _TEMPLATES)
-    top = _fixed_tail(tree.body[len(numpy_part):], text.rstrip("\n"), binding_source(),
-                      "binding")
+    _check_skeleton(head, _TEMPLATES)  # its numpy part (printed without the equations)
+    binding, tail = binding_source(), tail.rstrip("\n")
+    if not tail.endswith("\n" + binding):
+        raise SkeletonError("the wrapper's binding differs from templates/c/binding.py")
+    # the C constants must parse on their own: nothing in them can reach into the binding
+    top = _parse(tail[:-len(binding)], "the wrapper's C part").body
     seen = set()
     for node in top:
         if not (isinstance(node, ast.Assign) and len(node.targets) == 1
@@ -252,4 +218,3 @@ def _check_wrapper(text: str) -> ast.Module:
         if node.targets[0].id in seen:
             raise SkeletonError(f"{node.targets[0].id} bound twice")
         seen.add(node.targets[0].id)
-    return tree
