@@ -7,7 +7,9 @@ For each size, side by side in one run, each a whole command in a fresh process:
 - ``script``: a hand-written scipy model of the same system (the ladder only: the node
   equations written by hand, scipy's Radau with the sparse Jacobian), as a whole process.
 - ``compile``, ``first``: the cold command's own split (its summary line): the compile with
-  the C build, and the first integration.
+  the C build, and the first integration;
+- the cold command's compile stages (``BGC_STAGE_TIMES=1`` makes `bgc simulate` print them:
+  bgc.run.driver.STAGES), each with its share, in a second table.
 Growth exponents are the slopes of log(time) against log(size) over the two largest sizes.
 
 The RC ladder (the circuit of SciMLBenchmarks' RC-circuit benchmark): a source V(t) through
@@ -17,6 +19,7 @@ eliminated), 10 s, Radau, rtol 1e-6.
 
     python bench/bench_scale.py                  # ladders 10..300, chains 2..8
     python bench/bench_scale.py --ladder 100,1000,3000 --chain 2,3,5,8,12 --backends numpy,c
+    python bench/bench_scale.py --ladder 1000,3000 --chain "" --backends c,numpy  # issue 27
 
 Writes bench/RESULTS_scale.md. CPU-bound and noisy on a shared machine: compare ratios
 within one run, not times across runs.

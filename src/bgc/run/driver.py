@@ -14,8 +14,10 @@ The stages, each a function below that takes and returns frozen data and is time
    (sympy), sliced to the scene's outputs.
 6. **lower** (``bgc.lower.ir``): Equations -> :class:`~bgc.lower.ir.Lowered`, the one IR
    every printer reads.
-7. **print** (``bgc.backends.<backend>``): Lowered -> the module's text (numpy; the C
-   sources and wrapper are printed from the same IR when the C entry is built).
+7. **print** (``bgc.backends.<backend>``): Lowered -> the module's text (numpy). The C target
+   prints no numpy module: its C sources and wrapper (the numpy module's names, parameters
+   and runtime without the equations, then the binding) are printed from the same IR when the
+   C entry is built, and :attr:`Compiled.source` prints the numpy module only when asked.
 8. **build/load** (``bgc.backends.load``, ``bgc.backends.c.build``): the text -> a loaded
    module, through the compile cache (:mod:`bgc.run.cache` makes the key).
 
