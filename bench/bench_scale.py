@@ -7,7 +7,9 @@ For each size, side by side in one run, each a whole command in a fresh process:
 - ``script``: a hand-written scipy model of the same system (the ladder only: the node
   equations written by hand, scipy's Radau with the sparse Jacobian), as a whole process.
 - ``compile``, ``first``: the cold command's own split (its summary line): the compile with
-  the C build, and the first integration.
+  the C build, and the first integration;
+- the cold command's compile stages (``BGC_STAGE_TIMES=1`` makes `bgc simulate` print them:
+  bgc.run.driver.STAGES), each with its share, in a second table.
 Growth exponents are the slopes of log(time) against log(size) over the two largest sizes.
 
 The RC ladder (the circuit of SciMLBenchmarks' RC-circuit benchmark): a source V(t) through
@@ -17,6 +19,7 @@ eliminated), 10 s, Radau, rtol 1e-6.
 
     python bench/bench_scale.py                  # ladders 10..300, chains 2..8
     python bench/bench_scale.py --ladder 100,1000,3000 --chain 2,3,5,8,12 --backends numpy,c
+    python bench/bench_scale.py --ladder 1000,3000 --chain "" --backends c,numpy  # issue 27
 
 Writes bench/RESULTS_scale.md. CPU-bound and noisy on a shared machine: compare ratios
 within one run, not times across runs.
@@ -87,7 +90,8 @@ def scene_yaml(model_file: str, method: str = "Radau") -> str:
 
 def timed(cmd, env, parts=None) -> float:
     """The command's wall time; parts (a dict) gets the summary line's compile (with the C
-    build) and integrate seconds, the run's own split."""
+    build) and integrate seconds, the run's own split, and its compile stages (the "stages:"
+    line `bgc simulate` prints with BGC_STAGE_TIMES=1) under "stages"."""
     t0 = time.perf_counter()
     r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=3600)
     wall = time.perf_counter() - t0
@@ -96,6 +100,10 @@ def timed(cmd, env, parts=None) -> float:
     m = re.search(r"compile ([0-9.]+) s, integrate ([0-9.]+) s", r.stdout)
     if parts is not None and m:
         parts["compile"], parts["integrate"] = float(m.group(1)), float(m.group(2))
+    st = re.search(r"^stages: (.*)$", r.stderr, re.M)
+    if parts is not None and st:
+        parts["stages"] = {k: float(v) for k, v in
+                           re.findall(r"([a-zA-Z ]+?) ([0-9.]+) s(?:, |$)", st.group(1))}
     return wall
 
 
@@ -108,13 +116,15 @@ def measure(family: str, size: int, text: str, backends, workdir: Path) -> dict:
     for b in backends:
         cache = Path(tempfile.mkdtemp(prefix="bgc-scale-cache-"))
         os.chmod(cache, 0o700)
-        env = {**os.environ, "BGC_CACHE_DIR": str(cache), "PYTHONPATH": str(ROOT / "src")}
+        env = {**os.environ, "BGC_CACHE_DIR": str(cache), "PYTHONPATH": str(ROOT / "src"),
+               "BGC_STAGE_TIMES": "1"}
         cmd = BGC + ["simulate", str(scene), "--backend", b, "--out",
                      str(workdir / f"{family}{size}_{b}.npz"), "-q"]
         parts = {}
         row[f"{b}_cold"] = timed(cmd, env, parts)
         row[f"{b}_compile"] = parts.get("compile", float("nan"))
         row[f"{b}_first"] = parts.get("integrate", float("nan"))
+        row[f"{b}_stages"] = parts.get("stages", {})
         row[f"{b}_warm"] = timed(cmd, env)
     if family == "ladder":
         script = workdir / "ladder_script.py"
@@ -152,6 +162,23 @@ def table(rows, backends) -> list[str]:
     return lines
 
 
+def stage_table(rows, backends) -> list[str]:
+    """Seconds per compile stage of each cold run (bgc.run.driver.STAGES), with its share."""
+    names = []
+    for r in rows:
+        for b in backends:
+            names += [k for k in r.get(f"{b}_stages", {}) if k not in names]
+    lines = ["| size | backend | " + " | ".join(names) + " |", "|" + "---|" * (len(names) + 2)]
+    for r in rows:
+        for b in backends:
+            st = r.get(f"{b}_stages", {})
+            tot = sum(st.values()) or 1.0
+            lines.append(f"| {r['size']} | {b} | " + " | ".join(
+                f"{st[k]:.2f} ({100 * st[k] / tot:.0f} %)" if k in st else "" for k in names)
+                + " |")
+    return lines
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--ladder", default="10,30,100,300")
@@ -160,6 +187,7 @@ def main():
     a = ap.parse_args()
     backends = [b for b in a.backends.split(",") if b]
     work = Path(tempfile.mkdtemp(prefix="bgc-scale-"))
+    load0 = os.getloadavg()[0]
     ladders = [measure("ladder", int(n), ladder_yaml(int(n)), backends, work)
                for n in a.ladder.split(",") if n]
     chains = [measure("chain", int(n), chain_yaml(int(n)), backends, work)
@@ -171,9 +199,12 @@ def main():
              "cold = empty compile cache, warm = the same command again (the run record's "
              "replay); compile and first = the cold run's own split from its summary line: "
              "the compile with the C build, and the integration; load average "
-             f"{os.getloadavg()[0]:.1f} at the end on {os.cpu_count()} cores).", ""]
+             f"{load0:.1f} at the start, {os.getloadavg()[0]:.1f} at the end on "
+             f"{os.cpu_count()} cores).", ""]
     if ladders:
         lines += ["## RC ladders (states = size)", ""] + table(ladders, backends) + [""]
+        lines += ["### Where a cold run's compile goes (its stages, `BGC_STAGE_TIMES=1`)",
+                  ""] + stage_table(ladders, backends) + [""]
     if chains:
         lines += ["## Rigid rod chains (states = 2 x size)", ""] + table(chains, backends) + [""]
     (ROOT / "bench" / "RESULTS_scale.md").write_text("\n".join(lines))

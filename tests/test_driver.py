@@ -176,7 +176,8 @@ def test_stages_are_timed_and_a_hit_only_loads(rc, fresh_cache):
     cache hit: no compile, only the load."""
     b = driver.build(rc)
     names = [s for s, _ in b.times]
-    assert names == ["parse", "graph", "causality", "equations", "lower", "print", "load"]
+    assert names == ["parse", "imports", "graph", "causality", "equations", "lower", "print",
+                     "load"]
     assert all(t >= 0 for _, t in b.times) and b.compile_time == pytest.approx(
         sum(t for _, t in b.times))
     assert [s for s in driver.STAGES if s in names] == names

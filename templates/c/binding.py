@@ -1,12 +1,15 @@
 """bgc's C binding: the part of every C-backend wrapper module that calls the shared library.
 
-A wrapper module is the numpy module of the same model (its constants, parameter handling and
-Python runtime), then the C part: a few constants and everything below the marker line of this
-file, copied verbatim. The functions defined here replace the numpy module's rhs, jacobian,
-outputs, initial_state and simulate by calls into the library (ctypes; no compiler needed at
-run time); the numpy versions stay available as _np_rhs, ... for input overrides (u=) and for
-scipy's methods, which the wrapper hands to the numpy runtime with the compiled rhs and
-Jacobian. The names the numpy part defines are declared here for readers and linters only.
+A wrapper module is the numpy module of the same model printed without its equations (its
+constants, parameter handling and Python runtime), then the C part: a few constants and
+everything below the marker line of this file, copied verbatim. The functions defined here are
+the model's rhs, jacobian, outputs and initial_state, calls into the library (ctypes; no
+compiler needed at run time); simulate runs Radau, Rodas4 and DOP853 in C and hands scipy's
+methods to the numpy runtime's step loop with the compiled rhs and Jacobian. What only the
+numpy module's equations can do (input overrides u=, the linearisation's B, C and D) runs in
+the numpy module of the same model, which bgc's loader provides on first use
+(``_NUMPY_MODULE``). The names the numpy part defines are declared here for readers and
+linters only.
 """
 # flake8: noqa: F821
 from __future__ import annotations
@@ -27,7 +30,7 @@ MAX_RESULT_VALUES: int
 N_EVENTS = 0  # a hybrid model's numpy part defines these (templates/numpy/events.py.j2)
 EVENT_NAMES = EVENT_WHERE = ()
 _C_NP = _C_NNZ = _C_NOUT = _C_NWS = 0
-rhs = jacobian = outputs = initial_state = simulate = _params = _batched = None
+simulate = _params = _batched = X0 = None
 _output_times = _error = SimResult = SimulationError = None
 
 # ==== bgc C binding: copied below this line ====
@@ -35,8 +38,32 @@ import ctypes as _ct
 import os as _os
 import threading as _threading
 
-_np_rhs, _np_jacobian, _np_outputs, _np_initial_state, _np_simulate = (
-    rhs, jacobian, outputs, initial_state, simulate)
+_np_simulate = simulate  # the numpy runtime's step loop (it calls the compiled rhs below)
+_NUMPY_MODULE = None  # () -> the numpy module of the same model: bgc's loader sets it
+_NP_MOD = None
+
+
+def _numpy(what):
+    """The numpy module of the same model, for what only its equations compute (made on first
+    use by the callable bgc's loader put in _NUMPY_MODULE)."""
+    global _NP_MOD
+    if _NP_MOD is None:
+        if _NUMPY_MODULE is None:
+            raise RuntimeError(f"{what} runs in the numpy module of this model, which this C "
+                               "wrapper does not hold: load it through bgc (bgc.compile(..., "
+                               "target='c')), or compile the numpy module (bgc compile MODEL)")
+        _NP_MOD = _NUMPY_MODULE()
+    return _NP_MOD
+
+
+def input_jacobian(t, x, p=None, u=None):
+    """d(rhs)/du, analytic: (n, m, *batch), from the numpy module of the same model."""
+    return _numpy("input_jacobian").input_jacobian(t, x, p, u)
+
+
+def output_jacobian(t, x, p=None, u=None):
+    """(C, D) = (d(outputs)/dx, d(outputs)/du), analytic, from the numpy module."""
+    return _numpy("output_jacobian").output_jacobian(t, x, p, u)
 C_METHODS = {"Rodas4": 0, "Radau": 1, "DOP853": 2}  # the methods whose step loop runs in C
 _EXPLICIT = ("DOP853",)  # C methods that need no Jacobian
 _C_STATUS = {1: "non-finite value", 2: "too many steps", 3: "step size too small",
@@ -81,6 +108,8 @@ def _bind(path):
     if sizes != (N_STATES, _C_NP, _C_NNZ, _C_NOUT, _C_NWS):
         raise ImportError(f"{path}: the library's sizes {sizes} are not the module's")
     _LIB = lib
+    global X0
+    X0 = initial_state()  # the initial state at the default parameters, computed in C
     return lib
 
 
@@ -188,7 +217,7 @@ def rhs(t, x, p=None, u=None):
     """dx/dt at time t, computed in C. x: (n,) or (n, *batch). Input overrides u run in the
     numpy code (the C functions compute the scene's signals themselves)."""
     if u is not None:
-        return _np_rhs(t, x, p, u)
+        return _numpy("input overrides (u=)").rhs(t, x, p, u)
     if type(x) is np.ndarray and x.shape == (N_STATES,) and x.dtype == np.float64 and np.ndim(t) == 0:
         P = _p_flat_cached(p)
         if P is not None:  # one instance: the fast path
@@ -208,7 +237,7 @@ def rhs(t, x, p=None, u=None):
 def jacobian(t, x, p=None, u=None):
     """d(rhs)/dx, analytic, computed in C: (n, n, *batch)."""
     if u is not None:
-        return _np_jacobian(t, x, p, u)
+        return _numpy("input overrides (u=)").jacobian(t, x, p, u)
     B, nb, T, st, X, sx, P, sp = _instances(t, x, p)
     JV = np.empty((nb, max(_C_NNZ, 1)))
     _check(_lib().bgcm_eval_jac(nb, _ptr(T), st, _ptr(X), sx, _ptr(P), sp, _ptr(JV), _warm(nb)))
@@ -220,7 +249,7 @@ def jacobian(t, x, p=None, u=None):
 def outputs(t, x, p=None, u=None):
     """The model's outputs, computed in C: name -> array of shape (*output_shape, *batch)."""
     if u is not None:
-        return _np_outputs(t, x, p, u)
+        return _numpy("input overrides (u=)").outputs(t, x, p, u)
     B, nb, T, st, X, sx, P, sp = _instances(t, x, p)
     Y = np.empty((nb, max(_C_NOUT, 1)))
     _check(_lib().bgcm_eval_outputs(nb, _ptr(T), st, _ptr(X), sx, _ptr(P), sp, _ptr(Y),
@@ -259,7 +288,8 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
     """
     if method not in C_METHODS or u is not None or (not jac and method not in _EXPLICIT):
         kw = dict(max_events=max_events, zeno_window=zeno_window) if _N_EV else {}
-        return _np_simulate(t_span, t_eval=t_eval, method=method, rtol=rtol, atol=atol, p=p,
+        run = _np_simulate if u is None else _numpy("input overrides (u=)").simulate
+        return run(t_span, t_eval=t_eval, method=method, rtol=rtol, atol=atol, p=p,
                             u=u, x0=x0, dt=dt, breakpoints=breakpoints, jac=jac,
                             max_step=max_step, max_steps=max_steps, stiff_check=stiff_check,
                             max_wall=max_wall, **kw)

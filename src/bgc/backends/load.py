@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import shutil
 import sys
+import time
 from pathlib import Path
 
 from bgc.backends.c import build as cbuild
@@ -26,15 +27,30 @@ CODE_FILE = "module.code"
 ENTRY_BYTES = 256 << 20  # the largest module (text or code) read from a cache entry
 
 
-def c_files(compiled) -> tuple[dict, str]:
-    """(C sources by file name, wrapper text) of a compiled model."""
+def _timed(times, stage: str, t0: float) -> float:
+    """Append (stage, seconds since t0) to times (a list, or None: nothing kept); now."""
+    now = time.perf_counter()
+    if times is not None:
+        times.append((stage, now - t0))
+    return now
+
+
+def c_files(compiled, times: list | None = None) -> tuple[dict, str]:
+    """(C sources by file name, wrapper text) of a compiled model; ``times`` (a list) gets
+    the stages' seconds ("print C", "wrapper")."""
     # lazy: the compile path, which a warm run never loads
     from bgc.backends.c.printer import render_c, render_wrapper
 
     m = compiled.model
+    t0 = time.perf_counter()
     csrc = render_c(compiled.lowered, source=Path(m.file).name, source_hash=m.source_hash,
                     description=m.description, header_notes=compiled.notes)
-    wrapper = render_wrapper(compiled.lowered, compiled.source, csrc, LIB_NAME)
+    # the wrapper's numpy part: names, parameters and the runtime, without the equations
+    # (the library computes them); checked once, as part of the whole wrapper
+    t0 = _timed(times, "print C", t0)
+    numpy_part = compiled.module_text(equations=False, check=False)
+    wrapper = render_wrapper(compiled.lowered, numpy_part, csrc, LIB_NAME)
+    _timed(times, "wrapper", t0)
     return dict(csrc.files), wrapper
 
 
@@ -72,35 +88,45 @@ def write_c(compiled, outdir, cache=None, progress=None, inputs=None) -> Path:
         raise
 
 
-def _code_file(tmp: Path, text: str, name: str) -> None:
+def _code_file(tmp: Path, text: str, name: str, wrapper: bool = False) -> None:
     """The module's compiled code beside its text: a warm load skips parsing and compiling
-    (the cache key includes the Python version; the text was checked when written)."""
+    (the cache key includes the Python version). The text is checked here, or was when it was
+    rendered: either way parsed once, and compiled from that tree (skeleton.checked_code)."""
     import marshal
 
-    (tmp / CODE_FILE).write_bytes(marshal.dumps(compile(text, f"<bgc {name}>", "exec")))
+    # lazy: the compile path, which a warm run never loads
+    from bgc.backends.skeleton import checked_code
+
+    code = checked_code(text, f"<bgc {name}>", wrapper)
+    (tmp / CODE_FILE).write_bytes(marshal.dumps(code))
 
 
-def _build_entry(compiled, backend, cache, progress, name):
+def _build_entry(compiled, backend, cache, progress, name, times=None):
     def build(tmp: Path):
         if backend == "numpy":
             write_output(tmp / MODULE_FILE, compiled.source)
             _code_file(tmp, compiled.source, name)
             return
-        files, wrapper = c_files(compiled)
-        c_entry_builder(files, wrapper, name, cache, progress)(tmp)
+        files, wrapper = c_files(compiled, times)
+        c_entry_builder(files, wrapper, name, cache, progress, times)(tmp)
     return build
 
 
-def c_entry_builder(files: dict, wrapper: str, name: str, cache=None, progress=None):
+def c_entry_builder(files: dict, wrapper: str, name: str, cache=None, progress=None,
+                    times: list | None = None):
     """build(tmp): write the C sources (file name -> text) and the wrapper into tmp and build
-    the library there with the system compiler (a compile-cache entry for ``load_entry``)."""
+    the library there with the system compiler (a compile-cache entry for ``load_entry``);
+    ``times`` gets the seconds of "build C" (the compiler) and "wrapper code"."""
     def build(tmp: Path):
+        t0 = time.perf_counter()
         for fname, text in files.items():
             write_output(tmp / fname, text)
         (progress or (lambda m: None))(f"building the C library ({len(files)} model units)")
         cbuild.build_library(tmp, sorted(files), cache=cache)
+        t0 = _timed(times, "build C", t0)
         write_output(tmp / MODULE_FILE, wrapper)
-        _code_file(tmp, wrapper, name)
+        _code_file(tmp, wrapper, name, wrapper=True)
+        _timed(times, "wrapper code", t0)
     return build
 
 
@@ -166,26 +192,26 @@ def load_entry(entry: Path, backend: str, name: str, trusted: bool = False):
     if backend == "numpy":
         return load_module(text, name, code=code)
 
-    check = None
-    if code is None:  # compiled code comes from a checked entry; text is checked first
-        # lazy: the compile path, which a warm run never loads
-        from bgc.backends.skeleton import check_wrapper as check
-    mod = load_module(text, name, check=check, code=code)
+    # compiled code comes from a checked entry; text is checked first
+    mod = load_module(text, name, code=code, wrapper=True)
     mod._bind(Path(entry) / LIB_NAME)
     return mod
 
 
-def load_module(source: str, name: str, check=None, code=None):
+def load_module(source: str, name: str, code=None, wrapper: bool = False):
     """Import generated source as a module, from memory: nothing is written to disk. The code
     is compiled under a recognisable file name (``<bgc NAME>``) registered with ``linecache``,
-    so tracebacks and ``inspect`` still show the generated lines."""
-    if code is None:  # code: compiled from checked text (a trusted cache entry)
-        if check is None:
-            # lazy: the compile path, which a warm run never loads
-            from bgc.backends.skeleton import check_skeleton as check
-        check(source)  # never execute a module whose top level is not the template's
+    so tracebacks and ``inspect`` still show the generated lines. Without ``code`` (compiled
+    from checked text: a trusted cache entry) the text is checked first (``wrapper``: as a C
+    wrapper), parsed once for the check and the compile."""
     modname = f"bgc_generated_{name}"
     filename = f"<bgc {name}>"
+    if code is None:
+        # lazy: the compile path, which a warm run never loads
+        from bgc.backends.skeleton import checked_code
+
+        # never execute a module whose top level is not the template's
+        code = checked_code(source, filename, wrapper)
     loader = _SourceLoader(modname, filename, source, code)
     import importlib.util
     import linecache
@@ -245,11 +271,13 @@ def _cached(cache, backend: str, key: str, name: str, say):
         return None
 
 
-def load(name: str, backend: str, key: str | None, compile_fn, cache=None, progress=None):
+def load(name: str, backend: str, key: str | None, compile_fn, cache=None, progress=None,
+         times: list | None = None):
     """(compiled or None, module): from the cache when key hits, else compiled now.
 
     compile_fn() -> Compiled. cache: a bgc.run.cache.Cache, or None (no caching: the C library is
-    built in a temporary folder)."""
+    built in a temporary folder). ``times`` (a list) gets the C stages' seconds ("print C",
+    "wrapper", "build C", "wrapper code")."""
     say = progress or (lambda msg: None)
     if cache is not None and key is not None:
         mod = _cached(cache, backend, key, name, say)
@@ -263,11 +291,11 @@ def load(name: str, backend: str, key: str | None, compile_fn, cache=None, progr
 
         d = Path(tempfile.mkdtemp(prefix="bgc-c-"))
         try:
-            _build_entry(compiled, backend, None, progress, name)(d)
+            _build_entry(compiled, backend, None, progress, name, times)(d)
             # loaded (the mapping outlives the file): nothing is left behind
             return compiled, load_entry(d, backend, name)
         finally:
             shutil.rmtree(d, ignore_errors=True)
     entry = cache.get_or_build(backend, key,
-                               _build_entry(compiled, backend, cache, progress, name))
+                               _build_entry(compiled, backend, cache, progress, name, times))
     return compiled, load_entry(entry, backend, name, trusted=True)

@@ -1,9 +1,13 @@
 """The skeleton checks of generated modules (a light module: no sympy, no jinja2, so that a
 warm run can check a cached module before it runs it).
 
-After rendering, and again before a module is loaded, its top-level statements must be exactly
-the template's. Model text can only ever appear inside literals; if escaping were ever wrong, a
-stray statement would show here and nothing would be written or run.
+After rendering (or before a module is loaded, for a text that was not checked in this
+process), its top-level statements must be exactly the template's. Model text can only ever
+appear inside literals; if escaping were ever wrong, a stray statement would show here and
+nothing would be written or run. Each text is checked once per process (a digest memo); only
+its model part is parsed into a syntax tree, the template's verbatim parts (the runtime, a C
+wrapper's binding) are compared as text, and :func:`checked_code` compiles the module from
+its text.
 """
 from __future__ import annotations
 
@@ -91,21 +95,42 @@ def _top_names(node) -> tuple[str, set]:
     return kind, set()
 
 
-#: sha256 digests of the texts that passed check_skeleton in this process: rendering checks a
-#: module and loading it checks it again; the second check of the same text is a lookup
+#: sha256 digests of the texts that passed a check in this process: rendering checks a module
+#: and loading it would check it again; the second check of the same text is a lookup
 #: (parsing the 3R2S module takes 0.4 s). In memory only, never persisted.
 _PASSED: set[tuple[str, bytes]] = set()
+
+
+def _digest(text: str, kind: str) -> tuple[str, bytes]:
+    return kind, hashlib.sha256(text.encode("utf-8", "surrogatepass")).digest()
 
 
 def check_skeleton(text: str, backend: str = _TEMPLATES) -> None:
     """Parse the generated module and check its top-level statements: a docstring, the
     imports the printer may ask for, the model part's own definitions (each name once at most,
     except JAC_SPARSITY's pattern assignment) and then, statement for statement, the runtime."""
-    digest = (backend, hashlib.sha256(text.encode("utf-8", "surrogatepass")).digest())
+    digest = _digest(text, backend)
     if digest in _PASSED:
         return
     _check_skeleton(text, backend)
     _PASSED.add(digest)
+
+
+def checked_code(text: str, filename: str, wrapper: bool = False):
+    """The code object of a generated module (``wrapper``: a C wrapper), its text checked
+    first (a lookup when rendering checked it already in this process). Only the model's part
+    is parsed into a syntax tree for the check (the template's verbatim parts are compared as
+    text); the code is compiled from the text, which costs a fraction of building the tree.
+    Raises SkeletonError for a text whose top level is not the template's."""
+    (check_wrapper if wrapper else check_skeleton)(text)
+    return compile(text, filename, "exec")
+
+
+def _parse(text: str, what: str) -> ast.Module:
+    try:
+        return ast.parse(text)
+    except SyntaxError as exc:
+        raise SkeletonError(f"{what} does not parse: {exc}") from None
 
 
 def _check_skeleton(text: str, backend: str) -> None:
@@ -115,10 +140,12 @@ def _check_skeleton(text: str, backend: str) -> None:
         runtime += "\n\n\n" + events_runtime_source()
     if not body.endswith("\n\n\n" + runtime):  # the runtime, verbatim, at the end
         raise SkeletonError(f"the runtime part differs from templates/{backend}/runtime.py")
-    try:  # the model part must parse on its own: nothing in it can reach into the runtime
-        head = ast.parse(body[:-len(runtime)]).body
-    except SyntaxError as exc:
-        raise SkeletonError(f"generated module does not parse: {exc}") from None
+    # the model part must parse on its own: nothing in it can reach into the runtime
+    _check_head(_parse(body[:-len(runtime)], "generated module").body)
+
+
+def _check_head(head: list) -> None:
+    """The model part's statements: the docstring, allowed imports, the template's names."""
     if not head:
         raise SkeletonError("the generated module has no model part")
     doc = head[0]
@@ -164,21 +191,24 @@ _C_TOP = {"C_LIBRARY", "C_DIGEST", "_C_NP", "_C_NNZ", "_C_NOUT", "_C_NWS"}
 
 def check_wrapper(text: str) -> None:
     """The wrapper's skeleton: the numpy module (checked as such), then the C constants, then
-    exactly templates/c/binding.py's part."""
+    exactly templates/c/binding.py's part (compared as text)."""
+    digest = _digest(text, "wrapper")
+    if digest in _PASSED:
+        return
+    _check_wrapper(text)
+    _PASSED.add(digest)
+
+
+def _check_wrapper(text: str) -> None:
     head, sep, tail = text.rpartition(WRAPPER_MARK)
     if not sep:
         raise SkeletonError("the wrapper has no C part")
-    check_skeleton(head)
-    try:
-        body = ast.parse(tail).body
-    except SyntaxError as exc:
-        raise SkeletonError(f"the wrapper's C part does not parse: {exc}") from None
-    rt = ast.parse(binding_source()).body
-    if len(body) < len(rt):
-        raise SkeletonError("the wrapper's C part is shorter than the binding")
-    top, rest = body[:len(body) - len(rt)], body[len(body) - len(rt):]
-    if [ast.dump(s) for s in rest] != [ast.dump(s) for s in rt]:
+    _check_skeleton(head, _TEMPLATES)  # its numpy part (printed without the equations)
+    binding, tail = binding_source(), tail.rstrip("\n")
+    if not tail.endswith("\n" + binding):
         raise SkeletonError("the wrapper's binding differs from templates/c/binding.py")
+    # the C constants must parse on their own: nothing in them can reach into the binding
+    top = _parse(tail[:-len(binding)], "the wrapper's C part").body
     seen = set()
     for node in top:
         if not (isinstance(node, ast.Assign) and len(node.targets) == 1

@@ -3,6 +3,7 @@ bgc.cli.commands adds to the `bgc` group; what they run is imported inside them.
 from __future__ import annotations
 
 import io
+import os
 
 import click
 import numpy as np
@@ -96,6 +97,9 @@ def simulate_cmd(scene, t_end, max_steps, out, plot_dir, method, rtol, atol, max
 
     click.echo(summary_line(res.scene.name, res.t, res.method, res.rtol, res.atol, res.backend,
                             res.stats, res.compile_time, res.run_time, res.backend_why))
+    if os.environ.get("BGC_STAGE_TIMES"):  # where the compile went (bench/bench_scale.py)
+        click.echo("stages: " + ", ".join(f"{s} {t:.2f} s" for s, t in res.stage_times),
+                   err=True)
 
 
 def _scene_or_model(path, t_end, max_steps, say):

@@ -216,20 +216,22 @@ def _label(name: str, shape, k: int) -> str:
     return f"{name}[{k // shape[1]},{k % shape[1]}]"
 
 
+def linear_labels(eq: Equations) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """(input labels, output labels): the columns of B and D and the rows of C and D, without
+    deriving them (a C wrapper names them; its B, C, D come from the numpy module)."""
+    ilabels = tuple(_label(iv.name, iv.shape, k) for iv in eq.inputs
+                    for k in range(len(iv.symbols)))
+    olabels = tuple(_label(name, shp, k) for name, shp, vals in eq.outputs
+                    for k in range(len(vals)))
+    return ilabels, olabels
+
+
 def linear_parts(eq: Equations) -> LinearParts:
     """B, C and D of the linearisation (A is ``eq.jacobian``)."""
-    useeds = {}
-    ilabels = []
-    for iv in eq.inputs:
-        for k, s in enumerate(iv.symbols):
-            useeds[s] = len(ilabels)
-            ilabels.append(_label(iv.name, iv.shape, k))
+    useeds = {s: j for j, s in enumerate(s for iv in eq.inputs for s in iv.symbols)}
+    ilabels, olabels = linear_labels(eq)
     xseeds = {sv.symbol: j for j, sv in enumerate(eq.states)}
-    youts, olabels = [], []
-    for name, shp, vals in eq.outputs:
-        for k, v in enumerate(vals):
-            youts.append(v)
-            olabels.append(_label(name, shp, k))
+    youts = [v for _, _, vals in eq.outputs for v in vals]
     kept = list(eq.assignments)
     nloops = tuple(getattr(eq, "newton", ()))
     B, b_assign = forward_mode(kept, useeds, list(eq.derivatives), "_du", nloops)

@@ -14,8 +14,10 @@ The stages, each a function below that takes and returns frozen data and is time
    (sympy), sliced to the scene's outputs.
 6. **lower** (``bgc.lower.ir``): Equations -> :class:`~bgc.lower.ir.Lowered`, the one IR
    every printer reads.
-7. **print** (``bgc.backends.<backend>``): Lowered -> the module's text (numpy; the C
-   sources and wrapper are printed from the same IR when the C entry is built).
+7. **print** (``bgc.backends.<backend>``): Lowered -> the module's text (numpy). The C target
+   prints no numpy module: its C sources and wrapper (the numpy module's names, parameters
+   and runtime without the equations, then the binding) are printed from the same IR when the
+   C entry is built, and :attr:`Compiled.source` prints the numpy module only when asked.
 8. **build/load** (``bgc.backends.load``, ``bgc.backends.c.build``): the text -> a loaded
    module, through the compile cache (:mod:`bgc.run.cache` makes the key).
 
@@ -53,24 +55,46 @@ if TYPE_CHECKING:  # annotations only
     from bgc.core.specialize import Plan
     from bgc.format.parse import Model
 
-#: The stages in order, as named in :attr:`Compiled.times`.
-STAGES = ("parse", "graph", "causality", "specialise", "equations", "lower", "print", "load")
+#: The stages in order, as named in :attr:`Compiled.times` and :attr:`Built.times`: "imports"
+#: is the compile path's own (sympy's parts, the lowering); the C target's stages (its C
+#: printed, its wrapper printed and checked, the compiler, the wrapper's code) stand in place
+#: of "print", which only the numpy target runs; "load" is the rest of the build.
+STAGES = ("parse", "imports", "graph", "causality", "specialise", "equations", "lower",
+          "print", "print C", "wrapper", "build C", "wrapper code", "load")
 
 
 @dataclass(frozen=True)
 class Compiled:
+    """A compiled model. ``source``, the numpy module's text, is printed when first asked for
+    unless the compile printed it (the numpy target does; the C target prints its wrapper from
+    ``module_text(equations=False)`` and needs the numpy module only for a caller that asks)."""
     model: Model
     graph: BondGraph
     causality: Causality
     equations: Equations
-    source: str  # the generated module's text
+    text: str | None  # the numpy module's text, once printed
     notes: tuple[str, ...] = ()  # what specialisation removed and why (also in the header)
     lowered: object = None  # bgc.lower.ir.Lowered: the backend-neutral functions (C printer too)
     times: tuple[tuple[str, float], ...] = ()  # (stage, seconds), in order
+    printer: object = None  # (equations, check) -> text: the numpy module, printed from the IR
 
     @property
     def compile_time(self) -> float:
         return sum(s for _, s in self.times)
+
+    @property
+    def source(self) -> str:
+        """The numpy module's text (printed now if the compile did not print it)."""
+        if self.text is None:
+            object.__setattr__(self, "text", self.module_text())
+        return self.text
+
+    def module_text(self, equations: bool = True, check: bool = True) -> str:
+        """The numpy module's text; ``equations=False``: without its equation functions (the
+        C wrapper's numpy part); ``check=False``: the caller checks it."""
+        if equations and check and self.text is not None:
+            return self.text
+        return self.printer(equations, check)
 
 
 @dataclass(frozen=True)
@@ -159,14 +183,19 @@ def analyse(model: Model, progress=None, allow_derivative: bool = False
 # Stages 2-7 for one model
 
 def compile_model(model: Model, progress=None, plan: Plan | None = None,
-                  strict_causality: bool = False, symbolic_max: int | None = None) -> Compiled:
+                  strict_causality: bool = False, symbolic_max: int | None = None,
+                  target: str = "numpy", graph: BondGraph | None = None) -> Compiled:
     """Compile a model, specialised to a scene's plan (effects, folded parameters, outputs).
 
     A plan that changes nothing gives exactly the module of the model alone. Storage elements
     in derivative causality are eliminated (their states follow from the others) unless
-    ``strict_causality`` or the model's ``causality: strict`` asks for today's error."""
+    ``strict_causality`` or the model's ``causality: strict`` asks for today's error.
+    ``target``: "numpy" prints the numpy module (stage 7); any other target leaves it to be
+    printed on demand (:attr:`Compiled.source`), and the linearisation's B, C, D unlowered.
+    ``graph``: the model's bond graph, when the caller built it already (stage 2)."""
     with gc_paused():
-        return _compile_model(model, progress, plan, strict_causality, symbolic_max)
+        return _compile_model(model, progress, plan, strict_causality, symbolic_max, target,
+                              graph)
 
 
 @dataclass(frozen=True)
@@ -232,17 +261,17 @@ def specialise(graph: BondGraph, caus: Causality, plan: Plan, progress=None) -> 
 
 
 def _compile_model(model: Model, progress, plan: Plan | None, strict_causality: bool,
-                   symbolic_max: int | None) -> Compiled:
-    # lazy: the compile path, which a warm run never loads
-    from bgc.core.equations import derive  # (sympy: compile path only)
-    from bgc.lower.ir import lower
-
+                   symbolic_max: int | None, target: str = "numpy", graph=None) -> Compiled:
     clock = _Clock()
+    with clock("imports"):
+        # lazy: the compile path, which a warm run never loads
+        from bgc.core.equations import derive  # (sympy: compile path only)
+        from bgc.lower.ir import lower
     say = progress or (lambda msg: None)
     special = plan is not None and not plan.trivial
     strict = strict_causality or model.strict_causality
-    with clock("graph"):
-        graph = graph_of(model, progress)
+    with clock("graph"):  # (a scene's graph is built once, for its plan: given)
+        graph = graph_of(model, progress) if graph is None else graph
     with clock("causality"):
         caus = causality_of(graph, not strict, progress)
         if plan is not None:
@@ -265,11 +294,17 @@ def _compile_model(model: Model, progress, plan: Plan | None, strict_causality: 
     if notes:
         notes.insert(0, f"specialised for scene {plan.scene!r}")
     with clock("lower"):
-        low = lower(eqs, progress)
-    with clock("print"):
-        text = print_numpy(model, low, tuple(notes), progress, graph.units)
+        low = lower(eqs, progress, linear=target == "numpy")
+    units = graph.units
+
+    def printer(equations: bool = True, check: bool = True) -> str:
+        return print_numpy(model, low, tuple(notes), progress, units, equations, check)
+    text = None
+    if target == "numpy":
+        with clock("print"):
+            text = printer()
     return Compiled(model, sp_.graph, sp_.causality, eqs, text, tuple(notes), low,
-                    tuple(clock.times))
+                    tuple(clock.times), printer)
 
 
 def _sliced(eqs, plan, sp_: _Special, progress) -> tuple[Equations, list[str]]:
@@ -289,7 +324,7 @@ def _sliced(eqs, plan, sp_: _Special, progress) -> tuple[Equations, list[str]]:
 
 
 def print_numpy(model: Model, low, notes: tuple[str, ...], progress=None,
-                units=None) -> str:
+                units=None, equations: bool = True, check: bool = True) -> str:
     """Stage 7 for the numpy backend: the module's text from the IR. ``units``: the unit
     check's report (bgc.core.units.UnitReport): an output without a declared unit gets its
     inferred one in OUTPUT_UNITS (the axes of plots)."""
@@ -300,7 +335,8 @@ def print_numpy(model: Model, low, notes: tuple[str, ...], progress=None,
                   description=model.description, header_notes=notes, progress=progress,
                   output_units={o.name: units.output_unit(o.name, o.unit) if units else o.unit
                                 for o in model.body.outputs},
-                  input_units={i.name: i.unit for i in model.inputs}, lowered=low)
+                  input_units={i.name: i.unit for i in model.inputs}, lowered=low,
+                  equations=equations, check=check)
 
 
 def _short(v) -> str:
@@ -317,14 +353,14 @@ def parse(path) -> Model:
 
 
 def compile_file(path: str | Path, progress=None, strict_causality: bool = False,
-                 symbolic_max: int | None = None) -> Compiled:
+                 symbolic_max: int | None = None, target: str = "numpy") -> Compiled:
     if progress:
         progress("parsing")
     t0 = time.perf_counter()
     model = parse(path)
     t1 = time.perf_counter()
     c = compile_model(model, progress, strict_causality=strict_causality,
-                      symbolic_max=symbolic_max)
+                      symbolic_max=symbolic_max, target=target)
     return replace(c, times=(("parse", t1 - t0),) + c.times)
 
 
@@ -336,36 +372,42 @@ def check_scene_for(scene, model_path, label=None) -> None:
 
 
 def scene_compiled(scene, progress=None, specialise: bool = True,
-                   strict_causality: bool = False) -> Compiled:
+                   strict_causality: bool = False, target: str = "numpy") -> Compiled:
     """Stages 1-7 of a scene: the scene's model (its signals and parameter values:
     :func:`bgc.format.scene.scene_model`) specialised to its plan (``specialise=False``: the
     scene's full model). Plots must name outputs the module keeps."""
+    t0 = time.perf_counter()
     # lazy: the compile path, which a warm run never loads
     from bgc.core.graph import build_graph  # (the compile path: sympy, networkx)
     from bgc.core.specialize import plan_for
 
-    t0 = time.perf_counter()
-    model = scene_model(scene)
-    plan = plan_for(scene, build_graph(model).params) if specialise else None
     t1 = time.perf_counter()
-    c = compile_model(model, progress, plan, strict_causality=strict_causality)
+    model = scene_model(scene)
+    t2 = time.perf_counter()
+    graph = build_graph(model)  # stage 2 once: for the plan's parameters and the compile
+    plan = plan_for(scene, graph.params) if specialise else None
+    t3 = time.perf_counter()
+    c = compile_model(model, progress, plan, strict_causality=strict_causality, target=target,
+                      graph=graph)
     if specialise:
         check_outputs(scene, [o[0] for o in c.equations.outputs])
-    return replace(c, times=(("parse", t1 - t0),) + c.times)
+    more = {"imports": t1 - t0, "graph": t3 - t2}
+    return replace(c, times=(("parse", t2 - t1),) + tuple((s, v + more.get(s, 0.0))
+                                                          for s, v in c.times))
 
 
 def compile_source(model=None, scene=None, progress=None, strict_causality: bool = False,
-                   label=None, specialise: bool = True) -> Compiled:
+                   label=None, specialise: bool = True, target: str = "numpy") -> Compiled:
     """Stages 1-7 of a model (a path, or a parsed Model) or of a scene (for that model, when
     both are given; ``specialise=False``: the scene's full model): the one compile every
     caller shares."""
     if scene is not None:
         if model is not None:
             check_scene_for(scene, model if isinstance(model, (str, Path)) else None, label)
-        return scene_compiled(scene, progress, specialise, strict_causality)
+        return scene_compiled(scene, progress, specialise, strict_causality, target)
     if isinstance(model, (str, Path)):
-        return compile_file(model, progress, strict_causality=strict_causality)
-    return compile_model(model, progress, strict_causality=strict_causality)
+        return compile_file(model, progress, strict_causality=strict_causality, target=target)
+    return compile_model(model, progress, strict_causality=strict_causality, target=target)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -436,16 +478,17 @@ def build(model=None, scene=None, backend: str = "numpy", *, use_cache: bool = T
         extra="strict" if strict_causality else "") if cached else (None, [], None))
     name = module_name(model, scene, specialise)
     made: list[Compiled] = []
+    ctimes: list[tuple[str, float]] = []  # the C stages (print C, wrapper, build C, ...)
 
     def compile_fn():
         made.append(compile_source(model, scene, progress, strict_causality, label,
-                                   specialise))
+                                   specialise, backend))
         return made[-1]
     t0 = time.perf_counter()
     with np.errstate(all="ignore"):  # X0 is computed on import: no numpy warnings
         try:
             compiled, mod = backends.load(name, backend, key, compile_fn,
-                                          store if key is not None else None, progress)
+                                          store if key is not None else None, progress, ctimes)
         except (CUnsupported, CompilerFailed) as exc:  # a CC that runs but cannot build
             if not fallback or backend != "c":
                 raise
@@ -453,12 +496,27 @@ def build(model=None, scene=None, backend: str = "numpy", *, use_cache: bool = T
             return build(model, scene, "numpy", use_cache=use_cache,
                          strict_causality=strict_causality, progress=progress, label=label,
                          specialise=specialise)
-    times = made[-1].times if made else ()  # the compile's stages; the rest is the load
+    if backend == "c":  # what only the numpy module's equations compute (u=, B, C, D)
+        mod._NUMPY_MODULE = _numpy_twin(made, model, scene, name, use_cache, strict_causality,
+                                        label, specialise)
+    times = (made[-1].times if made else ()) + tuple(ctimes)  # the rest is the load
     times += (("load", time.perf_counter() - t0 - sum(s for _, s in times)),)
     if scene is not None:
         _check_scene_module(scene, mod)
     return Built(backend, mod, compiled, None if key is None else
                  (backend, key, files, scene_bytes), name, times)
+
+
+def _numpy_twin(made, model, scene, name, use_cache, strict_causality, label, specialise):
+    """() -> the numpy module of what a C wrapper was built from, made on first call: printed
+    from this process's compile when there was one, else through the cache (numpy entry)."""
+    def twin():
+        if made:
+            return backends.load_module(made[-1].source, f"{name}_numpy")
+        return build(model, scene, "numpy", use_cache=use_cache,
+                     strict_causality=strict_causality, label=label,
+                     specialise=specialise).module
+    return twin
 
 
 def _check_scene_module(scene, mod) -> None:

@@ -47,6 +47,8 @@ class SceneResult:
     #: why the run used its backend when the command and the scene named none, or C failed
     #: ("" when the backend was named and used)
     backend_why: str = ""
+    #: the compile's stages and seconds (bgc.run.driver.STAGES; only "load" on a cache hit)
+    stage_times: tuple = ()
 
 
 def compile_scene(scene: Scene, progress=None, specialise: bool = True,
@@ -170,7 +172,7 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
                        dict(t_span=scene.t_span, dt=dt, method=method, rtol=rtol, atol=atol,
                             p=p, breakpoints=scene.breakpoints, x0=x0,
                             max_step=max_step, max_steps=max_steps, max_wall=max_wall),
-                       tuple(getattr(res, "events", ())), why)
+                       tuple(getattr(res, "events", ())), why, tuple(built.times))
 
 
 def _numpy_diagnosis(c, scene, method, run, mod, exc):

@@ -277,6 +277,7 @@ def load(prep: Prepared, progress=None):
             with np.errstate(all="ignore"):
                 mod = load_c(prep.c_files, prep.c_wrapper, name,
                              c_key(prep.c_files, prep.c_wrapper), progress)
+            mod._NUMPY_MODULE = lambda: load_module(prep.source, f"{name}_numpy")
         else:
             raise ModelError(None, f"sweep: unknown backend {prep.backend!r}")
         _MODULES[key] = mod

@@ -7,9 +7,10 @@ Long bodies are cut into parts of bounded size, each its own C function, spread 
 translation units (:mod:`bgc.backends.c.parts`); this module renders the units, the model's
 main file, tables and Newton loops through the C templates, and the wrapper.
 
-The wrapper module is the numpy module of the same model followed by the C binding
-(templates/c/binding.py, copied below its marker): the same public API, with rhs, jacobian,
-outputs, initial_state and simulate (Rodas4, Radau) running in the shared library.
+The wrapper module is the numpy module of the same model printed without its equations (names,
+parameters, metadata, the runtime) followed by the C binding (templates/c/binding.py, copied
+below its marker): the same public API, with rhs, jacobian, outputs, initial_state and
+simulate (Rodas4, Radau, DOP853) running in the shared library.
 
 Text from the model reaches the C sources only through :func:`c_string_literal` (string
 literals) and :func:`c_comment` (comments); identifiers are the model's validated identifiers,
@@ -202,7 +203,9 @@ def template_env():
 
 
 def render_wrapper(low: Lowered, numpy_source: str, csrc: CSources, lib_name: str) -> str:
-    """The wrapper module: the numpy module, then the C part (constants and the binding)."""
+    """The wrapper module: the numpy module printed without its equations (``numpy_source``:
+    :func:`bgc.backends.numpy.printer.render` with ``equations=False``), then the C part
+    (constants and the binding); the whole text checked once (:func:`check_wrapper`)."""
     eq = low.eq
     olens = [len(vals) for _, _, vals in eq.outputs]
     text = template_env().get_template("c/wrapper.py.j2").render(

@@ -9,6 +9,7 @@ backend-neutral lowering that the C printer (:mod:`bgc.backends.c.printer`) shar
 from __future__ import annotations
 
 import ast
+import functools
 import keyword
 from dataclasses import dataclass
 
@@ -28,6 +29,7 @@ from bgc.base import __version__
 from bgc.base.errors import oneline
 from bgc.base.paths import templates_dir
 from bgc.core.eqtypes import Equations, T
+from bgc.core.forward import linear_labels
 from bgc.core.signals import input_periods
 from bgc.lower import ir as lower
 from bgc.lower.newton import guarded
@@ -245,46 +247,23 @@ def _pyrepr(v) -> str:
 def render(eq: Equations, *, source: str, source_hash: str, description: str = "",
            header_notes: tuple[str, ...] = (), progress=None,
            output_units: dict | None = None, input_units: dict | None = None,
-           lowered=None) -> str:
+           lowered=None, equations: bool = True, check: bool = True) -> str:
     """The numpy module's text; ``lowered`` (the model's :func:`bgc.lower.ir.lower`) is made
-    here unless given, so that several backends can share one lowering."""
+    here unless given, so that several backends can share one lowering.
+
+    ``equations=False``: the module without its equation functions (rhs, jacobian, outputs,
+    initial_state, input_jacobian, output_jacobian and what only they call): names,
+    parameters, metadata and the runtime, for the C backend's wrapper, whose binding supplies
+    those functions. ``check=False``: the caller checks the text (the wrapper's one check)."""
     printer = BgcPrinter()
-    n = len(eq.states)
     low = lowered if lowered is not None else lower.lower(eq, progress)
-    rhs, jac, outs = (printed(f, printer) for f in (low.rhs, low.jac, low.outs))
-    jkeys = list(low.jac_keys)
-    lin = low.linear if low.linear is not None else lower.lower_linear(eq, progress)
-    ujac, yjac = printed(lin.ujac, printer), printed(lin.yjac, printer)
-    init = printed(low.init, printer)
+    fns = _printed_functions(eq, low, printer, progress, equations)
     events = events_part(eq, printer, printed)  # None without events: the module is unchanged
-    newton = []
-    for nl in eq.newton:  # nonlinear algebraic loops: a Newton solver each
-        gd = guarded(nl)  # exponentials guarded and listed (bgc.lower.newton)
-        newton.append({
-            "name": nl.name, "n": len(nl.tear), "args": [str(a) for a in nl.args],
-            "tear": [str(t) for t in nl.tear], "message": nl.where,
-            "body": [Line(str(sym), printer.doprint(e)) for sym, e in gd["body"]],
-            "residual": [printer.doprint(e) for e in gd["residual"]],
-            "jac": [printer.doprint(e) for e in gd["jac"]],
-            "exponents": [printer.doprint(e) for e in gd["exponents"]]})
+    newton = _newton_parts(eq, printer) if equations or events else []
     if newton:
         printer.uses_linsolve = True
     derived = [Line(str(a.symbol), printer.doprint(a.expr), a.why) for a in eq.derived]
-    inputs, tables = [], []
-    for iv in eq.inputs:
-        tb = getattr(iv, "table", None)
-        if tb is not None:  # data: numbers only, through lit; evaluated by the runtime
-            tables.append({"input": iv.name, "t": [float(v) for v in tb.t],
-                           "v": [float(v) for v in tb.v], "interp": tb.interp})
-            inputs.append({"name": iv.name, "symbols": [str(s) for s in iv.symbols],
-                           "shape": iv.shape, "unit": (input_units or {}).get(iv.name, ""),
-                           "default": [f"_table_eval(t, {len(tables) - 1}, "
-                                       f"{lit(tb.interp)}, {lit(tb.extrapolate)}, "
-                                       f"{lit(iv.name)})"]})
-            continue
-        inputs.append({"name": iv.name, "symbols": [str(s) for s in iv.symbols],
-                       "shape": iv.shape, "unit": (input_units or {}).get(iv.name, ""),
-                       "default": [printer.doprint(d) for d in iv.default]})
+    inputs, tables = _inputs_and_tables(eq, printer, input_units or {})
     input_params = sorted({str(s) for iv in eq.inputs for d in iv.default for s in d.free_symbols
                            if s != T})
     params = []
@@ -293,28 +272,22 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
                        "symbols": [str(s) for s in pv.symbols], "default": _pyrepr(pv.value),
                        "unit": pv.unit, "description": pv.description})
     imports = sorted(m for m in printer.module_imports if m and m != "numpy")
-    env = jinja2.Environment(loader=template_loader(), keep_trailing_newline=True,
-                             trim_blocks=True, lstrip_blocks=True,
-                             undefined=jinja2.StrictUndefined, autoescape=False)
-    env.filters.update(lit=lit, oneline=oneline, comment=comment, docstring=docstring)
-    tpl = env.get_template(f"{_TEMPLATES}/module.py.j2")
     ounits = output_units or {}
     outputs = [{"name": name, "shape": shp, "size": len(vals), "unit": ounits.get(name, "")}
                for name, shp, vals in eq.outputs]
     # does the rhs read t itself? (inputs are signals of t; a law may name t directly)
     rhs_uses_t = bool(eq.inputs) or any(T in ln.expr.free_symbols for ln in low.rhs.lines) \
         or any(T in r.free_symbols for _, r in low.rhs.results)
-    text = tpl.render(
-        rhs_uses_t=rhs_uses_t,
+    text = _environment().get_template(f"{_TEMPLATES}/module.py.j2").render(
+        rhs_uses_t=rhs_uses_t, equations=equations, with_inputs=bool(equations or events),
         name=eq.name, version=__version__, source=source, source_hash=source_hash,
         description=description, notes=list(header_notes) + list(eq.loops),
         states=eq.states, params=params, derived=derived, inputs=inputs,
         constraint_states=getattr(eq, "constraint_states", ()),
         constraint_alpha=repr(float(getattr(eq, "constraint_alpha", 0.0))),
-        input_params=input_params, outputs=outputs, rhs=rhs, jac=jac, outs=outs, init=init,
-        jac_keys=jkeys, n=n, imports=imports, ujac=ujac, yjac=yjac,
-        tables=tables, input_periods=input_periods(eq), input_labels=lin.input_labels,
-        output_labels=lin.output_labels,
+        input_params=input_params, outputs=outputs, **fns,
+        jac_keys=list(low.jac_keys), n=len(eq.states), imports=imports,
+        tables=tables, input_periods=input_periods(eq),
         linsolve=getattr(printer, "uses_linsolve", False), newton=newton,
         all_param_symbols=[s for p in params for s in p["symbols"]] + [d.target for d in derived],
         runtime=runtime_source() + (f"\n\n\n{events_runtime_source()}" if events else ""),
@@ -322,8 +295,68 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
     )
     for ident in _identifiers(eq):
         assert ident.isidentifier() and not keyword.iskeyword(ident) and set(ident) <= _IDENT_OK
-    check_skeleton(text)  # the module's top level is exactly the template's, nothing else
+    if check:
+        check_skeleton(text)  # the module's top level is exactly the template's, nothing else
     return text
+
+
+def _printed_functions(eq: Equations, low, printer, progress, equations: bool) -> dict:
+    """The template's functions, printed (None each without ``equations``), and the labels of
+    the linearisation's inputs and outputs."""
+    if not equations:
+        ilabels, olabels = linear_labels(eq)
+        return dict(rhs=None, jac=None, outs=None, init=None, ujac=None, yjac=None,
+                    input_labels=ilabels, output_labels=olabels)
+    rhs, jac, outs, init = (printed(f, printer) for f in (low.rhs, low.jac, low.outs, low.init))
+    lin = low.linear if low.linear is not None else lower.lower_linear(eq, progress)
+    return dict(rhs=rhs, jac=jac, outs=outs, init=init, ujac=printed(lin.ujac, printer),
+                yjac=printed(lin.yjac, printer), input_labels=lin.input_labels,
+                output_labels=lin.output_labels)
+
+
+def _newton_parts(eq: Equations, printer) -> list[dict]:
+    """The nonlinear algebraic loops as the template prints them: a Newton solver each."""
+    newton = []
+    for nl in eq.newton:
+        gd = guarded(nl)  # exponentials guarded and listed (bgc.lower.newton)
+        newton.append({
+            "name": nl.name, "n": len(nl.tear), "args": [str(a) for a in nl.args],
+            "tear": [str(t) for t in nl.tear], "message": nl.where,
+            "body": [Line(str(sym), printer.doprint(e)) for sym, e in gd["body"]],
+            "residual": [printer.doprint(e) for e in gd["residual"]],
+            "jac": [printer.doprint(e) for e in gd["jac"]],
+            "exponents": [printer.doprint(e) for e in gd["exponents"]]})
+    return newton
+
+
+def _inputs_and_tables(eq: Equations, printer, input_units: dict) -> tuple[list, list]:
+    """The inputs (their default signals printed) and the table inputs' data."""
+    inputs, tables = [], []
+    for iv in eq.inputs:
+        tb = getattr(iv, "table", None)
+        if tb is not None:  # data: numbers only, through lit; evaluated by the runtime
+            tables.append({"input": iv.name, "t": [float(v) for v in tb.t],
+                           "v": [float(v) for v in tb.v], "interp": tb.interp})
+            inputs.append({"name": iv.name, "symbols": [str(s) for s in iv.symbols],
+                           "shape": iv.shape, "unit": input_units.get(iv.name, ""),
+                           "default": [f"_table_eval(t, {len(tables) - 1}, "
+                                       f"{lit(tb.interp)}, {lit(tb.extrapolate)}, "
+                                       f"{lit(iv.name)})"]})
+            continue
+        inputs.append({"name": iv.name, "symbols": [str(s) for s in iv.symbols],
+                       "shape": iv.shape, "unit": input_units.get(iv.name, ""),
+                       "default": [printer.doprint(d) for d in iv.default]})
+    return inputs, tables
+
+
+@functools.lru_cache(maxsize=None)
+def _environment():
+    """The jinja environment of the numpy templates (made once per process)."""
+    env = jinja2.Environment(loader=template_loader(), keep_trailing_newline=True,
+                             trim_blocks=True, lstrip_blocks=True,
+                             undefined=jinja2.StrictUndefined, autoescape=False)
+    env.filters.update(lit=lit, oneline=oneline, comment=comment, docstring=docstring)
+    return env
 
 
 def _identifiers(eq: Equations):
