@@ -38,8 +38,10 @@ from bgc.lower.ir import Function, Line
 
 #: the fewest iterations a run must have to become a loop
 MIN_RUN = 8
-#: the longest period (lines per iteration) searched for
+#: the longest period (lines per iteration) searched for, and how many repeats of a line's
+#: shape after it are tried as the end of its period
 MAX_PERIOD = 512
+CANDIDATES = 32
 
 _OPAQUE = (LinSolve, LinSolveEntry, NewtonSolve)
 
@@ -141,15 +143,16 @@ class _Shapes:
     def shape(self, e, leaves: list | None):
         """The shape id of an expression (None for what cannot be rolled: numeric solves);
         its leaves appended to ``leaves`` in canonical order."""
-        if isinstance(e, _OPAQUE):
-            return None
-        if not e.args:
+        args = e.args
+        if not args:
             sid, lf = self.leaf(e)
             if lf is not None and leaves is not None:
                 leaves.append(lf)
             return sid
+        if isinstance(e, _OPAQUE):
+            return None
         kids = []
-        for a in e.args:
+        for a in args:
             sub: list | None = [] if leaves is not None else None
             k = self.shape(a, sub)
             if k is None:
@@ -176,23 +179,23 @@ def _canonical(e, shapes: _Shapes, make):
 
 def _runs(seq: list, min_run: int) -> list[tuple[int, int, int]]:
     """(start, period, count) of the runs of ``seq`` (shape ids) that repeat a block of
-    ``period`` ids at least ``min_run`` times, greedily from the left."""
-    where: dict = {}
-    for i, s in enumerate(seq):
-        where.setdefault(s, []).append(i)
-    nxt = [0] * len(seq)
-    for pos in where.values():
-        for a, b in zip(pos, pos[1:] + [None]):
-            nxt[a] = b
+    ``period`` ids at least ``min_run`` times, greedily from the left (at each start, the
+    period that covers the most lines among the next :data:`CANDIDATES` repeats of its id)."""
+    nxt: list = [None] * len(seq)
+    last: dict = {}
+    for i in range(len(seq) - 1, -1, -1):
+        nxt[i] = last.get(seq[i])
+        last[seq[i]] = i
     out, s, n = [], 0, len(seq)
     while s + min_run <= n:
-        best = None
-        c = nxt[s]
-        while c is not None and c - s <= MAX_PERIOD and s + (c - s) * min_run <= n:
-            p = c - s
-            if all(seq[s + k * p] == seq[s] for k in range(min_run)):
-                block = seq[s:s + p]
-                m = 1
+        best, c, tries = None, nxt[s], 0
+        while c is not None and c - s <= MAX_PERIOD and tries < CANDIDATES:
+            p, tries = c - s, tries + 1
+            if s + p * min_run > n:
+                break
+            if seq[s + p * (min_run - 1)] == seq[s] and seq[s + 1] == seq[s + p + 1] and \
+                    seq[s:s + p] == seq[s + p:s + 2 * p]:
+                block, m = seq[s:s + p], 2
                 while s + (m + 1) * p <= n and seq[s + m * p:s + (m + 1) * p] == block:
                     m += 1
                 if m >= min_run and (best is None or m * p > best[1] * best[0]):
