@@ -41,7 +41,7 @@ MIN_RUN = 8
 #: the longest period (lines per iteration) searched for, and how many repeats of a line's
 #: shape after it are tried as the end of its period
 MAX_PERIOD = 512
-CANDIDATES = 32
+CANDIDATES = 16
 
 _OPAQUE = (LinSolve, LinSolveEntry, NewtonSolve)
 
@@ -121,6 +121,7 @@ class _Shapes:
         self.params = {s: k for k, s in enumerate(params)}
         self.temps = temps
         self.fresh = itertools.count(-1, -1)
+        self.memo: dict = {}  # atom -> leaf()
 
     def id(self, key) -> int:
         got = self.ids.get(key)
@@ -130,6 +131,12 @@ class _Shapes:
 
     def leaf(self, e):
         """(shape id, the leaf as (array, index or symbol, symbol), or None) of an atom."""
+        got = self.memo.get(e)
+        if got is None:
+            got = self.memo[e] = self._leaf(e)
+        return got
+
+    def _leaf(self, e):
         if e.is_Symbol:
             if e in self.states:
                 return self.id("x"), ("x", self.states[e], e)
@@ -151,19 +158,26 @@ class _Shapes:
             return sid
         if isinstance(e, _OPAQUE):
             return None
-        kids = []
+        if not (e.is_Add or e.is_Mul):  # arguments in their order: leaves straight in
+            kids = []
+            for a in args:
+                k = self.shape(a, leaves)
+                if k is None:
+                    return None
+                kids.append(k)
+            return self.id((e.func, tuple(kids)))
+        pairs = []
         for a in args:
             sub: list | None = [] if leaves is not None else None
             k = self.shape(a, sub)
             if k is None:
                 return None
-            kids.append((k, sub))
-        if e.is_Add or e.is_Mul:
-            kids.sort(key=lambda kv: kv[0])
+            pairs.append((k, sub))
+        pairs.sort(key=lambda kv: kv[0])
         if leaves is not None:
-            for _, sub in kids:
+            for _, sub in pairs:
                 leaves.extend(sub)
-        return self.id((e.func, tuple(k for k, _ in kids)))
+        return self.id((e.func, tuple(k for k, _ in pairs)))
 
 
 def _canonical(e, shapes: _Shapes, make):
@@ -213,7 +227,10 @@ def reroll(fn: Function, states, params, min_run: int | None = None) -> Rolled:
     """The function's body with its runs of :data:`MIN_RUN` or more repetitions as loops.
     ``states`` and ``params``: the symbols of the state and parameter vectors, in order (the
     indices the loops read them at)."""
-    min_run = MIN_RUN if min_run is None else min_run
+    min_run = max(2, MIN_RUN if min_run is None else min_run)
+    items = tuple(fn.lines) + tuple(Result(k, r) for k, (_, r) in enumerate(fn.results))
+    if len(items) < min_run:  # too short for a run (or the pass switched off)
+        return Rolled(items, {}, 0)
     vec = set()  # numeric solves' results (arrays): never rolled
     for ln in fn.lines:
         if isinstance(ln.expr, _OPAQUE) or (ln.expr.is_Symbol and ln.expr in vec):
@@ -228,8 +245,7 @@ def reroll(fn: Function, states, params, min_run: int | None = None) -> Rolled:
         sid = shapes.shape(e, lv) if kind == "out" or not e.is_Symbol or e not in vec else None
         seq.append(next(shapes.fresh) if sid is None else shapes.id((kind, sid)))
         leaves.append(lv)
-    runs = _runs(seq, max(2, min_run))
-    items = tuple(fn.lines) + tuple(Result(k, r) for k, (_, r) in enumerate(fn.results))
+    runs = _runs(seq, min_run)
     if not runs:
         return Rolled(items, {}, 0)
     return _build(items, len(fn.lines), runs, leaves, shapes)

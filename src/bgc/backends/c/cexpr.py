@@ -77,8 +77,9 @@ class CPrinter(C99CodePrinter):
         got = self.names.get(expr)
         return got if got is not None else c_name(expr.name)
 
-    def _print_Dummy(self, expr):  # a loop's read (its C text is always in names)
-        return self.names[expr]
+    def _print_Dummy(self, expr):  # a loop's read (bgc.lower.reroll): its C text in names
+        got = self.names.get(expr)
+        return got if got is not None else super()._print_Dummy(expr)
 
     def _print_Float(self, expr):
         v = float(expr)
