@@ -187,13 +187,14 @@ def main():
 
 
 def write(cmd, ladders, chains, lmodes, cmodes, name: str) -> None:
-    lines = ["# Loop re-rolling: the C backend with and without bgc.lower.reroll", "",
-             f"`{cmd}` (one process, side by side; load average {os.getloadavg()[0]:.1f} "
+    intro = (f"`{cmd}` (one process, side by side; load average {os.getloadavg()[0]:.1f} "
              f"at the end on {os.cpu_count()} cores, shared). symbolic: parse, equations and "
              "lowering, once for every variant; print: the C text and wrapper from the IR "
-             "(the pass included); build: gcc on the model's units and the load (the runtime's "
-             "objects cached); rhs, jac: one call through the wrapper (median of 7 rounds); warm run: 10 s, "
-             "Radau, rtol 1e-6, in C (best of 3); the variants' calls and runs interleaved. Ratios: the first variant over the last.",
+             "(the pass included); build: gcc on the model's units and the load (the "
+             "runtime's objects cached); rhs, jac: one call through the wrapper (median of 7 "
+             "rounds); warm run: 10 s, Radau, rtol 1e-6, in C (best of 3); the variants' calls "
+             "and runs interleaved. Ratios: the first variant over the last.")
+    lines = ["# Loop re-rolling: the C backend with and without bgc.lower.reroll", "", intro,
              ""]
     if ladders:
         lines += ["## RC ladders", ""] + table(ladders, lmodes) + [""]

@@ -330,7 +330,7 @@ def _loop(entries, s: int, p: int, m: int, plan, slots: dict, shapes: _Shapes) -
             reads.append(Read(name, array, Index.of(idx)))
             subst.append(name)
         order = iter(subst)
-        expr = _canonical(first.expr, shapes, lambda _leaf: next(order))
+        expr = _canonical(first.expr, shapes, lambda _leaf, order=order: next(order))
         if isinstance(first, Line):
             idx = Index.of([slots[entries[s + j + k * p].target] for k in range(m)])
             body.append(Stmt(expr, tuple(reads), "v", idx, first.comment))
