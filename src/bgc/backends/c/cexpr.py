@@ -64,11 +64,22 @@ class CPrinter(C99CodePrinter):
     """C99 printer writing the numpy printer's cheap forms; strict: an unknown function is an
     error, never a comment in the code."""
 
-    def __init__(self):
+    def __init__(self, names: dict | None = None):
         super().__init__({"strict": True, "order": "none", "allow_unknown_functions": False})
+        self.names = names or {}  # symbols printed as array elements (bgc.lower.reroll)
+
+    def renamed(self, names: dict) -> CPrinter:
+        """A printer that prints the symbols of ``names`` as the C text given there (values
+        that live in an array, a loop's reads); every other symbol as before."""
+        return CPrinter(names) if names else self
 
     def _print_Symbol(self, expr):
-        return c_name(expr.name)
+        got = self.names.get(expr)
+        return got if got is not None else c_name(expr.name)
+
+    def _print_Dummy(self, expr):  # a loop's read (bgc.lower.reroll): its C text in names
+        got = self.names.get(expr)
+        return got if got is not None else super()._print_Dummy(expr)
 
     def _print_Float(self, expr):
         v = float(expr)

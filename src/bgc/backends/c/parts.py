@@ -12,10 +12,11 @@ from dataclasses import dataclass
 
 import sympy as sp
 
-from bgc.backends.c.cexpr import CPrinter, c_name
+from bgc.backends.c.cexpr import CPrinter, c_comment, c_name
 from bgc.core.eqtypes import LinSolve, LinSolveEntry, NewtonSolve
 from bgc.core.equations import T
 from bgc.lower.ir import Lowered
+from bgc.lower.reroll import Index, Loop, Result, Rolled, reroll
 
 #: lines (definitions plus results) per generated C function, and functions per unit
 PART_LINES = 250
@@ -61,6 +62,8 @@ class Part:
     tables: tuple[tuple[str, int, int], ...] = ()  # table inputs: (C name, table, fail code)
     fallible: bool = False  # holds a numeric solve or a table that may fail: returns int
     newton: bool = False  # calls a Newton loop's function
+    # a loop's index tables (bgc.lower.reroll): (C name, the initialiser's text)
+    index_tables: tuple[tuple[str, str], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -72,10 +75,40 @@ class CFunction:
     uses_t: bool
 
 
+def _items(rolled: Rolled) -> list:
+    """(target, expression or loop, comment, result slot) per line, result and loop."""
+    out = []
+    for it in rolled.items:
+        if isinstance(it, Loop):
+            out.append((None, it, "", -2))
+        elif isinstance(it, Result):
+            out.append((None, it.expr, "", it.key))
+        else:
+            out.append((it.target, it.expr, it.comment, -1))
+    return out
+
+
+def _chunks(items: list, limit: int) -> list:
+    """The items cut into parts of at most ``limit`` lines (a loop weighs its body's length)."""
+    chunks, cur, weight = [], [], 0
+    for item in items:
+        w = len(item[1].body) if isinstance(item[1], Loop) else 1
+        if cur and weight + w > limit:
+            chunks.append(cur)
+            cur, weight = [], 0
+        cur.append(item)
+        weight += w
+    chunks.append(cur)
+    return chunks
+
+
 def cut_parts(name: str, fn, printer: CPrinter, ctx: PartContext, limit: int = PART_LINES
               ) -> CFunction:
-    items = [(ln.target, ln.expr, ln.comment, -1) for ln in fn.lines]
-    items += [(None, r, "", k) for k, (_, r) in enumerate(fn.results)]
+    # repeated structure as loops over the value array (bgc.lower.reroll), whose values are
+    # printed as its elements everywhere
+    rolled = reroll(fn, ctx.state_syms, ctx.param_syms)
+    printer = printer.renamed({s: f"bgc_w[{k}]" for s, k in rolled.values.items()})
+    items = _items(rolled)
     # the results of numeric solves are arrays: their lengths
     vsize: dict = {}
     for tgt, e, _, _ in items:
@@ -86,12 +119,13 @@ def cut_parts(name: str, fn, printer: CPrinter, ctx: PartContext, limit: int = P
         elif isinstance(e, sp.Symbol) and e in vsize:
             vsize[tgt] = vsize[e]
     defined_in: dict = {}  # symbol -> part index
-    chunks = [items[i:i + limit] for i in range(0, len(items), limit)] or [[]]
+    chunks = _chunks(items, limit)
     for ci, chunk in enumerate(chunks):
         for tgt, _, _, _ in chunk:
-            if tgt is not None:
+            if tgt is not None and tgt not in rolled.values:
                 defined_in[tgt] = ci
-    frees = [[e.free_symbols for _, e, _, _ in chunk] for chunk in chunks]
+    frees = [[e.symbols if isinstance(e, Loop) else e.free_symbols for _, e, _, _ in chunk]
+             for chunk in chunks]
     # which definitions a later part needs: those get a scratch slot (a solve: one per entry)
     slots: dict = {}
     for ci, chunk in enumerate(chunks):
@@ -100,7 +134,7 @@ def cut_parts(name: str, fn, printer: CPrinter, ctx: PartContext, limit: int = P
                 if s in defined_in and defined_in[s] < ci and s not in slots:
                     slots[s] = None
     order = sorted(slots, key=lambda s: (defined_in[s], str(s)))
-    slots, nslot = {}, 0
+    slots, nslot = {}, rolled.nvalues  # the value array first, then the parts' exports
     for s in order:
         slots[s] = nslot
         nslot += vsize.get(s, 1)
@@ -127,7 +161,16 @@ def cut_parts(name: str, fn, printer: CPrinter, ctx: PartContext, limit: int = P
         lines = []
         fallible, newton = any(f for _, _, f in tabs), False
         lus: dict = {}  # A's entries -> the part's LU of it (one factorisation per matrix)
+        tables: dict = {}  # a loop's index tables in this part: values -> name
         for tgt, e, why, k in chunk:
+            if isinstance(e, Loop):
+                lines.append(CLine("", loop_code(e, printer, tables, f"bgcm_{name}_{ci}"),
+                                   kind="loop"))
+                continue
+            if tgt is not None and tgt in rolled.values:
+                lines.append(CLine("", printer.doprint(e), why, -1, rolled.values[tgt],
+                                   kind="store"))
+                continue
             if tgt is not None and tgt in vsize:
                 lines.append(_solve_line(tgt, e, why, slots.get(tgt, -1), vsize[tgt], printer,
                                          ctx, lus))
@@ -140,8 +183,45 @@ def cut_parts(name: str, fn, printer: CPrinter, ctx: PartContext, limit: int = P
             else:
                 lines.append(CLine(c_name(str(tgt)), code, why, -1, slots.get(tgt, -1)))
         parts.append(Part(f"bgcm_{name}_{ci}", params, ins, states, imports, tuple(lines),
-                          vimports, tabs, fallible, newton))
+                          vimports, tabs, fallible, newton,
+                          tuple((nm, _table_text(v)) for v, nm in tables.items())))
     return CFunction(name, tuple(parts), nslot, len(fn.results), uses_t)
+
+
+def _index(ix: Index, tables: dict, prefix: str) -> str:
+    """The C text of a loop's index at iteration bgc_i: affine, or a static table's entry."""
+    if ix.table:
+        if ix.table not in tables:
+            tables[ix.table] = f"{prefix}_ix{len(tables)}"
+        return f"{tables[ix.table]}[bgc_i]"
+    step = "bgc_i" if ix.stride == 1 else f"{abs(ix.stride)}*bgc_i"
+    if ix.start == 0 and ix.stride >= 0:
+        return step
+    return f"{ix.start} {'+' if ix.stride >= 0 else '-'} {step}"
+
+
+_ARRAY = {"x": "bgc_x", "p": "bgc_p", "v": "bgc_w", "out": "bgc_out"}
+
+
+def loop_code(loop: Loop, printer: CPrinter, tables: dict, prefix: str) -> str:
+    """A loop's C text: one ``for`` over its iterations, each statement one assignment into
+    the value array (or the results) from the arrays it reads at its indices."""
+    out = [f"    for (int bgc_i = 0; bgc_i < {loop.count}; ++bgc_i) {{"]
+    for st in loop.body:
+        pr = printer.renamed({**printer.names, **{
+            r.name: f"{_ARRAY[r.array]}[{_index(r.index, tables, prefix)}]" for r in st.reads}})
+        if st.comment:
+            out.append(f"        /* {c_comment(st.comment)} (the first of {loop.count}) */")
+        out.append(f"        {_ARRAY[st.array]}[{_index(st.index, tables, prefix)}] = "
+                   f"{pr.doprint(st.expr)};")
+    out.append("    }")
+    return "\n".join(out)
+
+
+def _table_text(values: tuple) -> str:
+    """A static index table's initialiser: its entries, twenty to a line."""
+    rows = [", ".join(str(v) for v in values[i:i + 20]) for i in range(0, len(values), 20)]
+    return ",\n    ".join(rows)
 
 
 def _solve_line(tgt, e, why, export, n, printer, ctx, lus: dict) -> CLine:

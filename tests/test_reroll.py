@@ -1,0 +1,260 @@
+"""Loop re-rolling (bgc.lower.reroll, issue 27): repeated structure printed as C loops.
+
+The answers come from outside the pass: the unrolled C module (the pass switched off), the
+ladder's node equations written here by hand, and the original lowered lines themselves
+(a rolled function, expanded iteration by iteration, must give back every line in its order).
+"""
+from __future__ import annotations
+
+import math
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import sympy as sp
+
+from bgc.backends.c import build as cbuild
+from bgc.backends.c.parts import PartContext
+from bgc.backends.load import c_files, load_c
+from bgc.format.parse import parse_file
+from bgc.lower import reroll as rr
+from bgc.lower.ir import Line
+from bgc.run.driver import compile_model
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_compile_scale import link_chain  # noqa: E402  (the 3-D link chain, 3R2S links)
+
+ROOT = Path(__file__).resolve().parent.parent
+HAVE_CC = cbuild.available() and bool(cbuild.runtime_sources())
+R, C, V0, W = 1.0, 0.01, 1.0, 6.0
+
+
+def ladder(n: int, mixed: bool = False) -> str:
+    """An n-node RC ladder. ``mixed``: every section its own R_i and C_i, and every third
+    node a leak resistor to ground (two kinds of instances, interleaved)."""
+    par = [f"  R: {{value: {R}, unit: Ohm}}", f"  C: {{value: {C}, unit: F}}",
+           f"  V0: {{value: {V0}, unit: V}}", f"  w: {{value: {W}, unit: 1/s}}"]
+    els = ['  src: {type: Se, effort: "V0 * sin(w * t)"}']
+    bonds = []
+    for i in range(n):
+        left = "src" if i == 0 else f"n{i - 1}"
+        r, c = (f"R{i}", f"C{i}") if mixed else ("R", "C")
+        if mixed:
+            par += [f"  R{i}: {{value: {_r(i)}, unit: Ohm}}",
+                    f"  C{i}: {{value: {_c(i)}, unit: F}}"]
+        els += [f'  s{i}: {{type: "1"}}', f"  r{i}: {{type: R, resistance: {r}}}",
+                f'  n{i}: {{type: "0"}}', f"  c{i}: {{type: C, compliance: {c}}}"]
+        bonds += [f"  - [{left}, s{i}]", f"  - [s{i}, r{i}]", f"  - [s{i}, n{i}]",
+                  f"  - [n{i}, c{i}]"]
+        if mixed and i % 3 == 2:
+            els.append(f"  g{i}: {{type: R, resistance: R}}")
+            bonds.append(f"  - [n{i}, g{i}]")
+    return "\n".join(["bgc: 1", f"name: ladder{n}{'m' if mixed else ''}", "parameters:"]
+                     + par + ["elements:"] + els + ["bonds:"] + bonds
+                     + ["outputs:", f'  v_end: {{expr: "e(c{n - 1})", unit: V}}']) + "\n"
+
+
+def _r(i):
+    return 1.0 / (i + 1)
+
+
+def _c(i):
+    return 0.01 / (1 + 0.1 * i)
+
+
+def ladder_rhs(t, q, mixed=False):
+    """The ladder's node equations, by hand: dq_i/dt = i_in - i_out (- v_i/R at a leak)."""
+    n = len(q)
+    cs = np.array([_c(i) for i in range(n)]) if mixed else np.full(n, C)
+    rs = np.array([_r(i) for i in range(n)]) if mixed else np.full(n, R)
+    v = q / cs
+    left = np.concatenate(([V0 * math.sin(W * t)], v[:-1]))
+    i_in = (left - v) / rs
+    i_out = np.concatenate((i_in[1:], [0.0]))
+    dq = i_in - i_out
+    if mixed:
+        leak = np.arange(n) % 3 == 2
+        dq[leak] -= v[leak] / R
+    return dq
+
+
+def _compiled(tmp_path, text: str):
+    p = tmp_path / "m.yaml"
+    p.write_text(text)
+    return compile_model(parse_file(p))
+
+
+def _pair(compiled, monkeypatch, min_run: int):
+    """(rolled, unrolled) C modules of one compiled model."""
+    monkeypatch.setattr(rr, "MIN_RUN", min_run)
+    files, wrapper = c_files(compiled)
+    name = compiled.model.name
+    rolled = load_c(files, wrapper, f"{name}_rolled")
+    assert any("for (int bgc_i" in t for f, t in files.items())  # (it did roll)
+    monkeypatch.setattr(rr, "MIN_RUN", 10 ** 9)
+    files, wrapper = c_files(compiled)
+    assert not any("for (int bgc_i" in t for f, t in files.items())
+    return rolled, load_c(files, wrapper, f"{name}_flat")
+
+
+def _same(a, b, x0, seed=5, rounds=4):
+    """rhs and Jacobian of a and b at random points: equal to 1e-13 relative."""
+    rng = np.random.default_rng(seed)
+    for _ in range(rounds):
+        x = x0 + 0.1 * np.maximum(np.abs(x0), 0.1) * rng.standard_normal(x0.shape)
+        t = float(rng.uniform(0, 2))
+        for f in ("rhs", "jacobian"):
+            ra, rb = np.asarray(getattr(a, f)(t, x)), np.asarray(getattr(b, f)(t, x))
+            np.testing.assert_allclose(ra, rb, rtol=1e-13, atol=1e-13 * np.abs(rb).max())
+
+
+@pytest.mark.skipif(not HAVE_CC, reason="no C compiler")
+@pytest.mark.parametrize("mixed", [False, True])
+def test_ladder_rolled_equals_unrolled_and_hand_written(tmp_path, monkeypatch, mixed):
+    n = 30
+    comp = _compiled(tmp_path, ladder(n, mixed))
+    rolled, flat = _pair(comp, monkeypatch, 4 if mixed else rr.MIN_RUN)
+    x0 = np.zeros(n)
+    _same(rolled, flat, x0)
+    rng = np.random.default_rng(2)
+    for _ in range(3):
+        q = 0.01 * rng.standard_normal(n)
+        t = float(rng.uniform(0, 2))
+        ref = ladder_rhs(t, q, mixed)
+        np.testing.assert_allclose(rolled.rhs(t, q), ref, rtol=1e-12,
+                                   atol=1e-12 * np.abs(ref).max())
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not HAVE_CC, reason="no C compiler")
+def test_link_chain_rolled_equals_unrolled(tmp_path, monkeypatch):
+    """Four 3-D links: with runs of three (the vectors' x, y, z) and four (the links)
+    rolled, against the unrolled module."""
+    comp = _compiled(tmp_path, link_chain(4))
+    rolled, flat = _pair(comp, monkeypatch, 3)
+    _same(rolled, flat, np.asarray(flat.X0, dtype=float), rounds=3)
+
+
+def _expanded(roll: rr.Rolled, states, params) -> list:
+    """The rolled body run out again: (target or ("out", k), expression) per line, in the
+    order the loops execute them, with every read replaced by what it reads."""
+    slot_of = {k: s for s, k in roll.values.items()}
+    arrays = {"x": list(states), "p": list(params)}
+
+    def at(ix, i):
+        return ix.table[i] if ix.table else ix.start + ix.stride * i
+    out = []
+    for it in roll.items:
+        if isinstance(it, Line):
+            out.append((it.target, it.expr))
+        elif isinstance(it, rr.Result):
+            out.append((("out", it.key), it.expr))
+        else:
+            for i in range(it.count):
+                for st in it.body:
+                    sub = {r.name: (slot_of if r.array == "v" else arrays[r.array])[
+                        at(r.index, i)] for r in st.reads}
+                    tgt = slot_of[at(st.index, i)] if st.array == "v" else \
+                        ("out", at(st.index, i))
+                    out.append((tgt, st.expr.xreplace(sub)))
+    return out
+
+
+@pytest.mark.parametrize("mixed", [False, True])
+def test_loops_run_the_lines_in_their_order(tmp_path, mixed):
+    """Every function of the ladders: the loops, run out, give back exactly the lowered
+    lines and results in their order (no statement reads what a later one writes)."""
+    low = _compiled(tmp_path, ladder(40, mixed)).lowered
+    ctx = PartContext(low)
+    loops = 0
+    for fn in (low.rhs, low.jac, low.outs):
+        roll = rr.reroll(fn, ctx.state_syms, ctx.param_syms, min_run=4)
+        loops += roll.loops
+        want = [(ln.target, ln.expr) for ln in fn.lines]
+        want += [(("out", k), r) for k, (_, r) in enumerate(fn.results)]
+        got = _expanded(roll, ctx.state_syms, ctx.param_syms)
+        assert [g[0] for g in got] == [w[0] for w in want]
+        for (tgt, e), (_, ref) in zip(got, want):
+            assert sp.expand(e - ref) == 0, (tgt, e, ref)
+    assert loops >= 3
+
+
+def _part_text(files: dict) -> tuple[int, int, int]:
+    """(lines of the part units without the index tables' rows, for loops, part files)."""
+    lines = loops = 0
+    for name, text in files.items():
+        if not name.startswith("model_part"):
+            continue
+        for ln in text.splitlines():
+            if re.fullmatch(r"\s*\d+(, \d+)*,?", ln):  # a row of an index table
+                continue
+            lines += 1
+            loops += ln.lstrip().startswith("for (")
+    return lines, loops, sum(f.startswith("model_part") for f in files)
+
+
+def test_rolled_ladder_source_size_independent_of_n(tmp_path, monkeypatch):
+    monkeypatch.setattr(rr, "MIN_RUN", 8)
+    sizes = {}
+    for n in (30, 120):
+        sizes[n] = _part_text(c_files(_compiled(tmp_path, ladder(n)))[0])
+    assert sizes[30] == sizes[120], sizes
+    assert sizes[30][1] >= 3  # rhs, its results, the Jacobian
+    monkeypatch.setattr(rr, "MIN_RUN", 10 ** 9)
+    flat = _part_text(c_files(_compiled(tmp_path, ladder(120)))[0])
+    assert flat[0] > 5 * sizes[120][0]
+
+
+def test_no_repetition_no_change(monkeypatch):
+    """A model without runs of MIN_RUN: the same C text with the pass on and off."""
+    comp = compile_model(parse_file(ROOT / "models" / "quarter_car.yaml"))
+    ctx = PartContext(comp.lowered)
+    for fn in (comp.lowered.rhs, comp.lowered.jac):
+        roll = rr.reroll(fn, ctx.state_syms, ctx.param_syms)
+        assert roll.loops == 0 and not roll.values
+    on = c_files(comp)
+    monkeypatch.setattr(rr, "MIN_RUN", 10 ** 9)
+    assert c_files(comp) == on
+
+
+def test_index_affine_or_table():
+    assert rr.Index.of([4, 7, 10, 13]) == rr.Index(4, 3)
+    assert rr.Index.of([9, 8, 7]) == rr.Index(9, -1)
+    assert rr.Index.of([0, 1, 3]) == rr.Index(0, 0, (0, 1, 3))
+
+
+def test_runs_need_min_run_whole_blocks():
+    seq = [9, 1, 2, 1, 2, 1, 2, 1, 2, 1, 7]
+    assert rr._runs(seq, 4) == [(1, 2, 4)]
+    assert rr._runs(seq, 5) == []
+    assert rr._runs([1] * 10, 3) == [(0, 1, 10)]
+
+
+@pytest.mark.skipif(not HAVE_CC, reason="no C compiler")
+def test_fmu_of_a_rolled_ladder_simulates_like_the_numpy_module(tmp_path):
+    """The FMU prints the same parts: its loops, run by FMPy, against the (unrolled) numpy
+    module's Radau at a tight tolerance."""
+    import zipfile
+
+    fmpy = pytest.importorskip("fmpy")
+    from bgc.backends.load import load_module
+    from bgc.run.fmu import export_fmu
+
+    p = tmp_path / "ladder12.yaml"
+    p.write_text(ladder(12))
+    fmu = tmp_path / "ladder12.fmu"
+    export_fmu(p, fmu)
+    with zipfile.ZipFile(fmu) as zf:
+        parts = [zf.read(n).decode() for n in zf.namelist() if "model_part" in n]
+    assert parts and any("for (int bgc_i" in t for t in parts)
+    t1 = 0.5
+    r = fmpy.simulate_fmu(str(fmu), fmi_type="CoSimulation", stop_time=t1,
+                          output_interval=t1 / 100, relative_tolerance=1e-8, output=["v_end"])
+    mod = load_module(compile_model(parse_file(p)).source, "ladder12_np")
+    ref = mod.simulate((0.0, t1), t_eval=r["time"], method="Radau", rtol=1e-11, atol=1e-14)
+    yr = np.asarray(ref.y["v_end"]).ravel()
+    scale = np.abs(yr).max()
+    assert scale > 1e-6
+    assert np.abs(np.asarray(r["v_end"]).ravel() - yr).max() <= 1e-5 * scale
