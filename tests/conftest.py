@@ -10,12 +10,12 @@ module must be importable standalone: nothing of bgc is on the path for it).
 from __future__ import annotations
 
 import importlib.util
-import re
 import os
+import re
 import subprocess
 import sys
 import tempfile
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 import pytest
@@ -87,17 +87,16 @@ def bgc_cli():
 # tests, so a module-scoped fixture (a compiled 3R2S scene, a set of FMUs, a Dask cluster) is
 # built by each worker that runs one of its tests. Here a module that has module-scoped
 # fixtures goes to one worker as one unit (so each is built once), the C backend's tests of one
-# model go together (they share its build), the biggest units go first, and the tests marked
-# slow lead the rest, so that the two workers finish together. (xdist's own `--dist
-# loadgroup` marks do not take under pytest 9: xdist renames node ids through an attribute
-# pytest 9 no longer reads.)
+# model go together (they share its build), and the units holding a test marked slow go
+# first, so that the two workers finish together. (xdist's own `--dist loadgroup` marks do not
+# take under pytest 9: xdist renames node ids through an attribute pytest 9 no longer reads.)
 
 _MODULE_SCOPED = re.compile(r"""scope\s*=\s*["']module["']""")
 _C_BACKEND_MODEL = re.compile(r"^tests/test_c_backend\.py::test_(?:rhs_jacobian_outputs_match_"
                               r"numpy|whole_runs_match_numpy)\[(?:Rodas4-|Radau-)?([^\]]+)\]$")
 
 
-@lru_cache(maxsize=None)
+@cache
 def _has_module_fixtures(path: str) -> bool:
     try:
         return bool(_MODULE_SCOPED.search((ROOT / path).read_text(encoding="utf-8")))
@@ -118,6 +117,9 @@ def pytest_xdist_make_scheduler(config, log):
     if config.getvalue("dist") != "load":  # another --dist asked for: xdist's own
         return None
     from xdist.scheduler import LoadScopeScheduling
+
+    # units in the order of their first test (the workers sort slow tests first), not by size
+    config.option.loadscopereorder = False
 
     class Units(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
