@@ -113,6 +113,7 @@ def work_unit(nodeid: str) -> str:
     return path if _has_module_fixtures(path) else nodeid
 
 
+@pytest.hookimpl(optionalhook=True)  # xdist's hook: nothing without xdist
 def pytest_xdist_make_scheduler(config, log):
     if config.getvalue("dist") != "load":  # another --dist asked for: xdist's own
         return None
