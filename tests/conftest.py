@@ -11,9 +11,11 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import re
 import subprocess
 import sys
 import tempfile
+from functools import cache
 from pathlib import Path
 
 import pytest
@@ -77,3 +79,56 @@ def bgc_cli():
         return subprocess.run(_bgc_command() + list(args), cwd=ROOT, env=env, text=True,
                               capture_output=True, timeout=timeout, stdin=subprocess.DEVNULL)
     return run
+
+
+
+# ---------------------------------------------------------------------------------------------
+# How the two xdist workers share the work (pytest -n 2). xdist's default hands out single
+# tests, so a module-scoped fixture (a compiled 3R2S scene, a set of FMUs, a Dask cluster) is
+# built by each worker that runs one of its tests. Here a module that has module-scoped
+# fixtures goes to one worker as one unit (so each is built once), the C backend's tests of one
+# model go together (they share its build), and the units holding a test marked slow go
+# first, so that the two workers finish together. (xdist's own `--dist loadgroup` marks do not
+# take under pytest 9: xdist renames node ids through an attribute pytest 9 no longer reads.)
+
+_MODULE_SCOPED = re.compile(r"""scope\s*=\s*["']module["']""")
+_C_BACKEND_MODEL = re.compile(r"^tests/test_c_backend\.py::test_(?:rhs_jacobian_outputs_match_"
+                              r"numpy|whole_runs_match_numpy)\[(?:Rodas4-|Radau-)?([^\]]+)\]$")
+
+
+@cache
+def _has_module_fixtures(path: str) -> bool:
+    try:
+        return bool(_MODULE_SCOPED.search((ROOT / path).read_text(encoding="utf-8")))
+    except OSError:
+        return False
+
+
+def work_unit(nodeid: str) -> str:
+    """The unit of work a test goes to a worker in: its module's, its model's, or its own."""
+    m = _C_BACKEND_MODEL.match(nodeid)
+    if m:
+        return f"c_backend:{m.group(1)}"
+    path = nodeid.split("::", 1)[0]
+    return path if _has_module_fixtures(path) else nodeid
+
+
+@pytest.hookimpl(optionalhook=True)  # xdist's hook: nothing without xdist
+def pytest_xdist_make_scheduler(config, log):
+    if config.getvalue("dist") != "load":  # another --dist asked for: xdist's own
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    # units in the order of their first test (the workers sort slow tests first), not by size
+    config.option.loadscopereorder = False
+
+    class Units(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return work_unit(nodeid)
+
+    return Units(config, log)
+
+
+def pytest_collection_modifyitems(config, items):
+    if hasattr(config, "workerinput"):  # an xdist worker: its units keep a module together
+        items.sort(key=lambda item: item.get_closest_marker("slow") is None)  # stable

@@ -21,6 +21,7 @@ from bgc.backends import load as backends
 from bgc.backends.c import build as cbuild
 from bgc.backends.c.printer import c_comment, c_string_literal
 from bgc.backends.load import load_module
+from bgc.run import cache as cache_mod
 from bgc.run.driver import compile_file
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -37,16 +38,21 @@ _built: dict = {}
 
 
 def _pair(name):
-    """(numpy module, C module) of models/<name>.yaml, built once per session."""
+    """(numpy module, C module) of models/<name>.yaml, built once per worker; the C library
+    through the test session's compile cache (the C runtime's objects are built once there,
+    and a model another test file builds for C is built once)."""
     if name not in _built:
-        c = compile_file(ROOT / "models" / f"{name}.yaml")
+        path = ROOT / "models" / f"{name}.yaml"
+        c = compile_file(path)
         np_mod = load_module(c.source, f"{name}_np_test")
-        _, c_mod = backends.load(f"{name}_c_test", "c", None, lambda: c, None)
+        _, c_mod = backends.load(f"{name}_c_test", "c", cache_mod.key("c", path), lambda: c,
+                                 cache_mod.Cache())
         _built[name] = (np_mod, c_mod)
     return _built[name]
 
 
 def _param(name):
+    # a model's tests share its pair: they go to one xdist worker together (conftest.work_unit)
     return pytest.param(name, marks=pytest.mark.slow) if name in SLOW else name
 
 
