@@ -407,18 +407,6 @@ def _unpack(_P):
     link1__Ixx = (1/2)*m1*rho*rho
     # derived parameter link1.Iyy
     link1__Iyy = (1/12)*m1*(l1*l1 + 3*rho*rho)
-    # derived parameter link2.Ixx
-    link2__Ixx = (1/2)*m2*rho*rho
-    # derived parameter link2.Iyy
-    link2__Iyy = (1/12)*m2*(l2*l2 + 3*rho*rho)
-    # derived parameter link3.Ixx
-    link3__Ixx = (1/2)*m3*rho*rho
-    # derived parameter link3.Iyy
-    link3__Iyy = (1/12)*m3*(l3*l3 + 3*rho*rho)
-    # derived parameter link4.Ixx
-    link4__Ixx = (1/2)*m4*rho*rho
-    # derived parameter link4.Iyy
-    link4__Iyy = (1/12)*m4*(l4*l4 + 3*rho*rho)
     # derived parameter Rz
     Rz_0_0 = xp.cos(th1)
     # derived parameter Rz
@@ -437,37 +425,73 @@ def _unpack(_P):
     Rz_2_1 = 0
     # derived parameter Rz
     Rz_2_2 = 1
+    # derived parameter link1.w0
+    link1__w0_0 = 0
+    # derived parameter link1.w0
+    link1__w0_1 = 0
+    # derived parameter link1.w0
+    link1__w0_2 = 0
+    # derived parameter link2.Ixx
+    link2__Ixx = (1/2)*m2*rho*rho
+    # derived parameter link2.Iyy
+    link2__Iyy = (1/12)*m2*(l2*l2 + 3*rho*rho)
+    # derived parameter phi2
+    phi2 = th2
+    # derived parameter link2.w0
+    link2__w0_0 = 0
+    # derived parameter link2.w0
+    link2__w0_1 = 0
+    # derived parameter link2.w0
+    link2__w0_2 = 0
+    # derived parameter link3.Ixx
+    link3__Ixx = (1/2)*m3*rho*rho
+    # derived parameter link3.Iyy
+    link3__Iyy = (1/12)*m3*(l3*l3 + 3*rho*rho)
+    # derived parameter phi3
+    phi3 = th2 + th3
+    # derived parameter link3.w0
+    link3__w0_0 = 0
+    # derived parameter link3.w0
+    link3__w0_1 = 0
+    # derived parameter link3.w0
+    link3__w0_2 = 0
+    # derived parameter link4.Ixx
+    link4__Ixx = (1/2)*m4*rho*rho
+    # derived parameter link4.Iyy
+    link4__Iyy = (1/12)*m4*(l4*l4 + 3*rho*rho)
+    # derived parameter phi4
+    phi4 = th2 + th3 + th4
+    # derived parameter link4.w0
+    link4__w0_0 = 0
+    # derived parameter link4.w0
+    link4__w0_1 = 0
+    # derived parameter link4.w0
+    link4__w0_2 = 0
     # derived parameter P1
     P1_0 = Rz_0_0*l1
     # derived parameter P1
     P1_1 = Rz_1_0*l1
     # derived parameter P1
     P1_2 = Rz_2_0*l1
-    # derived parameter phi2
-    phi2 = th2
     # derived parameter P2
     P2_0 = P1_0 + Rz_0_0*l2*xp.cos(phi2) + Rz_0_2*l2*xp.sin(phi2)
     # derived parameter P2
     P2_1 = P1_1 + Rz_1_0*l2*xp.cos(phi2) + Rz_1_2*l2*xp.sin(phi2)
     # derived parameter P2
     P2_2 = P1_2 + Rz_2_0*l2*xp.cos(phi2) + Rz_2_2*l2*xp.sin(phi2)
-    # derived parameter phi3
-    phi3 = th2 + th3
     # derived parameter P3
     P3_0 = P2_0 + Rz_0_0*l3*xp.cos(phi3) + Rz_0_2*l3*xp.sin(phi3)
     # derived parameter P3
     P3_1 = P2_1 + Rz_1_0*l3*xp.cos(phi3) + Rz_1_2*l3*xp.sin(phi3)
     # derived parameter P3
     P3_2 = P2_2 + Rz_2_0*l3*xp.cos(phi3) + Rz_2_2*l3*xp.sin(phi3)
-    # derived parameter phi4
-    phi4 = th2 + th3 + th4
     # derived parameter P4
     P4_0 = P3_0 + Rz_0_0*l4*xp.cos(phi4) + Rz_0_2*l4*xp.sin(phi4)
     # derived parameter P4
     P4_1 = P3_1 + Rz_1_0*l4*xp.cos(phi4) + Rz_1_2*l4*xp.sin(phi4)
     # derived parameter P4
     P4_2 = P3_2 + Rz_2_0*l4*xp.cos(phi4) + Rz_2_2*l4*xp.sin(phi4)
-    _vals = (l1, l2, l3, l4, m1, m2, m3, m4, rho, g, th1, th2, th3, th4, k_d, r_d, gamma_R, link1__Ixx, link1__Iyy, link2__Ixx, link2__Iyy, link3__Ixx, link3__Iyy, link4__Ixx, link4__Iyy, Rz_0_0, Rz_0_1, Rz_0_2, Rz_1_0, Rz_1_1, Rz_1_2, Rz_2_0, Rz_2_1, Rz_2_2, P1_0, P1_1, P1_2, phi2, P2_0, P2_1, P2_2, phi3, P3_0, P3_1, P3_2, phi4, P4_0, P4_1, P4_2, )
+    _vals = (l1, l2, l3, l4, m1, m2, m3, m4, rho, g, th1, th2, th3, th4, k_d, r_d, gamma_R, link1__Ixx, link1__Iyy, Rz_0_0, Rz_0_1, Rz_0_2, Rz_1_0, Rz_1_1, Rz_1_2, Rz_2_0, Rz_2_1, Rz_2_2, link1__w0_0, link1__w0_1, link1__w0_2, link2__Ixx, link2__Iyy, phi2, link2__w0_0, link2__w0_1, link2__w0_2, link3__Ixx, link3__Iyy, phi3, link3__w0_0, link3__w0_1, link3__w0_2, link4__Ixx, link4__Iyy, phi4, link4__w0_0, link4__w0_1, link4__w0_2, P1_0, P1_1, P1_2, P2_0, P2_1, P2_2, P3_0, P3_1, P3_2, P4_0, P4_1, P4_2, )
     _bshape = np.broadcast_shapes(*(np.shape(_v) for _v in _vals))
     return _vals, _bshape
 
@@ -530,44 +554,64 @@ def _bgc_linsolve(n, a, b):
 def initial_state(p=None):
     """The initial state x0 (n, *batch) from the parameters."""
     _pv, _bshape = _params(p)
-    Rz_0_0 = _pv[25]
-    Rz_0_1 = _pv[26]
-    Rz_0_2 = _pv[27]
-    Rz_1_0 = _pv[28]
-    Rz_1_1 = _pv[29]
-    Rz_1_2 = _pv[30]
-    Rz_2_0 = _pv[31]
-    Rz_2_1 = _pv[32]
-    Rz_2_2 = _pv[33]
-    P1_0 = _pv[34]
-    P1_1 = _pv[35]
-    P1_2 = _pv[36]
-    phi2 = _pv[37]
-    P2_0 = _pv[38]
-    P2_1 = _pv[39]
-    P2_2 = _pv[40]
-    phi3 = _pv[41]
-    P3_0 = _pv[42]
-    P3_1 = _pv[43]
-    P3_2 = _pv[44]
+    link1__Ixx = _pv[17]
+    link1__Iyy = _pv[18]
+    Rz_0_0 = _pv[19]
+    Rz_0_1 = _pv[20]
+    Rz_0_2 = _pv[21]
+    Rz_1_0 = _pv[22]
+    Rz_1_1 = _pv[23]
+    Rz_1_2 = _pv[24]
+    Rz_2_0 = _pv[25]
+    Rz_2_1 = _pv[26]
+    Rz_2_2 = _pv[27]
+    link1__w0_0 = _pv[28]
+    link1__w0_1 = _pv[29]
+    link1__w0_2 = _pv[30]
+    link2__Ixx = _pv[31]
+    link2__Iyy = _pv[32]
+    phi2 = _pv[33]
+    link2__w0_0 = _pv[34]
+    link2__w0_1 = _pv[35]
+    link2__w0_2 = _pv[36]
+    link3__Ixx = _pv[37]
+    link3__Iyy = _pv[38]
+    phi3 = _pv[39]
+    link3__w0_0 = _pv[40]
+    link3__w0_1 = _pv[41]
+    link3__w0_2 = _pv[42]
+    link4__Ixx = _pv[43]
+    link4__Iyy = _pv[44]
     phi4 = _pv[45]
-    P4_0 = _pv[46]
-    P4_1 = _pv[47]
-    P4_2 = _pv[48]
+    link4__w0_0 = _pv[46]
+    link4__w0_1 = _pv[47]
+    link4__w0_2 = _pv[48]
+    P1_0 = _pv[49]
+    P1_1 = _pv[50]
+    P1_2 = _pv[51]
+    P2_0 = _pv[52]
+    P2_1 = _pv[53]
+    P2_2 = _pv[54]
+    P3_0 = _pv[55]
+    P3_1 = _pv[56]
+    P3_2 = _pv[57]
+    P4_0 = _pv[58]
+    P4_1 = _pv[59]
+    P4_2 = _pv[60]
 
     _x0 = np.empty((77,) + _bshape)
-    _x0[0] = 0
-    _x0[1] = 0
-    _x0[2] = 0
-    _x0[3] = 0
-    _x0[4] = 0
-    _x0[5] = 0
-    _x0[6] = 0
-    _x0[7] = 0
-    _x0[8] = 0
-    _x0[9] = 0
-    _x0[10] = 0
-    _x0[11] = 0
+    _x0[0] = link1__w0_0*(link1__Ixx*Rz_0_0*Rz_0_0 + link1__Iyy*Rz_0_1*Rz_0_1 + link1__Iyy*Rz_0_2*Rz_0_2) + link1__w0_1*(Rz_0_0*Rz_1_0*link1__Ixx + Rz_0_1*Rz_1_1*link1__Iyy + Rz_0_2*Rz_1_2*link1__Iyy) + link1__w0_2*(Rz_0_0*Rz_2_0*link1__Ixx + Rz_0_1*Rz_2_1*link1__Iyy + Rz_0_2*Rz_2_2*link1__Iyy)
+    _x0[1] = link1__w0_0*(Rz_0_0*Rz_1_0*link1__Ixx + Rz_0_1*Rz_1_1*link1__Iyy + Rz_0_2*Rz_1_2*link1__Iyy) + link1__w0_1*(link1__Ixx*Rz_1_0*Rz_1_0 + link1__Iyy*Rz_1_1*Rz_1_1 + link1__Iyy*Rz_1_2*Rz_1_2) + link1__w0_2*(Rz_1_0*Rz_2_0*link1__Ixx + Rz_1_1*Rz_2_1*link1__Iyy + Rz_1_2*Rz_2_2*link1__Iyy)
+    _x0[2] = link1__w0_0*(Rz_0_0*Rz_2_0*link1__Ixx + Rz_0_1*Rz_2_1*link1__Iyy + Rz_0_2*Rz_2_2*link1__Iyy) + link1__w0_1*(Rz_1_0*Rz_2_0*link1__Ixx + Rz_1_1*Rz_2_1*link1__Iyy + Rz_1_2*Rz_2_2*link1__Iyy) + link1__w0_2*(link1__Ixx*Rz_2_0*Rz_2_0 + link1__Iyy*Rz_2_1*Rz_2_1 + link1__Iyy*Rz_2_2*Rz_2_2)
+    _x0[3] = link2__w0_0*(link2__Ixx*(Rz_0_0*xp.cos(phi2) + Rz_0_2*xp.sin(phi2))*(Rz_0_0*xp.cos(phi2) + Rz_0_2*xp.sin(phi2)) + link2__Iyy*Rz_0_1*Rz_0_1 + link2__Iyy*(Rz_0_2*xp.cos(phi2) - Rz_0_0*xp.sin(phi2))*(Rz_0_2*xp.cos(phi2) - Rz_0_0*xp.sin(phi2))) + link2__w0_1*(Rz_0_1*Rz_1_1*link2__Iyy + link2__Ixx*(Rz_0_0*xp.cos(phi2) + Rz_0_2*xp.sin(phi2))*(Rz_1_0*xp.cos(phi2) + Rz_1_2*xp.sin(phi2)) + link2__Iyy*(Rz_0_2*xp.cos(phi2) - Rz_0_0*xp.sin(phi2))*(Rz_1_2*xp.cos(phi2) - Rz_1_0*xp.sin(phi2))) + link2__w0_2*(Rz_0_1*Rz_2_1*link2__Iyy + link2__Ixx*(Rz_0_0*xp.cos(phi2) + Rz_0_2*xp.sin(phi2))*(Rz_2_0*xp.cos(phi2) + Rz_2_2*xp.sin(phi2)) + link2__Iyy*(Rz_0_2*xp.cos(phi2) - Rz_0_0*xp.sin(phi2))*(Rz_2_2*xp.cos(phi2) - Rz_2_0*xp.sin(phi2)))
+    _x0[4] = link2__w0_0*(Rz_0_1*Rz_1_1*link2__Iyy + link2__Ixx*(Rz_0_0*xp.cos(phi2) + Rz_0_2*xp.sin(phi2))*(Rz_1_0*xp.cos(phi2) + Rz_1_2*xp.sin(phi2)) + link2__Iyy*(Rz_0_2*xp.cos(phi2) - Rz_0_0*xp.sin(phi2))*(Rz_1_2*xp.cos(phi2) - Rz_1_0*xp.sin(phi2))) + link2__w0_1*(link2__Ixx*(Rz_1_0*xp.cos(phi2) + Rz_1_2*xp.sin(phi2))*(Rz_1_0*xp.cos(phi2) + Rz_1_2*xp.sin(phi2)) + link2__Iyy*Rz_1_1*Rz_1_1 + link2__Iyy*(Rz_1_2*xp.cos(phi2) - Rz_1_0*xp.sin(phi2))*(Rz_1_2*xp.cos(phi2) - Rz_1_0*xp.sin(phi2))) + link2__w0_2*(Rz_1_1*Rz_2_1*link2__Iyy + link2__Ixx*(Rz_1_0*xp.cos(phi2) + Rz_1_2*xp.sin(phi2))*(Rz_2_0*xp.cos(phi2) + Rz_2_2*xp.sin(phi2)) + link2__Iyy*(Rz_1_2*xp.cos(phi2) - Rz_1_0*xp.sin(phi2))*(Rz_2_2*xp.cos(phi2) - Rz_2_0*xp.sin(phi2)))
+    _x0[5] = link2__w0_0*(Rz_0_1*Rz_2_1*link2__Iyy + link2__Ixx*(Rz_0_0*xp.cos(phi2) + Rz_0_2*xp.sin(phi2))*(Rz_2_0*xp.cos(phi2) + Rz_2_2*xp.sin(phi2)) + link2__Iyy*(Rz_0_2*xp.cos(phi2) - Rz_0_0*xp.sin(phi2))*(Rz_2_2*xp.cos(phi2) - Rz_2_0*xp.sin(phi2))) + link2__w0_1*(Rz_1_1*Rz_2_1*link2__Iyy + link2__Ixx*(Rz_1_0*xp.cos(phi2) + Rz_1_2*xp.sin(phi2))*(Rz_2_0*xp.cos(phi2) + Rz_2_2*xp.sin(phi2)) + link2__Iyy*(Rz_1_2*xp.cos(phi2) - Rz_1_0*xp.sin(phi2))*(Rz_2_2*xp.cos(phi2) - Rz_2_0*xp.sin(phi2))) + link2__w0_2*(link2__Ixx*(Rz_2_0*xp.cos(phi2) + Rz_2_2*xp.sin(phi2))*(Rz_2_0*xp.cos(phi2) + Rz_2_2*xp.sin(phi2)) + link2__Iyy*Rz_2_1*Rz_2_1 + link2__Iyy*(Rz_2_2*xp.cos(phi2) - Rz_2_0*xp.sin(phi2))*(Rz_2_2*xp.cos(phi2) - Rz_2_0*xp.sin(phi2)))
+    _x0[6] = link3__w0_0*(link3__Ixx*(Rz_0_0*xp.cos(phi3) + Rz_0_2*xp.sin(phi3))*(Rz_0_0*xp.cos(phi3) + Rz_0_2*xp.sin(phi3)) + link3__Iyy*Rz_0_1*Rz_0_1 + link3__Iyy*(Rz_0_2*xp.cos(phi3) - Rz_0_0*xp.sin(phi3))*(Rz_0_2*xp.cos(phi3) - Rz_0_0*xp.sin(phi3))) + link3__w0_1*(Rz_0_1*Rz_1_1*link3__Iyy + link3__Ixx*(Rz_0_0*xp.cos(phi3) + Rz_0_2*xp.sin(phi3))*(Rz_1_0*xp.cos(phi3) + Rz_1_2*xp.sin(phi3)) + link3__Iyy*(Rz_0_2*xp.cos(phi3) - Rz_0_0*xp.sin(phi3))*(Rz_1_2*xp.cos(phi3) - Rz_1_0*xp.sin(phi3))) + link3__w0_2*(Rz_0_1*Rz_2_1*link3__Iyy + link3__Ixx*(Rz_0_0*xp.cos(phi3) + Rz_0_2*xp.sin(phi3))*(Rz_2_0*xp.cos(phi3) + Rz_2_2*xp.sin(phi3)) + link3__Iyy*(Rz_0_2*xp.cos(phi3) - Rz_0_0*xp.sin(phi3))*(Rz_2_2*xp.cos(phi3) - Rz_2_0*xp.sin(phi3)))
+    _x0[7] = link3__w0_0*(Rz_0_1*Rz_1_1*link3__Iyy + link3__Ixx*(Rz_0_0*xp.cos(phi3) + Rz_0_2*xp.sin(phi3))*(Rz_1_0*xp.cos(phi3) + Rz_1_2*xp.sin(phi3)) + link3__Iyy*(Rz_0_2*xp.cos(phi3) - Rz_0_0*xp.sin(phi3))*(Rz_1_2*xp.cos(phi3) - Rz_1_0*xp.sin(phi3))) + link3__w0_1*(link3__Ixx*(Rz_1_0*xp.cos(phi3) + Rz_1_2*xp.sin(phi3))*(Rz_1_0*xp.cos(phi3) + Rz_1_2*xp.sin(phi3)) + link3__Iyy*Rz_1_1*Rz_1_1 + link3__Iyy*(Rz_1_2*xp.cos(phi3) - Rz_1_0*xp.sin(phi3))*(Rz_1_2*xp.cos(phi3) - Rz_1_0*xp.sin(phi3))) + link3__w0_2*(Rz_1_1*Rz_2_1*link3__Iyy + link3__Ixx*(Rz_1_0*xp.cos(phi3) + Rz_1_2*xp.sin(phi3))*(Rz_2_0*xp.cos(phi3) + Rz_2_2*xp.sin(phi3)) + link3__Iyy*(Rz_1_2*xp.cos(phi3) - Rz_1_0*xp.sin(phi3))*(Rz_2_2*xp.cos(phi3) - Rz_2_0*xp.sin(phi3)))
+    _x0[8] = link3__w0_0*(Rz_0_1*Rz_2_1*link3__Iyy + link3__Ixx*(Rz_0_0*xp.cos(phi3) + Rz_0_2*xp.sin(phi3))*(Rz_2_0*xp.cos(phi3) + Rz_2_2*xp.sin(phi3)) + link3__Iyy*(Rz_0_2*xp.cos(phi3) - Rz_0_0*xp.sin(phi3))*(Rz_2_2*xp.cos(phi3) - Rz_2_0*xp.sin(phi3))) + link3__w0_1*(Rz_1_1*Rz_2_1*link3__Iyy + link3__Ixx*(Rz_1_0*xp.cos(phi3) + Rz_1_2*xp.sin(phi3))*(Rz_2_0*xp.cos(phi3) + Rz_2_2*xp.sin(phi3)) + link3__Iyy*(Rz_1_2*xp.cos(phi3) - Rz_1_0*xp.sin(phi3))*(Rz_2_2*xp.cos(phi3) - Rz_2_0*xp.sin(phi3))) + link3__w0_2*(link3__Ixx*(Rz_2_0*xp.cos(phi3) + Rz_2_2*xp.sin(phi3))*(Rz_2_0*xp.cos(phi3) + Rz_2_2*xp.sin(phi3)) + link3__Iyy*Rz_2_1*Rz_2_1 + link3__Iyy*(Rz_2_2*xp.cos(phi3) - Rz_2_0*xp.sin(phi3))*(Rz_2_2*xp.cos(phi3) - Rz_2_0*xp.sin(phi3)))
+    _x0[9] = link4__w0_0*(link4__Ixx*(Rz_0_0*xp.cos(phi4) + Rz_0_2*xp.sin(phi4))*(Rz_0_0*xp.cos(phi4) + Rz_0_2*xp.sin(phi4)) + link4__Iyy*Rz_0_1*Rz_0_1 + link4__Iyy*(Rz_0_2*xp.cos(phi4) - Rz_0_0*xp.sin(phi4))*(Rz_0_2*xp.cos(phi4) - Rz_0_0*xp.sin(phi4))) + link4__w0_1*(Rz_0_1*Rz_1_1*link4__Iyy + link4__Ixx*(Rz_0_0*xp.cos(phi4) + Rz_0_2*xp.sin(phi4))*(Rz_1_0*xp.cos(phi4) + Rz_1_2*xp.sin(phi4)) + link4__Iyy*(Rz_0_2*xp.cos(phi4) - Rz_0_0*xp.sin(phi4))*(Rz_1_2*xp.cos(phi4) - Rz_1_0*xp.sin(phi4))) + link4__w0_2*(Rz_0_1*Rz_2_1*link4__Iyy + link4__Ixx*(Rz_0_0*xp.cos(phi4) + Rz_0_2*xp.sin(phi4))*(Rz_2_0*xp.cos(phi4) + Rz_2_2*xp.sin(phi4)) + link4__Iyy*(Rz_0_2*xp.cos(phi4) - Rz_0_0*xp.sin(phi4))*(Rz_2_2*xp.cos(phi4) - Rz_2_0*xp.sin(phi4)))
+    _x0[10] = link4__w0_0*(Rz_0_1*Rz_1_1*link4__Iyy + link4__Ixx*(Rz_0_0*xp.cos(phi4) + Rz_0_2*xp.sin(phi4))*(Rz_1_0*xp.cos(phi4) + Rz_1_2*xp.sin(phi4)) + link4__Iyy*(Rz_0_2*xp.cos(phi4) - Rz_0_0*xp.sin(phi4))*(Rz_1_2*xp.cos(phi4) - Rz_1_0*xp.sin(phi4))) + link4__w0_1*(link4__Ixx*(Rz_1_0*xp.cos(phi4) + Rz_1_2*xp.sin(phi4))*(Rz_1_0*xp.cos(phi4) + Rz_1_2*xp.sin(phi4)) + link4__Iyy*Rz_1_1*Rz_1_1 + link4__Iyy*(Rz_1_2*xp.cos(phi4) - Rz_1_0*xp.sin(phi4))*(Rz_1_2*xp.cos(phi4) - Rz_1_0*xp.sin(phi4))) + link4__w0_2*(Rz_1_1*Rz_2_1*link4__Iyy + link4__Ixx*(Rz_1_0*xp.cos(phi4) + Rz_1_2*xp.sin(phi4))*(Rz_2_0*xp.cos(phi4) + Rz_2_2*xp.sin(phi4)) + link4__Iyy*(Rz_1_2*xp.cos(phi4) - Rz_1_0*xp.sin(phi4))*(Rz_2_2*xp.cos(phi4) - Rz_2_0*xp.sin(phi4)))
+    _x0[11] = link4__w0_0*(Rz_0_1*Rz_2_1*link4__Iyy + link4__Ixx*(Rz_0_0*xp.cos(phi4) + Rz_0_2*xp.sin(phi4))*(Rz_2_0*xp.cos(phi4) + Rz_2_2*xp.sin(phi4)) + link4__Iyy*(Rz_0_2*xp.cos(phi4) - Rz_0_0*xp.sin(phi4))*(Rz_2_2*xp.cos(phi4) - Rz_2_0*xp.sin(phi4))) + link4__w0_1*(Rz_1_1*Rz_2_1*link4__Iyy + link4__Ixx*(Rz_1_0*xp.cos(phi4) + Rz_1_2*xp.sin(phi4))*(Rz_2_0*xp.cos(phi4) + Rz_2_2*xp.sin(phi4)) + link4__Iyy*(Rz_1_2*xp.cos(phi4) - Rz_1_0*xp.sin(phi4))*(Rz_2_2*xp.cos(phi4) - Rz_2_0*xp.sin(phi4))) + link4__w0_2*(link4__Ixx*(Rz_2_0*xp.cos(phi4) + Rz_2_2*xp.sin(phi4))*(Rz_2_0*xp.cos(phi4) + Rz_2_2*xp.sin(phi4)) + link4__Iyy*Rz_2_1*Rz_2_1 + link4__Iyy*(Rz_2_2*xp.cos(phi4) - Rz_2_0*xp.sin(phi4))*(Rz_2_2*xp.cos(phi4) - Rz_2_0*xp.sin(phi4)))
     _x0[12] = 0
     _x0[13] = 0
     _x0[14] = 0
@@ -658,12 +702,12 @@ def rhs(t, x, p=None, u=None):
     gamma_R = _pv[16]
     link1__Ixx = _pv[17]
     link1__Iyy = _pv[18]
-    link2__Ixx = _pv[19]
-    link2__Iyy = _pv[20]
-    link3__Ixx = _pv[21]
-    link3__Iyy = _pv[22]
-    link4__Ixx = _pv[23]
-    link4__Iyy = _pv[24]
+    link2__Ixx = _pv[31]
+    link2__Iyy = _pv[32]
+    link3__Ixx = _pv[37]
+    link3__Iyy = _pv[38]
+    link4__Ixx = _pv[43]
+    link4__Iyy = _pv[44]
     _uv = _inputs(t, _pv, u, xp)
     u_vd_0 = _uv[0]
     u_vd_1 = _uv[1]
@@ -2810,12 +2854,12 @@ def jacobian(t, x, p=None, u=None):
     gamma_R = _pv[16]
     link1__Ixx = _pv[17]
     link1__Iyy = _pv[18]
-    link2__Ixx = _pv[19]
-    link2__Iyy = _pv[20]
-    link3__Ixx = _pv[21]
-    link3__Iyy = _pv[22]
-    link4__Ixx = _pv[23]
-    link4__Iyy = _pv[24]
+    link2__Ixx = _pv[31]
+    link2__Iyy = _pv[32]
+    link3__Ixx = _pv[37]
+    link3__Iyy = _pv[38]
+    link4__Ixx = _pv[43]
+    link4__Iyy = _pv[44]
     _uv = _inputs(t, _pv, u, xp)
     u_vd_0 = _uv[0]
     u_vd_1 = _uv[1]
@@ -30157,15 +30201,15 @@ def outputs(t, x, p=None, u=None):
     r_d = _pv[15]
     link1__Ixx = _pv[17]
     link1__Iyy = _pv[18]
-    link2__Ixx = _pv[19]
-    link2__Iyy = _pv[20]
-    link3__Ixx = _pv[21]
-    link3__Iyy = _pv[22]
-    link4__Ixx = _pv[23]
-    link4__Iyy = _pv[24]
-    P4_0 = _pv[46]
-    P4_1 = _pv[47]
-    P4_2 = _pv[48]
+    link2__Ixx = _pv[31]
+    link2__Iyy = _pv[32]
+    link3__Ixx = _pv[37]
+    link3__Iyy = _pv[38]
+    link4__Ixx = _pv[43]
+    link4__Iyy = _pv[44]
+    P4_0 = _pv[58]
+    P4_1 = _pv[59]
+    P4_2 = _pv[60]
     _uv = _inputs(t, _pv, u, xp)
     u_vd_0 = _uv[0]
     u_vd_1 = _uv[1]
@@ -30440,12 +30484,12 @@ def input_jacobian(t, x, p=None, u=None):
     r_d = _pv[15]
     link1__Ixx = _pv[17]
     link1__Iyy = _pv[18]
-    link2__Ixx = _pv[19]
-    link2__Iyy = _pv[20]
-    link3__Ixx = _pv[21]
-    link3__Iyy = _pv[22]
-    link4__Ixx = _pv[23]
-    link4__Iyy = _pv[24]
+    link2__Ixx = _pv[31]
+    link2__Iyy = _pv[32]
+    link3__Ixx = _pv[37]
+    link3__Iyy = _pv[38]
+    link4__Ixx = _pv[43]
+    link4__Iyy = _pv[44]
     _uv = _inputs(t, _pv, u)
     u_vd_0 = _uv[0]
     u_vd_1 = _uv[1]
@@ -32286,15 +32330,15 @@ def output_jacobian(t, x, p=None, u=None):
     r_d = _pv[15]
     link1__Ixx = _pv[17]
     link1__Iyy = _pv[18]
-    link2__Ixx = _pv[19]
-    link2__Iyy = _pv[20]
-    link3__Ixx = _pv[21]
-    link3__Iyy = _pv[22]
-    link4__Ixx = _pv[23]
-    link4__Iyy = _pv[24]
-    P4_0 = _pv[46]
-    P4_1 = _pv[47]
-    P4_2 = _pv[48]
+    link2__Ixx = _pv[31]
+    link2__Iyy = _pv[32]
+    link3__Ixx = _pv[37]
+    link3__Iyy = _pv[38]
+    link4__Ixx = _pv[43]
+    link4__Iyy = _pv[44]
+    P4_0 = _pv[58]
+    P4_1 = _pv[59]
+    P4_2 = _pv[60]
     _uv = _inputs(t, _pv, u)
     u_vd_0 = _uv[0]
     u_vd_1 = _uv[1]
