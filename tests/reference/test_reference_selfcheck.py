@@ -175,9 +175,9 @@ def test_p_projected_on_sphere():
 
 
 # --- the compliant model ("Couplings", "The initial state") -----------------------------
-def _random_state(scale=1e-3):
+def _random_state(scale=1e-3, rng=None):
     y = m.initial_state()
-    return y + scale * RNG.normal(size=y.size)
+    return y + scale * (RNG if rng is None else rng).normal(size=y.size)
 
 
 def test_rhs_at_rest_is_gravity_only():
@@ -199,13 +199,18 @@ def test_rhs_vectorised_matches_joint_by_joint():
 
 @pytest.mark.parametrize("trial", range(5))
 def test_energy_balance(trial):
-    """dE/dt along the flow = drive power - dissipation (exact for any state)."""
+    """dE/dt along the flow = drive power - dissipation (exact for any state).
+
+    dE/dt by the fourth-order central difference at eps = 1e-5 along f: over 40 random states
+    its relative error was at most 2e-11, where the second-order one at eps = 1e-7 reached
+    1.2e-6 (rounding), too close to a 1e-6 tolerance. Each trial draws its own state, so the
+    test does not depend on which tests ran before it in the worker."""
     scene, t = "circle", 2.5
-    y = _random_state()
+    y = _random_state(rng=np.random.default_rng(7000 + trial))
     f = m.rhs(t, y, scene)
-    eps = 1e-7
-    dEdt = (m.energy(y + eps * f, t, scene)["total"]
-            - m.energy(y - eps * f, t, scene)["total"]) / (2 * eps)
+    eps = 1e-5
+    E = [m.energy(y + k * eps * f, t, scene)["total"] for k in (-2, -1, 1, 2)]
+    dEdt = (E[0] - 8 * E[1] + 8 * E[2] - E[3]) / (12 * eps)
     diss = 0.0
     for name, s in m.TRANS.items():
         diss += m.R_T[name] * f[s] @ f[s]
@@ -213,7 +218,7 @@ def test_energy_balance(trial):
         diss += m.R_R[name] * f[s] @ f[s]
     sd = m.TRANS["drive"]
     power_in = (m.K_T["drive"] * y[sd] + m.R_T["drive"] * f[sd]) @ m.v_desired(scene, t)
-    np.testing.assert_allclose(dEdt, power_in - diss, rtol=1e-6)
+    np.testing.assert_allclose(dEdt, power_in - diss, rtol=1e-8)
 
 
 @pytest.mark.slow
