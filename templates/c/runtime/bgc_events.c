@@ -118,6 +118,28 @@ static int record(bgc_ctx *c, int k, double t, const double *before, const doubl
     return 0;
 }
 
+/* event k's reset at t: y (the state before, kept in ev_xa) becomes the state after; the
+ * reset reads its time clamped to the integration window; a failed or non-finite reset is an
+ * error naming the event */
+static int apply_reset(bgc_ctx *c, int k, double t, double *y)
+{
+    const bgc_model *m = c->m;
+    const int n = m->n;
+    memcpy(c->ev_xa, y, sizeof(double) * (size_t)n);
+    double tm = t < c->lo ? c->lo : (t > c->hi ? c->hi : t);
+    int r = m->reset(k, tm, c->ev_xa, c->p, y);
+    if (r) {
+        c->st->bad_index = r; c->st->bad_where = 2;
+        return bgc_fail(c, BGC_ERR_MODEL, t, "event %d: its reset failed (code %d) at "
+                        "t = %.17g", k, r, t);
+    }
+    for (int i = 0; i < n; i++)
+        if (!isfinite(y[i]))
+            return bgc_fail(c, BGC_ERR_NONFINITE, t, "event %d: its reset of state %d "
+                            "is not finite at t = %.17g", k, i, t);
+    return 0;
+}
+
 int bgc_step_end(bgc_ctx *c, double t, double t_new, double *y, bgc_interp_fn f, void *data)
 {
     const bgc_model *m = c->m;
@@ -148,18 +170,7 @@ int bgc_step_end(bgc_ctx *c, double t, double t_new, double *y, bgc_interp_fn f,
         double s = c->ev_side[k];
         if (s == 0.0 || c->ev_g[k] * s > 0 || (m->ev_timed && m->ev_timed[k])) continue;
         if (m->ev_dir[k] != 0 && m->ev_dir[k] != (int)-s) continue;
-        memcpy(c->ev_xa, y, sizeof(double) * (size_t)n);
-        double tm = t_stop < c->lo ? c->lo : (t_stop > c->hi ? c->hi : t_stop);
-        int r = m->reset(k, tm, c->ev_xa, c->p, y);
-        if (r) {
-            c->st->bad_index = r; c->st->bad_where = 2;
-            return bgc_fail(c, BGC_ERR_MODEL, t_stop, "event %d: its reset failed (code %d) at "
-                            "t = %.17g", k, r, t_stop);
-        }
-        for (int i = 0; i < n; i++)
-            if (!isfinite(y[i]))
-                return bgc_fail(c, BGC_ERR_NONFINITE, t_stop, "event %d: its reset of state %d "
-                                "is not finite at t = %.17g", k, i, t_stop);
+        if ((status = apply_reset(c, k, t_stop, y))) return status;
         c->ev_side[k] = -s;
         if ((status = record(c, k, t_stop, c->ev_xa, y))) return status;
     }
@@ -196,24 +207,12 @@ int bgc_events_next_time(bgc_ctx *c, double t, const double *y, double b, int fi
 int bgc_events_fire_timed(bgc_ctx *c, double t, double *y)
 {
     const bgc_model *m = c->m;
-    const int n = m->n;
     int status = guards(c, t, y, c->ev_g2);
     if (status) return status;
     double tol = timed_tol(t, t);
     for (int k = 0; k < m->nev; k++) {
         if (!m->ev_timed[k] || fabs(c->ev_g2[k]) > tol) continue;
-        memcpy(c->ev_xa, y, sizeof(double) * (size_t)n);
-        double tm = t < c->lo ? c->lo : (t > c->hi ? c->hi : t);
-        int r = m->reset(k, tm, c->ev_xa, c->p, y);
-        if (r) {
-            c->st->bad_index = r; c->st->bad_where = 2;
-            return bgc_fail(c, BGC_ERR_MODEL, t, "event %d: its reset failed (code %d) at "
-                            "t = %.17g", k, r, t);
-        }
-        for (int i = 0; i < n; i++)
-            if (!isfinite(y[i]))
-                return bgc_fail(c, BGC_ERR_NONFINITE, t, "event %d: its reset of state %d "
-                                "is not finite at t = %.17g", k, i, t);
+        if ((status = apply_reset(c, k, t, y))) return status;
         if ((status = record(c, k, t, c->ev_xa, y))) return status;
     }
     c->xs->t_last = t;
