@@ -22,9 +22,7 @@ RECTIFIER = ROOT / "models" / "rectifier_ideal.yaml"
 G = 9.81
 
 
-@pytest.fixture(autouse=True)
-def _private_cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("BGC_CACHE_DIR", str(tmp_path / "cache"))
+from backend_targets import TARGETS, has_cc, private_cache  # noqa: F401 (fixture)
 
 
 def ball_height(t, h0, e, g=G):
@@ -48,16 +46,6 @@ def impact_times(h0, e, t_end, g=G):
         v_n *= e
         t_n += 2 * v_n / g
     return np.array(times)
-
-
-def _has_cc():
-    from bgc.backends.c import build as cbuild
-
-    return cbuild.available()
-
-
-TARGETS = ["numpy", pytest.param("c", marks=pytest.mark.skipif(not _has_cc(),
-                                                                reason="no C compiler"))]
 
 
 @pytest.fixture(scope="module", params=TARGETS)

@@ -21,19 +21,7 @@ import bgc
 HEAD = "bgc: 1\nname: {name}\nunits: strict\nimports: [{imports}]\n"
 
 
-@pytest.fixture(autouse=True)
-def _private_cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("BGC_CACHE_DIR", str(tmp_path / "cache"))
-
-
-def _has_cc():
-    from bgc.backends.c import build as cbuild
-
-    return cbuild.available()
-
-
-TARGETS = ["numpy", pytest.param("c", marks=pytest.mark.skipif(not _has_cc(),
-                                                                reason="no C compiler"))]
+from backend_targets import TARGETS, has_cc, private_cache  # noqa: F401 (fixture)
 
 
 def _write(tmp_path_factory, name, imports, body):
@@ -341,7 +329,7 @@ def test_switching_parts_as_fmus_under_fmpy(tmp_path_factory):
     fmpy = pytest.importorskip("fmpy")
     from bgc.run.fmu import export_fmu
 
-    if not _has_cc():
+    if not has_cc():
         pytest.skip("no C compiler")
     d = tmp_path_factory.mktemp("fmus")
     el = export_fmu(_write(tmp_path_factory, "switching", ["electrical"], ELECTRICAL),

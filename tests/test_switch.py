@@ -20,19 +20,7 @@ RECTIFIER = ROOT / "models" / "rectifier_switch.yaml"
 CLUTCH = ROOT / "models" / "clutch.yaml"
 
 
-@pytest.fixture(autouse=True)
-def _private_cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("BGC_CACHE_DIR", str(tmp_path / "cache"))
-
-
-def _has_cc():
-    from bgc.backends.c import build as cbuild
-
-    return cbuild.available()
-
-
-TARGETS = ["numpy", pytest.param("c", marks=pytest.mark.skipif(not _has_cc(),
-                                                                reason="no C compiler"))]
+from backend_targets import TARGETS, has_cc, private_cache  # noqa: F401 (fixture)
 
 
 # --- the ideal-diode rectifier ------------------------------------------------------------------
@@ -259,7 +247,7 @@ def test_switched_rectifier_fmu_under_fmpy(tmp_path):
     fmpy = pytest.importorskip("fmpy")
     from bgc.run.fmu import export_fmu
 
-    if not _has_cc():
+    if not has_cc():
         pytest.skip("no C compiler")
     fmu = str(export_fmu(RECTIFIER, tmp_path / "rs.fmu"))
     r = fmpy.simulate_fmu(fmu, fmi_type="ModelExchange", solver="CVode", stop_time=0.1,
