@@ -115,10 +115,13 @@ def test_parameter_batches_broadcast_like_numpy():
 
 
 def _span(name):
-    # the rigid 3R2S's reference (numpy, a 21-unknown reaction solve per call, rtol 1e-11)
-    # cost about 200 s over 1 s of motion; a quarter second still swings every joint
-    return {"van_der_pol": (0.0, 0.5), "3r2s": (0.0, 0.05),
-            "3r2s_rigid": (0.0, 0.25)}.get(name, (0.0, 1.0))
+    # the references (scipy's Radau on the numpy module at rtol 1e-11) are the cost here:
+    # the rigid 3R2S's (a 21-unknown reaction solve per call) took about 200 s over 1 s of
+    # motion, and a quarter second still swings every joint; the rectifier's 76 s over 50
+    # periods (15,000 steps), 23 s over the 10 periods kept, each with both diode switchings;
+    # the top's 48 s over 1 s of its 300 rad/s spin, 14 s over 0.3 s (14 turns)
+    return {"van_der_pol": (0.0, 0.5), "3r2s": (0.0, 0.05), "3r2s_rigid": (0.0, 0.25),
+            "rectifier": (0.0, 0.2), "top": (0.0, 0.3)}.get(name, (0.0, 1.0))
 
 
 _REFERENCES: dict = {}
