@@ -206,9 +206,12 @@ def test_a_law_in_t_without_inputs_takes_the_time_derivative(tmp_path):
     assert np.all(observed_orders(errors) > 3.5), observed_orders(errors)
     run = mod.simulate((0.0, 2.0), method="Rodas4", rtol=1e-8, atol=1e-10)
     np.testing.assert_allclose(run.x[order, -1], ref.y[:, -1], atol=1e-6)
-    mod.RHS_USES_T = False  # as before: the term skipped, the error control pays for it
-    blind = mod.simulate((0.0, 2.0), method="Rodas4", rtol=1e-8, atol=1e-10, max_steps=10**6)
-    assert run.stats["nsteps"] * 3 < blind.stats["nsteps"], (run.stats, blind.stats)
+    mod.RHS_USES_T = False  # as before: the term skipped, the error control pays for it:
+    # it needs more than 3x the steps (run to the end it took about 61,000, 90 s of the suite;
+    # within the 3x budget it stops near t = 0.002)
+    with pytest.raises(RuntimeError, match=r"Rodas4 stopped at t = .*max_steps = "):
+        mod.simulate((0.0, 2.0), method="Rodas4", rtol=1e-8, atol=1e-10,
+                     max_steps=3 * run.stats["nsteps"])
     plain = load_module(compile_model(parse_file(
         Path(__file__).resolve().parents[1] / "models" / "pendulum.yaml")).source,
         "pendulum_rodas_t")
