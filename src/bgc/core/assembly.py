@@ -211,7 +211,12 @@ def numeric_redundancy(ctx: Context, defs: dict, state_vars) -> set:
     """The constraint components that are redundant at the model's initial state: the rows of
     the velocity constraints' Jacobian G = d(f - s)/d(momenta) (numeric: the flows are linear
     in the momenta at fixed positions) that add nothing to its rank (SVD, relative tolerance
-    1e-9), taken greedily in declaration order, so the first written constraints are kept.
+    1e-9), taken greedily: first the locks of partly determined multibonds (a revolute joint's
+    two locked rotations), then the sources that close loops, each in the order causality
+    chose them. The locks fix the bodies' out-of-plane rotations joint by joint from the
+    ground, so in a planar loop written with 3-D joints what is dropped is the out-of-plane
+    part: the last lock of a closed chain of locks and the loop closure's component along the
+    joint axes (docs/closed_loops.md).
     Their reactions are then 0 (bgc.core.constraints.stabilise) instead of a singular solve
     at run time. Empty where the initial state cannot be evaluated at compile time."""
     if not ctx.constraints:
@@ -221,7 +226,8 @@ def numeric_redundancy(ctx: Context, defs: dict, state_vars) -> set:
         return set()
     types = {el.id: el.type for el in ctx.bg.elements}
     momenta = [sv.symbol for sv in state_vars if types.get(sv.owner) == "I"]
-    rows = [(c.source, k, f - s) for c in ctx.constraints
+    locks = [c for c in ctx.constraints if _behind_partial(ctx.bg, c.source)]
+    rows = [(c.source, k, f - s) for c in locks + [c for c in ctx.constraints if c not in locks]
             for k, (f, s) in enumerate(zip(c.flow, c.target))]
 
     def residuals(at):
@@ -257,6 +263,15 @@ def numeric_redundancy(ctx: Context, defs: dict, state_vars) -> set:
         else:
             redundant.add((src, k))
     return redundant
+
+
+def _behind_partial(bg, source: str) -> bool:
+    """Whether a flow source sits on the small side of a non-square modulus (a lock)."""
+    (b,) = bg.bonds_of(source)
+    other = bg.element(b.src if b.dst == source else b.dst)
+    if other.type not in ("MTF", "MGY"):
+        return False
+    return len({x.n for x in bg.bonds_of(other.id)}) > 1
 
 
 def _evaluate(expr, vals: dict, defs: dict, memo: dict) -> float | None:
