@@ -26,7 +26,7 @@ import numpy as np
 import sympy as sp
 
 from bgc.base.errors import ModelError
-from bgc.core.constraints import closure_of, initial_values, loop_text, number_of
+from bgc.core.constraints import closure_of, initial_values, lock_of, loop_text, number_of
 from bgc.core.context import Context
 
 _TOL = 1e-9  # relative tolerance of the checks
@@ -226,7 +226,7 @@ def numeric_redundancy(ctx: Context, defs: dict, state_vars) -> set:
         return set()
     types = {el.id: el.type for el in ctx.bg.elements}
     momenta = [sv.symbol for sv in state_vars if types.get(sv.owner) == "I"]
-    locks = [c for c in ctx.constraints if _behind_partial(ctx.bg, c.source)]
+    locks = [c for c in ctx.constraints if lock_of(ctx.bg, c.source) is not None]
     rows = [(c.source, k, f - s) for c in locks + [c for c in ctx.constraints if c not in locks]
             for k, (f, s) in enumerate(zip(c.flow, c.target))]
 
@@ -263,15 +263,6 @@ def numeric_redundancy(ctx: Context, defs: dict, state_vars) -> set:
         else:
             redundant.add((src, k))
     return redundant
-
-
-def _behind_partial(bg, source: str) -> bool:
-    """Whether a flow source sits on the small side of a non-square modulus (a lock)."""
-    (b,) = bg.bonds_of(source)
-    other = bg.element(b.src if b.dst == source else b.dst)
-    if other.type not in ("MTF", "MGY"):
-        return False
-    return len({x.n for x in bg.bonds_of(other.id)}) > 1
 
 
 def _evaluate(expr, vals: dict, defs: dict, memo: dict) -> float | None:

@@ -460,18 +460,20 @@ def _check_partial(bg: BondGraph, s: _Scap, constraints: tuple = ()) -> None:
                                  "with a stiffness)")
 
 
-def closed_loop(bg: BondGraph, at: str) -> list[str]:
+def closed_loop(bg: BondGraph, at: str, avoid=frozenset()) -> list[str]:
     """A cycle through element ``at`` and the ground (every flow source joined to one ground
     node: fixed points are one body), made of two node-disjoint paths from ``at`` to the
-    ground: a closed kinematic loop. Empty when there is none (or no inertia at all)."""
+    ground: a closed kinematic loop. Empty when there is none (or no inertia at all).
+    ``avoid``: elements the cycle may not pass through."""
     import networkx as nx
 
     g = nx.Graph()
     for b in bg.bonds:
-        g.add_edge(b.src, b.dst, bond=b.id)
+        if b.src not in avoid and b.dst not in avoid:
+            g.add_edge(b.src, b.dst, bond=b.id)
     ground = ("ground",)
     for el in bg.elements:
-        if el.type == "Sf":
+        if el.type == "Sf" and el.id not in avoid:
             g.add_edge(el.id, ground, bond=None)
     if at not in g or not any(el.type == "I" for el in bg.elements):
         return []
