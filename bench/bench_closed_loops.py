@@ -22,7 +22,16 @@ as the scenes): the largest distance of the angles from the closed-form IK of th
 p3 (tests/reference/ik3r2s.py), of p3 from the sphere |p3 - P4| = l4, the steps and the wall
 time of the run (compiles excluded; the cache keeps them).
 
+`--3dpins`: the crank-rocker written with spatial rods and full 3-D revolute joints
+(tests/loops/fourbar_3dpins.yaml: 20 constraint components on 18 degrees of freedom, three of
+them redundant) beside the planar models/fourbar_rigid.yaml, C backend, Radau over 5 s at rtol
+1e-6, 1e-8 and 1e-10 (atol = rtol / 100), side by side in one run: the largest angle and rate
+errors against the reference (rtol 1e-12), the largest out-of-plane coordinate or velocity of
+the 3-D model, the steps and the wall time of `simulate` (best of 3); then the 3-D model once
+on the numpy backend at rtol 1e-10.
+
     PYTHONPATH=src .venv/bin/python bench/bench_closed_loops.py [--drift] [--compare] [--3r2s]
+        [--3dpins]
 """
 from __future__ import annotations
 
@@ -135,17 +144,50 @@ def three_r_two_s() -> None:
                   f"{res.run_time:.3f} |", flush=True)
 
 
+def three_d_pins() -> None:
+    import fourbar_lagrange as fl
+
+    T = 5.0
+    t = np.linspace(0.0, T, 501)
+    ref = fl.simulate(t)
+    pins = ROOT / "tests" / "loops" / "fourbar_3dpins.yaml"
+    cases = [("planar (fourbar_rigid)", "c", bgc.compile(str(RIGID), target="c")),
+             ("3-D pins and locks", "c", bgc.compile(str(pins), target="c"))]
+    print("| model | backend | rtol | max angle error (rad) | max rate error (rad/s) | "
+          "max out of plane | steps | wall (s) |")
+    print("|---|---|---|---|---|---|---|---|")
+    runs = [(rtol, case, 3) for rtol in (1e-6, 1e-8, 1e-10) for case in cases]
+    runs.append((1e-10, ("3-D pins and locks", "numpy", bgc.compile(str(pins))), 1))
+    for rtol, (name, backend, m), tries in runs:
+        best, r = np.inf, None
+        for _ in range(tries):
+            t0 = time.perf_counter()
+            r = m.simulate((0.0, T), t_eval=t, method="Radau", rtol=rtol, atol=rtol * 1e-2,
+                           max_steps=10_000_000)
+            best = min(best, time.perf_counter() - t0)
+        ang = max(np.abs(np.unwrap(np.asarray(r.y[f"th{i}"])) - ref[f"th{i}"]).max()
+                  for i in (1, 2, 3))
+        rate = max(np.abs(np.asarray(r.y[f"w{i}"]) - ref[f"w{i}"]).max() for i in (1, 2, 3))
+        out = (max(np.abs(r.y["out_pos"]).max(), np.abs(r.y["out_vel"]).max())
+               if "out_pos" in r.y else float("nan"))
+        print(f"| {name} | {backend} | {rtol:g} | {ang:.2e} | {rate:.2e} | {out:.1e} | "
+              f"{r.stats['nsteps']} | {best:.3f} |", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--drift", action="store_true")
     ap.add_argument("--compare", action="store_true")
     ap.add_argument("--3r2s", dest="r3r2s", action="store_true")
+    ap.add_argument("--3dpins", dest="pins", action="store_true")
     a = ap.parse_args()
+    if a.pins:
+        three_d_pins()
     if a.compare:
         compare()
     if a.r3r2s:
         three_r_two_s()
-    if a.drift or not (a.compare or a.r3r2s):
+    if a.drift or not (a.compare or a.r3r2s or a.pins):
         drift()
 
 

@@ -26,7 +26,7 @@ import numpy as np
 import sympy as sp
 
 from bgc.base.errors import ModelError
-from bgc.core.constraints import closure_of, initial_values, loop_text, number_of
+from bgc.core.constraints import closure_of, initial_values, lock_of, loop_text, number_of
 from bgc.core.context import Context
 
 _TOL = 1e-9  # relative tolerance of the checks
@@ -211,7 +211,12 @@ def numeric_redundancy(ctx: Context, defs: dict, state_vars) -> set:
     """The constraint components that are redundant at the model's initial state: the rows of
     the velocity constraints' Jacobian G = d(f - s)/d(momenta) (numeric: the flows are linear
     in the momenta at fixed positions) that add nothing to its rank (SVD, relative tolerance
-    1e-9), taken greedily in declaration order, so the first written constraints are kept.
+    1e-9), taken greedily: first the locks of partly determined multibonds (a revolute joint's
+    two locked rotations), then the sources that close loops, each in the order causality
+    chose them. The locks fix the bodies' out-of-plane rotations joint by joint from the
+    ground, so in a planar loop written with 3-D joints what is dropped is the out-of-plane
+    part: the last lock of a closed chain of locks and the loop closure's component along the
+    joint axes (docs/closed_loops.md).
     Their reactions are then 0 (bgc.core.constraints.stabilise) instead of a singular solve
     at run time. Empty where the initial state cannot be evaluated at compile time."""
     if not ctx.constraints:
@@ -221,7 +226,8 @@ def numeric_redundancy(ctx: Context, defs: dict, state_vars) -> set:
         return set()
     types = {el.id: el.type for el in ctx.bg.elements}
     momenta = [sv.symbol for sv in state_vars if types.get(sv.owner) == "I"]
-    rows = [(c.source, k, f - s) for c in ctx.constraints
+    locks = [c for c in ctx.constraints if lock_of(ctx.bg, c.source) is not None]
+    rows = [(c.source, k, f - s) for c in locks + [c for c in ctx.constraints if c not in locks]
             for k, (f, s) in enumerate(zip(c.flow, c.target))]
 
     def residuals(at):

@@ -67,9 +67,10 @@ class Causality:
 class CausalConflict(ModelError):
     """A causal conflict, with the element where it arose (``at``)."""
 
-    def __init__(self, coord, message: str, at: str):
+    def __init__(self, coord, message: str, at: str, origins: tuple = ()):
         super().__init__(coord, message)
         self.at = at
+        self.origins = origins  # the elements whose decisions clash
 
 
 class _Scap:
@@ -94,7 +95,7 @@ class _Scap:
                 raise CausalConflict(self.bg.element(via).coord,
                                  f"causal conflict on bond {b.id!r} ({b.src} -> {b.dst}): "
                                  f"{src(origin, via)} and {src(o, o_via)} both impose its {what}",
-                                 via)
+                                 via, (origin, o))
             return
         self.effort_by[b.id] = setter
         self.origin[b.id] = (origin, via)
@@ -133,7 +134,7 @@ class _Scap:
                            f"{self.kind(origins[0])} imposes its {what} through {len(imp)} "
                            "bonds")
                     raise CausalConflict(el.coord, f"causal conflict at {self.kind(eid)}: "
-                                                   f"{who}", eid)
+                                                   f"{who}", eid, tuple(origins))
                 if n_imp == 0 and bonds and all(st is False for st in states):
                     what = "effort" if t == "0" else "flow"
                     raise CausalConflict(el.coord, f"causal conflict at {self.kind(eid)}: every "
@@ -200,14 +201,17 @@ def assign_causality(bg: BondGraph, allow_derivative: bool = False) -> Causality
 
 def _assign(bg: BondGraph, allow_derivative: bool, constraints: tuple) -> Causality:
     s = _Scap(bg)
-    # 1. sources and R elements whose law fixes their form; a constraint sets its effort
-    for el in bg.elements:
-        if el.type == "Se" or (el.type == "Sf" and el.id in constraints):
-            s.decide(el, True)
-        elif el.type == "Sf":
-            s.decide(el, False)
-        elif el.type == "R" and el.law and el.law[0] in FIXED_R:
-            s.decide(el, el.law[0] == "effort")
+    try:
+        _sources(s, constraints)
+    except CausalConflict:
+        # the sources alone conflict. Where their flows went through a non-square modulus
+        # from its small side (a lock's 2 components taken for 3: a closed chain of locks
+        # then meets itself), that lock is a constraint first (the partly determined rule)
+        closing = _partial_open(bg, s, constraints)
+        if closing is not None:
+            raise _Constrain(closing) from None
+        raise
+    base = _copy(s)
     # 2. storage in integral causality. In file order when that leaves none in derivative
     # causality (then the order does not matter); otherwise the independent set is chosen.
     trial = _copy(s)
@@ -228,6 +232,8 @@ def _assign(bg: BondGraph, allow_derivative: bool, constraints: tuple) -> Causal
             closing = _closing_source(bg, loop, constraints)
             if closing is None and plain_err is None:  # a lock the plain order left partial
                 closing = _partial_in(bg, trial, constraints)
+            if closing is None:  # a lock the sources left partial (a closed chain of locks)
+                closing = _partial_open(bg, base, constraints)
             if closing is not None:
                 raise _Constrain(closing) from None
             if loop:
@@ -265,6 +271,18 @@ def _assign(bg: BondGraph, allow_derivative: bool, constraints: tuple) -> Causal
             raise ModelError(culprit[0], culprit[1])
         raise ModelError(bg.element(derivative[0]).coord, derivative_message(bg, caus))
     return caus
+
+
+def _sources(s: _Scap, constraints: tuple) -> None:
+    """SCAP's step 1: sources and R elements whose law fixes their form, each followed by
+    propagation; a constraint sets its effort."""
+    for el in s.bg.elements:
+        if el.type == "Se" or (el.type == "Sf" and el.id in constraints):
+            s.decide(el, True)
+        elif el.type == "Sf":
+            s.decide(el, False)
+        elif el.type == "R" and el.law and el.law[0] in FIXED_R:
+            s.decide(el, el.law[0] == "effort")
 
 
 def _copy(s: _Scap) -> _Scap:
@@ -360,12 +378,26 @@ def _choose_independent(bg: BondGraph, s: _Scap) -> None:
 def _closing_source(bg: BondGraph, loop: list, constraints: tuple) -> str | None:
     """The flow source that becomes the loop's constraint: a fixed one (its flow a constant:
     a pivot, not a drive) before a driven one, then the last one written on the loop (the
-    first is the loop's anchor, as a user reads it), never one that is already."""
+    first is the loop's anchor, as a user reads it), never one that is already, nor one that
+    cannot be (``_can_close``)."""
     order = {e.id: i for i, e in enumerate(bg.elements)}
     srcs = [x for x in loop if x != "ground" and bg.element(x).type == "Sf"
             and x not in constraints]
     fixed = [x for x in srcs if not bg.element(x).law[1].names()]
-    return max(fixed or srcs, key=order.get) if srcs else None
+    ranked = sorted(fixed, key=order.get, reverse=True) + \
+        sorted((x for x in srcs if x not in fixed), key=order.get, reverse=True)
+    return next((x for x in ranked if _can_close(bg, x, constraints)), None)
+
+
+def _can_close(bg: BondGraph, source: str, constraints: tuple) -> bool:
+    """Whether ``source`` can be a constraint beside ``constraints``: as an effort source its
+    effort must not clash, in SCAP's step 1, with another's (a ground whose lock is already a
+    constraint: the two would both set the lock's 0-junction's effort)."""
+    try:
+        _sources(_Scap(bg), constraints + (source,))
+    except CausalConflict as err:
+        return source not in err.origins
+    return True
 
 
 def _partial_source(bg: BondGraph, s: _Scap, bond: FlatBond, constraints: tuple) -> str | None:
@@ -373,6 +405,25 @@ def _partial_source(bg: BondGraph, s: _Scap, bond: FlatBond, constraints: tuple)
     origin = s.origin.get(bond.id, (None, None))[0]
     if origin is not None and bg.element(origin).type == "Sf" and origin not in constraints:
         return origin
+    return None
+
+
+def _partial_open(bg: BondGraph, s: _Scap, constraints: tuple) -> str | None:
+    """``_check_partial``'s source on an unfinished assignment: the first non-square modulus
+    (in element order) whose two bonds are set and which is inverted, if a flow source's
+    imposed flow reached it from its small side."""
+    for el in bg.elements:
+        if el.type not in ("MTF", "MGY"):
+            continue
+        b1, b2 = sorted(bg.bonds_of(el.id), key=lambda b: b.dst != el.id)
+        e1, e2 = s.effort_by.get(b1.id), s.effort_by.get(b2.id)
+        if b1.n == b2.n or e1 is None or e2 is None:
+            continue
+        inv = e1 != el.id if el.type == "MTF" else not (e1 == el.id and e2 == el.id)
+        if inv:
+            src = _partial_source(bg, s, b1 if b1.n < b2.n else b2, constraints)
+            if src is not None:
+                return src
     return None
 
 
@@ -409,18 +460,20 @@ def _check_partial(bg: BondGraph, s: _Scap, constraints: tuple = ()) -> None:
                                  "with a stiffness)")
 
 
-def closed_loop(bg: BondGraph, at: str) -> list[str]:
+def closed_loop(bg: BondGraph, at: str, avoid=frozenset()) -> list[str]:
     """A cycle through element ``at`` and the ground (every flow source joined to one ground
     node: fixed points are one body), made of two node-disjoint paths from ``at`` to the
-    ground: a closed kinematic loop. Empty when there is none (or no inertia at all)."""
+    ground: a closed kinematic loop. Empty when there is none (or no inertia at all).
+    ``avoid``: elements the cycle may not pass through."""
     import networkx as nx
 
     g = nx.Graph()
     for b in bg.bonds:
-        g.add_edge(b.src, b.dst, bond=b.id)
+        if b.src not in avoid and b.dst not in avoid:
+            g.add_edge(b.src, b.dst, bond=b.id)
     ground = ("ground",)
     for el in bg.elements:
-        if el.type == "Sf":
+        if el.type == "Sf" and el.id not in avoid:
             g.add_edge(el.id, ground, bond=None)
     if at not in g or not any(el.type == "I" for el in bg.elements):
         return []

@@ -182,9 +182,34 @@ def number_of(expr, vals) -> float | None:
     return sp.Float(v.real) if abs(v.imag) <= 1e-300 and np.isfinite(v.real) else None
 
 
+def lock_of(bg, source: str):
+    """The non-square modulus a flow source sits behind (a revolute joint's lock: the source
+    holds the small side's components), else None."""
+    (b,) = bg.bonds_of(source)
+    other = bg.element(b.src if b.dst == source else b.dst)
+    if other.type in ("MTF", "MGY") and len({x.n for x in bg.bonds_of(other.id)}) > 1:
+        return other
+    return None
+
+
+def _lock_parts(bg) -> frozenset:
+    """Every lock's flow source and the junctions on its modulus's large side: a loop that
+    one of them closes does not run through another's (a lock holds part of a multibond)."""
+    out = set()
+    for el in bg.elements:
+        if el.type == "Sf" and lock_of(bg, el.id) is not None:
+            m = lock_of(bg, el.id)
+            out.add(el.id)
+            out.update(x.src if x.dst == m.id else x.dst for x in bg.bonds_of(m.id))
+    return frozenset(out)
+
+
 def loop_text(bg, source: str) -> str:
-    """The loop a constraint closes, by its elements (at most 24 named)."""
-    names = [x for x in closed_loop(bg, source) if x != "ground"]
+    """The loop a constraint closes, by its elements (at most 24 named). The loop a pin
+    closes does not run through the revolute locks (their sources, their junctions)."""
+    avoid = frozenset() if lock_of(bg, source) is not None else _lock_parts(bg)
+    names = [x for x in closed_loop(bg, source, avoid - {source}) or closed_loop(bg, source)
+             if x != "ground"]
     if not names:
         return f"at {source!r}"
     more = f", ... ({len(names)} elements)" if len(names) > 24 else ""
@@ -201,13 +226,19 @@ def constraint_report(bg, caus, eqs) -> str:
     lines = [f"closed loops (constraints held by reactions; violation q stabilised by "
              f"q'' + 2 alpha q' + alpha^2 q = 0, alpha = {alpha:g} 1/s):"]
     qs = {c: [sv.name for sv in eqs.states if sv.owner == c] for c in caus.constraints}
+    redundant = {(src, k) for src, k in getattr(eqs, "redundant", ())}
     for k, src in enumerate(caus.constraints, 1):
         el = bg.element(src)
         (b,) = bg.bonds_of(src)
-        lines.append(f"  loop {k} {loop_text(bg, src)}")
+        lock = lock_of(bg, src)
+        kind = (f" (a lock: {b.n} of the {max(x.n for x in bg.bonds_of(lock.id))} components "
+                f"behind {lock.type} {lock.id})" if lock is not None else "")
+        lines.append(f"  loop {k} {loop_text(bg, src)}{kind}")
         lines.append(f"    constraint: Sf {src} (line {el.coord.line}) on bond {b.id} "
                      f"({b.src} -> {b.dst}), {b.n} component(s): its flow held, its effort the "
                      f"reaction; violation state(s) {', '.join(qs[src])}")
+        dropped = [qs[src][i] for i in range(b.n) if (src, i) in redundant]
+        lines.append(f"    redundant components: {', '.join(dropped) or 'none'}")
     cons = {n for v in qs.values() for n in v}
     kept = [sv.name for sv in eqs.states if sv.name not in cons]
     lines.append(f"  coordinates kept independent: {', '.join(kept) or 'none'}")
