@@ -181,13 +181,11 @@ def _project_positions(ctx, state_vars, vals, closing) -> list[str]:
                          "`initial: project` found no configuration that closes the loop near "
                          f"the given one (residual [{_shown(r)}] after {NEWTON_ITER} Newton "
                          "steps); give initial positions closer to an assembled one")
-    notes = []
     for s, a, b in zip(xs, x0, x):
         if a != b:
             _set_initial(state_vars, vals, s, float(b))
-            notes.append(f"{_name_of(state_vars, s)} {a:.10g} -> {b:.10g}")
-    return [f"initial positions projected onto the loop closure: {', '.join(notes)}"] if notes \
-        else []
+    text = changes([_name_of(state_vars, s) for s in xs], x0, x)
+    return [f"initial positions projected onto the loop closure: {text}"] if text else []
 
 
 class _Velocity:

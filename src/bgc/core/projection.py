@@ -97,5 +97,6 @@ def _differences(phi, x: np.ndarray) -> np.ndarray:
 
 
 def changes(names, old, new) -> str:
-    """``name old -> new`` for each value that changed, comma-separated."""
-    return ", ".join(f"{n} {a:.10g} -> {b:.10g}" for n, a, b in zip(names, old, new) if a != b)
+    """``name old -> new`` for each value that changed (beyond rounding), comma-separated."""
+    return ", ".join(f"{n} {a:.10g} -> {b:.10g}" for n, a, b in zip(names, old, new)
+                     if abs(a - b) > 1e-13 * max(1.0, abs(a)))
