@@ -105,7 +105,7 @@ def consistent_initial(ctx: Context, state_vars: list, kept, derivatives,
         notes += _project_positions(ctx, state_vars, vals, closing)
     for c in closing:
         _check_positions(ctx, vals, c)
-    velocity = _Velocity(ctx, state_vars, kept, derivatives, energy)
+    velocity = _Velocity(ctx, state_vars, kept, derivatives, energy if project else None)
     if project:
         notes += _project_velocities(ctx, state_vars, vals, velocity)
     res = velocity.residuals(vals)
