@@ -82,7 +82,8 @@ def parse_scene(path: str | Path) -> Scene:
     top = r.mapping(root, "the scene")
     allowed = ("bgc_scene", "name", "description", "model", "duration", "t_span", "parameters",
                "inputs", "outputs", "solver", "breakpoints", "plots", "effects", "free",
-               "initial", "constraints", "sweep")  # sweep: read by bgc.studies.sweep (bgc sweep); bgc simulate ignores it
+               "initial", "constraints",
+               "sweep")  # sweep: read by bgc.studies.sweep (bgc sweep); bgc simulate ignores it
     require(r, top, root, allowed, "the scene", required=("bgc_scene", "model"))
     version = r.scalar(top["bgc_scene"][1], "bgc_scene")
     if isinstance(version, bool) or version != 1:
