@@ -91,6 +91,27 @@ CONSTRAINT_STATES = (
     'pivot2.q[1]',
 )
 CONSTRAINT_ALPHA = 20.0
+# per component: does the constraint have a closure (a position residual), else its position
+# residual is q; the states that are momenta and those the closures read (a projection moves them)
+CONSTRAINT_CLOSED = (True, True, )
+MOMENTUM_STATES = ('crank.Ir.p', 'coupler.Ir.p', 'rocker.Ir.p', )
+CLOSURE_STATES = ('crank.th', 'coupler.th', 'rocker.th', )
+
+
+def constraint_residuals(t, x, p=None):
+    """(positions, velocities): each constraint component's position residual (its closure,
+    else its violation q) and velocity residual (f - s), arrays (m, *batch) in
+    CONSTRAINT_STATES order."""
+    _v = _constraint_values(t, x, p)
+    return _v[:2], _v[2:4]
+
+
+def kinetic_energy(t, x, p=None):
+    """1/2 p.f summed over the I elements (those in derivative causality too): the kinetic
+    energy, quadratic in the momenta at fixed positions (the metric of a start's projection)."""
+    return _constraint_values(t, x, p)[4]
+
+
 PARAM_DEFAULTS = {
     'g': 9.81,
     'd': 1.0,
@@ -1948,6 +1969,107 @@ def outputs(t, x, p=None, u=None):
     }
 
 
+def _constraint_values(t, x, p=None, u=None):
+    """The constraints' position residuals, velocity residuals and the kinetic energy, stacked:
+    (2 m + 1, *batch)."""
+    _pv, _bshape = _params(p)
+    d = _pv[1]
+    l1 = _pv[2]
+    l2 = _pv[3]
+    l3 = _pv[4]
+    m1 = _pv[5]
+    m2 = _pv[6]
+    m3 = _pv[7]
+
+    x = np.asarray(x, dtype=float)
+    p_crank__Ir, p_coupler__Ir, p_rocker__Ir, s_crank__th, s_coupler__th, s_rocker__th, _, _, _, _, = x
+    # crank.Ir (I, integral): flow from momentum
+    f_crank__b3 = 12*p_crank__Ir/(l1*l1*m1)
+    _c0 = l1*xp.sin(s_crank__th)
+    _c1 = (1/2)*f_crank__b3
+    _c2 = _c0*_c1
+    # crank.mA (MTF): f2 = M f1
+    f_crank__b5_0 = _c2
+    _c3 = l1*xp.cos(s_crank__th)
+    _c4 = _c1*_c3
+    # crank.mA (MTF): f2 = M f1
+    f_crank__b5_1 = -_c4
+    # crank.mB (MTF): f2 = M f1
+    f_crank__b9_0 = -_c2
+    # crank.mB (MTF): f2 = M f1
+    f_crank__b9_1 = _c4
+    # crank.It (I, derivative): momentum from flow
+    p_crank__It_0 = -m1*f_crank__b5_0
+    # 0-junction crank.sB: flow balance
+    f_crank__b11_0 = f_crank__b9_0 - f_crank__b5_0
+    # crank.It (I, derivative): momentum from flow
+    p_crank__It_1 = -m1*f_crank__b5_1
+    # 0-junction crank.sB: flow balance
+    f_crank__b11_1 = f_crank__b9_1 - f_crank__b5_1
+    # coupler.Ir (I, integral): flow from momentum
+    f_coupler__b3 = 12*p_coupler__Ir/(l2*l2*m2)
+    _c5 = l2*xp.sin(s_coupler__th)
+    _c6 = (1/2)*f_coupler__b3
+    _c7 = _c6*_c5
+    # coupler.mA (MTF): f2 = M f1
+    f_coupler__b5_0 = _c7
+    _c8 = l2*xp.cos(s_coupler__th)
+    _c9 = _c6*_c8
+    # coupler.mA (MTF): f2 = M f1
+    f_coupler__b5_1 = -_c9
+    # coupler.mB (MTF): f2 = M f1
+    f_coupler__b9_0 = -_c7
+    # coupler.mB (MTF): f2 = M f1
+    f_coupler__b9_1 = _c9
+    # 0-junction coupler.sA: flow balance
+    f_coupler__b6_0 = f_crank__b11_0 - f_coupler__b5_0
+    # coupler.It (I, derivative): momentum from flow
+    p_coupler__It_0 = m2*f_coupler__b6_0
+    # 0-junction coupler.sB: flow balance
+    f_coupler__b11_0 = f_coupler__b6_0 + f_coupler__b9_0
+    # 0-junction coupler.sA: flow balance
+    f_coupler__b6_1 = f_crank__b11_1 - f_coupler__b5_1
+    # coupler.It (I, derivative): momentum from flow
+    p_coupler__It_1 = m2*f_coupler__b6_1
+    # 0-junction coupler.sB: flow balance
+    f_coupler__b11_1 = f_coupler__b6_1 + f_coupler__b9_1
+    # rocker.Ir (I, integral): flow from momentum
+    f_rocker__b3 = 12*p_rocker__Ir/(l3*l3*m3)
+    _c10 = l3*xp.sin(s_rocker__th)
+    _c11 = (1/2)*f_rocker__b3
+    _c12 = _c11*_c10
+    # rocker.mA (MTF): f2 = M f1
+    f_rocker__b5_0 = _c12
+    _c13 = l3*xp.cos(s_rocker__th)
+    _c14 = _c13*_c11
+    # rocker.mA (MTF): f2 = M f1
+    f_rocker__b5_1 = -_c14
+    # rocker.mB (MTF): f2 = M f1
+    f_rocker__b9_0 = -_c12
+    # rocker.mB (MTF): f2 = M f1
+    f_rocker__b9_1 = _c14
+    # 0-junction rocker.sA: flow balance
+    f_rocker__b6_0 = f_coupler__b11_0 - f_rocker__b5_0
+    # rocker.It (I, derivative): momentum from flow
+    p_rocker__It_0 = m3*f_rocker__b6_0
+    # 0-junction rocker.sB: flow balance
+    f_rocker__b11_0 = f_rocker__b6_0 + f_rocker__b9_0
+    # 0-junction rocker.sA: flow balance
+    f_rocker__b6_1 = f_coupler__b11_1 - f_rocker__b5_1
+    # rocker.It (I, derivative): momentum from flow
+    p_rocker__It_1 = m3*f_rocker__b6_1
+    # 0-junction rocker.sB: flow balance
+    f_rocker__b11_1 = f_rocker__b6_1 + f_rocker__b9_1
+
+    _r = np.empty((5,) + np.broadcast_shapes(x.shape[1:], _bshape))
+    _r[0] = -d + _c3 + _c8 + _c13
+    _r[1] = _c0 + _c5 + _c10
+    _r[2] = f_rocker__b11_0
+    _r[3] = f_rocker__b11_1
+    _r[4] = _c6*p_coupler__Ir - 1/2*p_crank__It_1*f_crank__b5_1 + (1/2)*p_coupler__It_0*f_coupler__b6_0 + (1/2)*p_coupler__It_1*f_coupler__b6_1 + _c1*p_crank__Ir + _c11*p_rocker__Ir + (1/2)*p_rocker__It_0*f_rocker__b6_0 + (1/2)*p_rocker__It_1*f_rocker__b6_1 - 1/2*p_crank__It_0*f_crank__b5_0
+    return _r
+
+
 def input_jacobian(t, x, p=None, u=None):
     """d(rhs)/du, analytic (forward mode along the causal order): (n, m, *batch), the columns
     in INPUT_LABELS order (INPUT_NAMES, a vector input's components in order)."""
@@ -3000,9 +3122,51 @@ def _rodas_class():
 _RODAS4 = None
 
 
+#: a given start farther than this from a closed loop's constraints (relative to the state's
+#: scale, 1 at least) is refused by simulate, unless check_constraints=False
+CONSTRAINT_TOL = 1e-8
+
+
+def constraint_violation(t, x, p=None):
+    """None when x meets the closed loops' constraints at t (each closure, each constraint's
+    flow: constraint_residuals) within CONSTRAINT_TOL of the state's scale; else the message
+    that names the first constraint violated and its residual (the worst instance of a batch).
+    None for a model without constraints."""
+    residuals = globals().get("constraint_residuals")
+    if residuals is None or x is None:
+        return None
+    x = np.asarray(x, dtype=float)
+    pos, vel = (np.asarray(r, dtype=float) for r in residuals(t, x, p))
+    tol = CONSTRAINT_TOL * max(1.0, float(np.max(np.abs(x))))
+    sources = [name.split(".q")[0] for name in CONSTRAINT_STATES]
+    for src in dict.fromkeys(sources):
+        rows = [k for k, s in enumerate(sources) if s == src]
+        for kind, vals, unit in (("positions violate its closure", pos, "displacement"),
+                                 ("velocities violate it", vel, "flow")):
+            r = vals[rows].reshape(len(rows), -1)
+            worst = np.max(np.abs(r), axis=0)
+            if not np.max(worst) > tol:
+                continue
+            shown = ", ".join(f"{v:.6g}" for v in r[:, int(np.argmax(worst))])
+            return (f"constraint {src!r} closing a kinematic loop: the initial {kind}: the "
+                    f"residual is [{shown}] (SI units of the bond's {unit})")
+    return None
+
+
+def _check_start(t0, x0, p, check_constraints):
+    """simulate's check of a given x0 against the closed loops' constraints."""
+    if not check_constraints or x0 is None:
+        return
+    msg = constraint_violation(t0, x0, p)
+    if msg:
+        raise ValueError(f"x0: {msg}; give an initial state that closes the loop, or pass "
+                         "check_constraints=False to start from it on purpose (the stabilised "
+                         "constraint then pulls it back)")
+
+
 def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, u=None,
              x0=None, dt=None, breakpoints=(), jac=True, max_step=np.inf, max_steps=50_000,
-             stiff_check=True, max_wall=None, sparse=None):
+             stiff_check=True, max_wall=None, sparse=None, check_constraints=True):
     """Integrate over t_span with one of scipy's OdeSolver classes or bgc's Rosenbrock method
     Rodas4 (L-stable, order 4; see above); returns SimResult (t, x, y).
 
@@ -3022,7 +3186,9 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
     methods' linear algebra, sparse (scipy.sparse, splu) or dense (LAPACK); None chooses by
     the flat state's size and the Jacobian's density (SPARSE_MIN_SIZE, SPARSE_MAX_DENSITY).
     Statistics in result.stats: nfev (rhs calls), njev, nlu, nsteps (accepted steps), nstiff
-    (stiffness checks), summed over the segments.
+    (stiffness checks), summed over the segments. check_constraints: a given x0 of a model
+    with closed loops is checked against their constraints (ValueError naming the constraint
+    and its residual); False starts from it as given.
     """
     import time
 
@@ -3030,6 +3196,7 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
 
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}: one of {', '.join(METHODS)}")
+    _check_start(float(t_span[0]), x0, p, check_constraints)
     # numpy's floating-point warnings stay quiet here: a value that is not finite stops the
     # run with a NonFiniteError that says where, instead of a warning on the terminal
     with np.errstate(all="ignore"):

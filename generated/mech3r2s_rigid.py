@@ -292,6 +292,27 @@ CONSTRAINT_STATES = (
     'r3.lock.q[1]',
 )
 CONSTRAINT_ALPHA = 20.0
+# per component: does the constraint have a closure (a position residual), else its position
+# residual is q; the states that are momenta and those the closures read (a projection moves them)
+CONSTRAINT_CLOSED = (False, False, False, False, False, False, False, False, False, )
+MOMENTUM_STATES = ('link1.Ir.p[0]', 'link1.Ir.p[1]', 'link1.Ir.p[2]', 'link2.Ir.p[0]', 'link2.Ir.p[1]', 'link2.Ir.p[2]', 'link3.Ir.p[0]', 'link3.Ir.p[1]', 'link3.Ir.p[2]', 'link4.Ir.p[0]', 'link4.Ir.p[1]', 'link4.Ir.p[2]', )
+CLOSURE_STATES = ()
+
+
+def constraint_residuals(t, x, p=None):
+    """(positions, velocities): each constraint component's position residual (its closure,
+    else its violation q) and velocity residual (f - s), arrays (m, *batch) in
+    CONSTRAINT_STATES order."""
+    _v = _constraint_values(t, x, p)
+    return _v[:9], _v[9:18]
+
+
+def kinetic_energy(t, x, p=None):
+    """1/2 p.f summed over the I elements (those in derivative causality too): the kinetic
+    energy, quadratic in the momenta at fixed positions (the metric of a start's projection)."""
+    return _constraint_values(t, x, p)[18]
+
+
 PARAM_DEFAULTS = {
     'l1': 0.07,
     'l2': 0.06,
@@ -30468,6 +30489,293 @@ def outputs(t, x, p=None, u=None):
     }
 
 
+def _constraint_values(t, x, p=None, u=None):
+    """The constraints' position residuals, velocity residuals and the kinetic energy, stacked:
+    (2 m + 1, *batch)."""
+    _pv, _bshape = _params(p)
+    l1 = _pv[0]
+    l2 = _pv[1]
+    l3 = _pv[2]
+    l4 = _pv[3]
+    m1 = _pv[4]
+    m2 = _pv[5]
+    m3 = _pv[6]
+    m4 = _pv[7]
+    link1__Ixx = _pv[17]
+    link1__Iyy = _pv[18]
+    link2__Ixx = _pv[31]
+    link2__Iyy = _pv[32]
+    link3__Ixx = _pv[37]
+    link3__Iyy = _pv[38]
+    link4__Ixx = _pv[43]
+    link4__Iyy = _pv[44]
+
+    x = np.asarray(x, dtype=float)
+    p_link1__Ir_0, p_link1__Ir_1, p_link1__Ir_2, p_link2__Ir_0, p_link2__Ir_1, p_link2__Ir_2, p_link3__Ir_0, p_link3__Ir_1, p_link3__Ir_2, p_link4__Ir_0, p_link4__Ir_1, p_link4__Ir_2, _, _, _, s_link1__R_0_0, s_link1__R_0_1, s_link1__R_0_2, s_link1__R_1_0, s_link1__R_1_1, s_link1__R_1_2, s_link1__R_2_0, s_link1__R_2_1, s_link1__R_2_2, _, _, _, s_link2__R_0_0, s_link2__R_0_1, s_link2__R_0_2, s_link2__R_1_0, s_link2__R_1_1, s_link2__R_1_2, s_link2__R_2_0, s_link2__R_2_1, s_link2__R_2_2, _, _, _, s_link3__R_0_0, s_link3__R_0_1, s_link3__R_0_2, s_link3__R_1_0, s_link3__R_1_1, s_link3__R_1_2, s_link3__R_2_0, s_link3__R_2_1, s_link3__R_2_2, _, _, _, s_link4__R_0_0, s_link4__R_0_1, s_link4__R_0_2, s_link4__R_1_0, s_link4__R_1_1, s_link4__R_1_2, s_link4__R_2_0, s_link4__R_2_1, s_link4__R_2_2, _, _, _, _, _, _, _, _, q_ground_v5_0, q_ground_v5_1, q_ground_v5_2, q_r1__lock_0, q_r1__lock_1, q_r2__lock_0, q_r2__lock_1, q_r3__lock_0, q_r3__lock_1, = x
+    _c0 = 1/link1__Iyy
+    _c1 = _c0*s_link1__R_0_1
+    _c2 = _c0*s_link1__R_0_2
+    _c3 = 1/link1__Ixx
+    _c4 = _c3*s_link1__R_0_0
+    _c5 = _c4*s_link1__R_2_0 + _c2*s_link1__R_2_2 + _c1*s_link1__R_2_1
+    _c6 = _c1*s_link1__R_1_1 + _c4*s_link1__R_1_0 + _c2*s_link1__R_1_2
+    # link1.Ir (I, integral): flow from momentum
+    f_link1__b3_0 = (_c3*s_link1__R_0_0*s_link1__R_0_0 + _c0*s_link1__R_0_1*s_link1__R_0_1 + _c0*s_link1__R_0_2*s_link1__R_0_2)*p_link1__Ir_0 + _c6*p_link1__Ir_1 + _c5*p_link1__Ir_2
+    _c7 = _c3*s_link1__R_1_0*s_link1__R_2_0 + _c0*s_link1__R_1_1*s_link1__R_2_1 + _c0*s_link1__R_1_2*s_link1__R_2_2
+    # link1.Ir (I, integral): flow from momentum
+    f_link1__b3_1 = _c6*p_link1__Ir_0 + (_c3*s_link1__R_1_0*s_link1__R_1_0 + _c0*s_link1__R_1_1*s_link1__R_1_1 + _c0*s_link1__R_1_2*s_link1__R_1_2)*p_link1__Ir_1 + _c7*p_link1__Ir_2
+    # link1.Ir (I, integral): flow from momentum
+    f_link1__b3_2 = _c5*p_link1__Ir_0 + _c7*p_link1__Ir_1 + (_c3*s_link1__R_2_0*s_link1__R_2_0 + _c0*s_link1__R_2_2*s_link1__R_2_2 + _c0*s_link1__R_2_1*s_link1__R_2_1)*p_link1__Ir_2
+    _c11 = (1/2)*f_link1__b3_2
+    _c12 = l1*s_link1__R_1_0
+    _c13 = _c12*_c11
+    _c8 = (1/2)*f_link1__b3_1
+    _c9 = l1*s_link1__R_2_0
+    _c10 = _c8*_c9
+    # link1.mQ (MTF): f2 = M f1
+    f_link1__b5_0 = _c13 - _c10
+    _c14 = l1*s_link1__R_0_0
+    _c15 = _c14*_c11
+    _c16 = (1/2)*f_link1__b3_0
+    _c17 = _c9*_c16
+    # link1.mQ (MTF): f2 = M f1
+    f_link1__b5_1 = _c17 - _c15
+    _c18 = _c12*_c16
+    _c19 = _c8*_c14
+    # link1.mQ (MTF): f2 = M f1
+    f_link1__b5_2 = _c19 - _c18
+    # link1.mP (MTF): f2 = M f1
+    f_link1__b9_0 = _c10 - _c13
+    # link1.mP (MTF): f2 = M f1
+    f_link1__b9_1 = _c15 - _c17
+    # link1.mP (MTF): f2 = M f1
+    f_link1__b9_2 = _c18 - _c19
+    _c20 = 1/link2__Iyy
+    _c21 = 1/link2__Ixx
+    _c22 = _c20*s_link2__R_1_1*s_link2__R_0_1 + _c21*s_link2__R_1_0*s_link2__R_0_0 + _c20*s_link2__R_1_2*s_link2__R_0_2
+    _c23 = _c20*s_link2__R_2_2
+    _c24 = _c20*s_link2__R_2_1
+    _c25 = _c21*s_link2__R_2_0
+    _c26 = _c25*s_link2__R_0_0 + _c24*s_link2__R_0_1 + _c23*s_link2__R_0_2
+    # link2.Ir (I, integral): flow from momentum
+    f_link2__b3_0 = (_c21*s_link2__R_0_0*s_link2__R_0_0 + _c20*s_link2__R_0_2*s_link2__R_0_2 + _c20*s_link2__R_0_1*s_link2__R_0_1)*p_link2__Ir_0 + _c26*p_link2__Ir_2 + _c22*p_link2__Ir_1
+    _c27 = _c25*s_link2__R_1_0 + _c24*s_link2__R_1_1 + _c23*s_link2__R_1_2
+    # link2.Ir (I, integral): flow from momentum
+    f_link2__b3_1 = _c22*p_link2__Ir_0 + (_c21*s_link2__R_1_0*s_link2__R_1_0 + _c20*s_link2__R_1_1*s_link2__R_1_1 + _c20*s_link2__R_1_2*s_link2__R_1_2)*p_link2__Ir_1 + _c27*p_link2__Ir_2
+    # link2.Ir (I, integral): flow from momentum
+    f_link2__b3_2 = _c26*p_link2__Ir_0 + _c27*p_link2__Ir_1 + (_c21*s_link2__R_2_0*s_link2__R_2_0 + _c20*s_link2__R_2_1*s_link2__R_2_1 + _c20*s_link2__R_2_2*s_link2__R_2_2)*p_link2__Ir_2
+    _c28 = (1/2)*f_link2__b3_1
+    _c29 = l2*_c28*s_link2__R_2_0
+    _c30 = (1/2)*f_link2__b3_2
+    _c31 = l2*_c30*s_link2__R_1_0
+    # link2.mQ (MTF): f2 = M f1
+    f_link2__b5_0 = _c31 - _c29
+    _c32 = l2*s_link2__R_0_0
+    _c33 = _c30*_c32
+    _c34 = (1/2)*f_link2__b3_0
+    _c35 = l2*_c34
+    _c36 = _c35*s_link2__R_2_0
+    # link2.mQ (MTF): f2 = M f1
+    f_link2__b5_1 = _c36 - _c33
+    _c37 = _c35*s_link2__R_1_0
+    _c38 = _c32*_c28
+    # link2.mQ (MTF): f2 = M f1
+    f_link2__b5_2 = _c38 - _c37
+    # link2.mP (MTF): f2 = M f1
+    f_link2__b9_0 = _c29 - _c31
+    # link2.mP (MTF): f2 = M f1
+    f_link2__b9_1 = _c33 - _c36
+    # link2.mP (MTF): f2 = M f1
+    f_link2__b9_2 = _c37 - _c38
+    _c39 = 1/link3__Iyy
+    _c40 = _c39*s_link3__R_2_2
+    _c41 = _c39*s_link3__R_2_1
+    _c42 = 1/link3__Ixx
+    _c43 = _c42*s_link3__R_2_0*s_link3__R_0_0 + _c41*s_link3__R_0_1 + _c40*s_link3__R_0_2
+    _c44 = _c42*s_link3__R_1_0
+    _c45 = _c39*s_link3__R_1_1*s_link3__R_0_1 + _c44*s_link3__R_0_0 + _c39*s_link3__R_1_2*s_link3__R_0_2
+    # link3.Ir (I, integral): flow from momentum
+    f_link3__b3_0 = (_c42*s_link3__R_0_0*s_link3__R_0_0 + _c39*s_link3__R_0_1*s_link3__R_0_1 + _c39*s_link3__R_0_2*s_link3__R_0_2)*p_link3__Ir_0 + _c45*p_link3__Ir_1 + _c43*p_link3__Ir_2
+    _c46 = _c44*s_link3__R_2_0 + _c41*s_link3__R_1_1 + _c40*s_link3__R_1_2
+    # link3.Ir (I, integral): flow from momentum
+    f_link3__b3_1 = _c45*p_link3__Ir_0 + (_c42*s_link3__R_1_0*s_link3__R_1_0 + _c39*s_link3__R_1_1*s_link3__R_1_1 + _c39*s_link3__R_1_2*s_link3__R_1_2)*p_link3__Ir_1 + _c46*p_link3__Ir_2
+    # link3.Ir (I, integral): flow from momentum
+    f_link3__b3_2 = _c43*p_link3__Ir_0 + _c46*p_link3__Ir_1 + (_c42*s_link3__R_2_0*s_link3__R_2_0 + _c39*s_link3__R_2_1*s_link3__R_2_1 + _c39*s_link3__R_2_2*s_link3__R_2_2)*p_link3__Ir_2
+    _c47 = (1/2)*f_link3__b3_1
+    _c48 = l3*_c47
+    _c49 = _c48*s_link3__R_2_0
+    _c50 = (1/2)*f_link3__b3_2
+    _c51 = l3*_c50
+    _c52 = _c51*s_link3__R_1_0
+    # link3.mQ (MTF): f2 = M f1
+    f_link3__b5_0 = _c52 - _c49
+    _c53 = _c51*s_link3__R_0_0
+    _c54 = (1/2)*f_link3__b3_0
+    _c55 = l3*_c54
+    _c56 = _c55*s_link3__R_2_0
+    # link3.mQ (MTF): f2 = M f1
+    f_link3__b5_1 = _c56 - _c53
+    _c57 = _c55*s_link3__R_1_0
+    _c58 = _c48*s_link3__R_0_0
+    # link3.mQ (MTF): f2 = M f1
+    f_link3__b5_2 = _c58 - _c57
+    # link3.mP (MTF): f2 = M f1
+    f_link3__b9_0 = _c49 - _c52
+    # link3.mP (MTF): f2 = M f1
+    f_link3__b9_1 = _c53 - _c56
+    # link3.mP (MTF): f2 = M f1
+    f_link3__b9_2 = _c57 - _c58
+    _c59 = 1/link4__Iyy
+    _c60 = 1/link4__Ixx
+    _c61 = _c60*s_link4__R_0_0*s_link4__R_1_0 + _c59*s_link4__R_0_2*s_link4__R_1_2 + _c59*s_link4__R_0_1*s_link4__R_1_1
+    _c62 = _c59*s_link4__R_2_2
+    _c63 = _c59*s_link4__R_2_1
+    _c64 = _c60*s_link4__R_2_0
+    _c65 = _c64*s_link4__R_0_0 + _c63*s_link4__R_0_1 + _c62*s_link4__R_0_2
+    # link4.Ir (I, integral): flow from momentum
+    f_link4__b3_0 = (_c60*s_link4__R_0_0*s_link4__R_0_0 + _c59*s_link4__R_0_1*s_link4__R_0_1 + _c59*s_link4__R_0_2*s_link4__R_0_2)*p_link4__Ir_0 + _c65*p_link4__Ir_2 + _c61*p_link4__Ir_1
+    _c66 = _c64*s_link4__R_1_0 + _c63*s_link4__R_1_1 + _c62*s_link4__R_1_2
+    # link4.Ir (I, integral): flow from momentum
+    f_link4__b3_1 = _c61*p_link4__Ir_0 + (_c60*s_link4__R_1_0*s_link4__R_1_0 + _c59*s_link4__R_1_1*s_link4__R_1_1 + _c59*s_link4__R_1_2*s_link4__R_1_2)*p_link4__Ir_1 + _c66*p_link4__Ir_2
+    # link4.Ir (I, integral): flow from momentum
+    f_link4__b3_2 = _c65*p_link4__Ir_0 + _c66*p_link4__Ir_1 + (_c60*s_link4__R_2_0*s_link4__R_2_0 + _c59*s_link4__R_2_1*s_link4__R_2_1 + _c59*s_link4__R_2_2*s_link4__R_2_2)*p_link4__Ir_2
+    _c67 = (1/2)*f_link4__b3_1
+    _c68 = l4*_c67
+    _c69 = _c68*s_link4__R_2_0
+    _c70 = (1/2)*f_link4__b3_2
+    _c71 = l4*s_link4__R_1_0
+    _c72 = _c71*_c70
+    # link4.mQ (MTF): f2 = M f1
+    f_link4__b5_0 = _c72 - _c69
+    _c73 = l4*_c70*s_link4__R_0_0
+    _c74 = (1/2)*f_link4__b3_0
+    _c75 = l4*_c74*s_link4__R_2_0
+    # link4.mQ (MTF): f2 = M f1
+    f_link4__b5_1 = _c75 - _c73
+    _c76 = _c71*_c74
+    _c77 = _c68*s_link4__R_0_0
+    # link4.mQ (MTF): f2 = M f1
+    f_link4__b5_2 = _c77 - _c76
+    # link4.mP (MTF): f2 = M f1
+    f_link4__b9_0 = _c69 - _c72
+    # link4.mP (MTF): f2 = M f1
+    f_link4__b9_1 = _c73 - _c75
+    # link4.mP (MTF): f2 = M f1
+    f_link4__b9_2 = _c76 - _c77
+    # link1.It (I, derivative): momentum from flow
+    p_link1__It_0 = -m1*f_link1__b5_0
+    # 0-junction link1.sP: flow balance
+    f_link1__b11_0 = f_link1__b9_0 - f_link1__b5_0
+    # 0-junction link2.sQ: flow balance
+    f_link2__b6_0 = f_link1__b11_0 - f_link2__b5_0
+    # link2.It (I, derivative): momentum from flow
+    p_link2__It_0 = m2*f_link2__b6_0
+    # 0-junction link2.sP: flow balance
+    f_link2__b11_0 = f_link2__b6_0 + f_link2__b9_0
+    # 0-junction link3.sQ: flow balance
+    f_link3__b6_0 = f_link2__b11_0 - f_link3__b5_0
+    # link3.It (I, derivative): momentum from flow
+    p_link3__It_0 = m3*f_link3__b6_0
+    # 0-junction link3.sP: flow balance
+    f_link3__b11_0 = f_link3__b6_0 + f_link3__b9_0
+    # 0-junction link4.sQ: flow balance
+    f_link4__b6_0 = f_link3__b11_0 - f_link4__b5_0
+    # link4.It (I, derivative): momentum from flow
+    p_link4__It_0 = m4*f_link4__b6_0
+    # 0-junction link4.sP: flow balance
+    f_link4__b11_0 = f_link4__b6_0 + f_link4__b9_0
+    # link1.It (I, derivative): momentum from flow
+    p_link1__It_1 = -m1*f_link1__b5_1
+    # 0-junction link1.sP: flow balance
+    f_link1__b11_1 = f_link1__b9_1 - f_link1__b5_1
+    # 0-junction link2.sQ: flow balance
+    f_link2__b6_1 = f_link1__b11_1 - f_link2__b5_1
+    # link2.It (I, derivative): momentum from flow
+    p_link2__It_1 = m2*f_link2__b6_1
+    # 0-junction link2.sP: flow balance
+    f_link2__b11_1 = f_link2__b6_1 + f_link2__b9_1
+    # 0-junction link3.sQ: flow balance
+    f_link3__b6_1 = f_link2__b11_1 - f_link3__b5_1
+    # link3.It (I, derivative): momentum from flow
+    p_link3__It_1 = m3*f_link3__b6_1
+    # 0-junction link3.sP: flow balance
+    f_link3__b11_1 = f_link3__b6_1 + f_link3__b9_1
+    # 0-junction link4.sQ: flow balance
+    f_link4__b6_1 = f_link3__b11_1 - f_link4__b5_1
+    # link4.It (I, derivative): momentum from flow
+    p_link4__It_1 = m4*f_link4__b6_1
+    # 0-junction link4.sP: flow balance
+    f_link4__b11_1 = f_link4__b6_1 + f_link4__b9_1
+    # link1.It (I, derivative): momentum from flow
+    p_link1__It_2 = -m1*f_link1__b5_2
+    # 0-junction link1.sP: flow balance
+    f_link1__b11_2 = f_link1__b9_2 - f_link1__b5_2
+    # 0-junction link2.sQ: flow balance
+    f_link2__b6_2 = f_link1__b11_2 - f_link2__b5_2
+    # link2.It (I, derivative): momentum from flow
+    p_link2__It_2 = m2*f_link2__b6_2
+    # 0-junction link2.sP: flow balance
+    f_link2__b11_2 = f_link2__b6_2 + f_link2__b9_2
+    # 0-junction link3.sQ: flow balance
+    f_link3__b6_2 = f_link2__b11_2 - f_link3__b5_2
+    # link3.It (I, derivative): momentum from flow
+    p_link3__It_2 = m3*f_link3__b6_2
+    # 0-junction link3.sP: flow balance
+    f_link3__b11_2 = f_link3__b6_2 + f_link3__b9_2
+    # 0-junction link4.sQ: flow balance
+    f_link4__b6_2 = f_link3__b11_2 - f_link4__b5_2
+    # link4.It (I, derivative): momentum from flow
+    p_link4__It_2 = m4*f_link4__b6_2
+    # 0-junction link4.sP: flow balance
+    f_link4__b11_2 = f_link4__b6_2 + f_link4__b9_2
+    # r1.M (MTF): f2 = M f1
+    f_r1__b2_0 = s_link1__R_0_0*f_link1__b3_0 + s_link1__R_1_0*f_link1__b3_1 + s_link1__R_2_0*f_link1__b3_2
+    # r1.M (MTF): f2 = M f1
+    f_r1__b2_1 = s_link1__R_0_1*f_link1__b3_0 + s_link1__R_1_1*f_link1__b3_1 + s_link1__R_2_1*f_link1__b3_2
+    # 0-junction r2.J: flow balance
+    f_r2__b1_0 = f_link2__b3_0 - f_link1__b3_0
+    # 0-junction r2.J: flow balance
+    f_r2__b1_1 = f_link2__b3_1 - f_link1__b3_1
+    # 0-junction r2.J: flow balance
+    f_r2__b1_2 = f_link2__b3_2 - f_link1__b3_2
+    # r2.M (MTF): f2 = M f1
+    f_r2__b2_0 = s_link2__R_0_0*f_r2__b1_0 + s_link2__R_1_0*f_r2__b1_1 + s_link2__R_2_0*f_r2__b1_2
+    # r2.M (MTF): f2 = M f1
+    f_r2__b2_1 = s_link2__R_0_1*f_r2__b1_0 + s_link2__R_1_1*f_r2__b1_1 + s_link2__R_2_1*f_r2__b1_2
+    # 0-junction r3.J: flow balance
+    f_r3__b1_0 = f_link3__b3_0 - f_link2__b3_0
+    # 0-junction r3.J: flow balance
+    f_r3__b1_1 = f_link3__b3_1 - f_link2__b3_1
+    # 0-junction r3.J: flow balance
+    f_r3__b1_2 = f_link3__b3_2 - f_link2__b3_2
+    # r3.M (MTF): f2 = M f1
+    f_r3__b2_0 = s_link3__R_0_0*f_r3__b1_0 + s_link3__R_1_0*f_r3__b1_1 + s_link3__R_2_0*f_r3__b1_2
+    # r3.M (MTF): f2 = M f1
+    f_r3__b2_1 = s_link3__R_0_1*f_r3__b1_0 + s_link3__R_1_1*f_r3__b1_1 + s_link3__R_2_1*f_r3__b1_2
+
+    _r = np.empty((19,) + np.broadcast_shapes(x.shape[1:], _bshape))
+    _r[0] = q_ground_v5_0
+    _r[1] = q_ground_v5_1
+    _r[2] = q_ground_v5_2
+    _r[3] = q_r1__lock_0
+    _r[4] = q_r1__lock_1
+    _r[5] = q_r2__lock_0
+    _r[6] = q_r2__lock_1
+    _r[7] = q_r3__lock_0
+    _r[8] = q_r3__lock_1
+    _r[9] = f_link4__b11_0
+    _r[10] = f_link4__b11_1
+    _r[11] = f_link4__b11_2
+    _r[12] = f_r1__b2_0
+    _r[13] = f_r1__b2_1
+    _r[14] = f_r2__b2_0
+    _r[15] = f_r2__b2_1
+    _r[16] = f_r3__b2_0
+    _r[17] = f_r3__b2_1
+    _r[18] = _c54*p_link3__Ir_0 + _c34*p_link2__Ir_0 + _c67*p_link4__Ir_1 + (1/2)*f_link2__b6_0*p_link2__It_0 + (1/2)*f_link3__b6_2*p_link3__It_2 + (1/2)*f_link2__b6_1*p_link2__It_1 + _c50*p_link3__Ir_2 + _c28*p_link2__Ir_1 + (1/2)*f_link4__b6_1*p_link4__It_1 + (1/2)*f_link4__b6_2*p_link4__It_2 + _c11*p_link1__Ir_2 - 1/2*f_link1__b5_0*p_link1__It_0 + (1/2)*f_link4__b6_0*p_link4__It_0 + _c74*p_link4__Ir_0 + (1/2)*f_link3__b6_1*p_link3__It_1 - 1/2*f_link1__b5_1*p_link1__It_1 + (1/2)*f_link3__b6_0*p_link3__It_0 + _c16*p_link1__Ir_0 + _c8*p_link1__Ir_1 + (1/2)*f_link2__b6_2*p_link2__It_2 - 1/2*f_link1__b5_2*p_link1__It_2 + _c30*p_link2__Ir_2 + _c70*p_link4__Ir_2 + _c47*p_link3__Ir_1
+    return _r
+
+
 def input_jacobian(t, x, p=None, u=None):
     """d(rhs)/du, analytic (forward mode along the causal order): (n, m, *batch), the columns
     in INPUT_LABELS order (INPUT_NAMES, a vector input's components in order)."""
@@ -34920,9 +35228,51 @@ def _rodas_class():
 _RODAS4 = None
 
 
+#: a given start farther than this from a closed loop's constraints (relative to the state's
+#: scale, 1 at least) is refused by simulate, unless check_constraints=False
+CONSTRAINT_TOL = 1e-8
+
+
+def constraint_violation(t, x, p=None):
+    """None when x meets the closed loops' constraints at t (each closure, each constraint's
+    flow: constraint_residuals) within CONSTRAINT_TOL of the state's scale; else the message
+    that names the first constraint violated and its residual (the worst instance of a batch).
+    None for a model without constraints."""
+    residuals = globals().get("constraint_residuals")
+    if residuals is None or x is None:
+        return None
+    x = np.asarray(x, dtype=float)
+    pos, vel = (np.asarray(r, dtype=float) for r in residuals(t, x, p))
+    tol = CONSTRAINT_TOL * max(1.0, float(np.max(np.abs(x))))
+    sources = [name.split(".q")[0] for name in CONSTRAINT_STATES]
+    for src in dict.fromkeys(sources):
+        rows = [k for k, s in enumerate(sources) if s == src]
+        for kind, vals, unit in (("positions violate its closure", pos, "displacement"),
+                                 ("velocities violate it", vel, "flow")):
+            r = vals[rows].reshape(len(rows), -1)
+            worst = np.max(np.abs(r), axis=0)
+            if not np.max(worst) > tol:
+                continue
+            shown = ", ".join(f"{v:.6g}" for v in r[:, int(np.argmax(worst))])
+            return (f"constraint {src!r} closing a kinematic loop: the initial {kind}: the "
+                    f"residual is [{shown}] (SI units of the bond's {unit})")
+    return None
+
+
+def _check_start(t0, x0, p, check_constraints):
+    """simulate's check of a given x0 against the closed loops' constraints."""
+    if not check_constraints or x0 is None:
+        return
+    msg = constraint_violation(t0, x0, p)
+    if msg:
+        raise ValueError(f"x0: {msg}; give an initial state that closes the loop, or pass "
+                         "check_constraints=False to start from it on purpose (the stabilised "
+                         "constraint then pulls it back)")
+
+
 def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, u=None,
              x0=None, dt=None, breakpoints=(), jac=True, max_step=np.inf, max_steps=50_000,
-             stiff_check=True, max_wall=None, sparse=None):
+             stiff_check=True, max_wall=None, sparse=None, check_constraints=True):
     """Integrate over t_span with one of scipy's OdeSolver classes or bgc's Rosenbrock method
     Rodas4 (L-stable, order 4; see above); returns SimResult (t, x, y).
 
@@ -34942,7 +35292,9 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
     methods' linear algebra, sparse (scipy.sparse, splu) or dense (LAPACK); None chooses by
     the flat state's size and the Jacobian's density (SPARSE_MIN_SIZE, SPARSE_MAX_DENSITY).
     Statistics in result.stats: nfev (rhs calls), njev, nlu, nsteps (accepted steps), nstiff
-    (stiffness checks), summed over the segments.
+    (stiffness checks), summed over the segments. check_constraints: a given x0 of a model
+    with closed loops is checked against their constraints (ValueError naming the constraint
+    and its residual); False starts from it as given.
     """
     import time
 
@@ -34950,6 +35302,7 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
 
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}: one of {', '.join(METHODS)}")
+    _check_start(float(t_span[0]), x0, p, check_constraints)
     # numpy's floating-point warnings stay quiet here: a value that is not finite stops the
     # run with a NonFiniteError that says where, instead of a warning on the terminal
     with np.errstate(all="ignore"):

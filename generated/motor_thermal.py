@@ -1209,9 +1209,51 @@ def _rodas_class():
 _RODAS4 = None
 
 
+#: a given start farther than this from a closed loop's constraints (relative to the state's
+#: scale, 1 at least) is refused by simulate, unless check_constraints=False
+CONSTRAINT_TOL = 1e-8
+
+
+def constraint_violation(t, x, p=None):
+    """None when x meets the closed loops' constraints at t (each closure, each constraint's
+    flow: constraint_residuals) within CONSTRAINT_TOL of the state's scale; else the message
+    that names the first constraint violated and its residual (the worst instance of a batch).
+    None for a model without constraints."""
+    residuals = globals().get("constraint_residuals")
+    if residuals is None or x is None:
+        return None
+    x = np.asarray(x, dtype=float)
+    pos, vel = (np.asarray(r, dtype=float) for r in residuals(t, x, p))
+    tol = CONSTRAINT_TOL * max(1.0, float(np.max(np.abs(x))))
+    sources = [name.split(".q")[0] for name in CONSTRAINT_STATES]
+    for src in dict.fromkeys(sources):
+        rows = [k for k, s in enumerate(sources) if s == src]
+        for kind, vals, unit in (("positions violate its closure", pos, "displacement"),
+                                 ("velocities violate it", vel, "flow")):
+            r = vals[rows].reshape(len(rows), -1)
+            worst = np.max(np.abs(r), axis=0)
+            if not np.max(worst) > tol:
+                continue
+            shown = ", ".join(f"{v:.6g}" for v in r[:, int(np.argmax(worst))])
+            return (f"constraint {src!r} closing a kinematic loop: the initial {kind}: the "
+                    f"residual is [{shown}] (SI units of the bond's {unit})")
+    return None
+
+
+def _check_start(t0, x0, p, check_constraints):
+    """simulate's check of a given x0 against the closed loops' constraints."""
+    if not check_constraints or x0 is None:
+        return
+    msg = constraint_violation(t0, x0, p)
+    if msg:
+        raise ValueError(f"x0: {msg}; give an initial state that closes the loop, or pass "
+                         "check_constraints=False to start from it on purpose (the stabilised "
+                         "constraint then pulls it back)")
+
+
 def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, u=None,
              x0=None, dt=None, breakpoints=(), jac=True, max_step=np.inf, max_steps=50_000,
-             stiff_check=True, max_wall=None, sparse=None):
+             stiff_check=True, max_wall=None, sparse=None, check_constraints=True):
     """Integrate over t_span with one of scipy's OdeSolver classes or bgc's Rosenbrock method
     Rodas4 (L-stable, order 4; see above); returns SimResult (t, x, y).
 
@@ -1231,7 +1273,9 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
     methods' linear algebra, sparse (scipy.sparse, splu) or dense (LAPACK); None chooses by
     the flat state's size and the Jacobian's density (SPARSE_MIN_SIZE, SPARSE_MAX_DENSITY).
     Statistics in result.stats: nfev (rhs calls), njev, nlu, nsteps (accepted steps), nstiff
-    (stiffness checks), summed over the segments.
+    (stiffness checks), summed over the segments. check_constraints: a given x0 of a model
+    with closed loops is checked against their constraints (ValueError naming the constraint
+    and its residual); False starts from it as given.
     """
     import time
 
@@ -1239,6 +1283,7 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
 
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}: one of {', '.join(METHODS)}")
+    _check_start(float(t_span[0]), x0, p, check_constraints)
     # numpy's floating-point warnings stay quiet here: a value that is not finite stops the
     # run with a NonFiniteError that says where, instead of a warning on the terminal
     with np.errstate(all="ignore"):

@@ -29,8 +29,8 @@ C_DIGEST: str
 MAX_RESULT_VALUES: int
 N_EVENTS = 0  # a hybrid model's numpy part defines these (templates/numpy/events.py.j2)
 EVENT_NAMES = EVENT_WHERE = ()
-_C_NP = _C_NNZ = _C_NOUT = _C_NWS = 0
-simulate = _params = _batched = X0 = None
+_C_NP = _C_NNZ = _C_NOUT = _C_NWS = _C_NCONS = 0
+simulate = _params = _batched = X0 = _check_start = None
 _output_times = _error = SimResult = SimulationError = None
 
 # ==== bgc C binding: copied below this line ====
@@ -88,6 +88,8 @@ def _bind(path):
     ev = [_ct.c_int, _DP, _ct.c_int, _DP, _ct.c_int, _DP, _ct.c_int, _DP, _DP]
     for fn in ("bgcm_eval_rhs", "bgcm_eval_jac", "bgcm_eval_outputs"):
         getattr(lib, fn).argtypes, getattr(lib, fn).restype = ev, _ct.c_int
+    if _C_NCONS:  # closed loops: their constraint values (_constraint_values)
+        lib.bgcm_eval_cons.argtypes, lib.bgcm_eval_cons.restype = ev, _ct.c_int
     lib.bgcm_eval_init.argtypes = [_ct.c_int, _DP, _ct.c_int, _DP, _DP]
     lib.bgcm_eval_init.restype = _ct.c_int
     lib.bgcm_info.argtypes = [_ct.POINTER(_ct.c_int)]
@@ -261,6 +263,18 @@ def outputs(t, x, p=None, u=None):
     return out
 
 
+def _constraint_values(t, x, p=None, u=None):
+    """The closed loops' position residuals, velocity residuals and the kinetic energy,
+    stacked (2 m + 1, *batch), computed in C (constraint_residuals and kinetic_energy read it)."""
+    if u is not None:
+        return _numpy("input overrides (u=)")._constraint_values(t, x, p, u)
+    B, nb, T, st, X, sx, P, sp = _instances(t, x, p)
+    R = np.empty((nb, max(_C_NCONS, 1)))
+    _check(_lib().bgcm_eval_cons(nb, _ptr(T), st, _ptr(X), sx, _ptr(P), sp, _ptr(R),
+                                 _warm(nb)))
+    return np.moveaxis(R[:, :_C_NCONS], 0, 1).reshape((_C_NCONS,) + B)
+
+
 def initial_state(p=None):
     """The initial state x0 (n, *batch) from the parameters, computed in C."""
     B, nb, T, st, X, sx, P, sp = _instances(0.0, np.zeros(N_STATES), p)
@@ -272,7 +286,7 @@ def initial_state(p=None):
 def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, u=None,
              x0=None, dt=None, breakpoints=(), jac=True, max_step=np.inf, max_steps=50_000,
              stiff_check=True, max_wall=None, h0=0.0, nthreads=None, max_events=20,
-             zeno_window=None):
+             zeno_window=None, check_constraints=True):
     """Integrate over t_span; returns SimResult (t, x, y) as the numpy module's simulate.
 
     method "Rodas4", "Radau" (Radau IIA of order 5) or "DOP853" (explicit, order 8, for
@@ -284,10 +298,14 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
     (the C loop writes output times only, not every step). Statistics in result.stats: nfev,
     njev, nlu, nsteps (accepted steps), nrejected, nstiff, summed over a batch. A hybrid
     model's events are located in C, each instance on its own (result.events, stats["nevents"],
-    max_events and zeno_window: as the numpy module's simulate).
+    max_events and zeno_window: as the numpy module's simulate). check_constraints: a given
+    x0 of a model with closed loops is checked against their constraints, as the numpy
+    module's simulate does.
     """
+    _check_start(float(t_span[0]), x0, p, check_constraints)
     if method not in C_METHODS or u is not None or (not jac and method not in _EXPLICIT):
-        kw = dict(max_events=max_events, zeno_window=zeno_window) if _N_EV else {}
+        kw = dict(max_events=max_events, zeno_window=zeno_window) if _N_EV else \
+            dict(check_constraints=False)  # checked above
         run = _np_simulate if u is None else _numpy("input overrides (u=)").simulate
         return run(t_span, t_eval=t_eval, method=method, rtol=rtol, atol=atol, p=p,
                             u=u, x0=x0, dt=dt, breakpoints=breakpoints, jac=jac,

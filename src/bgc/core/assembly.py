@@ -8,12 +8,18 @@ at the model's initial state and parameters:
   source naming the loop and the residual;
 - velocities: q'(0) = f - s must vanish (to 1e-9 of the velocities along the loop), else the
   same kind of error;
-- with ``constraints: {initial: project}`` the initial state is first projected: the positions
-  by Newton's method with the minimum-norm correction (least squares on the closure residuals'
-  Jacobian, over the states they read), then the momenta by the minimum-norm correction onto
-  the velocity constraints (linear in the momenta at fixed positions). What changed is returned
-  as notes (``bgc check`` and the compile print them); the states' initial values become the
+- with ``constraints: {initial: project}`` the initial state is first projected
+  (bgc.core.projection): the positions by Newton's method with the minimum-norm correction
+  (least squares on the closure residuals' Jacobian, over the states they read), then the
+  momenta onto the velocity constraints (affine in the momenta at fixed positions) by the
+  change of least kinetic-energy distance (a physical impulse). What changed is returned as
+  notes (``bgc check`` and the compile print them); the states' initial values become the
   projected numbers.
+
+``constraint_values`` gives what a projection at run start reads from the generated module
+(its ``constraint_residuals`` and ``kinetic_energy``): the position and velocity residuals of
+every constraint component and the kinetic energy (1/2 p.f over the I elements, integral and
+derivative causality: exact for linear inertias).
 
 Skipped where a value cannot be evaluated at compile time (an input table, a Newton loop on the
 way), as the velocity check always was.
@@ -28,15 +34,66 @@ import sympy as sp
 from bgc.base.errors import ModelError
 from bgc.core.constraints import closure_of, initial_values, lock_of, loop_text, number_of
 from bgc.core.context import Context
+from bgc.core.eqtypes import T, flat
+from bgc.core.projection import (
+    NEWTON_ITER,
+    affine_rows,
+    changes,
+    kinetic_projection,
+    newton_positions,
+    quadratic_hessian,
+)
 
 _TOL = 1e-9  # relative tolerance of the checks
-_NEWTON_ITER = 50
+
+
+def kinetic_energy(ctx: Context, subs: dict | None = None):
+    """1/2 p.f summed over the I elements (states and those in derivative causality), in the
+    kept assignments' symbols (``subs``: the inlined copies)."""
+    total = sp.Integer(0)
+    for el in ctx.bg.elements:
+        p = ctx.states.get(el.id) if el.type == "I" else None
+        if p is None:
+            continue
+        (b,) = ctx.bg.bonds_of(el.id)
+        for pk, fk in zip(flat(p), flat(ctx.f[b.id])):
+            total += pk * fk / 2
+    return total.xreplace(subs) if subs else total
+
+
+def constraint_values(ctx: Context, state_vars, kept, subs, derivatives) -> dict:
+    """The Equations fields a projection at run start reads (empty without constraints): the
+    position residuals (the closure, else the violation q), the velocity residuals (q' = f - s)
+    and the kinetic energy; which components have a closure; the momenta's and the closures'
+    states by name."""
+    if not ctx.constraints:
+        return {}
+    index = {sv.symbol: k for k, sv in enumerate(state_vars)}
+    pos, vel, closed = [], [], []
+    for c in ctx.constraints:
+        for k, q in enumerate(c.q):
+            pos.append(sp.sympify(c.closure[k]) if c.closure else q)
+            vel.append(derivatives[index[q]])
+            closed.append(bool(c.closure))
+    energy = kinetic_energy(ctx, subs)
+    known = set(index) | {T} | {a.symbol for a in kept} | {a.symbol for a in ctx.derived.values()}
+    known |= {s for pv in ctx.params.values() for s in pv.symbols}
+    known |= {s for iv in ctx.inputs.values() for s in iv.symbols}
+    if sp.sympify(energy).free_symbols - known:
+        energy = sp.Integer(0)  # not from the kept assignments: the projection says so
+    types = {el.id: el.type for el in ctx.bg.elements}
+    read = {s for c in ctx.constraints for phi in (c.closure or ()) for s in
+            sp.sympify(phi).free_symbols}
+    return dict(constraint_values=tuple(pos + vel + [energy]), constraint_closed=tuple(closed),
+                momentum_states=tuple(sv.name for sv in state_vars if types.get(sv.owner) == "I"),
+                closure_states=tuple(sv.name for sv in state_vars if sv.symbol in read))
 
 
 def consistent_initial(ctx: Context, state_vars: list, kept, derivatives,
-                       project: bool) -> list[str]:
+                       project: bool, energy=None) -> list[str]:
     """Check (and, where ``project``, first project) the initial state against the
-    constraints. ``state_vars`` is updated in place when projecting. Returns the notes."""
+    constraints. ``state_vars`` is updated in place when projecting; ``energy``: the kinetic
+    energy (``kinetic_energy``), the velocity projection's metric. Returns the notes."""
     if not ctx.constraints:
         return []
     vals = initial_values(ctx, state_vars)
@@ -48,7 +105,7 @@ def consistent_initial(ctx: Context, state_vars: list, kept, derivatives,
         notes += _project_positions(ctx, state_vars, vals, closing)
     for c in closing:
         _check_positions(ctx, vals, c)
-    velocity = _Velocity(ctx, state_vars, kept, derivatives)
+    velocity = _Velocity(ctx, state_vars, kept, derivatives, energy if project else None)
     if project:
         notes += _project_velocities(ctx, state_vars, vals, velocity)
     res = velocity.residuals(vals)
@@ -117,46 +174,40 @@ def _project_positions(ctx, state_vars, vals, closing) -> list[str]:
     f = sp.lambdify(xs, phi_x, "numpy")
     jac = sp.lambdify(xs, sp.Matrix(phi_x).jacobian(xs), "numpy")
     x0 = np.array([float(vals[s]) for s in xs])
-    x = x0.copy()
-    for _ in range(_NEWTON_ITER):
-        r = np.asarray(f(*x), dtype=float)
-        dx = np.linalg.lstsq(np.asarray(jac(*x), dtype=float), -r, rcond=None)[0]
-        x = x + dx
-        if np.abs(dx).max() <= 1e-15 * max(1.0, np.abs(x).max()):
-            break
-    r = np.asarray(f(*x), dtype=float)
+    x, r = newton_positions(lambda v: f(*v), x0, lambda v: jac(*v))
     if not np.isfinite(x).all() or np.abs(r).max() > 1e-12 * max(1.0, np.abs(x).max()):
         c = closing[0]
         raise ModelError(ctx.bg.element(c.source).coord, f"constraint {c.source!r}: "
                          "`initial: project` found no configuration that closes the loop near "
-                         f"the given one (residual [{_shown(r)}] after {_NEWTON_ITER} Newton "
+                         f"the given one (residual [{_shown(r)}] after {NEWTON_ITER} Newton "
                          "steps); give initial positions closer to an assembled one")
-    notes = []
     for s, a, b in zip(xs, x0, x):
         if a != b:
             _set_initial(state_vars, vals, s, float(b))
-            notes.append(f"{_name_of(state_vars, s)} {a:.10g} -> {b:.10g}")
-    return [f"initial positions projected onto the loop closure: {', '.join(notes)}"] if notes \
-        else []
+    text = changes([_name_of(state_vars, s) for s in xs], x0, x)
+    return [f"initial positions projected onto the loop closure: {text}"] if text else []
 
 
 class _Velocity:
-    """The velocity constraints q' = f - s at given values: the kept assignments they read,
-    evaluated in causal order."""
+    """The velocity constraints q' = f - s (and the kinetic energy) at given values: the kept
+    assignments they read, evaluated in causal order."""
 
-    def __init__(self, ctx, state_vars, kept, derivatives):
+    def __init__(self, ctx, state_vars, kept, derivatives, energy=None):
         index = {sv.symbol: k for k, sv in enumerate(state_vars)}
         self.ctx = ctx
         self.exprs = {c.source: [derivatives[index[q]] for q in c.q] for c in ctx.constraints}
+        self.energy_expr = sp.sympify(energy if energy is not None else 0)
         need = closure_of({a.symbol: a for a in kept},
                           [s for es in self.exprs.values() for e in es
-                           for s in sp.sympify(e).free_symbols])
+                           for s in sp.sympify(e).free_symbols]
+                          + list(self.energy_expr.free_symbols))
         self.kept = [a for a in kept if a.symbol in need]
         states = {sv.symbol: sv for sv in state_vars}
         types = {el.id: el.type for el in ctx.bg.elements}
         self.momenta = sorted((s for s in need if s in states
                                and types.get(states[s].owner) == "I"), key=str)
         self.scale = 0.0
+        self.energy = 0.0
 
     def residuals(self, vals) -> dict | None:
         vals = dict(vals)
@@ -175,36 +226,45 @@ class _Velocity:
             if any(r is None for r in rs):
                 return None
             out[src] = [float(r) for r in rs]
+        ke = number_of(self.energy_expr, vals)
+        self.energy = float(ke) if ke is not None else 0.0
         return out
 
 
 def _project_velocities(ctx, state_vars, vals, velocity: _Velocity) -> list[str]:
-    """The minimum-norm correction of the momenta onto the velocity constraints (linear in
-    the momenta at fixed positions: A p + b = 0)."""
+    """The momenta moved onto the velocity constraints (affine in the momenta at fixed
+    positions) by the change of least kinetic-energy distance (bgc.core.projection)."""
     ps = velocity.momenta
     base = velocity.residuals(vals)
     if base is None or not ps:
         return []
     srcs = [c.source for c in ctx.constraints]
-    r0 = np.array([r for s in srcs for r in base[s]])
-    cols = []
-    for p in ps:
+    failed = []
+
+    def at(pv, what):
         trial = dict(vals)
-        trial[p] = vals[p] + 1
-        rk = velocity.residuals(trial)
-        if rk is None:
-            return []
-        cols.append(np.array([r for s in srcs for r in rk[s]]) - r0)
-    a = np.array(cols).T
-    dp = np.linalg.lstsq(a, -r0, rcond=None)[0]
-    notes = []
-    for p, d in zip(ps, dp):
-        if d != 0.0 and abs(d) > 1e-300:
-            old = float(vals[p])
-            _set_initial(state_vars, vals, p, old + float(d))
-            notes.append(f"{_name_of(state_vars, p)} {old:.10g} -> {old + float(d):.10g}")
-    return [f"initial momenta projected onto the velocity constraints: {', '.join(notes)}"] \
-        if notes else []
+        trial.update({p: sp.Float(float(v)) for p, v in zip(ps, pv)})
+        r = velocity.residuals(trial)
+        if r is None:
+            failed.append(True)
+            return np.zeros(1) if what == "r" else 0.0
+        return np.array([x for s in srcs for x in r[s]]) if what == "r" else velocity.energy
+
+    p0 = np.array([float(vals[p]) for p in ps])
+    r0, g = affine_rows(lambda pv: at(pv, "r"), p0)
+    h = quadratic_hessian(lambda pv: at(pv, "e"), p0)
+    if failed:
+        return []
+    dp, metric = kinetic_projection(r0, g, h)
+    new = p0 + dp
+    text = changes([_name_of(state_vars, p) for p in ps], p0, new)
+    for p, a, b in zip(ps, p0, new):
+        if a != b:
+            _set_initial(state_vars, vals, p, float(b))
+    how = ("least kinetic-energy change" if metric else
+           "minimum-norm change: no kinetic energy known")
+    return [f"initial momenta projected onto the velocity constraints ({how}): {text}"] \
+        if text else []
 
 
 def numeric_redundancy(ctx: Context, defs: dict, state_vars) -> set:

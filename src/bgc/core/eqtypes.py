@@ -115,6 +115,13 @@ class Equations:
     #: the names of the constraints' violation states (q): the linearisation reduces them out
     constraint_states: tuple = field(default=())
     constraint_alpha: float = 0.0  # their stabilisation rate (1/s)
+    #: what a projection of a start onto the constraints reads (bgc.core.assembly
+    #: ``constraint_values``): per component its position residual (the closure, else q),
+    #: then per component its velocity residual f - s, then the kinetic energy
+    constraint_values: tuple = field(default=())
+    constraint_closed: tuple = field(default=())  # per component: has it a closure?
+    momentum_states: tuple = field(default=())  # the states that are I elements' momenta
+    closure_states: tuple = field(default=())  # the states the closures read (positions)
 
 
 class LinSolve(sp.Function):

@@ -22,7 +22,7 @@ import sympy as sp
 
 from bgc.base.errors import ModelError
 from bgc.core.causality import Causality
-from bgc.core.assembly import consistent_initial, numeric_redundancy
+from bgc.core.assembly import consistent_initial, constraint_values, numeric_redundancy
 from bgc.core.constraints import alpha_of, constraint_states, stabilise
 from bgc.core.context import Context, check_names
 from bgc.core.eqtypes import (
@@ -99,7 +99,9 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
     ctx_derived = [ctx.derived[k] for k in ctx.derived_order]
     _check_declared(ctx, state_vars, ctx_derived, kept, derivatives, outputs,
                     [e for ev in events for e in ev.exprs()])
-    notes = consistent_initial(ctx, state_vars, kept, derivatives, bg.model.project)
+    cvals = constraint_values(ctx, state_vars, kept, subs, derivatives)
+    notes = consistent_initial(ctx, state_vars, kept, derivatives, bg.model.project,
+                               (cvals.get("constraint_values") or (None,))[-1])
 
     if progress:
         progress("deriving the Jacobian")
@@ -116,7 +118,8 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
                      redundant=tuple(ctx.redundant),
                      constraint_states=tuple(sv.name for sv in state_vars
                                              if sv.owner in {c.source for c in ctx.constraints}),
-                     constraint_alpha=alpha_of(bg.model) if ctx.constraints else 0.0)
+                     constraint_alpha=alpha_of(bg.model) if ctx.constraints else 0.0,
+                     **cvals)
 
 
 def _declare(ctx: Context) -> None:

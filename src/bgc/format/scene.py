@@ -66,6 +66,10 @@ class Scene:
     #: then takes C where a C compiler works: bgc.run.driver.default_backend)
     backend: str | None = None
     max_steps: int = 50_000  # solver.max_steps: the most steps a run may take (explicit methods)
+    #: `constraints: {initial: project}`: the start is projected onto the model's closed-loop
+    #: constraints at run start (bgc.run.consistency.project_start); where it says so
+    project: bool = False
+    project_coord: Coord | None = None
 
 
 def parse_scene(path: str | Path) -> Scene:
@@ -78,7 +82,8 @@ def parse_scene(path: str | Path) -> Scene:
     top = r.mapping(root, "the scene")
     allowed = ("bgc_scene", "name", "description", "model", "duration", "t_span", "parameters",
                "inputs", "outputs", "solver", "breakpoints", "plots", "effects", "free",
-               "initial", "sweep")  # sweep: read by bgc.studies.sweep (bgc sweep); bgc simulate ignores it
+               "initial", "constraints",
+               "sweep")  # sweep: read by bgc.studies.sweep (bgc sweep); bgc simulate ignores it
     require(r, top, root, allowed, "the scene", required=("bgc_scene", "model"))
     version = r.scalar(top["bgc_scene"][1], "bgc_scene")
     if isinstance(version, bool) or version != 1:
@@ -107,11 +112,31 @@ def parse_scene(path: str | Path) -> Scene:
     initial, initial_coord = None, None
     if "initial" in top:
         initial, initial_coord = _initial(r, top["initial"][1]), r.coord(top["initial"][0])
+    project, project_coord = _constraints(r, top)
     return Scene(path, name, model_path, (t0, t1), params, inputs, outputs, method, rtol, atol,
                  dt, max_step, bps, tuple(plots), effects, desc, r.coord(root),
                  hashlib.sha256(text.encode()).hexdigest()[:16], free, output_coords,
                  r.coord(top["model"][1]), initial, initial_coord,
-                 backend, max_steps)
+                 backend, max_steps, project, project_coord)
+
+
+def _constraints(r: Reader, top: dict) -> tuple[bool, Coord | None]:
+    """``constraints: {initial: check | project}``: project the start (the scene's `initial:`
+    values, or the model's at the scene's parameters) onto the closed loops' constraints at
+    run start; `check` (the default) refuses an inconsistent start."""
+    if "constraints" not in top:
+        return False, None
+    node = top["constraints"][1]
+    m = r.mapping(node, "constraints")
+    require(r, m, node, ("initial",), "constraints")
+    if "initial" not in m:
+        return False, None
+    vn = m["initial"][1]
+    word = r.scalar(vn, "constraints: initial")
+    if word not in ("check", "project"):
+        raise ModelError(r.coord(vn), "constraints: initial must be 'check' or 'project', got "
+                         f"{str(word)[:40]!r}")
+    return word == "project", r.coord(vn)
 
 
 def _model_path(r: Reader, top: dict, path: str) -> str:

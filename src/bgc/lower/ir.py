@@ -61,6 +61,9 @@ class Lowered:
     jac_keys: tuple[tuple[int, int], ...]
     derived: tuple[Line, ...]  # derived parameters, in dependency order
     linear: Linear | None = None  # B, C, D (lowered on demand: lower(..., linear=True))
+    #: closed loops' constraint values (results keyed 0..2m: the m position residuals, the m
+    #: velocity residuals, the kinetic energy): what a start's check and projection read
+    cons: Function | None = None
 
     @property
     def n(self) -> int:
@@ -177,4 +180,7 @@ def lower(eq: Equations, progress=None, linear: bool = True) -> Lowered:
     init = lower_function(eq, [sv.initial for sv in eq.states], [], list(range(n)), cse=False)
     derived = tuple(Line(a.symbol, a.expr, a.why) for a in eq.derived)
     lin = lower_linear(eq, progress) if linear else None
-    return Lowered(eq, rhs, jac, outs, init, tuple(jkeys), derived, lin)
+    cvals = list(getattr(eq, "constraint_values", ()))
+    cons = lower_function(eq, cvals, list(eq.assignments), list(range(len(cvals)))) \
+        if cvals else None
+    return Lowered(eq, rhs, jac, outs, init, tuple(jkeys), derived, lin, cons)

@@ -16,7 +16,7 @@ from bgc.format.scene import (
     parse_scene,
 )
 from bgc.run import method_choice
-from bgc.run.consistency import check_loop_start
+from bgc.run.consistency import check_loop_start, project_start
 from bgc.run.driver import build, default_backend, module_name, scene_compiled
 from bgc.run.progress import simulating_line
 from bgc.run.steps import STEPS_PER_PERIOD, fastest_input, scene_max_step, stepped_over
@@ -126,6 +126,13 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
     dt = scene.dt or (scene.t_span[1] - scene.t_span[0]) / 1000
     p = runtime_params(scene, mod)
     x0 = initial_state(scene, mod, p)  # the scene's initial: values, or equilibrium
+    if scene.project and getattr(mod, "CONSTRAINT_STATES", ()):
+        # onto the closed loops' constraints (the model's own start too: the scene's
+        # parameters may move the geometry), saying what changed
+        x0, notes = project_start(mod, scene.t_span[0], x0 if x0 is not None else
+                                  mod.initial_state(p), p, scene.project_coord)
+        for note in notes:
+            say(f"warning: {note}")
     if x0 is not None:  # against closed loops' constraints, as the compile checks the model's
         check_loop_start(mod, scene.t_span[0], x0, p, scene.initial_coord,
                          "scene initial state")

@@ -357,12 +357,64 @@ fmi2Status fmi2EnterInitializationMode(fmi2Component comp)
     return fmi2OK;
 }
 
+/* closed kinematic loops: the start (from the start values the importer set) against the
+ * constraints, as bgc's simulate checks a start: each closure (positions) and each
+ * constraint's flow (velocities) within 1e-8 of the state's scale (1 at least). 0 when they
+ * hold; else the message naming the constraint and its residual is logged and 1 returned. */
+static int constraints_broken(inst_t *c)
+{
+    int m = D->ncons;
+    if (!m) return 0;
+    double *r = (double *)calloc((size_t)(2 * m + 1), sizeof(double));
+    if (!r) {
+        logf_(c, fmi2Error, "logStatusError", "fmi2ExitInitializationMode: out of memory");
+        return 1;
+    }
+    if (D->cons(c->t, c->x, c->p, r) || !all_finite(r, 2 * m, NULL)) {
+        free(r);
+        logf_(c, fmi2Error, "logStatusError", "fmi2ExitInitializationMode: the closed loops' "
+              "constraints are not finite at the start");
+        return 1;
+    }
+    double tol = 1.0;
+    for (int i = 0; i < D->n; i++) tol = fmax(tol, fabs(c->x[i]));
+    tol *= 1e-8;
+    for (int k0 = 0; k0 < m;) {
+        int k1 = k0 + 1;
+        while (k1 < m && strcmp(D->cons_names[k1], D->cons_names[k0]) == 0) k1++;
+        for (int kind = 0; kind < 2; kind++) {
+            const double *v = r + kind * m;
+            int bad = 0;
+            for (int k = k0; k < k1; k++) bad |= !(fabs(v[k]) <= tol);
+            if (!bad) continue;
+            char shown[400];
+            size_t len = 0;
+            shown[0] = '\0';
+            for (int k = k0; k < k1 && len + 40 < sizeof shown; k++)
+                len += (size_t)snprintf(shown + len, sizeof shown - len, "%s%.6g",
+                                        k > k0 ? ", " : "", v[k]);
+            logf_(c, fmi2Error, "logStatusError",
+                  "fmi2ExitInitializationMode: constraint '%s' closing a kinematic loop: the "
+                   "initial %s: the residual is [%s] (SI units of the bond's %s); the start "
+                   "values break the loop: give start values (parameters) that close it",
+                D->cons_names[k0], kind ? "velocities violate it" :
+                "positions violate its closure", shown, kind ? "flow" : "displacement");
+            free(r);
+            return 1;
+        }
+        k0 = k1;
+    }
+    free(r);
+    return 0;
+}
+
 fmi2Status fmi2ExitInitializationMode(fmi2Component comp)
 {
     ENTER(comp, S_INIT, "fmi2ExitInitializationMode")
     do_init(c);
     if (evaluate(c)) return ERR(c, "fmi2ExitInitializationMode: the model is not finite at "
                                    "the start");
+    if (constraints_broken(c)) return fmi2Error;
     c->seg_end = next_break(c->t);
     c->state = c->type == fmi2ModelExchange ? S_EVENT : S_STEP_COMPLETE;
     if (events_start(c)) return ERR(c, "fmi2ExitInitializationMode: an event indicator is not "

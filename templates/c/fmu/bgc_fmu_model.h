@@ -43,6 +43,12 @@ typedef struct {
     int (*guards)(double t, const double *x, const double *p, double *g);
     int (*reset)(int k, double t, const double *x, const double *p, double *x_new);
     const int *ev_dir;
+    /* closed kinematic loops (0 and NULL without): ncons constraint components; cons gives
+     * their position residuals, velocity residuals (ncons each) and the kinetic energy;
+     * cons_names the constraint (its source element) of each component */
+    int ncons;
+    int (*cons)(double t, const double *x, const double *p, double *r);
+    const char *const *cons_names;
 } bgcf_desc;
 
 extern const bgcf_desc bgcf_model_desc;

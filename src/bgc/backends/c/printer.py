@@ -101,7 +101,8 @@ def render_c(low: Lowered, *, source: str, source_hash: str, description: str = 
     printer = CPrinter()
     ctx = PartContext(low)
     fns = {name: cut_parts(name, fn, printer, ctx, PART_LINES) for name, fn in
-           (("rhs", low.rhs), ("jac", low.jac), ("outputs", low.outs), ("init", low.init))}
+           (("rhs", low.rhs), ("jac", low.jac), ("outputs", low.outs), ("init", low.init))
+           + ((("cons", low.cons),) if getattr(low, "cons", None) is not None else ())}
     events = c_events(eq, lambda name, fn: cut_parts(name, fn, printer, ctx, PART_LINES))
     names = [c_name(str(s)) for s in ctx.param_syms + ctx.state_syms + ctx.input_syms]
     names += [c_name(str(a.symbol)) for a in eq.assignments + eq.jac_assignments]
@@ -133,6 +134,7 @@ def render_c(low: Lowered, *, source: str, source_hash: str, description: str = 
         value_errors=[ctx.table_fail(k) for k in range(len(ctx.tables))
                       if ctx.table_fail(k)],
         fns=fns, n=len(eq.states), np=len(ctx.param_syms), jac_keys=low.jac_keys,
+        ncons=len(low.cons.results) if getattr(low, "cons", None) is not None else 0,
         states=[sv.name for sv in eq.states], outputs=[o[0] for o in eq.outputs],
         nout=sum(olens), all_parts=all_parts, events=events,
         has_t=int(fns["rhs"].uses_t or fns["jac"].uses_t), **common)
@@ -212,6 +214,7 @@ def render_wrapper(low: Lowered, numpy_source: str, csrc: CSources, lib_name: st
         numpy_source=numpy_source.rstrip("\n"), mark=WRAPPER_MARK.rstrip("\n"),
         lib_name=lib_name, digest=csrc.digest, nws=PartContext(low).nws,
         np=len(PartContext(low).param_syms),
-        nnz=len(low.jac_keys), nout=sum(olens), binding=binding_source())
+        nnz=len(low.jac_keys), nout=sum(olens), binding=binding_source(),
+        ncons=len(low.cons.results) if getattr(low, "cons", None) is not None else 0)
     check_wrapper(text)
     return text

@@ -190,7 +190,11 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
     printer = CPrinter()
     ctx = PartContext.inputs_as_params(low)  # the inputs are values in the parameter vector
     fns = {name: cut_parts(name, fn, printer, ctx) for name, fn in
-           (("rhs", low.rhs), ("jac", low.jac), ("outputs", low.outs), ("init", low.init))}
+           (("rhs", low.rhs), ("jac", low.jac), ("outputs", low.outs), ("init", low.init))
+           + ((("cons", low.cons),) if getattr(low, "cons", None) is not None else ())}
+    # closed loops: each constraint component's source, for fmi2ExitInitializationMode's check
+    cons_names = [name.split(".q")[0] for name in getattr(eq, "constraint_states", ())] \
+        if "cons" in fns else []
     # events: the guards are the indicators (ME); the C runtime locates them in a step (CS)
     events = c_events(eq, lambda name, fn: cut_parts(name, fn, printer, ctx))
     syms = ctx.param_syms + ctx.state_syms
@@ -261,6 +265,7 @@ def render_sources(compiled, spec: FmuSpec, scene=None, kind: str = "both") -> d
         input_start=[_g(v) for v in spec.input_start], breaks=[_g(b) for b in breaks],
         guid=spec.guid, model_identifier=spec.model_identifier, method=method,
         rtol=_g(rtol), atol=_g(atol), max_step=_g(max_step), events=events,
+        cons_names=cons_names,
         ntables=len(ctx.tables), **common)
     cfg = ["/* bgc FMU configuration (generated) */", "#ifndef BGC_FMU_CONFIG_H",
            "#define BGC_FMU_CONFIG_H"]

@@ -285,6 +285,9 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
         states=eq.states, params=params, derived=derived, inputs=inputs,
         constraint_states=getattr(eq, "constraint_states", ()),
         constraint_alpha=repr(float(getattr(eq, "constraint_alpha", 0.0))),
+        constraint_closed=getattr(eq, "constraint_closed", ()),
+        momentum_states=getattr(eq, "momentum_states", ()),
+        closure_states=getattr(eq, "closure_states", ()),
         input_params=input_params, outputs=outputs, **fns,
         jac_keys=list(low.jac_keys), n=len(eq.states), imports=imports,
         tables=tables, input_periods=input_periods(eq),
@@ -305,11 +308,12 @@ def _printed_functions(eq: Equations, low, printer, progress, equations: bool) -
     the linearisation's inputs and outputs."""
     if not equations:
         ilabels, olabels = linear_labels(eq)
-        return dict(rhs=None, jac=None, outs=None, init=None, ujac=None, yjac=None,
+        return dict(rhs=None, jac=None, outs=None, init=None, ujac=None, yjac=None, cons=None,
                     input_labels=ilabels, output_labels=olabels)
     rhs, jac, outs, init = (printed(f, printer) for f in (low.rhs, low.jac, low.outs, low.init))
     lin = low.linear if low.linear is not None else lower.lower_linear(eq, progress)
-    return dict(rhs=rhs, jac=jac, outs=outs, init=init, ujac=printed(lin.ujac, printer),
+    cons = printed(low.cons, printer) if getattr(low, "cons", None) is not None else None
+    return dict(rhs=rhs, jac=jac, outs=outs, init=init, cons=cons, ujac=printed(lin.ujac, printer),
                 yjac=printed(lin.yjac, printer), input_labels=lin.input_labels,
                 output_labels=lin.output_labels)
 
