@@ -184,6 +184,7 @@ def _guard_solves(solver, method, stats, shape):
     factor, solve = getattr(solver, "lu", None), getattr(solver, "solve_lu", None)
     if factor is None or solve is None:
         return
+    last = {}  # dtype -> (matrix, its LU): the last factorisation of each kind
 
     def checked_factor(A):
         import scipy.sparse as sps
@@ -191,7 +192,14 @@ def _guard_solves(solver, method, stats, shape):
         diag = A.diagonal() if sps.issparse(A) else np.diag(A)
         if not _all_finite(A.data if sps.issparse(A) else A):
             raise _newton_nonfinite(method, solver, diag, shape, _counts(stats, solver))
-        return factor(A)
+        # the same matrix as last time (a step held at max_step, whose controller asked for
+        # a longer one: scipy's Radau drops its LUs and factorises them again): reused
+        old = last.get(A.dtype)
+        if old is not None and _same_matrix(old[0], A):
+            return old[1]
+        lu = factor(A)
+        last[A.dtype] = (A, lu)
+        return lu
 
     def checked_solve(LU, b):
         if not _all_finite(b):
@@ -199,6 +207,17 @@ def _guard_solves(solver, method, stats, shape):
         return solve(LU, b)
 
     solver.lu, solver.solve_lu = checked_factor, checked_solve
+
+
+def _same_matrix(a, b):
+    """Are two matrices (both dense, or both scipy.sparse compressed) equal entry for entry,
+    in the same structure?"""
+    if a.shape != b.shape or type(a) is not type(b):
+        return False
+    if isinstance(a, np.ndarray):
+        return bool(np.array_equal(a, b))
+    return (np.array_equal(a.indptr, b.indptr) and np.array_equal(a.indices, b.indices)
+            and np.array_equal(a.data, b.data))
 
 
 def _newton_nonfinite(method, solver, values, shape, stats):

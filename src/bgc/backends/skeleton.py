@@ -66,12 +66,12 @@ _MODEL_TOP = {
                "_NEWTON_WARM", "_NEWTON_ITERATIONS", "RHS_USES_T", "INPUT_PERIODS", "N_EVENTS",
                "EVENT_NAMES", "EVENT_DIRECTIONS", "EVENT_TIMED", "EVENT_WHERE", "MODE_NAMES",
                "_RESETS", "_BGC_EXP_CAP", "_BGC_EXP_STEP", "CONSTRAINT_STATES",
-               "CONSTRAINT_ALPHA"},
+               "CONSTRAINT_ALPHA", "_IX", "_PARAM_ARRAY"},
     "FunctionDef": {"_unpack", "_floats", "_params", "_inputs", "initial_state", "rhs", "jacobian",
                     "outputs", "input_jacobian", "output_jacobian", "_bgc_linsolve",
                     "event_values", "apply_event", "_bgc_newton", "_bgc_norm",
                     "_bgc_line_search", "_bgc_newton_failure", "_bgc_lexp", "_bgc_sexp",
-                    "_bgc_exp_limit"},
+                    "_bgc_exp_limit", "_param_array"},
     "ClassDef": {"_Unpacked"},
 }
 
