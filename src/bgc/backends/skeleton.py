@@ -71,7 +71,8 @@ _MODEL_TOP = {
                     "outputs", "input_jacobian", "output_jacobian", "_bgc_linsolve",
                     "event_values", "apply_event", "_bgc_newton", "_bgc_norm",
                     "_bgc_line_search", "_bgc_newton_failure", "_bgc_lexp", "_bgc_sexp",
-                    "_bgc_exp_limit", "_param_array"},
+                    "_bgc_exp_limit", "_param_array",
+                    "_jacobian_values"},
     "ClassDef": {"_Unpacked"},
 }
 

@@ -311,15 +311,22 @@ def _printed_functions(eq: Equations, low, printer, progress, equations: bool) -
         ilabels, olabels = linear_labels(eq)
         return dict(rhs=None, jac=None, outs=None, init=None, ujac=None, yjac=None,
                     input_labels=ilabels, output_labels=olabels, index_tables=[],
+                    jac_index=None,
                     out_ranges=None)
     tables = Tables()
     rhs, jac, outs = (_maybe_rolled(eq, f, printer, kind, tables)
                       for f, kind in ((low.rhs, "rhs"), (low.jac, "jac"), (low.outs, "outs")))
+    if any(f.rolled for f in (rhs, jac, outs)):  # a large model: read only the states used
+        rhs, jac, outs = (f if f.rolled else _state_reads(f) for f in (rhs, jac, outs))
     init = printed(low.init, printer)
+    # a vectorised Jacobian's values scattered into the dense matrix at JAC_SPARSITY's entries
+    jac_index = (tables.ref(tuple(k[0] for k in low.jac_keys)),
+                 tables.ref(tuple(k[1] for k in low.jac_keys))) if jac.rolled else None
     lin = low.linear if low.linear is not None else lower.lower_linear(eq, progress)
     return dict(rhs=rhs, jac=jac, outs=outs, init=init, ujac=printed(lin.ujac, printer),
                 yjac=printed(lin.yjac, printer), input_labels=lin.input_labels,
                 output_labels=lin.output_labels, index_tables=tables.literals,
+                jac_index=jac_index,
                 out_ranges=_out_ranges(eq, low.outs))
 
 
@@ -334,6 +341,13 @@ def _maybe_rolled(eq: Equations, fn: lower.Function, printer, kind: str, tables)
         if got is not None:
             return got
     return printed(fn, printer)
+
+
+def _state_reads(fn: Function) -> Function:
+    """The function reading each state it uses by its index, not unpacking the whole state."""
+    reads = tuple(Line(name, f"x[{k}]") for k, name in enumerate(fn.states) if name != "_")
+    return Function(fn.params, fn.inputs, tuple("_" for _ in fn.states), reads + fn.lines,
+                    fn.results, fn.ops)
 
 
 def _out_ranges(eq: Equations, outs: lower.Function) -> dict | None:

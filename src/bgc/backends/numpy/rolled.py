@@ -173,8 +173,8 @@ def rolled_function(fn: lower.Function, printer, line_cls, function_cls, states:
                     params: list, kind: str, tables: Tables, n: int):
     """The function printed vectorised (a ``function_cls`` with ``rolled`` set), or None where
     it has no runs or they cover less than :data:`MIN_COVER` of it. ``kind``: "rhs" (results
-    into ``_dx`` by state), "jac" (into the flat ``_Jf`` by row*n + column) or "outs" (into
-    ``_o`` by position)."""
+    into ``_dx`` by state), "jac" (into ``_Jv``: the values at JAC_SPARSITY's nonzeros, in
+    order) or "outs" (into ``_o``)."""
     rolled = reroll(fn, states, params)
     covered = sum(it.count * len(it.body) for it in rolled.items if isinstance(it, Loop))
     if not rolled.loops or covered < MIN_COVER * (len(fn.lines) + len(fn.results)):
@@ -182,7 +182,7 @@ def rolled_function(fn: lower.Function, printer, line_cls, function_cls, states:
     keys = [k for k, _ in fn.results]
     out_name, out_ref = {
         "rhs": ("_dx", lambda pos: int(keys[pos])),
-        "jac": ("_Jf", lambda pos: int(keys[pos][0]) * n + int(keys[pos][1])),
+        "jac": ("_Jv", lambda pos: pos),
         "outs": ("_o", lambda pos: pos)}[kind]
     em = Emitter(printer, line_cls, rolled, out_ref, tables)
     body = em.lines(out_name)
@@ -196,7 +196,7 @@ def rolled_function(fn: lower.Function, printer, line_cls, function_cls, states:
                                    "device=_device(x))"))
     if any(r.array == "p" for it in rolled.items if isinstance(it, Loop)
            for st in it.body for r in st.reads):
-        head.append(line_cls("_pa", "_param_array(_pv, _bshape, xp)"))
+        head.append(line_cls("_pa", "_param_array(_pv, _bshape, _bs, xp)"))
     state_names = {str(s): k for k, s in enumerate(states)}
     head += [line_cls(name, f"x[{state_names[name]}]") for name in fn.states
              if name != "_" and name in names]
