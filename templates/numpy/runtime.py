@@ -337,9 +337,19 @@ def _flat_rhs(at, shape, p, u, stats, method):
     return fun
 
 
+_PATTERN = []  # JAC_SPARSITY's (rows, columns), found once (a scan of n * n entries)
+
+
+def _pattern():
+    """The rows and columns of JAC_SPARSITY's entries, in row-major order."""
+    if not _PATTERN:
+        _PATTERN.append(np.nonzero(JAC_SPARSITY))
+    return _PATTERN[0]
+
+
 def _block_pattern(nb):
     """Rows and columns of the flat Jacobian's nonzeros: one JAC_SPARSITY block per instance."""
-    rows, cols = np.nonzero(JAC_SPARSITY)
+    rows, cols = _pattern()
     b = np.arange(nb)
     return (rows[:, None] * nb + b).ravel(), (cols[:, None] * nb + b).ravel()
 
@@ -368,7 +378,7 @@ def _csc_plan(nb):
     """The flat Jacobian's compressed-column structure, built once: (rows, cols of the
     pattern in JAC_SPARSITY, the order that sorts the gathered values by column, indices,
     indptr); a call only gathers its values and puts them in that order."""
-    rows, cols = np.nonzero(JAC_SPARSITY)
+    rows, cols = _pattern()
     R, C = _block_pattern(nb)
     order = np.lexsort((R, C))
     size = N_STATES * nb
@@ -538,7 +548,7 @@ class _Trajectory:
         """(t, x) with x of shape (n * batch, len(t))."""
         if self.times is None:
             return np.array(self.ts), np.stack(self.ys, axis=-1)
-        return self.times, np.ascontiguousarray(self.x.T)
+        return self.times, self.x.T
 
 
 def _counts(stats, solver):
