@@ -372,7 +372,8 @@ def test_numpy_recurrence_stays_a_loop(tmp_path):
     function gives the same values as the lines it replaces."""
     from bgc.backends.numpy.printer import BgcPrinter, Function, Line
     from bgc.backends.numpy.rolled import Tables, rolled_function
-    from bgc.lower.ir import Function as LFunction, Line as LLine
+    from bgc.lower.ir import Function as LFunction
+    from bgc.lower.ir import Line as LLine
 
     x = sp.symbols("x0:12")
     v = sp.symbols("v0:12")
@@ -381,7 +382,7 @@ def test_numpy_recurrence_stays_a_loop(tmp_path):
     lines = [LLine(v[0], x[0])] + [LLine(v[i], k * v[i - 1] + x[i]) for i in range(1, 12)]
     results = tuple((i, v[i]) for i in range(12))
     fn = LFunction(("k",), (), tuple(str(s) for s in x), tuple(lines), results, 0)
-    got = rolled_function(fn, BgcPrinter(), Line, Function, list(x), [k], "rhs", Tables(), 12)
+    got = rolled_function(fn, BgcPrinter(), Line, Function, list(x), [k], "rhs", Tables())
     assert got is not None and got.rolled
     code = "\n".join(f"    {ln.target} = {ln.code}" if ln.target else f"    {ln.code}"
                      for ln in got.lines)

@@ -336,8 +336,7 @@ def _maybe_rolled(eq: Equations, fn: lower.Function, printer, kind: str, tables)
     if kind != "outs" or _out_ranges(eq, fn) is not None:
         states = [sv.symbol for sv in eq.states]
         params = [s for pv in eq.params for s in pv.symbols] + [d.symbol for d in eq.derived]
-        got = rolled_function(fn, printer, Line, Function, states, params, kind, tables,
-                              len(eq.states))
+        got = rolled_function(fn, printer, Line, Function, states, params, kind, tables)
         if got is not None:
             return got
     return printed(fn, printer)

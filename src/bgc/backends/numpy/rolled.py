@@ -135,42 +135,44 @@ class Emitter:
                 out.append(self.Line(name, self.code(it.expr), it.comment))
         return out
 
-    def _target(self, st, out_name, index_text) -> str:
+    def _target(self, st, count: int, out_name: str, index_text) -> str:
+        """The text a statement assigns to: the values, or the results' array at the
+        positions its results have there."""
         if st.array == "v":
             return f"_w[{index_text(st.index)}]"
-        ix = st.index  # a result's positions, as indices into the result array
+        ix = st.index  # the results' positions among the function's results
         keys = [self.out_ref(ix.table[i] if ix.table else ix.start + ix.stride * i)
-                for i in range(self.count)]
+                for i in range(count)]
         return f"{out_name}[{index_text(Index.of(keys))}]"
 
     def _loop(self, loop: Loop, out_name: str) -> list:
-        self.count = loop.count
-        slot_of = self.rolled.values
-        order = _vector_order(loop, slot_of)
-        if order is not None:
+        order = _vector_order(loop, self.rolled.values)
+        if order is not None:  # one vector statement per statement of the body
+            def every(ix):
+                return _slice(ix, loop.count, self.tables)
             out = []
             for st in (loop.body[j] for j in order):
                 extra = {}
                 for j, r in enumerate(st.reads):
-                    g = f"_g{j}"
-                    out.append(self.Line(g, f"{_ARRAY[r.array]}[{_slice(r.index, loop.count, self.tables)}]"))
-                    extra[r.name] = sp.Symbol(g)
+                    out.append(self.Line(f"_g{j}", f"{_ARRAY[r.array]}[{every(r.index)}]"))
+                    extra[r.name] = sp.Symbol(f"_g{j}")
                 why = f"{st.comment} (and {loop.count - 1} more alike)" if st.comment else ""
-                out.append(self.Line(
-                    self._target(st, out_name, lambda ix: _slice(ix, loop.count, self.tables)),
-                    self.code(st.expr, extra), why))
+                out.append(self.Line(self._target(st, loop.count, out_name, every),
+                                     self.code(st.expr, extra), why))
             return out
+
+        def one(ix):
+            return _one(ix, self.tables)
         text = [f"for _i in range({loop.count}):  # a recurrence: one instance at a time"]
         for st in loop.body:
-            extra = {r.name: sp.Symbol(f"{_ARRAY[r.array]}[{_one(r.index, self.tables)}]")
-                     for r in st.reads}
-            tgt = self._target(st, out_name, lambda ix: _one(ix, self.tables))
-            text.append(f"        {tgt} = {self.code(st.expr, extra)}")
+            extra = {r.name: sp.Symbol(f"{_ARRAY[r.array]}[{one(r.index)}]") for r in st.reads}
+            text.append(f"        {self._target(st, loop.count, out_name, one)} = "
+                        f"{self.code(st.expr, extra)}")
         return [self.Line("", "\n".join(text))]
 
 
 def rolled_function(fn: lower.Function, printer, line_cls, function_cls, states: list,
-                    params: list, kind: str, tables: Tables, n: int):
+                    params: list, kind: str, tables: Tables):
     """The function printed vectorised (a ``function_cls`` with ``rolled`` set), or None where
     it has no runs or they cover less than :data:`MIN_COVER` of it. ``kind``: "rhs" (results
     into ``_dx`` by state), "jac" (into ``_Jv``: the values at JAC_SPARSITY's nonzeros, in
