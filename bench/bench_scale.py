@@ -147,17 +147,17 @@ def table(rows, backends) -> list[str]:
     keys = ("cold", "compile", "first", "warm")
     head = ["size"] + [f"{b} {k} [s]" for b in backends for k in keys]
     if fam == "ladder":
-        head += ["script [s]"] + [f"{b} cold / script" for b in backends]
+        head += ["script [s]"] + [f"{b} {k} / script" for b in backends for k in ("cold", "warm")]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         cells = [str(r["size"])] + [f"{r[f'{b}_{k}']:.2f}" for b in backends for k in keys]
         if fam == "ladder":
-            cells += [f"{r['script']:.2f}"] + [f"{r[f'{b}_cold'] / r['script']:.1f}x"
-                                               for b in backends]
+            cells += [f"{r['script']:.2f}"] + [f"{r[f'{b}_{k}'] / r['script']:.2f}x"
+                                               for b in backends for k in ("cold", "warm")]
         lines.append("| " + " | ".join(cells) + " |")
     exps = ["growth exponent"] + [exponent(rows, f"{b}_{k}") for b in backends for k in keys]
     if fam == "ladder":
-        exps += [exponent(rows, "script")] + ["" for _ in backends]
+        exps += [exponent(rows, "script")] + ["" for _ in backends for _k in (0, 1)]
     lines.append("| " + " | ".join(exps) + " |")
     return lines
 

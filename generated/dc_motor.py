@@ -459,18 +459,33 @@ def _guard_solves(solver, method, stats, shape):
     """Radau and BDF solve linear systems in their Newton iterations from values the rhs
     checks never see (the iterates' combinations): a system that is not finite (a state grown
     past the double range) stops the run with a NonFiniteError naming the state's equation,
-    as Rodas4 and the C backend do, where scipy's LU would raise ValueError."""
+    as Rodas4 and the C backend do, where scipy's LU would raise ValueError.
+
+    Radau's matrices c I - J (c = mu/h) are built only when they are factorised: a step held at
+    max_step whose controller asked for a longer one makes scipy drop its LUs and build and
+    factorise the same two matrices again (every step, in a scene whose inputs bound the
+    step); the last LU of each kind is kept with its (c, J) and given back for the same pair."""
     factor, solve = getattr(solver, "lu", None), getattr(solver, "solve_lu", None)
     if factor is None or solve is None:
         return
+    last = {}  # real or complex -> (c, J, LU): the last factorisation of each kind
 
     def checked_factor(A):
         import scipy.sparse as sps
 
+        pending = None
+        if isinstance(A, _Shifted):
+            old = last.get(isinstance(A.c, complex))
+            if old is not None and old[0] == A.c and old[1] is A.J:
+                return old[2]
+            pending, A = A, A.c * A.eye - A.J
         diag = A.diagonal() if sps.issparse(A) else np.diag(A)
         if not _all_finite(A.data if sps.issparse(A) else A):
             raise _newton_nonfinite(method, solver, diag, shape, _counts(stats, solver))
-        return factor(A)
+        lu = factor(A)
+        if pending is not None:
+            last[isinstance(pending.c, complex)] = (pending.c, pending.J, lu)
+        return lu
 
     def checked_solve(LU, b):
         if not _all_finite(b):
@@ -478,6 +493,33 @@ def _guard_solves(solver, method, stats, shape):
         return solve(LU, b)
 
     solver.lu, solver.solve_lu = checked_factor, checked_solve
+    if method == "Radau" and getattr(solver, "I", None) is not None:
+        solver.I = _Identity(solver.I)
+
+
+class _Identity:
+    """Stands for Radau's identity I: ``c * I - J`` gives a _Shifted (built when factorised)."""
+
+    def __init__(self, eye):
+        self.eye = eye
+
+    def __rmul__(self, c):
+        return _Scaled(c, self.eye)
+
+
+class _Scaled:
+    def __init__(self, c, eye):
+        self.c, self.eye = c, eye
+
+    def __sub__(self, J):
+        return _Shifted(self.c, J, self.eye)
+
+
+class _Shifted:
+    """c I - J, not yet built."""
+
+    def __init__(self, c, J, eye):
+        self.c, self.J, self.eye = c, J, eye
 
 
 def _newton_nonfinite(method, solver, values, shape, stats):
@@ -574,9 +616,19 @@ def _flat_rhs(at, shape, p, u, stats, method):
     return fun
 
 
+_PATTERN = []  # JAC_SPARSITY's (rows, columns), found once (a scan of n * n entries)
+
+
+def _pattern():
+    """The rows and columns of JAC_SPARSITY's entries, in row-major order."""
+    if not _PATTERN:
+        _PATTERN.append(np.nonzero(JAC_SPARSITY))
+    return _PATTERN[0]
+
+
 def _block_pattern(nb):
     """Rows and columns of the flat Jacobian's nonzeros: one JAC_SPARSITY block per instance."""
-    rows, cols = np.nonzero(JAC_SPARSITY)
+    rows, cols = _pattern()
     b = np.arange(nb)
     return (rows[:, None] * nb + b).ravel(), (cols[:, None] * nb + b).ravel()
 
@@ -605,7 +657,7 @@ def _csc_plan(nb):
     """The flat Jacobian's compressed-column structure, built once: (rows, cols of the
     pattern in JAC_SPARSITY, the order that sorts the gathered values by column, indices,
     indptr); a call only gathers its values and puts them in that order."""
-    rows, cols = np.nonzero(JAC_SPARSITY)
+    rows, cols = _pattern()
     R, C = _block_pattern(nb)
     order = np.lexsort((R, C))
     size = N_STATES * nb
@@ -624,8 +676,17 @@ def _flat_jacobian(at, shape, p, u, sparse, method, stats):
     nb = int(np.prod(shape[1:]))
     size = N_STATES * nb
     rows, cols, order, indices, indptr = _csc_plan(nb)
+    # a vectorised module's Jacobian values at the pattern's entries, without the dense matrix
+    values = globals().get("_jacobian_values") if sparse else None
 
     def jac(t, y):
+        if values is not None:
+            vals = np.asarray(values(at(t), y.reshape(shape), p, u)).reshape(-1, nb)
+            vals = np.broadcast_to(vals, (len(rows), nb)).ravel()
+            if not _all_finite(vals):
+                raise _nonfinite(method, "jacobian", at(t), y, jacobian(
+                    at(t), y.reshape(shape), p, u).reshape(N_STATES, N_STATES, nb), shape, stats)
+            return sps.csc_matrix((vals[order], indices, indptr), shape=(size, size))
         J = jacobian(at(t), y.reshape(shape), p, u).reshape(N_STATES, N_STATES, nb)
         if not sparse:
             if not _all_finite(J):
@@ -742,10 +803,11 @@ class _Trajectory:
         self.times, self.d = times, 1.0 if t1 >= t0 else -1.0
         if times is None:
             self.ts, self.ys = [t0], [y0]
-        else:
-            self.x = np.empty((y0.size, len(times)))
+        else:  # by output time: a step writes whole rows (columns of a large state are
+            # strided writes, one memory page per state)
+            self.x = np.empty((len(times), y0.size))
             self.k = int(np.searchsorted(self.d * times, self.d * t0, side="right"))
-            self.x[:, :self.k] = y0[:, None]  # the output time t0 itself
+            self.x[:self.k] = y0  # the output time t0 itself
 
     def add(self, solver):
         """Record the step the solver just took."""
@@ -756,16 +818,16 @@ class _Trajectory:
         k = self.k
         end = k + int(np.searchsorted(self.d * self.times[k:], self.d * solver.t, side="right"))
         if end > k:
-            self.x[:, k:end] = solver.dense_output()(self.times[k:end])
+            self.x[k:end] = solver.dense_output()(self.times[k:end]).T
             if self.times[end - 1] == solver.t:
-                self.x[:, end - 1] = solver.y
+                self.x[end - 1] = solver.y
         self.k = end
 
     def arrays(self):
         """(t, x) with x of shape (n * batch, len(t))."""
         if self.times is None:
             return np.array(self.ts), np.stack(self.ys, axis=-1)
-        return self.times, self.x
+        return self.times, self.x.T
 
 
 def _counts(stats, solver):

@@ -258,3 +258,169 @@ def test_fmu_of_a_rolled_ladder_simulates_like_the_numpy_module(tmp_path):
     scale = np.abs(yr).max()
     assert scale > 1e-6
     assert np.abs(np.asarray(r["v_end"]).ravel() - yr).max() <= 1e-5 * scale
+
+
+# ---------------------------------------------------------------------------------------------
+# The numpy module: the same runs printed as vectorised statements (bgc.backends.numpy.rolled)
+
+def _np_pair(comp, monkeypatch, min_run: int, cover: float | None = None):
+    """(rolled, unrolled) numpy modules of one compiled model, and the rolled text."""
+    from bgc.backends.load import load_module
+    from bgc.backends.numpy import rolled as nr
+
+    monkeypatch.setattr(rr, "MIN_RUN", min_run)
+    if cover is not None:
+        monkeypatch.setattr(nr, "MIN_COVER", cover)
+    text = comp.printer(True, True)  # printed again (not the compile's text)
+    assert "_w[" in text and "_g0 = " in text  # (it did roll)
+    name = comp.model.name
+    rolled = load_module(text, f"{name}_np_rolled")
+    monkeypatch.setattr(rr, "MIN_RUN", 10 ** 9)
+    flat_text = comp.printer(True, True)
+    assert "_g0 = " not in flat_text
+    return rolled, load_module(flat_text, f"{name}_np_flat"), text
+
+
+def _same_np(a, b, x0, seed=7, rounds=3, p=None):
+    """rhs, Jacobian and outputs of two numpy modules at random points, one instance and a
+    batch of three (parameters too, where ``p`` is given): equal to 1e-13 relative."""
+    rng = np.random.default_rng(seed)
+    for _ in range(rounds):
+        for shape in ((), (3,)):
+            x = x0.reshape(x0.shape + (1,) * len(shape)) + 0.1 * np.maximum(
+                np.abs(x0), 0.1).reshape(x0.shape + (1,) * len(shape)) * \
+                rng.standard_normal(x0.shape + shape)
+            t = float(rng.uniform(0, 2))
+            for f in ("rhs", "jacobian"):
+                ra, rb = getattr(a, f)(t, x, p), getattr(b, f)(t, x, p)
+                assert ra.shape == rb.shape
+                np.testing.assert_allclose(ra, rb, rtol=1e-13, atol=1e-13 * np.abs(rb).max())
+            ya, yb = a.outputs(t, x, p), b.outputs(t, x, p)
+            for k in yb:
+                np.testing.assert_allclose(ya[k], yb[k], rtol=1e-13,
+                                           atol=1e-13 * np.abs(yb[k]).max())
+
+
+@pytest.mark.parametrize("mixed", [False, True])
+def test_numpy_ladder_rolled_equals_unrolled_and_hand_written(tmp_path, monkeypatch, mixed):
+    """The plain ladder rolls at the defaults (MIN_RUN, MIN_COVER); the mixed one (two kinds
+    of instances, a parameter per section) with runs of 4 and every run vectorised."""
+    n = 30
+    comp = _compiled(tmp_path, ladder(n, mixed))
+    rolled, flat, text = _np_pair(comp, monkeypatch, 4 if mixed else rr.MIN_RUN,
+                                  0.0 if mixed else None)
+    if mixed:
+        assert "_pa[" in text  # per-instance parameters gathered from the parameter array
+    _same_np(rolled, flat, np.zeros(n))
+    _same_np(rolled, flat, np.zeros(n), p={"R": np.array([0.5, 1.0, 2.0])})
+    rng = np.random.default_rng(3)
+    for _ in range(3):
+        q = 0.01 * rng.standard_normal(n)
+        t = float(rng.uniform(0, 2))
+        ref = ladder_rhs(t, q, mixed)
+        np.testing.assert_allclose(rolled.rhs(t, q), ref, rtol=1e-12,
+                                   atol=1e-12 * np.abs(ref).max())
+
+
+@pytest.mark.slow
+def test_numpy_link_chain_rolled_equals_unrolled(tmp_path, monkeypatch):
+    """Four 3-D links, every run of three or more vectorised (or kept a loop where it reads
+    what it writes), against the unrolled module."""
+    comp = _compiled(tmp_path, link_chain(4))
+    rolled, flat, _ = _np_pair(comp, monkeypatch, 3, 0.0)
+    _same_np(rolled, flat, np.asarray(flat.X0, dtype=float), rounds=2)
+
+
+def _np_functions(text: str) -> list[str]:
+    """The lines of the module's rhs, jacobian and outputs."""
+    body = text[text.index("\ndef rhs("):text.index("\ndef input_jacobian(")]
+    return body.splitlines()
+
+
+def test_numpy_rolled_ladder_size_independent_of_n(tmp_path, monkeypatch):
+    """The vectorised functions of a 30- and a 120-node ladder have the same lines (only the
+    numbers in their slices differ); the unrolled 120-node functions are far longer."""
+    texts = {n: _compiled(tmp_path, ladder(n)).module_text() for n in (30, 120)}
+    lines = {n: _np_functions(t) for n, t in texts.items()}
+    assert len(lines[30]) == len(lines[120])
+    strip = [re.sub(r"\d+", "N", ln) for ln in lines[30]]
+    assert strip == [re.sub(r"\d+", "N", ln) for ln in lines[120]]
+    monkeypatch.setattr(rr, "MIN_RUN", 10 ** 9)
+    flat = _np_functions(_compiled(tmp_path, ladder(120)).module_text())
+    assert len(flat) > 5 * len(lines[120])
+
+
+def test_vector_order_moves_statements_after_what_they_read():
+    """A statement that reads a value a later statement wrote in an earlier iteration runs
+    after it; one that reads its own values from an earlier iteration is a recurrence."""
+    from bgc.backends.numpy.rolled import _vector_order
+
+    a, b = sp.Dummy("a"), sp.Dummy("b")
+    m = 5
+    # s0: v[10+i] = v[20+i-1] (s1's value, one iteration back; v[19] written before)
+    # s1: v[20+i] = x[i]
+    s0 = rr.Stmt(a, (rr.Read(a, "v", rr.Index(19, 1)),), "v", rr.Index(10, 1))
+    s1 = rr.Stmt(2 * b, (rr.Read(b, "x", rr.Index(0, 1)),), "v", rr.Index(20, 1))
+    assert _vector_order(rr.Loop(m, (s0, s1), frozenset()), {}) == [1, 0]
+    # v[20+i] = 2 v[19+i]: each iteration reads the one before
+    rec = rr.Stmt(2 * a, (rr.Read(a, "v", rr.Index(19, 1)),), "v", rr.Index(20, 1))
+    assert _vector_order(rr.Loop(m, (rec,), frozenset()), {}) is None
+
+
+def test_numpy_recurrence_stays_a_loop(tmp_path):
+    """A run that is a true recurrence printed as a Python loop, in order: the module's
+    function gives the same values as the lines it replaces."""
+    from bgc.backends.numpy.printer import BgcPrinter, Function, Line
+    from bgc.backends.numpy.rolled import Tables, rolled_function
+    from bgc.lower.ir import Function as LFunction
+    from bgc.lower.ir import Line as LLine
+
+    x = sp.symbols("x0:12")
+    v = sp.symbols("v0:12")
+    k = sp.Symbol("k")
+    # v0 = x0; v_i = k*v_{i-1} + x_i (a running sum): 11 alike lines after the first
+    lines = [LLine(v[0], x[0])] + [LLine(v[i], k * v[i - 1] + x[i]) for i in range(1, 12)]
+    results = tuple((i, v[i]) for i in range(12))
+    fn = LFunction(("k",), (), tuple(str(s) for s in x), tuple(lines), results, 0)
+    got = rolled_function(fn, BgcPrinter(), Line, Function, list(x), [k], "rhs", Tables())
+    assert got is not None and got.rolled
+    code = "\n".join(f"    {ln.target} = {ln.code}" if ln.target else f"    {ln.code}"
+                     for ln in got.lines)
+    assert "for _i in range(" in code
+    src = ("import numpy as np\nxp = np\n_device = lambda x: None\n"
+           "def f(x, k):\n    _bs = x.shape[1:]\n    _dx = np.empty((12,) + _bs)\n"
+           f"{code}\n    return _dx\n")
+    ns: dict = {}
+    exec(compile(src, "<recurrence>", "exec"), ns)  # noqa: S102 (text made by this test)
+    xv = np.random.default_rng(0).standard_normal(12)
+    want = np.empty(12)
+    acc = 0.0
+    for i in range(12):
+        acc = 0.7 * acc + xv[i] if i else xv[0]
+        want[i] = acc
+    np.testing.assert_allclose(ns["f"](xv, 0.7), want, rtol=1e-14)
+
+
+def test_numpy_rolled_ladder_run_matches_hand_written_scipy(tmp_path):
+    """A whole run of the 120-node ladder's vectorised module (Radau, sparse LU, steps held
+    at max_step) against the hand-written node equations integrated by scipy's Radau; the
+    steps held at max_step reuse their LUs (fewer factorisations than steps)."""
+    from scipy.integrate import solve_ivp
+
+    from bgc.backends.load import load_module
+
+    n, t1 = 120, 2.0
+    comp = _compiled(tmp_path, ladder(n))
+    text = comp.module_text()
+    assert "_g0 = " in text
+    mod = load_module(text, "ladder120_np")
+    ts = np.linspace(0.0, t1, 41)
+    r = mod.simulate((0.0, t1), t_eval=ts, method="Radau", rtol=1e-8, atol=1e-12,
+                     max_step=0.01)
+    assert r.stats["nlu"] < r.stats["nsteps"]
+    ref = solve_ivp(lambda t, q: ladder_rhs(t, q), (0.0, t1), np.zeros(n), method="Radau",
+                    rtol=1e-11, atol=1e-14, t_eval=ts)
+    assert ref.status == 0
+    scale = np.abs(ref.y).max()
+    assert scale > 1e-4
+    assert np.abs(np.asarray(r.x) - ref.y).max() <= 1e-6 * scale

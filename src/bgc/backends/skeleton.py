@@ -66,13 +66,14 @@ _MODEL_TOP = {
                "_NEWTON_WARM", "_NEWTON_ITERATIONS", "RHS_USES_T", "INPUT_PERIODS", "N_EVENTS",
                "EVENT_NAMES", "EVENT_DIRECTIONS", "EVENT_TIMED", "EVENT_WHERE", "MODE_NAMES",
                "_RESETS", "_BGC_EXP_CAP", "_BGC_EXP_STEP", "CONSTRAINT_STATES",
-               "CONSTRAINT_ALPHA", "CONSTRAINT_CLOSED", "MOMENTUM_STATES", "CLOSURE_STATES"},
+               "CONSTRAINT_ALPHA", "CONSTRAINT_CLOSED", "MOMENTUM_STATES", "CLOSURE_STATES",
+               "_IX", "_PARAM_ARRAY"},
     "FunctionDef": {"_unpack", "_floats", "_params", "_inputs", "initial_state", "rhs", "jacobian",
                     "outputs", "input_jacobian", "output_jacobian", "_bgc_linsolve",
                     "event_values", "apply_event", "_bgc_newton", "_bgc_norm",
                     "_bgc_line_search", "_bgc_newton_failure", "_bgc_lexp", "_bgc_sexp",
                     "_bgc_exp_limit", "constraint_residuals", "kinetic_energy",
-                    "_constraint_values"},
+                    "_constraint_values", "_param_array", "_jacobian_values"},
     "ClassDef": {"_Unpacked"},
 }
 

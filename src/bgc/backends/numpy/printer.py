@@ -18,6 +18,7 @@ import sympy as sp
 from sympy.printing.numpy import NumPyPrinter
 
 from bgc.backends.numpy.events import events_part
+from bgc.backends.numpy.rolled import Tables, rolled_function
 from bgc.backends.skeleton import (  # noqa: F401 (re-exported)
     ALLOWED_IMPORTS,
     SkeletonError,
@@ -227,6 +228,8 @@ class Function:
     lines: tuple[Line, ...]
     results: tuple[tuple[object, str], ...]  # (key, code)
     ops: int  # operation count after CSE
+    rolled: bool = False  # vectorised (bgc.backends.numpy.rolled): results are in the lines
+    nresults: int = 0  # (rolled) how many results the lines write
 
 
 def printed(fn: lower.Function, printer) -> Function:
@@ -294,7 +297,8 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
         linsolve=getattr(printer, "uses_linsolve", False), newton=newton,
         all_param_symbols=[s for p in params for s in p["symbols"]] + [d.target for d in derived],
         runtime=runtime_source() + (f"\n\n\n{events_runtime_source()}" if events else ""),
-        events=events,
+        events=events, rolled_any=any(f is not None and f.rolled
+                                      for f in (fns["rhs"], fns["jac"], fns["outs"])),
     )
     for ident in _identifiers(eq):
         assert ident.isidentifier() and not keyword.iskeyword(ident) and set(ident) <= _IDENT_OK
@@ -309,13 +313,58 @@ def _printed_functions(eq: Equations, low, printer, progress, equations: bool) -
     if not equations:
         ilabels, olabels = linear_labels(eq)
         return dict(rhs=None, jac=None, outs=None, init=None, ujac=None, yjac=None, cons=None,
-                    input_labels=ilabels, output_labels=olabels)
-    rhs, jac, outs, init = (printed(f, printer) for f in (low.rhs, low.jac, low.outs, low.init))
+                    input_labels=ilabels, output_labels=olabels, index_tables=[],
+                    jac_index=None,
+                    out_ranges=None)
+    tables = Tables()
+    rhs, jac, outs = (_maybe_rolled(eq, f, printer, kind, tables)
+                      for f, kind in ((low.rhs, "rhs"), (low.jac, "jac"), (low.outs, "outs")))
+    if any(f.rolled for f in (rhs, jac, outs)):  # a large model: read only the states used
+        rhs, jac, outs = (f if f.rolled else _state_reads(f) for f in (rhs, jac, outs))
+    init = printed(low.init, printer)
+    # a vectorised Jacobian's values scattered into the dense matrix at JAC_SPARSITY's entries
+    jac_index = (tables.ref(tuple(k[0] for k in low.jac_keys)),
+                 tables.ref(tuple(k[1] for k in low.jac_keys))) if jac.rolled else None
     lin = low.linear if low.linear is not None else lower.lower_linear(eq, progress)
     cons = printed(low.cons, printer) if getattr(low, "cons", None) is not None else None
     return dict(rhs=rhs, jac=jac, outs=outs, init=init, cons=cons, ujac=printed(lin.ujac, printer),
                 yjac=printed(lin.yjac, printer), input_labels=lin.input_labels,
-                output_labels=lin.output_labels)
+                output_labels=lin.output_labels, index_tables=tables.literals,
+                jac_index=jac_index,
+                out_ranges=_out_ranges(eq, low.outs))
+
+
+def _maybe_rolled(eq: Equations, fn: lower.Function, printer, kind: str, tables) -> Function:
+    """The function printed vectorised where it is mostly repeated structure
+    (:mod:`bgc.backends.numpy.rolled`), else line by line."""
+    if kind != "outs" or _out_ranges(eq, fn) is not None:
+        states = [sv.symbol for sv in eq.states]
+        params = [s for pv in eq.params for s in pv.symbols] + [d.symbol for d in eq.derived]
+        got = rolled_function(fn, printer, Line, Function, states, params, kind, tables)
+        if got is not None:
+            return got
+    return printed(fn, printer)
+
+
+def _state_reads(fn: Function) -> Function:
+    """The function reading each state it uses by its index, not unpacking the whole state."""
+    reads = tuple(Line(name, f"x[{k}]") for k, name in enumerate(fn.states) if name != "_")
+    return Function(fn.params, fn.inputs, tuple("_" for _ in fn.states), reads + fn.lines,
+                    fn.results, fn.ops)
+
+
+def _out_ranges(eq: Equations, outs: lower.Function) -> dict | None:
+    """Output name -> (first, end) of its results' positions, where every output's results
+    are one run of positions in order (else None: the outputs are not rolled)."""
+    ranges: dict = {}
+    for pos, (key, _) in enumerate(outs.results):
+        first, end = ranges.get(key[0], (pos, pos))
+        if end != pos:
+            return None
+        ranges[key[0]] = (first, pos + 1)
+    if [name for name, _, _ in eq.outputs if name in ranges] != list(ranges):
+        return None
+    return ranges
 
 
 def _newton_parts(eq: Equations, printer) -> list[dict]:
