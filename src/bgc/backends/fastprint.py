@@ -164,7 +164,8 @@ class FastPrinting:
         return ("" if first == "+" else first) + " ".join(out)
 
     def _print_Mul(self, expr):
-        if self.order not in ("old", "none"):
+        macros = getattr(self, "math_macros", None)  # C: pi/2 is M_PI_2, 1/sqrt(2) M_SQRT1_2
+        if self.order not in ("old", "none") or (macros and expr in macros):
             return super()._print_Mul(expr)
         prec = self._prec(expr)
         c, e = expr.as_coeff_Mul()
