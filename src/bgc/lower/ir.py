@@ -88,25 +88,27 @@ def lower_function(eq: Equations, results: list, assigns: list[Assignment], keys
     defs += [(a.symbol, r, a.why) for a, r in zip(assigns, reduced[:len(assigns)])]
     res = reduced[len(assigns):]
     # schedule: cse temporaries just before their first use, assignments in causal order
+    # (each definition's free symbols found once: sympy walks the whole tree for them)
+    free = [e.free_symbols for _, e, _ in defs]
     g = nx.DiGraph()
     index = {}
     byname = {}
     defined = {s for s, _, _ in defs}
-    for s, e, why in defs:
+    for (s, e, why), fs in zip(defs, free):
         g.add_node(s)
         byname[s] = (e, why)
-        for d in e.free_symbols:
+        for d in fs:
             if d in defined:
                 g.add_edge(d, s)
     pos = {a.symbol: i for i, a in enumerate(assigns)}
     first_use: dict = {}
-    for s, e, _ in defs:
+    for (s, _, _), fs in zip(defs, free):
         if s in pos:
-            for d in e.free_symbols:
+            for d in fs:
                 if d in defined:
                     first_use[d] = min(first_use.get(d, 10 ** 9), pos[s])
-    for s, e, _ in reversed(defs[:len(repl)]):  # temporaries used by later temporaries
-        for d in e.free_symbols:
+    for (s, _, _), fs in reversed(list(zip(defs[:len(repl)], free))):  # temporaries used
+        for d in fs:  # by later temporaries
             if d in defined and s in first_use:
                 first_use[d] = min(first_use.get(d, 10 ** 9), first_use[s])
     for s, _, _ in defs:
@@ -116,9 +118,7 @@ def lower_function(eq: Equations, results: list, assigns: list[Assignment], keys
             index[s] = 2 * first_use.get(s, len(assigns)) if s in first_use else 2 * len(assigns)
     order = schedule(g, index)
     lines = tuple(Line(s, byname[s][0], byname[s][1]) for s in order)
-    used = set()
-    for s, e, _ in defs:
-        used |= e.free_symbols
+    used = set().union(*free) if free else set()
     for r in res:
         used |= r.free_symbols
     pnames = tuple(str(s) for pv in eq.params for s in pv.symbols if s in used)
@@ -130,15 +130,29 @@ def lower_function(eq: Equations, results: list, assigns: list[Assignment], keys
 
 
 def count_ops(exprs) -> int:
-    """Arithmetic operations and function calls, counted on the expression trees (cheap)."""
-    n = 0
+    """Arithmetic operations and function calls, counted on the expression trees (cheap): every
+    node of every tree, a subtree that occurs several times counted each time (once walked)."""
+    memo: dict = {}
+    total = 0
     for e in exprs:
-        for node in sp.preorder_traversal(e):
+        stack = [(e, False)]  # (node, its arguments counted): no recursion on deep trees
+        while stack:
+            node, done = stack.pop()
+            if node in memo:
+                continue
+            if not done:
+                stack.append((node, True))
+                stack.extend((a, False) for a in node.args if a not in memo)
+                continue
             if node.is_Add or node.is_Mul:
-                n += len(node.args) - 1
+                own = len(node.args) - 1
             elif node.is_Pow or node.is_Function or isinstance(node, sp.Piecewise):
-                n += 1
-    return n
+                own = 1
+            else:
+                own = 0
+            memo[node] = own + sum(memo[a] for a in node.args)
+        total += memo[e]
+    return total
 
 
 def lower_linear(eq: Equations, progress=None) -> Linear:
