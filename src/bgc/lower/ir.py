@@ -130,29 +130,15 @@ def lower_function(eq: Equations, results: list, assigns: list[Assignment], keys
 
 
 def count_ops(exprs) -> int:
-    """Arithmetic operations and function calls, counted on the expression trees (cheap): every
-    node of every tree, a subtree that occurs several times counted each time (once walked)."""
-    memo: dict = {}
-    total = 0
+    """Arithmetic operations and function calls, counted on the expression trees (cheap)."""
+    n = 0
     for e in exprs:
-        stack = [(e, False)]  # (node, its arguments counted): no recursion on deep trees
-        while stack:
-            node, done = stack.pop()
-            if node in memo:
-                continue
-            if not done:
-                stack.append((node, True))
-                stack.extend((a, False) for a in node.args if a not in memo)
-                continue
+        for node in sp.preorder_traversal(e):
             if node.is_Add or node.is_Mul:
-                own = len(node.args) - 1
+                n += len(node.args) - 1
             elif node.is_Pow or node.is_Function or isinstance(node, sp.Piecewise):
-                own = 1
-            else:
-                own = 0
-            memo[node] = own + sum(memo[a] for a in node.args)
-        total += memo[e]
-    return total
+                n += 1
+    return n
 
 
 def lower_linear(eq: Equations, progress=None) -> Linear:
