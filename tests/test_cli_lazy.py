@@ -28,7 +28,7 @@ print(json.dumps(sorted(sys.modules)), file=sys.stderr)
 def _modules(tmp_path, *args) -> tuple[subprocess.CompletedProcess, set[str]]:
     env = {**os.environ, "BGC_CACHE_DIR": str(tmp_path / "cache")}
     r = subprocess.run([sys.executable, "-c", _PROBE, *args], capture_output=True, text=True,
-                       env=env, timeout=600, cwd=ROOT)
+                       env=env, timeout=600, cwd=ROOT, check=False)
     return r, set(json.loads(r.stderr.strip().splitlines()[-1]))
 
 

@@ -133,7 +133,7 @@ class FastPrinting:
     def parenthesize(self, item, level, strict=False):
         p = self._prec(item)
         if p < level or (not strict and p <= level):
-            return "(%s)" % self._print(item)
+            return f"({self._print(item)})"
         return self._print(item)
 
     def _print_Symbol(self, expr):
@@ -194,11 +194,11 @@ class FastPrinting:
         for f in grouped:
             if f.base in den:
                 k = den.index(f.base)
-                den_text[k] = "(%s)" % den_text[k]
+                den_text[k] = f"({den_text[k]})"
         if not den:
             return sign + "*".join(num_text)
         if len(den) > 1:
-            return sign + "*".join(num_text) + "/(%s)" % "*".join(den_text)
+            return sign + "*".join(num_text) + "/(" + "*".join(den_text) + ")"
         d = den_text[0]
         if lone_power is not None and lone_power in self.product_powers:
             d = f"({d})"

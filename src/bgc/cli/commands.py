@@ -160,10 +160,10 @@ def _register_sweep():
 
 #: the commands registered on first use: (register, the summary `bgc --help` lists; the
 #: first sentence of the command's own help, which tests/test_cli.py compares)
-_LAZY = {"accuracy": (_register_accuracy, "Work-precision study of SCENE.yaml: error against "
-                                          "wall time and rhs calls."),
-         "sweep": (_register_sweep, "Run SCENE's sweep: batched simulations on Dask, results "
-                                    "in a Zarr store.")}
+_LAZY = {"accuracy": (_register_accuracy, ("Work-precision study of SCENE.yaml: error against "
+                                           "wall time and rhs calls.")),
+         "sweep": (_register_sweep, ("Run SCENE's sweep: batched simulations on Dask, results "
+                                     "in a Zarr store."))}
 
 
 if __name__ == "__main__":  # pragma: no cover
