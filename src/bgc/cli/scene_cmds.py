@@ -52,9 +52,9 @@ def simulate_cmd(scene, t_end, max_steps, out, plot_dir, method, rtol, atol, max
                  no_cache, strict_causality, quiet):
     """Compile the scene's model (or take it from the compile cache) and simulate the scene.
     SCENE may also be a model file: it runs with its defaults for 10 s (or --t-end)."""
-    # lazy: what this command runs; `bgc --help` and the other commands never load it
     import numpy as np
 
+    # lazy: what this command runs; `bgc --help` and the other commands never load it
     from bgc.format.scene import check_rtol
     from bgc.run.event_log import event_arrays
     from bgc.run.plots import render_plots, write_plots
@@ -201,9 +201,9 @@ def _load_target(path, prog):
 def linearize_cmd(target, at, out, bode, freq_range, x0_items, quiet):
     """Linearise SCENE_OR_MODEL: eigenvalues with natural frequencies and damping ratios and
     the states that dominate each mode; matrices and Bode plots with --out."""
-    # lazy: the compile path, which a warm run never loads
     import numpy as np
 
+    # lazy: the compile path, which a warm run never loads
     from bgc.format.scene import initial_state
     from bgc.linear import modes, on_manifold, operating_point, point_warnings, start_guess
 
