@@ -9,7 +9,8 @@ Beside it, in the same rounds (interleaved), the floors it stands on: a bare int
 one that imports what a compile needs (sympy, networkx, jinja2, symengine, numpy, yaml, click)
 without compiling anything. Reports the median of the rounds; a shared machine's load moves
 seconds, so compare the columns of one run. ``--before SRC`` adds the same compile with another
-checkout's bgc (its src folder), interleaved too.
+checkout's bgc (its src folder), interleaved too. ``bgc --help`` (listing the commands, which
+imports none of the libraries above) is measured beside it, for both.
 """
 from __future__ import annotations
 
@@ -42,8 +43,9 @@ def main() -> None:
     a = ap.parse_args()
     base_env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
     rows: dict[str, list[float]] = {"python -c pass": [], "import the libraries": [],
-                                    "bgc compile (cold cache)": []}
+                                    "bgc --help": [], "bgc compile (cold cache)": []}
     if a.before:
+        rows["bgc --help, --before's bgc"] = []
         rows["bgc compile, --before's bgc"] = []
     for _ in range(a.repeats):
         with tempfile.TemporaryDirectory() as d:
@@ -52,6 +54,10 @@ def main() -> None:
             env = {**base_env, "BGC_CACHE_DIR": str(cache)}
             rows["python -c pass"].append(cpu_of([sys.executable, "-c", "pass"], env))
             rows["import the libraries"].append(cpu_of([sys.executable, "-c", LIBS], env))
+            rows["bgc --help"].append(cpu_of([sys.executable, "-m", "bgc", "--help"], env))
+            if a.before:
+                rows["bgc --help, --before's bgc"].append(cpu_of(
+                    [sys.executable, "-m", "bgc", "--help"], {**env, "PYTHONPATH": a.before}))
             rows["bgc compile (cold cache)"].append(cpu_of(
                 [sys.executable, "-m", "bgc", "compile", a.model, "-o", str(Path(d) / "m.py"),
                  "-q"], env))
@@ -61,7 +67,7 @@ def main() -> None:
                      str(Path(d) / "b.py"), "-q"], {**env, "PYTHONPATH": a.before}))
     print(f"whole-process CPU (user + sys), median of {a.repeats}, {Path(a.model).name}:")
     for k, v in rows.items():
-        print(f"  {k:28s} {statistics.median(v):6.3f} s   (min {min(v):.3f})")
+        print(f"  {k:30s} {statistics.median(v):6.3f} s   (min {min(v):.3f})")
 
 
 if __name__ == "__main__":

@@ -7,7 +7,6 @@ import click
 
 from bgc.base.errors import ModelError
 from bgc.base.paths import package_dir
-from bgc.run.cache import Cache
 
 
 @click.command("examples")
@@ -64,6 +63,9 @@ def cache_cmd():
 @cache_cmd.command("info")
 def cache_info_cmd():
     """Where the cache is, how many entries per target, how many bytes."""
+    # lazy: the cache's module (and the C compiler's identity) for this command only
+    from bgc.run.cache import Cache
+
     info = Cache().info()
     ents = ", ".join(f"{k} {v}" for k, v in info["entries"].items()) or "empty"
     click.echo(f"{info['path']}: {ents}; {info['bytes'] / 1e6:.1f} MB")
@@ -72,6 +74,9 @@ def cache_info_cmd():
 @cache_cmd.command("clear")
 def cache_clear_cmd():
     """Remove every cache entry."""
+    # lazy: the cache's module (and the C compiler's identity) for this command only
+    from bgc.run.cache import Cache
+
     c = Cache()
     n = c.clear()
     click.echo(f"{c.path}: removed {n} entries")

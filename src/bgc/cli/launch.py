@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import sys
 
-from bgc.run.record import replay
-
 
 def main(argv: list[str] | None = None) -> None:
     args = sys.argv[1:] if argv is None else list(argv)
     if args[:1] == ["simulate"]:
+        # lazy: only `bgc simulate` has a record to replay (numpy; every other command skips it)
+        from bgc.run.record import replay
+
         try:
             status = replay(args[1:])
         except KeyboardInterrupt:

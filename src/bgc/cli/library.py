@@ -6,8 +6,6 @@ from __future__ import annotations
 import click
 
 from bgc.base.errors import ModelError
-from bgc.format.catalogue import catalogue, describe, find, library_text
-from bgc.format.library import PREFIX
 
 
 @click.command("library")
@@ -17,6 +15,10 @@ def library_cmd(name):
     "bgc:NAME"}]`), or show one library (e.g. mechanics.spatial) or one component (e.g.
     rigid_rod) in full: its ports and their domains, its parameters with units and defaults,
     its states and laws."""
+    # lazy: the library's files are read for this command only, not for `bgc --help`
+    from bgc.format.catalogue import catalogue, describe, find, library_text
+    from bgc.format.library import PREFIX
+
     if name is None:
         click.echo(catalogue() + f"\nbgc library NAME shows one library or component in full; "
                                  f"a model imports a library with imports: [{{from: "

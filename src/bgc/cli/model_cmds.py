@@ -8,21 +8,13 @@ from pathlib import Path
 
 import click
 
-from bgc.backends import load as backends
-from bgc.backends.c import build as cbuild
-from bgc.backends.c.build import CompilerMissing
 from bgc.base import BACKENDS
 from bgc.base.errors import ModelError
 from bgc.base.outfiles import check_output, write_output
 from bgc.base.reach import run_inputs
 from bgc.cli.exits import fail
 from bgc.cli.options import model_inputs
-from bgc.format.parse import parse_file
-from bgc.format.scene import parse_scene
-from bgc.run import cache as cache_mod
-from bgc.run.driver import check_model, compile_source
 from bgc.run.progress import Progress
-from bgc.run.runner import check_module_start
 
 
 @click.command("compile")
@@ -42,6 +34,14 @@ from bgc.run.runner import check_module_start
 @click.option("-q", "--quiet", is_flag=True)
 def compile_cmd(model, output, scene, target, no_cache, quiet, strict_causality):
     """Compile MODEL.yaml into a Python module (or, --target c, C sources and a library)."""
+    # lazy: what this command runs; `bgc --help` and the other commands never load it
+    from bgc.backends import load as backends
+    from bgc.backends.c import build as cbuild
+    from bgc.format.scene import parse_scene
+    from bgc.run import cache as cache_mod
+    from bgc.run.driver import compile_source
+    from bgc.run.runner import check_module_start
+
     prog = Progress(quiet)
     sc = None
     if scene:
@@ -87,6 +87,10 @@ def _default_output(model: Path, name: str) -> Path:
               help="also list each bond's physical domain and the dimensions of its effort and flow")
 def check_cmd(model, strict_causality, show_units):
     """Check MODEL.yaml completely (up to the equations) and list causality, states, warnings."""
+    # lazy: what this command runs; `bgc --help` and the other commands never load it
+    from bgc.format.parse import parse_file
+    from bgc.run.driver import check_model
+
     chk = check_model(parse_file(model), strict_causality)  # as bgc.check() and compile check
     if chk.error is not None:
         raise chk.error
@@ -152,6 +156,7 @@ def graph_cmd(model, output):
     from bgc.core.causality import assign_causality
     from bgc.core.draw import render_image, to_dot
     from bgc.core.graph import build_graph
+    from bgc.format.parse import parse_file
 
     bg = build_graph(parse_file(model))
     caus = assign_causality(bg, allow_derivative=True)
@@ -205,6 +210,7 @@ def equations_cmd(model, latex, explicit):
 def export_cmd(model, scene, fmu_out, kind, quiet):
     """Export MODEL.yaml (or SCENE's specialised model) as an FMI 2.0 FMU."""
     # lazy: the compile path, which a warm run never loads
+    from bgc.backends.c.build import CompilerMissing
     from bgc.run.fmu import export_fmu
 
     prog = Progress(quiet)

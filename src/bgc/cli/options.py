@@ -9,6 +9,26 @@ from bgc.base.outfiles import Inputs
 from bgc.base.reach import reached_files
 
 
+class LazyChoice(click.Choice):
+    """click's Choice whose choices come from ``load()`` on first use (they live in a module
+    that listing the commands, ``bgc --help``, should not import)."""
+
+    def __init__(self, load, case_sensitive: bool = True):
+        self._load, self._choices = load, None
+        super().__init__((), case_sensitive)
+
+    @property
+    def choices(self):
+        if self._choices is None:
+            self._choices = tuple(self._load())
+        return self._choices
+
+    @choices.setter
+    def choices(self, value):  # click's __init__ sets them: they come from load instead
+        if value:
+            self._choices = tuple(value)
+
+
 class _Finite(click.ParamType):
     """A finite float in a range: click's FloatRange lets inf and nan through."""
 

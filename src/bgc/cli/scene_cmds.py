@@ -6,28 +6,19 @@ import io
 import os
 
 import click
-import numpy as np
 
 from bgc.base import BACKENDS
 from bgc.base.errors import Coord, ModelError
 from bgc.base.outfiles import check_folder, check_output, write_output
-from bgc.cli.options import POSITIVE, model_inputs
-from bgc.format.scene import METHODS as SOLVER_METHODS
-from bgc.format.scene import (
-    MODEL_T_END,
-    check_max_steps,
-    check_rtol,
-    initial_state,
-    is_model_file,
-    model_scene,
-    parse_scene,
-    with_t_end,
-)
-from bgc.run.event_log import event_arrays
-from bgc.run.plots import render_plots, write_plots
+from bgc.cli.options import POSITIVE, LazyChoice, model_inputs
 from bgc.run.progress import Progress, summary_line
-from bgc.run.record import keep, options_text
-from bgc.run.runner import explain_scene, run_scene
+
+
+def _solver_methods():
+    # lazy: the scene format's module (YAML, the parser) only once --method is read
+    from bgc.format.scene import METHODS
+
+    return METHODS
 
 
 @click.command("simulate")
@@ -39,7 +30,7 @@ from bgc.run.runner import explain_scene, run_scene
                    "else 50000)")
 @click.option("--out", type=click.Path(), help="results .npz (t and outputs)")
 @click.option("--plot", "plot_dir", type=click.Path(), help="write PNG plots here")
-@click.option("--method", type=click.Choice(SOLVER_METHODS), default=None,
+@click.option("--method", type=LazyChoice(_solver_methods), default=None,
               help="override the scene's solver method (Rodas4: the generated module's own; "
                    "auto: DOP853, or Radau where a stiffness probe finds the model stiff)")
 @click.option("--rtol", type=float, default=None,
@@ -61,6 +52,15 @@ def simulate_cmd(scene, t_end, max_steps, out, plot_dir, method, rtol, atol, max
                  no_cache, strict_causality, quiet):
     """Compile the scene's model (or take it from the compile cache) and simulate the scene.
     SCENE may also be a model file: it runs with its defaults for 10 s (or --t-end)."""
+    import numpy as np
+
+    # lazy: what this command runs; `bgc --help` and the other commands never load it
+    from bgc.format.scene import check_rtol
+    from bgc.run.event_log import event_arrays
+    from bgc.run.plots import render_plots, write_plots
+    from bgc.run.record import keep, options_text
+    from bgc.run.runner import run_scene
+
     if rtol is not None:  # finite, within the limits (bgc.base.limits): one line, exit 2
         check_rtol(rtol, None, "--rtol")
     prog = Progress(quiet)
@@ -105,6 +105,16 @@ def simulate_cmd(scene, t_end, max_steps, out, plot_dir, method, rtol, atol, max
 def _scene_or_model(path, t_end, max_steps, say):
     """The scene file at path, or a model file as the scene of its defaults (bgc simulate
     MODEL.yaml); --t-end and --max-steps checked (one located line each)."""
+    # lazy: the scene format's module, for the commands that read a scene
+    from bgc.format.scene import (
+        MODEL_T_END,
+        check_max_steps,
+        is_model_file,
+        model_scene,
+        parse_scene,
+        with_t_end,
+    )
+
     if max_steps is not None:
         check_max_steps(max_steps, None, "--max-steps")
     if is_model_file(path):
@@ -123,6 +133,9 @@ def _scene_or_model(path, t_end, max_steps, say):
 @click.option("-q", "--quiet", is_flag=True)
 def explain_cmd(scene, rounds, quiet):
     """Full model against SCENE's specialisation: states, operations, cost of one rhs call."""
+    # lazy: what this command runs; `bgc --help` and the other commands never load it
+    from bgc.run.runner import explain_scene
+
     prog = Progress(quiet)
     ex = explain_scene(scene, progress=prog)
     prog("timing the rhs")
@@ -188,7 +201,10 @@ def _load_target(path, prog):
 def linearize_cmd(target, at, out, bode, freq_range, x0_items, quiet):
     """Linearise SCENE_OR_MODEL: eigenvalues with natural frequencies and damping ratios and
     the states that dominate each mode; matrices and Bode plots with --out."""
+    import numpy as np
+
     # lazy: the compile path, which a warm run never loads
+    from bgc.format.scene import initial_state
     from bgc.linear import modes, on_manifold, operating_point, point_warnings, start_guess
 
     prog = Progress(quiet)

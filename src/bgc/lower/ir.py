@@ -91,25 +91,27 @@ def lower_function(eq: Equations, results: list, assigns: list[Assignment], keys
     defs += [(a.symbol, r, a.why) for a, r in zip(assigns, reduced[:len(assigns)])]
     res = reduced[len(assigns):]
     # schedule: cse temporaries just before their first use, assignments in causal order
+    # (each definition's free symbols found once: sympy walks the whole tree for them)
+    free = [e.free_symbols for _, e, _ in defs]
     g = nx.DiGraph()
     index = {}
     byname = {}
     defined = {s for s, _, _ in defs}
-    for s, e, why in defs:
+    for (s, e, why), fs in zip(defs, free):
         g.add_node(s)
         byname[s] = (e, why)
-        for d in e.free_symbols:
+        for d in fs:
             if d in defined:
                 g.add_edge(d, s)
     pos = {a.symbol: i for i, a in enumerate(assigns)}
     first_use: dict = {}
-    for s, e, _ in defs:
+    for (s, _, _), fs in zip(defs, free):
         if s in pos:
-            for d in e.free_symbols:
+            for d in fs:
                 if d in defined:
                     first_use[d] = min(first_use.get(d, 10 ** 9), pos[s])
-    for s, e, _ in reversed(defs[:len(repl)]):  # temporaries used by later temporaries
-        for d in e.free_symbols:
+    for (s, _, _), fs in reversed(list(zip(defs[:len(repl)], free))):  # temporaries used
+        for d in fs:  # by later temporaries
             if d in defined and s in first_use:
                 first_use[d] = min(first_use.get(d, 10 ** 9), first_use[s])
     for s, _, _ in defs:
@@ -119,9 +121,7 @@ def lower_function(eq: Equations, results: list, assigns: list[Assignment], keys
             index[s] = 2 * first_use.get(s, len(assigns)) if s in first_use else 2 * len(assigns)
     order = schedule(g, index)
     lines = tuple(Line(s, byname[s][0], byname[s][1]) for s in order)
-    used = set()
-    for s, e, _ in defs:
-        used |= e.free_symbols
+    used = set().union(*free) if free else set()
     for r in res:
         used |= r.free_symbols
     pnames = tuple(str(s) for pv in eq.params for s in pv.symbols if s in used)

@@ -46,7 +46,6 @@ from bgc.base.errors import ModelError
 from bgc.format.parse import parse_file
 from bgc.format.scene import check_against, check_outputs, scene_model
 from bgc.run import cache as cache_mod
-from bgc.run.plots import check_plots
 
 if TYPE_CHECKING:  # annotations only
     from bgc.core.causality import Causality
@@ -521,6 +520,9 @@ def _numpy_twin(made, model, scene, name, use_cache, strict_causality, label, sp
 
 def _check_scene_module(scene, mod) -> None:
     check_against(scene, mod)
+    # lazy: numpy's import, which only a loaded module's checks need (not `bgc check`, --help)
+    from bgc.run.plots import check_plots
+
     check_plots(scene, mod.OUTPUT_SHAPES)  # a plot that cannot be drawn: before any run
 
 

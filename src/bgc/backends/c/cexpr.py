@@ -8,6 +8,8 @@ import sympy as sp
 from sympy.printing.c import C99CodePrinter
 from sympy.printing.precedence import PRECEDENCE
 
+from bgc.backends.fastprint import FastPrinting
+
 _C_KEYWORDS = frozenset("""auto break case char const continue default do double else enum extern
 float for goto if inline int long register restrict return short signed sizeof static struct
 switch typedef union unsigned void volatile while _Bool _Complex _Imaginary main errno
@@ -60,9 +62,13 @@ def c_name(name: str) -> str:
     return name
 
 
-class CPrinter(C99CodePrinter):
+class CPrinter(FastPrinting, C99CodePrinter):
     """C99 printer writing the numpy printer's cheap forms; strict: an unknown function is an
-    error, never a comment in the code."""
+    error, never a comment in the code; each expression printed without sympy's per-call
+    setup (:mod:`bgc.backends.fastprint`)."""
+
+    # as in the numpy printer: x/b**2 and x/b**3 must not come out as x/b*b or x/b*b*b
+    product_powers = (2, 3)
 
     def __init__(self, names: dict | None = None):
         super().__init__({"strict": True, "order": "none", "allow_unknown_functions": False})
@@ -117,17 +123,6 @@ class CPrinter(C99CodePrinter):
         if e == -sp.Rational(1, 2):
             return f"1.0/sqrt({self._print(b)})"
         return f"pow({self._print(b)}, {self._print(e)})"
-
-    def _print_Mul(self, expr):
-        # as in the numpy printer: x/b**2 must not come out as x/b*b
-        s = super()._print_Mul(expr)
-        den = [f for f in sp.Mul.make_args(expr) if f.is_commutative and f.is_Pow
-               and f.exp.is_Rational and f.exp.is_negative]
-        if len(den) == 1 and den[0].exp in (-2, -3):
-            d = self._print(sp.Pow(den[0].base, -den[0].exp, evaluate=False))
-            if s.endswith("/" + d):
-                s = f"{s[:-len(d)]}({d})"
-        return s
 
     def _print_Piecewise(self, expr):
         *pairs, last = expr.args

@@ -17,6 +17,7 @@ import jinja2
 import sympy as sp
 from sympy.printing.numpy import NumPyPrinter
 
+from bgc.backends.fastprint import FastPrinting
 from bgc.backends.numpy.events import events_part
 from bgc.backends.numpy.rolled import Tables, rolled_function
 from bgc.backends.skeleton import (  # noqa: F401 (re-exported)
@@ -98,9 +99,14 @@ _STANDARD = frozenset("""abs acos acosh asin asinh atan atan2 atanh ceil clip co
     pi e inf nan""".split())
 
 
-class BgcPrinter(NumPyPrinter):
+class BgcPrinter(FastPrinting, NumPyPrinter):
     """NumPyPrinter writing the array API's functions as ``xp.`` (the namespace of the
-    inputs), numpy's others as ``np.``, and cheap forms of common operations."""
+    inputs), numpy's others as ``np.``, and cheap forms of common operations; each expression
+    printed without sympy's per-call setup (:mod:`bgc.backends.fastprint`)."""
+
+    # _print_Pow writes b**2 as the product b*b, so x/b**2 would come out as x/b*b (= x):
+    # that lone denominator is parenthesised
+    product_powers = (2,)
 
     def __init__(self):
         # order="none": print terms in sympy's canonical argument order (deterministic, and
@@ -137,19 +143,6 @@ class BgcPrinter(NumPyPrinter):
         if e == -sp.Rational(1, 2):
             return f"1/{self._module_format('numpy.sqrt')}({self._print(b)})"
         return super()._print_Pow(expr, rational=rational)
-
-    def _print_Mul(self, expr):
-        # CodePrinter._print_Mul writes a lone denominator factor after "/" without
-        # parentheses, trusting that a power binds tighter than "/". _print_Pow writes b**2 as
-        # the product b*b, so x/b**2 would come out as x/b*b (= x): parenthesise it.
-        s = super()._print_Mul(expr)
-        den = [f for f in sp.Mul.make_args(expr) if f.is_commutative and f.is_Pow
-               and f.exp.is_Rational and f.exp.is_negative]
-        if len(den) == 1 and den[0].exp == -2:
-            d = self._print(sp.Pow(den[0].base, 2, evaluate=False))
-            if s.endswith("/" + d):
-                s = f"{s[:-len(d)]}({d})"
-        return s
 
     def _print_Piecewise(self, expr):
         # where(c0, a0, where(c1, a1, ... default))
@@ -234,9 +227,15 @@ class Function:
 
 def printed(fn: lower.Function, printer) -> Function:
     """One lowered function with its expressions printed (lines first, then results)."""
-    lines = tuple(Line(str(ln.target), printer.doprint(ln.expr), ln.comment) for ln in fn.lines)
+    lines = tuple(Line(_name(ln.target), printer.doprint(ln.expr), ln.comment)
+                  for ln in fn.lines)
     results = tuple((k, printer.doprint(r)) for k, r in fn.results)
     return Function(fn.params, fn.inputs, fn.states, lines, results, fn.ops)
+
+
+def _name(sym) -> str:
+    """str(sym), without making a StrPrinter for a plain Symbol (whose text is its name)."""
+    return sym.name if type(sym) is sp.Symbol else str(sym)
 
 
 def _pyrepr(v) -> str:
@@ -265,7 +264,7 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
     newton = _newton_parts(eq, printer) if equations or events else []
     if newton:
         printer.uses_linsolve = True
-    derived = [Line(str(a.symbol), printer.doprint(a.expr), a.why) for a in eq.derived]
+    derived = [Line(_name(a.symbol), printer.doprint(a.expr), a.why) for a in eq.derived]
     inputs, tables = _inputs_and_tables(eq, printer, input_units or {})
     input_params = sorted({str(s) for iv in eq.inputs for d in iv.default for s in d.free_symbols
                            if s != T})
