@@ -357,7 +357,8 @@ def compile_file(path: str | Path, progress=None, strict_causality: bool = False
     if progress:
         progress("parsing")
     t0 = time.perf_counter()
-    model = parse(path)
+    with gc_paused():
+        model = parse(path)
     t1 = time.perf_counter()
     c = compile_model(model, progress, strict_causality=strict_causality,
                       symbolic_max=symbolic_max, target=target)
@@ -382,10 +383,11 @@ def scene_compiled(scene, progress=None, specialise: bool = True,
     from bgc.core.specialize import plan_for
 
     t1 = time.perf_counter()
-    model = scene_model(scene)
-    t2 = time.perf_counter()
-    graph = build_graph(model)  # stage 2 once: for the plan's parameters and the compile
-    plan = plan_for(scene, graph.params) if specialise else None
+    with gc_paused():  # (parse and graph allocate as much as the later stages: see gc_paused)
+        model = scene_model(scene)
+        t2 = time.perf_counter()
+        graph = build_graph(model)  # stage 2 once: for the plan's parameters and the compile
+        plan = plan_for(scene, graph.params) if specialise else None
     t3 = time.perf_counter()
     c = compile_model(model, progress, plan, strict_causality=strict_causality, target=target,
                       graph=graph)
