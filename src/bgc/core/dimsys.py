@@ -40,7 +40,7 @@ class Form:
         return _combine(self, other, -1)
 
     def scaled(self, n) -> "Form":
-        n = num(Fraction(n))
+        n = n if type(n) is int else num(Fraction(n))
         if n == 1:
             return self
         if n == 0:
@@ -140,11 +140,28 @@ class System:
         terms = tuple(sorted(((v, num(c)) for v, c in coefs.items() if c != 0), key=_order))
         return Form(const, terms)
 
+    def _difference(self, a: Form, b: Form) -> Form:
+        """``resolve(a - b)`` in one pass over both (the same exact sums, one sort)."""
+        rows = self.rows
+        const, coefs = div(a.const, b.const), {}
+        for f, sign in ((a, 1), (b, -1)):
+            for v, c in f.terms:
+                c = c * sign
+                row = rows.get(v)
+                if row is None:
+                    coefs[v] = coefs.get(v, 0) + c
+                    continue
+                const = mul(const, power(row.const, c))
+                for w, d in row.terms:
+                    coefs[w] = coefs.get(w, 0) + d * c
+        terms = tuple(sorted(((v, num(c)) for v, c in coefs.items() if c != 0), key=_order))
+        return Form(const, terms)
+
     def equate(self, a: Form | None, b: Form | None, coord: Coord, message) -> None:
         """Record a == b; a contradiction raises ``message(shown a, shown b)`` at ``coord``."""
         if a is None or b is None:
             return
-        diff = self.resolve(a - b)
+        diff = self._difference(a, b)
         if not diff.terms:
             if any(diff.const):
                 raise ModelError(coord, message(show_form(self.resolve(a)),
