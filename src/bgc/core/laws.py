@@ -20,6 +20,11 @@ from bgc.format.parse import TWO_PORTS
 
 _BAD_VALUES = (sp.zoo, sp.oo, -sp.oo, sp.nan, sp.I)
 
+try:  # Add's canonical order of its terms (sympy's own sort; signed_sum below)
+    from sympy.core.add import _addsort
+except ImportError:  # pragma: no cover - a sympy without it: the general constructor
+    _addsort = None
+
 
 _BAD_SET = frozenset(_BAD_VALUES)
 #: The nodes whose free symbols are their symbols' and whose bad values are their atoms: an
@@ -262,14 +267,27 @@ def _balance(var: dict, el, bonds, src):
     per-bond sums and the negated total were most of a large ladder's junctions)."""
     out = src.dst == el.id  # the others' sum as it stands (else negated)
     if src.n == 1:
-        return sp.Add(*[var[b.id] if (b.src == el.id) == out else -var[b.id]
-                        for b in bonds if b is not src])
+        return signed_sum([(var[b.id], (b.src == el.id) == out) for b in bonds if b is not src])
     total = zero_value(src.n)
     for b in bonds:
         if b is src:
             continue
         total = total + (var[b.id] if b.src == el.id else -var[b.id])
     return total if out else -total
+
+
+def signed_sum(terms) -> sp.Expr:
+    """The sum of ``(value, positive)`` terms, exactly ``sp.Add(*[v or -v])``. Distinct plain
+    symbols (a junction's bond variables) skip Add's and Mul's canonicalisation: their
+    canonical sum is its terms (``-s`` as sympy writes it, -1 first) in Add's own order, which
+    is built here directly (tests/test_junction_sums.py holds it to sympy's constructor)."""
+    syms = [v for v, _ in terms]
+    if (_addsort is None or len(terms) < 2 or any(type(v) is not sp.Symbol for v in syms)
+            or len(set(syms)) != len(syms)):
+        return sp.Add(*[v if pos else -v for v, pos in terms])
+    args = [v if pos else sp.Mul._from_args((sp.S.NegativeOne, v)) for v, pos in terms]
+    _addsort(args)
+    return sp.Add._from_args(args)
 
 
 def _two_port(ctx: Context, el: FlatElement, bonds, define):
