@@ -32,6 +32,34 @@ def test_gc_paused_restores_the_collector_state():
         gc.enable()
 
 
+
+def test_gc_paused_leaves_what_it_made_collectable():
+    """Objects made in the block move to the oldest generation when it ends (not frozen): a
+    cycle made there and dropped afterwards is freed by the next full collection, and a
+    host's own frozen objects stay frozen."""
+    import weakref
+
+    class Node:
+        pass
+
+    with gc_paused():
+        a, b = Node(), Node()
+        a.other, b.other = b, a  # a cycle: only the collector frees it
+        dead = weakref.ref(a)
+    assert gc.get_freeze_count() == 0
+    del a, b
+    gc.collect()
+    assert dead() is None
+    gc.freeze()  # a host that froze its own objects
+    try:
+        frozen = gc.get_freeze_count()
+        with gc_paused():
+            pass
+        assert gc.get_freeze_count() == frozen
+    finally:
+        gc.unfreeze()
+
+
 def test_compile_leaves_the_collector_on_and_matches_the_golden():
     c = compile_model(parse_file(ROOT / "models" / "msd.yaml"))
     assert gc.isenabled()

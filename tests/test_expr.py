@@ -117,6 +117,23 @@ def test_error_columns_follow_the_text():
     assert info.value.coord == Coord("m.yaml", 7, 14)
 
 
+
+def test_a_text_checked_before_is_still_located_at_each_use():
+    """The whitelist keeps checked trees by text (a large model's thousands of "R"): an error
+    in the same text is raised again at each expression's own place, and a tree shared by
+    two places still gives each place its own columns."""
+    for line in (3, 9):  # the same refused text twice: two errors, each at its own line
+        with pytest.raises(ModelError) as info:
+            E.check(E.Expr("a + b.__x", Coord("m.yaml", line, 5)))
+        assert info.value.coord == Coord("m.yaml", line, 9)
+    for line in (4, 11):  # an accepted text, then an error found while building it
+        with pytest.raises(ModelError) as info:
+            E.build(E.Expr("   v + a", Coord("m.yaml", line, 2)), Symbols())
+        assert "shape mismatch" in info.value.message
+        assert info.value.coord.line == line
+    assert E.check(ex("k * x")) is E.check(E.Expr("k * x", Coord("n.yaml", 1, 1)))
+
+
 def test_no_parenthesis_injection():
     # Text that only parses once wrapped in parentheses stays an error.
     for text in ["sin)(1", "a), (b", "a\n)(b"]:

@@ -259,6 +259,12 @@ def _fold_value(v):
     return sp.Float(v)
 
 
+def _text(s) -> str:
+    """``str(s)``; a plain symbol's name read directly (sympy's printer per symbol was most of
+    this check on a large model)."""
+    return s.name if type(s) is sp.Symbol else str(s)
+
+
 def check_names(bg: BondGraph, ctx: Context, state_vars) -> None:
     """Generated identifiers must not collide (e.g. a parameter named like a bond variable):
     the error is placed at the user's name (a parameter or input is what can be renamed)."""
@@ -267,15 +273,15 @@ def check_names(bg: BondGraph, ctx: Context, state_vars) -> None:
     seen: dict[str, str] = {}
     pairs = []  # (identifier, who, coord of the declaration or None)
     for pv in ctx.params.values():
-        pairs += [(str(s), f"parameter {pv.id!r}", pcoord.get(pv.id)) for s in pv.symbols]
+        pairs += [(_text(s), f"parameter {pv.id!r}", pcoord.get(pv.id)) for s in pv.symbols]
     for k in ctx.derived:
         pairs.append((k, "derived parameter", pcoord.get(k)))
     for sv in state_vars:
-        pairs.append((str(sv.symbol), f"state {sv.name!r}", None))
+        pairs.append((_text(sv.symbol), f"state {sv.name!r}", None))
     for b in bg.bonds:
-        pairs += [(str(s), f"bond {b.id!r}", None) for s in flat(ctx.e[b.id]) + flat(ctx.f[b.id])]
+        pairs += [(_text(s), f"bond {b.id!r}", None) for s in flat(ctx.e[b.id]) + flat(ctx.f[b.id])]
     for iv in ctx.inputs.values():
-        pairs += [(str(s), f"input {iv.name!r}", icoord.get(iv.name)) for s in iv.symbols]
+        pairs += [(_text(s), f"input {iv.name!r}", icoord.get(iv.name)) for s in iv.symbols]
     where: dict[str, object] = {}
     for ident, who, coord in pairs:
         if ident in seen and seen[ident] != who:

@@ -40,7 +40,7 @@ class Form:
         return _combine(self, other, -1)
 
     def scaled(self, n) -> "Form":
-        n = num(Fraction(n))
+        n = n if type(n) is int else num(Fraction(n))
         if n == 1:
             return self
         if n == 0:
@@ -55,6 +55,22 @@ class Form:
 ANY = None  # the dimension of 0 (and of zeros(n)): equal to anything
 
 
+_TEXT: dict = {}  # variable -> str(variable): the terms' order, computed once per variable
+
+
+def _order(term) -> str:
+    """A term's sort key: its variable's text (memoised: str of a tuple per comparison was a
+    third of a large model's unit check)."""
+    v = term[0]
+    try:
+        return _TEXT[v]
+    except KeyError:
+        if len(_TEXT) > 1_000_000:  # (bounded: one process may check many models)
+            _TEXT.clear()
+        _TEXT[v] = text = str(v)
+        return text
+
+
 def _combine(a: Form, b: Form, sign: int) -> Form:
     if not b.terms:
         terms = a.terms
@@ -63,7 +79,7 @@ def _combine(a: Form, b: Form, sign: int) -> Form:
         for v, c in b.terms:
             coefs[v] = num(coefs.get(v, 0) + sign * c)
         terms = tuple(sorted(((v, c) for v, c in coefs.items() if c != 0),
-                             key=lambda t: str(t[0])))
+                             key=_order))
     const = mul(a.const, b.const) if sign > 0 else div(a.const, b.const)
     return Form(const, terms)
 
@@ -107,18 +123,45 @@ class System:
                 pass
 
     def resolve(self, f: Form | None) -> Form | None:
+        """``f`` in the variables that are not pivots: each pivot's row substituted, summed in
+        one pass (exact rationals: the same form as adding the scaled rows one by one)."""
         if f is None or not f.terms:
             return f
-        out = Form(f.const)
+        rows = self.rows
+        const, coefs = f.const, {}
         for v, c in f.terms:
-            out = out + (self.rows[v].scaled(c) if v in self.rows else Form(ZERO, ((v, c),)))
-        return out
+            row = rows.get(v)
+            if row is None:
+                coefs[v] = coefs.get(v, 0) + c
+                continue
+            const = mul(const, power(row.const, c))
+            for w, d in row.terms:
+                coefs[w] = coefs.get(w, 0) + d * c
+        terms = tuple(sorted(((v, num(c)) for v, c in coefs.items() if c != 0), key=_order))
+        return Form(const, terms)
+
+    def _difference(self, a: Form, b: Form) -> Form:
+        """``resolve(a - b)`` in one pass over both (the same exact sums, one sort)."""
+        rows = self.rows
+        const, coefs = div(a.const, b.const), {}
+        for f, sign in ((a, 1), (b, -1)):
+            for v, c in f.terms:
+                c = c * sign
+                row = rows.get(v)
+                if row is None:
+                    coefs[v] = coefs.get(v, 0) + c
+                    continue
+                const = mul(const, power(row.const, c))
+                for w, d in row.terms:
+                    coefs[w] = coefs.get(w, 0) + d * c
+        terms = tuple(sorted(((v, num(c)) for v, c in coefs.items() if c != 0), key=_order))
+        return Form(const, terms)
 
     def equate(self, a: Form | None, b: Form | None, coord: Coord, message) -> None:
         """Record a == b; a contradiction raises ``message(shown a, shown b)`` at ``coord``."""
         if a is None or b is None:
             return
-        diff = self.resolve(a - b)
+        diff = self._difference(a, b)
         if not diff.terms:
             if any(diff.const):
                 raise ModelError(coord, message(show_form(self.resolve(a)),

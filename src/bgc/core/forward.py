@@ -27,6 +27,12 @@ from bgc.core.eqtypes import (
 )
 
 
+def _name(s) -> str:
+    """A symbol's text as ``str`` gives it (its name), without sympy's printer for plain
+    symbols (the printer was a fifth of a large ladder's Jacobian)."""
+    return s.name if type(s) is sp.Symbol else str(s)
+
+
 def jacobian(kept: list[Assignment], state_vars, derivatives, nloops=()):
     """Forward-mode Jacobian d(derivatives)/dx along the causal assignments."""
     return forward_mode(kept, {sv.symbol: j for j, sv in enumerate(state_vars)},
@@ -79,7 +85,7 @@ class _Sweep:
 
     def grad(self, expr) -> dict[int, object]:
         D, bridge = self.D, self.bridge
-        syms = sorted((s for s in expr.free_symbols if D.get(s)), key=str)  # deterministic
+        syms = sorted((s for s in expr.free_symbols if D.get(s)), key=_name)  # deterministic
         if not syms:
             return {}
         parts = fastsym.partials(bridge, expr, syms) if bridge is not None else None

@@ -20,9 +20,43 @@ from bgc.format.parse import TWO_PORTS
 
 _BAD_VALUES = (sp.zoo, sp.oo, -sp.oo, sp.nan, sp.I)
 
+try:  # Add's canonical order of its terms (sympy's own sort; signed_sum below)
+    from sympy.core.add import _addsort
+except ImportError:  # pragma: no cover - a sympy without it: the general constructor
+    _addsort = None
+
+
+_BAD_SET = frozenset(_BAD_VALUES)
+#: The nodes whose free symbols are their symbols' and whose bad values are their atoms: an
+#: expression made only of these is checked in one walk (below).
+_PLAIN = (sp.Add, sp.Mul, sp.Pow)
+
+
+def _plain_walk(v, targets: set):
+    """(any bad value, any target read) of an expression of sums, products, powers, symbols
+    and numbers, in one walk; None for anything else (a function, a matrix...), which the
+    general check handles. The same answers as ``has`` and ``free_symbols``, for the junction
+    balances and constitutive laws that are most of a large model's equations."""
+    bad = own = False
+    stack = [v]
+    while stack:
+        x = stack.pop()
+        if x.is_Symbol:
+            own = own or x in targets
+        elif x.is_Atom:
+            bad = bad or x in _BAD_SET
+        elif isinstance(x, _PLAIN):
+            stack.extend(x.args)
+        else:
+            return None
+    return bad, own
+
 
 def check_value(v, el: FlatElement, targets: set) -> None:
     """An element's equation must be finite and real, and must not read what it defines."""
+    quick = _plain_walk(v, targets)
+    if quick == (False, False):
+        return
     if v.has(*_BAD_VALUES):
         bad = "complex" if v.has(sp.I) else "infinite or undefined"
         hint = {"I": " (a zero inertia?)", "C": " (a zero compliance?)",
@@ -214,25 +248,46 @@ def _junction(ctx: Context, el: FlatElement, bonds, define):
             if b is not src:
                 define(ctx.e[b.id], ctx.e[src.id], el, f"0-junction {el.id}: common effort")
         # flows: sum in = sum out, solved for the imposing bond's flow
-        total = zero_value(src.n)
-        for b in bonds:
-            if b is src:
-                continue
-            total = total + (ctx.f[b.id] if b.src == el.id else -ctx.f[b.id])
-        val = total if src.dst == el.id else -total
-        define(ctx.f[src.id], val, el, f"0-junction {el.id}: flow balance")
+        define(ctx.f[src.id], _balance(ctx.f, el, bonds, src), el,
+               f"0-junction {el.id}: flow balance")
     else:
         src = next(b for b in bonds if caus.effort_by[b.id] == el.id)
         for b in bonds:
             if b is not src:
                 define(ctx.f[b.id], ctx.f[src.id], el, f"1-junction {el.id}: common flow")
-        total = zero_value(src.n)
-        for b in bonds:
-            if b is src:
-                continue
-            total = total + (ctx.e[b.id] if b.src == el.id else -ctx.e[b.id])
-        val = total if src.dst == el.id else -total
-        define(ctx.e[src.id], val, el, f"1-junction {el.id}: effort balance")
+        define(ctx.e[src.id], _balance(ctx.e, el, bonds, src), el,
+               f"1-junction {el.id}: effort balance")
+
+
+def _balance(var: dict, el, bonds, src):
+    """A junction's balance solved for the imposing bond ``src``'s variable: the sum of the
+    others' (``var``: bond id -> effort or flow), each signed by its direction. Scalar bonds
+    build the sum as one Add of the signed terms (the same canonical expression as adding them
+    one by one and negating the total, in one constructor call instead of one per bond: the
+    per-bond sums and the negated total were most of a large ladder's junctions)."""
+    out = src.dst == el.id  # the others' sum as it stands (else negated)
+    if src.n == 1:
+        return signed_sum([(var[b.id], (b.src == el.id) == out) for b in bonds if b is not src])
+    total = zero_value(src.n)
+    for b in bonds:
+        if b is src:
+            continue
+        total = total + (var[b.id] if b.src == el.id else -var[b.id])
+    return total if out else -total
+
+
+def signed_sum(terms) -> sp.Expr:
+    """The sum of ``(value, positive)`` terms, exactly ``sp.Add(*[v or -v])``. Distinct plain
+    symbols (a junction's bond variables) skip Add's and Mul's canonicalisation: their
+    canonical sum is its terms (``-s`` as sympy writes it, -1 first) in Add's own order, which
+    is built here directly (tests/test_junction_sums.py holds it to sympy's constructor)."""
+    syms = [v for v, _ in terms]
+    if (_addsort is None or len(terms) < 2 or any(type(v) is not sp.Symbol for v in syms)
+            or len(set(syms)) != len(syms)):
+        return sp.Add(*[v if pos else -v for v, pos in terms])
+    args = [v if pos else sp.Mul._from_args((sp.S.NegativeOne, v)) for v, pos in terms]
+    _addsort(args)
+    return sp.Add._from_args(args)
 
 
 def _two_port(ctx: Context, el: FlatElement, bonds, define):

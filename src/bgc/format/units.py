@@ -33,6 +33,8 @@ ZERO: Dim = (0,) * 7
 
 def num(x):
     """An exponent: an int when it is whole (fast), else a Fraction."""
+    if type(x) is int:  # (first: isinstance of Fraction goes through the ABC machinery)
+        return x
     if isinstance(x, Fraction) and x.denominator == 1:
         return x.numerator
     return x

@@ -133,8 +133,28 @@ def short_text(text: str) -> str:
     return repr(text) if len(text) <= 60 else repr(text[:57]) + "..."
 
 
+#: Checked trees by text: whether a text passes depends on the text alone, and a large model
+#: writes the same few laws ("R", "C") on thousands of elements, each read by several stages.
+#: The trees are only read, never changed; an error is raised each time (its place is the
+#: caller's Expr's). Bounded: cleared when full.
+_CHECKED: dict[str, ast.expr] = {}
+_CHECKED_MAX = 4096
+
+
 def check(expr: Expr) -> ast.expr:
     """Parse ``expr`` and verify every node against the whitelist; return the tree."""
+    text = expr.text
+    tree = _CHECKED.get(text)
+    if tree is not None:
+        return tree
+    tree = _checked(expr)
+    if len(_CHECKED) >= _CHECKED_MAX:
+        _CHECKED.clear()
+    _CHECKED[text] = tree
+    return tree
+
+
+def _checked(expr: Expr) -> ast.expr:
     text = expr.text
     if len(text) > LIMITS.expr_chars:
         raise ModelError(expr.coord, f"expression is too long (over {LIMITS.expr_chars} "

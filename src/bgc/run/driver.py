@@ -135,13 +135,22 @@ def gc_paused():
     A compile allocates millions of small, short-lived sympy objects that reference counting
     frees; the collector's passes over them found almost nothing and cost a fifth of the 3R2S
     compile (measured: bench/bench_compile.py). Memory stays bounded: the model limits bound
-    the compile, and the collector runs again as soon as the block ends."""
+    the compile, and the collector runs again as soon as the block ends.
+
+    What the block made and kept (the compile's results) is moved to the oldest generation as
+    it ends (``gc.freeze`` then ``gc.unfreeze``, only when nothing else is frozen): else the
+    first young collection after the block, and the middle one after it, each walked every
+    object the block allocated (a compile keeps hundreds of thousands).
+    Nothing is kept from the collector: the next full collection looks at them as before."""
     was = gc.isenabled()
     gc.disable()
     try:
         yield
     finally:
         if was:
+            if gc.get_freeze_count() == 0:  # (a host's own frozen objects stay frozen)
+                gc.freeze()
+                gc.unfreeze()
             gc.enable()
 
 
@@ -356,7 +365,8 @@ def compile_file(path: str | Path, progress=None, strict_causality: bool = False
     if progress:
         progress("parsing")
     t0 = time.perf_counter()
-    model = parse(path)
+    with gc_paused():
+        model = parse(path)
     t1 = time.perf_counter()
     c = compile_model(model, progress, strict_causality=strict_causality,
                       symbolic_max=symbolic_max, target=target)
@@ -381,10 +391,11 @@ def scene_compiled(scene, progress=None, specialise: bool = True,
     from bgc.core.specialize import plan_for
 
     t1 = time.perf_counter()
-    model = scene_model(scene)
-    t2 = time.perf_counter()
-    graph = build_graph(model)  # stage 2 once: for the plan's parameters and the compile
-    plan = plan_for(scene, graph.params) if specialise else None
+    with gc_paused():  # (parse and graph allocate as much as the later stages: see gc_paused)
+        model = scene_model(scene)
+        t2 = time.perf_counter()
+        graph = build_graph(model)  # stage 2 once: for the plan's parameters and the compile
+        plan = plan_for(scene, graph.params) if specialise else None
     t3 = time.perf_counter()
     c = compile_model(model, progress, plan, strict_causality=strict_causality, target=target,
                       graph=graph)
