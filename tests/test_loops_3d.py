@@ -148,12 +148,19 @@ def test_an_inconsistent_rotation_is_located():
     with pytest.raises(ModelError) as e:
         bgc.check(text)
     msg = e.value.message
-    assert msg.startswith("constraint 'r4.lock' closing the kinematic loop")
+    assert msg.startswith("element 'r4.lock' (from bgc:mechanics.spatial revolute_lock): "
+                          "constraint 'r4.lock' closing the kinematic loop")
     assert "the initial velocities violate it" in msg
     res = [float(v) for v in msg.split("by [")[1].split("]")[0].split(",")]
     th3 = fl.FourBar().assemble(1.0)[2]
     assert np.allclose(res, [-0.5 * np.cos(th3), 0.5 * np.sin(th3)], rtol=1e-5)
-    assert e.value.coord.line > 0  # at the lock (inside the library's revolute_lock)
+    # at the instance `r4: {type: revolute_lock, ...}` in the user's model (one parameter line
+    # added above it), not inside the library's file
+    line = 1 + text.splitlines().index(next(ln for ln in text.splitlines()
+                                            if ln.startswith("  r4: {type: revolute_lock")))
+    assert (e.value.coord.line, e.value.coord.column) == (line, 3)
+    assert str(e.value).startswith(f"<string>:{line}:3: element 'r4.lock' (from ")
+    assert "\n" not in str(e.value)
 
 
 def test_an_inconsistent_pin_is_located():
