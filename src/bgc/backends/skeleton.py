@@ -66,7 +66,7 @@ _MODEL_TOP = {
                "_NEWTON_WARM", "_NEWTON_ITERATIONS", "RHS_USES_T", "INPUT_PERIODS", "N_EVENTS",
                "EVENT_NAMES", "EVENT_DIRECTIONS", "EVENT_TIMED", "EVENT_WHERE", "MODE_NAMES",
                "_RESETS", "_BGC_EXP_CAP", "_BGC_EXP_STEP", "CONSTRAINT_STATES",
-               "CONSTRAINT_ALPHA"},
+               "CONSTRAINT_ALPHA", "CONSTRAINT_DROPPED"},
     "FunctionDef": {"_unpack", "_floats", "_params", "_inputs", "initial_state", "rhs", "jacobian",
                     "outputs", "input_jacobian", "output_jacobian", "_bgc_linsolve",
                     "event_values", "apply_event", "_bgc_newton", "_bgc_norm",

@@ -115,6 +115,8 @@ class Equations:
     #: the names of the constraints' violation states (q): the linearisation reduces them out
     constraint_states: tuple = field(default=())
     constraint_alpha: float = 0.0  # their stabilisation rate (1/s)
+    #: the violation states of the components dropped as redundant: a run watches their rates
+    constraint_dropped: tuple = field(default=())
 
 
 class LinSolve(sp.Function):

@@ -285,6 +285,7 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
         states=eq.states, params=params, derived=derived, inputs=inputs,
         constraint_states=getattr(eq, "constraint_states", ()),
         constraint_alpha=repr(float(getattr(eq, "constraint_alpha", 0.0))),
+        constraint_dropped=getattr(eq, "constraint_dropped", ()),
         input_params=input_params, outputs=outputs, **fns,
         jac_keys=list(low.jac_keys), n=len(eq.states), imports=imports,
         tables=tables, input_periods=input_periods(eq),
