@@ -107,3 +107,26 @@ def test_the_3d_pin_fourbar_runs_without_the_warning():
     names, r = dropped_residuals(m.module, res[0], res[1])
     assert caught == []
     assert np.abs(r).max() < 1e-12  # out of the plane: nothing moves there
+
+
+def test_bgc_simulate_warns_and_so_does_its_replay(tmp_path):
+    """The command line, twice: the full way, then the warm replay from its run record."""
+    import os
+    import subprocess
+    import sys
+
+    scene = tmp_path / "slider.yaml"
+    scene.write_text(f"bgc_scene: 1\nname: slider\nmodel: {SLIDER}\nduration: 2.0\n"
+                     "outputs: [th1]\nsolver: {method: Radau, rtol: 1.0e-8, atol: 1.0e-10, "
+                     "dt: 0.01, backend: c}\n")
+    env = dict(os.environ)
+    src = str(ROOT / "src")
+    env["PYTHONPATH"] = src + os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else src
+    for _ in range(2):
+        r = subprocess.run([sys.executable, "-m", "bgc", "simulate", str(scene)], cwd=tmp_path,
+                           env=env, text=True, capture_output=True, timeout=600,
+                           stdin=subprocess.DEVNULL)
+        assert r.returncode == 0, r.stderr
+        out = r.stdout + r.stderr
+        assert out.count(LEFT) == 1, out
+    assert "run record" in out  # the second run was the replay

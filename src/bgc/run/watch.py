@@ -52,8 +52,10 @@ def dropped_drift(mod, t, x, p, rtol: float, atol: float) -> str | None:
         return None
     name = names[worst[1]]
     src = name.split(".q")[0]
+    first = float(t[int(np.argmax(mags[:, worst[1]] > tol))])
     return (f"constraint {src!r}: the component {name} was dropped as redundant at the start "
             f"(reaction 0), but its velocity residual reaches {r[worst]:.3g} at t = "
-            f"{float(t[worst[0]]):.6g} s (tolerance {tol:.3g}): the mechanism left the "
-            f"configuration in which {name} was redundant, and nothing held it; the results "
-            "after that time do not respect the constraint")
+            f"{float(t[worst[0]]):.6g} s (tolerance {tol:.3g}, first passed at t = "
+            f"{first:.6g} s): the mechanism left the configuration in which {name} was "
+            "redundant, and nothing held it; the results after that time do not respect the "
+            "constraint")
