@@ -171,7 +171,8 @@ class _Flattener:
                      via=f"{kind} {fid!r} (from {part})")
 
     def enter(self, prefix, sub_prefix, el, sub: Component) -> None:
-        """Record where a library part's instance is (the outermost one in the user's files)."""
+        """Record where a library part's instance is: the line in the user's files that
+        names the part (a part inside a library part keeps it)."""
         if prefix in self.via:
             self.via[sub_prefix] = self.via[prefix]
         elif os.path.dirname(os.path.abspath(sub.coord.file)) == os.path.abspath(LIBRARY_DIR):
