@@ -30,8 +30,18 @@ errors against the reference (rtol 1e-12), the largest out-of-plane coordinate o
 the 3-D model, the steps and the wall time of `simulate` (best of 3); then the 3-D model once
 on the numpy backend at rtol 1e-10.
 
+`--watch`: the watch of dropped components (bgc.run.watch), numbers only (no timing):
+tests/loops/parallelogram_slider.yaml (numpy and C), Radau at rtol 1e-9 over 2 s, its dropped
+O1.q[1]'s velocity residual against -l cos(th1) w1 from the run's own crank (relative to its
+largest value), O1.q[1] against -l (1 + sin th1), and the warning; the largest dropped
+residuals of tests/loops/parallelogram.yaml and tests/loops/fourbar_3dpins.yaml.
+
+`--fmu3d`: tests/loops/fourbar_3dpins.yaml exported as an FMU (both kinds), FMPy's validation,
+and its angles under FMPy (Model Exchange, Co-Simulation; relative tolerance 1e-9, 2 s)
+against the C backend's run (Radau, rtol 1e-11).
+
     PYTHONPATH=src .venv/bin/python bench/bench_closed_loops.py [--drift] [--compare] [--3r2s]
-        [--3dpins]
+        [--3dpins] [--watch] [--fmu3d]
 """
 from __future__ import annotations
 
@@ -174,20 +184,90 @@ def three_d_pins() -> None:
               f"{r.stats['nsteps']} | {best:.3f} |", flush=True)
 
 
+def watch() -> None:
+    import warnings
+
+    import yaml
+
+    from bgc.run.watch import dropped_residuals
+
+    loops = ROOT / "tests" / "loops"
+    slider = loops / "parallelogram_slider.yaml"
+    pv = {k: v["value"] for k, v in yaml.safe_load(slider.read_text())["parameters"].items()}
+    l, m1 = pv["l"], pv["m1"]
+    te = np.linspace(0.0, 2.0, 201)
+
+    def run(m):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            r = m.simulate((0.0, 2.0), t_eval=te, method="Radau", rtol=1e-9, atol=1e-11)
+        return r, [str(w.message) for w in caught]
+
+    for target in ("numpy", "c"):
+        m = bgc.compile(str(slider), target=target)
+        r, said = run(m)
+        names, res = dropped_residuals(m.module, r.t, r.x)
+        n = list(m.module.STATE_NAMES)
+        th1 = r.x[n.index("crank1.th")]
+        w1 = r.x[n.index("crank1.Ir.p")] / (m1 * l ** 2 / 12)
+        want = -l * np.cos(th1) * w1
+        got = res[:, names.index("O1.q[1]")]
+        print(f"slider {target}: dropped {names}, residual vs -l cos(th1) w1: "
+              f"{np.abs(got - want).max() / np.abs(want).max():.2e} of {np.abs(want).max():.3g}"
+              f"; O1.q[1] vs -l (1 + sin th1): "
+              f"{np.abs(r.x[n.index('O1.q[1]')] + l * (1 + np.sin(th1))).max():.2e} m")
+        print(f"  {said}")
+    for name, target in (("parallelogram.yaml", "numpy"), ("fourbar_3dpins.yaml", "c")):
+        m = bgc.compile(str(loops / name), target=target)
+        r, said = run(m)
+        names, res = dropped_residuals(m.module, r.t, r.x)
+        print(f"{name}: dropped {names}, largest residual {np.abs(res).max():.2e}, "
+              f"warnings {said}")
+
+
+def fmu3d() -> None:
+    import tempfile
+
+    import fmpy
+    from fmpy.validation import validate_fmu
+
+    from bgc.run.fmu import export_fmu
+
+    model = ROOT / "tests" / "loops" / "fourbar_3dpins.yaml"
+    te = np.linspace(0.0, 2.0, 201)
+    ref = bgc.compile(str(model), target="c").simulate((0.0, 2.0), t_eval=te, method="Radau",
+                                                       rtol=1e-11, atol=1e-13)
+    with tempfile.TemporaryDirectory() as d:
+        fmu = export_fmu(model, Path(d) / "fourbar_3dpins.fmu", kind="both")
+        print(f"validation: {validate_fmu(str(fmu))}")
+        for kind in ("ModelExchange", "CoSimulation"):
+            r = fmpy.simulate_fmu(str(fmu), fmi_type=kind, stop_time=2.0, output_interval=0.01,
+                                  relative_tolerance=1e-9, output=["th1", "th2", "th3"])
+            errs = [np.abs(np.unwrap(np.asarray(r[f"th{i}"]))
+                           - np.unwrap(np.asarray(ref.y[f"th{i}"]))).max() for i in (1, 2, 3)]
+            print(f"{kind}: th1..th3 within " + ", ".join(f"{e:.2e}" for e in errs) + " rad")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--drift", action="store_true")
     ap.add_argument("--compare", action="store_true")
     ap.add_argument("--3r2s", dest="r3r2s", action="store_true")
     ap.add_argument("--3dpins", dest="pins", action="store_true")
+    ap.add_argument("--watch", action="store_true")
+    ap.add_argument("--fmu3d", action="store_true")
     a = ap.parse_args()
+    if a.watch:
+        watch()
+    if a.fmu3d:
+        fmu3d()
     if a.pins:
         three_d_pins()
     if a.compare:
         compare()
     if a.r3r2s:
         three_r_two_s()
-    if a.drift or not (a.compare or a.r3r2s or a.pins):
+    if a.drift or not (a.compare or a.r3r2s or a.pins or a.watch or a.fmu3d):
         drift()
 
 

@@ -35,6 +35,7 @@ from bgc.linear import (
     to_statespace,
 )
 from bgc.run.consistency import check_loop_start
+from bgc.run.watch import dropped_drift
 from bgc.run.driver import build, check_model, check_scene_for
 
 BgcError = ModelError
@@ -120,10 +121,18 @@ class CompiledModel:
     def simulate(self, t_span, *args, x0=None, p=None, **kw):
         """The module's ``simulate``; a given x0 is first checked against the model's
         closed-loop constraints (positions and velocities: a ModelError naming the constraint
-        and the residual), as the compile checks the model's own initial state."""
+        and the residual), as the compile checks the model's own initial state. Afterwards
+        the constraint components dropped as redundant at the start are checked at the output
+        times (a RuntimeWarning where one's velocity residual grew: bgc.run.watch)."""
         if x0 is not None and np.ndim(x0) == 1:
             check_loop_start(self.module, float(t_span[0]), x0, p, None, "x0")
-        return self.module.simulate(t_span, *args, x0=x0, p=p, **kw)
+        res = self.module.simulate(t_span, *args, x0=x0, p=p, **kw)
+        if not args and getattr(self.module, "CONSTRAINT_DROPPED", ()):
+            drift = dropped_drift(self.module, res[0], res[1], p, kw.get("rtol", 1e-6),
+                                  kw.get("atol", 1e-9))
+            if drift:
+                warnings.warn(drift, RuntimeWarning, stacklevel=2)
+        return res
 
     def __getattr__(self, name):
         if name.startswith("__"):

@@ -5,7 +5,7 @@ Every node the parser builds carries a :class:`Coord`; every mistake in a model 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from bgc.base.limits import LIMITS
 
@@ -23,11 +23,15 @@ ADVICE_LINES = 12
 
 @dataclass(frozen=True)
 class Coord:
-    """A place in a source file: 1-based line and column."""
+    """A place in a source file: 1-based line and column. ``via``: what stands at that place
+    when the error is really inside a library part the user's line brought in (``element
+    'r4.lock' (from bgc:mechanics.spatial revolute_lock)``): a message located here starts
+    with it. Not part of the place's identity."""
 
     file: str
     line: int
     column: int
+    via: str = field(default="", compare=False)
 
     def __str__(self) -> str:
         return f"{self.file}:{self.line}:{self.column}"
@@ -49,6 +53,9 @@ class ModelError(Exception):
     def __init__(self, coord: Coord | None, message: str, advice: str = ""):
         # One line, of bounded length, whatever user text the message quotes.
         message = " ".join(str(message).splitlines())
+        via = getattr(coord, "via", "")
+        if via and not message.startswith(via):
+            message = f"{via}: {message}"
         cap = LIMITS.message_chars
         if len(message) > cap:
             message = message[:cap - 3] + "..."

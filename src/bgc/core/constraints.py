@@ -69,6 +69,15 @@ def constraint_source(ctx: Context, el: FlatElement, b, target, define, closure=
                                       tuple(flat(target)), tuple(flat(q)), closure))
 
 
+def dropped_states(ctx: Context) -> tuple:
+    """The violation states of the components dropped as redundant (reaction 0), in the order
+    they were found: their q' = f - s is the velocity residual a run watches
+    (bgc.run.watch), since what was redundant at the start may not stay so."""
+    sizes = {c.source: len(c.q) for c in ctx.constraints}
+    return tuple(f"{src}.q" + (f"[{k}]" if sizes[src] > 1 else "")
+                 for src, k in ctx.redundant if src in sizes)
+
+
 def constraint_states(ctx: Context, derivs: dict, state_vars: list) -> None:
     """The violation states q, q' = f - s, q(0) = 0."""
     for c in ctx.constraints:

@@ -122,6 +122,8 @@ class Equations:
     constraint_closed: tuple = field(default=())  # per component: has it a closure?
     momentum_states: tuple = field(default=())  # the states that are I elements' momenta
     closure_states: tuple = field(default=())  # the states the closures read (positions)
+    #: the violation states of the components dropped as redundant: a run watches their rates
+    constraint_dropped: tuple = field(default=())
 
 
 class LinSolve(sp.Function):

@@ -23,7 +23,7 @@ import sympy as sp
 from bgc.base.errors import ModelError
 from bgc.core.causality import Causality
 from bgc.core.assembly import consistent_initial, constraint_values, numeric_redundancy
-from bgc.core.constraints import alpha_of, constraint_states, stabilise
+from bgc.core.constraints import alpha_of, constraint_states, dropped_states, stabilise
 from bgc.core.context import Context, check_names
 from bgc.core.eqtypes import (
     SYMBOLIC_MAX,
@@ -119,7 +119,7 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
                      constraint_states=tuple(sv.name for sv in state_vars
                                              if sv.owner in {c.source for c in ctx.constraints}),
                      constraint_alpha=alpha_of(bg.model) if ctx.constraints else 0.0,
-                     **cvals)
+                     constraint_dropped=dropped_states(ctx), **cvals)
 
 
 def _declare(ctx: Context) -> None:

@@ -8,6 +8,7 @@ arity, cardinality agreement on junctions, dangling elements) are done here.
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 
 import networkx as nx
@@ -15,6 +16,7 @@ import networkx as nx
 from bgc.base.errors import Coord, ModelError
 from bgc.base.limits import LIMITS
 from bgc.core.units import check_units
+from bgc.format.library import LIBRARY_DIR, PREFIX
 from bgc.format.parse import ELEMENT_TYPES as _TYPES
 from bgc.format.parse import JUNCTIONS, STORAGE, TWO_PORTS, Body, Component, Model
 from bgc.format.whitelist import Expr
@@ -155,6 +157,27 @@ class _Flattener:
         self.states: list[FlatState] = []
         self.scopes: dict[tuple[str, ...], Scope] = {}
         self.ports: dict[tuple[str, ...], dict[str, str]] = {}
+        #: prefix inside a library part -> (the user's instance coord, "bgc:LIB PART"): what
+        #: the part brings in is located at the instance that brought it (the library's own
+        #: lines are not the user's to fix), naming the element's full path
+        self.via: dict[tuple[str, ...], tuple[Coord, str]] = {}
+
+    def at(self, prefix, coord: Coord, kind: str, fid: str) -> Coord:
+        """``coord``, or inside a library part the user's instance line naming ``fid``."""
+        if prefix not in self.via:
+            return coord
+        where, part = self.via[prefix]
+        return Coord(where.file, where.line, where.column,
+                     via=f"{kind} {fid!r} (from {part})")
+
+    def enter(self, prefix, sub_prefix, el, sub: Component) -> None:
+        """Record where a library part's instance is: the line in the user's files that
+        names the part (a part inside a library part keeps it)."""
+        if prefix in self.via:
+            self.via[sub_prefix] = self.via[prefix]
+        elif os.path.dirname(os.path.abspath(sub.coord.file)) == os.path.abspath(LIBRARY_DIR):
+            lib = os.path.splitext(os.path.basename(sub.coord.file))[0]
+            self.via[sub_prefix] = (el.coord, f"{PREFIX}{lib} {sub.name}")
 
     def body(self, body: Body, prefix, comp: Component | None, bindings, effects, depth):
         names: dict[str, str] = {}
@@ -179,7 +202,9 @@ class _Flattener:
             if p.name in bindings:
                 continue
             pid = join(prefix, p.name)
-            self.params.append(FlatParam(pid, p.value, prefix, p.coord, p.unit, p.min, p.max,
+            self.params.append(FlatParam(pid, p.value, prefix,
+                                         self.at(prefix, p.coord, "parameter", pid),
+                                         p.unit, p.min, p.max,
                                          p.description, p.free))
             if prefix:
                 bindings[p.name] = ParamBinding("global", pid)
@@ -193,8 +218,10 @@ class _Flattener:
             self.count(el.coord, el.name)
             eff = tuple(dict.fromkeys(effects + el.effects))
             if el.type in _TYPES:
-                self.elements.append(FlatElement(join(prefix, el.name), el.type, prefix,
-                                                 el.coord, el.law(), el.initial, eff,
+                eid = join(prefix, el.name)
+                self.elements.append(FlatElement(eid, el.type, prefix,
+                                                 self.at(prefix, el.coord, "element", eid),
+                                                 el.law(), el.initial, eff,
                                                  comp.name if comp else "", el.closure))
                 continue
             sub = self.model.component(el.type)
@@ -212,11 +239,13 @@ class _Flattener:
                                             f"no parameter {key!r}")
                 sub_bind[key] = ParamBinding("expr", val, prefix)
             sub_prefix = prefix + (el.name,)
+            self.enter(prefix, sub_prefix, el, sub)
             self.ports[sub_prefix] = {pn: target for pn, target, _ in sub.ports}
             self.body(sub.body, sub_prefix, sub, sub_bind, eff, depth + 1)
         for s in body.states:
-            self.states.append(FlatState(join(prefix, s.name), s.shape, s.initial, s.derivative,
-                                         prefix, s.coord, s.unit,
+            sid = join(prefix, s.name)
+            self.states.append(FlatState(sid, s.shape, s.initial, s.derivative, prefix,
+                                         self.at(prefix, s.coord, "state", sid), s.unit,
                                          tuple(dict.fromkeys(effects + s.effects))))
         scope = self.scopes[prefix]
         for bd in body.bonds:
@@ -224,7 +253,8 @@ class _Flattener:
             dst = self.endpoint(scope, bd.dst, bd.coord, bd.name)
             if src == dst:
                 raise ModelError(bd.coord, f"bond {bd.name!r} joins {src!r} to itself")
-            self.bonds.append(FlatBond(join(prefix, bd.name), src, dst, bd.n, bd.coord,
+            bid = join(prefix, bd.name)
+            self.bonds.append(FlatBond(bid, src, dst, bd.n, self.at(prefix, bd.coord, "bond", bid),
                                        len(self.bonds)))
 
     def count(self, coord: Coord, name: str) -> None:

@@ -273,6 +273,10 @@ def slice_outputs(eq: Equations) -> tuple[Equations, tuple, dict]:
             need |= states_of(v)
     for ev in eq.events:  # what an event reads and the states it sets stay
         need |= set().union(*map(states_of, ev.exprs()), {state_syms[s] for s, _ in ev.resets})
+    # the violation states of components dropped as redundant stay: their rates are the
+    # residuals a run watches (bgc.run.watch)
+    dropped = set(getattr(eq, "constraint_dropped", ()))
+    need |= {i for i, sv in enumerate(eq.states) if sv.name in dropped}
     frontier = list(need)
     while frontier:
         i = frontier.pop()

@@ -398,6 +398,13 @@ def _run(rec: dict, opts: dict, store, entry, scene: str, t0: float) -> int | No
         return _failed(scene, mod, exc, p, opts)
     t2 = time.perf_counter()
     t, x, y = res
+    if getattr(mod, "CONSTRAINT_DROPPED", ()):
+        # lazy: numpy's watch of dropped constraint components, only for modules that drop one
+        from bgc.run.watch import dropped_drift
+
+        drift = dropped_drift(mod, t, x, p, rtol, atol)
+        if drift:
+            say(f"warning: {drift}")
     if out:
         import io
 

@@ -17,6 +17,7 @@ from bgc.format.scene import (
 )
 from bgc.run import method_choice
 from bgc.run.consistency import check_loop_start, project_start
+from bgc.run.watch import dropped_drift
 from bgc.run.driver import build, default_backend, module_name, scene_compiled
 from bgc.run.progress import simulating_line
 from bgc.run.steps import STEPS_PER_PERIOD, fastest_input, scene_max_step, stepped_over
@@ -174,6 +175,9 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
     warning = stepped_over(mod, t, x, p, scene.breakpoints, res.stats.get("nsteps"))
     if warning:
         say(f"warning: {warning}")
+    drift = dropped_drift(mod, t, x, p, rtol, atol)  # components dropped as redundant
+    if drift:
+        say(f"warning: {drift}")
     return SceneResult(scene, mod, t, x, y, res.stats, method, rtol, t1 - t0, t2 - t1,
                        backend, atol, entry, built.name,
                        dict(t_span=scene.t_span, dt=dt, method=method, rtol=rtol, atol=atol,

@@ -290,6 +290,7 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
         constraint_closed=getattr(eq, "constraint_closed", ()),
         momentum_states=getattr(eq, "momentum_states", ()),
         closure_states=getattr(eq, "closure_states", ()),
+        constraint_dropped=getattr(eq, "constraint_dropped", ()),
         input_params=input_params, outputs=outputs, **fns,
         jac_keys=list(low.jac_keys), n=len(eq.states), imports=imports,
         tables=tables, input_periods=input_periods(eq),
