@@ -21,7 +21,8 @@ eliminated), 10 s, Radau, rtol 1e-6.
     python bench/bench_scale.py --ladder 100,1000,3000 --chain 2,3,5,8,12 --backends numpy,c
     python bench/bench_scale.py --ladder 1000,3000 --chain "" --backends c,numpy  # issue 27
 
-Writes bench/RESULTS_scale.md. CPU-bound and noisy on a shared machine: compare ratios
+Prints the tables (`--out FILE` writes them too; bench/RESULTS_scale.md keeps the runs, pasted
+by hand). CPU-bound and noisy on a shared machine: compare ratios
 within one run, not times across runs.
 """
 from __future__ import annotations
@@ -29,6 +30,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import shutil
 import re
 import subprocess
 import sys
@@ -118,6 +120,9 @@ def measure(family: str, size: int, text: str, backends, workdir: Path) -> dict:
         os.chmod(cache, 0o700)
         env = {**os.environ, "BGC_CACHE_DIR": str(cache), "PYTHONPATH": str(ROOT / "src"),
                "BGC_STAGE_TIMES": "1"}
+        # as a user's machine runs it: bgc's own modules from their bytecode, not compiled from
+        # source in every process (some images set PYTHONDONTWRITEBYTECODE=1)
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
         cmd = BGC + ["simulate", str(scene), "--backend", b, "--out",
                      str(workdir / f"{family}{size}_{b}.npz"), "-q"]
         parts = {}
@@ -126,10 +131,13 @@ def measure(family: str, size: int, text: str, backends, workdir: Path) -> dict:
         row[f"{b}_first"] = parts.get("integrate", float("nan"))
         row[f"{b}_stages"] = parts.get("stages", {})
         row[f"{b}_warm"] = timed(cmd, env)
+        shutil.rmtree(cache, ignore_errors=True)
     if family == "ladder":
         script = workdir / "ladder_script.py"
         script.write_text(LADDER_SCRIPT)
-        row["script"] = timed([sys.executable, str(script), str(size)], dict(os.environ))
+        env = dict(os.environ)
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
+        row["script"] = timed([sys.executable, str(script), str(size)], env)
     print(row, flush=True)
     return row
 
@@ -184,6 +192,9 @@ def main():
     ap.add_argument("--ladder", default="10,30,100,300")
     ap.add_argument("--chain", default="2,3,5,8")
     ap.add_argument("--backends", default="numpy,c")
+    ap.add_argument("--out", default=None,
+                    help="write the tables to this file too (bench/RESULTS_scale.md keeps the "
+                         "history of runs: paste a run there by hand)")
     a = ap.parse_args()
     backends = [b for b in a.backends.split(",") if b]
     work = Path(tempfile.mkdtemp(prefix="bgc-scale-"))
@@ -192,6 +203,7 @@ def main():
                for n in a.ladder.split(",") if n]
     chains = [measure("chain", int(n), chain_yaml(int(n)), backends, work)
               for n in a.chain.split(",") if n]
+    shutil.rmtree(work, ignore_errors=True)
     cmd = " ".join(["python bench/bench_scale.py", f"--ladder {a.ladder}", f"--chain {a.chain}",
                     f"--backends {a.backends}"])
     lines = ["# Scale: compile and run time against model size", "",
@@ -207,7 +219,8 @@ def main():
                   ""] + stage_table(ladders, backends) + [""]
     if chains:
         lines += ["## Rigid rod chains (states = 2 x size)", ""] + table(chains, backends) + [""]
-    (ROOT / "bench" / "RESULTS_scale.md").write_text("\n".join(lines))
+    if a.out:
+        Path(a.out).write_text("\n".join(lines))
     print("\n".join(lines))
 
 
