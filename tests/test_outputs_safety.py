@@ -441,9 +441,10 @@ def test_plot_of_the_wrong_shape_is_located(tmp_path):
     assert listing(tmp_path) == []
 
 
-_BOOM = ("import sys, bgc.cli.model_cmds, bgc.cli.commands\n"
+# the bug planted where the command takes its parser from (the commands import it when run)
+_BOOM = ("import sys, bgc.format.parse, bgc.cli.commands\n"
          "def boom(*a, **k):\n    raise ZeroDivisionError('planted bug')\n"
-         "bgc.cli.model_cmds.parse_file = boom\n"
+         "bgc.format.parse.parse_file = boom\n"
          "sys.argv = ['bgc', 'check', sys.argv[1]]\nbgc.cli.commands.main()\n")
 
 
