@@ -127,9 +127,21 @@ class System:
         one pass (exact rationals: the same form as adding the scaled rows one by one)."""
         if f is None or not f.terms:
             return f
+        coefs: dict = {}
+        return self._form(self._substituted(f, 1, f.const, coefs), coefs)
+
+    def _difference(self, a: Form, b: Form) -> Form:
+        """``resolve(a - b)`` in one pass over both (the same exact sums, one sort)."""
+        coefs: dict = {}
+        const = self._substituted(a, 1, div(a.const, b.const), coefs)
+        return self._form(self._substituted(b, -1, const, coefs), coefs)
+
+    def _substituted(self, f: Form, sign: int, const, coefs: dict):
+        """Adds sign * f's terms to ``coefs``, each pivot replaced by its row; returns the
+        constant times the pivots' constants."""
         rows = self.rows
-        const, coefs = f.const, {}
         for v, c in f.terms:
+            c = c * sign
             row = rows.get(v)
             if row is None:
                 coefs[v] = coefs.get(v, 0) + c
@@ -137,25 +149,12 @@ class System:
             const = mul(const, power(row.const, c))
             for w, d in row.terms:
                 coefs[w] = coefs.get(w, 0) + d * c
-        terms = tuple(sorted(((v, num(c)) for v, c in coefs.items() if c != 0), key=_order))
-        return Form(const, terms)
+        return const
 
-    def _difference(self, a: Form, b: Form) -> Form:
-        """``resolve(a - b)`` in one pass over both (the same exact sums, one sort)."""
-        rows = self.rows
-        const, coefs = div(a.const, b.const), {}
-        for f, sign in ((a, 1), (b, -1)):
-            for v, c in f.terms:
-                c = c * sign
-                row = rows.get(v)
-                if row is None:
-                    coefs[v] = coefs.get(v, 0) + c
-                    continue
-                const = mul(const, power(row.const, c))
-                for w, d in row.terms:
-                    coefs[w] = coefs.get(w, 0) + d * c
-        terms = tuple(sorted(((v, num(c)) for v, c in coefs.items() if c != 0), key=_order))
-        return Form(const, terms)
+    @staticmethod
+    def _form(const, coefs: dict) -> Form:
+        return Form(const, tuple(sorted(((v, num(c)) for v, c in coefs.items() if c != 0),
+                                        key=_order)))
 
     def equate(self, a: Form | None, b: Form | None, coord: Coord, message) -> None:
         """Record a == b; a contradiction raises ``message(shown a, shown b)`` at ``coord``."""
