@@ -153,11 +153,11 @@ def _set_initial(state_vars, vals, sym, value: float) -> None:
 def _project_positions(ctx, state_vars, vals, closing) -> list[str]:
     """Newton's method on Phi(x) = 0 over the states the closures read; each step the
     minimum-norm correction (least squares)."""
-    # lazy: numpy, which only closed loops' numerics need (`bgc check` of any other model never
-    # loads it)
+    # lazy: numpy, which only closed loops' numerics need (not on this module's import)
     import numpy as np
 
-    from bgc.core.projection import NEWTON_ITER, changes, newton_positions
+    from bgc.core.projection import NEWTON_ITER, changes, newton_positions  # lazy: numpy
+
     phis = [phi for c in closing for phi in c.closure]
     states = {sv.symbol for sv in state_vars}
     xs = sorted({s for phi in phis for s in phi.free_symbols if s in states}, key=str)
@@ -230,11 +230,12 @@ class _Velocity:
 def _project_velocities(ctx, state_vars, vals, velocity: _Velocity) -> list[str]:
     """The momenta moved onto the velocity constraints (affine in the momenta at fixed
     positions) by the change of least kinetic-energy distance (bgc.core.projection)."""
-    # lazy: numpy, which only closed loops' numerics need (`bgc check` of any other model never
-    # loads it)
+    # lazy: numpy, which only closed loops' numerics need (not on this module's import)
     import numpy as np
 
-    from bgc.core.projection import affine_rows, changes, kinetic_projection, quadratic_hessian
+    from bgc.core.projection import (  # lazy: numpy, as above
+        affine_rows, changes, kinetic_projection, quadratic_hessian)
+
     ps = velocity.momenta
     base = velocity.residuals(vals)
     if base is None or not ps:
@@ -282,8 +283,7 @@ def numeric_redundancy(ctx: Context, defs: dict, state_vars) -> set:
     at run time. Empty where the initial state cannot be evaluated at compile time."""
     if not ctx.constraints:
         return set()
-    # lazy: numpy, which only closed loops' numerics need (`bgc check` of any other model never
-    # loads it)
+    # lazy: numpy, which only closed loops' numerics need (not on this module's import)
     import numpy as np
 
     vals = initial_values(ctx, state_vars)
