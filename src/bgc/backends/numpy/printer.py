@@ -226,18 +226,10 @@ class Function:
 
 
 def printed(fn: lower.Function, printer) -> Function:
-    """One lowered function with its expressions printed (lines first, then results). An
-    expression the printer wrote before is not printed again (the output Jacobian's body is
-    mostly the Jacobian's lines: bgc.lower.ir.lower_linear)."""
-    memo = printer.__dict__.setdefault("_bgc_printed", {})  # (one printer: one module)
-
-    def text(e) -> str:
-        got = memo.get(e)
-        if got is None:
-            got = memo[e] = printer.doprint(e)
-        return got
-    lines = tuple(Line(_name(ln.target), text(ln.expr), ln.comment) for ln in fn.lines)
-    results = tuple((k, text(r)) for k, r in fn.results)
+    """One lowered function with its expressions printed (lines first, then results)."""
+    lines = tuple(Line(_name(ln.target), printer.doprint(ln.expr), ln.comment)
+                  for ln in fn.lines)
+    results = tuple((k, printer.doprint(r)) for k, r in fn.results)
     return Function(fn.params, fn.inputs, fn.states, lines, results, fn.ops)
 
 
