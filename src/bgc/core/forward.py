@@ -41,6 +41,7 @@ def jacobian(kept: list[Assignment], state_vars, derivatives, nloops=(), keep=No
     sweep = _Sweep(kept, seeds, "_d", nloops)
     out, assigns = forward_mode(kept, seeds, list(derivatives), "_d", nloops, sweep=sweep)
     if keep is not None:
+        sweep.bridge = None  # (its conversions' memo freed: a fork makes its own)
         keep.append(StateTangents(tuple(sv.symbol for sv in state_vars), tuple(kept),
                                   tuple(nloops), sweep))
     return out, assigns
@@ -137,6 +138,7 @@ class _Sweep:
         new.D, new.solves, new.visited = dict(self.D), dict(self.solves), set(self.visited)
         new.jac_assign = list(self.jac_assign)
         new.counter = itertools.count(len(self.jac_assign))
+        new.bridge = fastsym.Bridge() if fastsym.available() else None
         return new
 
     def new(self, expr) -> sp.Symbol:
