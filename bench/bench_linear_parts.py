@@ -1,43 +1,59 @@
 """What the linearisation's B, C, D cost at compile time: each model compiled with and
-without them (the latter by stubbing bgc.backends.numpy.printer.linear_parts with empty parts), interleaved,
-median of a few rounds; one run, one machine, ratios side by side.
+without them (the latter by stubbing bgc.lower.ir.linear_parts with empty parts), interleaved,
+median of a few rounds, CPU seconds of this process; one run, one machine, ratios side by
+side.
 
-    python bench/bench_linear_parts.py [ROUNDS]
+    python bench/bench_linear_parts.py [ROUNDS] [--src OTHER/src] [--models a,b,...]
+
+``--src``: measure another checkout's bgc (its src folder) instead of this one's, e.g. the
+clean copy of main a change is compared with (run the two one after the other, at the same
+load). Each model's first compile (sympy's caches filling) is not counted.
 """
 from __future__ import annotations
 
+import argparse
+import resource
 import statistics
 import sys
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "src"))
 
-import bgc.backends.numpy.printer as emit  # noqa: E402
-from bgc.core.forward import LinearParts, linear_parts  # noqa: E402
-from bgc.run.driver import compile_file  # noqa: E402
+
+def _cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
 
 
 def main() -> None:
-    rounds = int(sys.argv[1]) if len(sys.argv) > 1 else 3
-    models = ["quarter_car", "dc_motor", "motor_thermal", "3r2s"]
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("rounds", type=int, nargs="?", default=3)
+    ap.add_argument("--src", default=str(ROOT / "src"))
+    ap.add_argument("--models", default="quarter_car,dc_motor,motor_thermal,3r2s")
+    a = ap.parse_args()
+    sys.path.insert(0, a.src)
+    import bgc.lower.ir as ir
+    from bgc.core.forward import LinearParts, linear_parts
+    from bgc.run.driver import compile_file
+
+    def empty(eq):
+        return LinearParts({}, (), {}, {}, (), (), ())
+
+    print(f"bgc from {a.src}")
     print("| model | with B, C, D [s] | without [s] | ratio |\n|---|---|---|---|")
-    for name in models:
+    for name in a.models.split(","):
         path = ROOT / "models" / f"{name}.yaml"
+        compile_file(path)  # (warm-up: not counted)
         with_, without = [], []
-        for _ in range(rounds):
-            emit.linear_parts = linear_parts
-            t0 = time.perf_counter()
-            compile_file(path)
-            with_.append(time.perf_counter() - t0)
-            emit.linear_parts = lambda eq: LinearParts({}, (), {}, {}, (), (), ())
-            t0 = time.perf_counter()
-            compile_file(path)
-            without.append(time.perf_counter() - t0)
-        emit.linear_parts = linear_parts
-        a, b = statistics.median(with_), statistics.median(without)
-        print(f"| {name} | {a:.2f} | {b:.2f} | {a / b:.2f} |")
+        for _ in range(a.rounds):
+            for fn, into in ((linear_parts, with_), (empty, without)):
+                ir.linear_parts = fn
+                t0 = _cpu()
+                compile_file(path)
+                into.append(_cpu() - t0)
+        ir.linear_parts = linear_parts
+        w, wo = statistics.median(with_), statistics.median(without)
+        print(f"| {name} | {w:.2f} | {wo:.2f} | {w / wo:.2f} |")
 
 
 if __name__ == "__main__":

@@ -308,26 +308,22 @@ def output_jacobian(t, x, p=None, u=None):
     _l1_dx_p_J1s_m1 = J2*_l0_dx_p_J1s_m1
     # linear system: matrix
     _A0_0_dx_p_J1s_m1 = 1 + _l1_dx_p_J1s_m1
-    _dx0 = _c0
+    _dx0 = 1/J1
     _dx1 = 1/J2
-    _dx2 = _c0
-    _dx3 = _dx2*b
+    _dx2 = 1/J1
+    _dx3 = b*_dx2
     _dx4 = -_dx3/_A0_0_dx_p_J1s_m1
-    _dx5 = _c0*_dx4
+    _dx5 = _dx4/J1
     _dx6 = J2*_dx5
     _dx7 = _dx3 + _dx6
-    _c1 = (s_locked < 1/2)
-    _c2 = xp.where(_c1, 1, 0)
-    _c3 = xp.where(_c1, 0, 1)
-    _c4 = _c3*_dx2
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
     _C = np.zeros((4, 3) + _bs)
     _D = np.zeros((4, 0) + _bs)
-    _C[0, 0] = _c4 + _c2*_dx0
-    _C[1, 0] = _c4
-    _C[1, 1] = _c2*_dx1
-    _C[2, 0] = _c3*_dx7
+    _C[0, 0] = _dx0*xp.where((s_locked < 1/2), 1, 0) + _dx2*xp.where((s_locked < 1/2), 0, 1)
+    _C[1, 0] = _dx2*xp.where((s_locked < 1/2), 0, 1)
+    _C[1, 1] = _dx1*xp.where((s_locked < 1/2), 1, 0)
+    _C[2, 0] = _dx7*xp.where((s_locked < 1/2), 0, 1)
     _C[3, 2] = 1
     return _C, _D
 

@@ -289,22 +289,21 @@ def output_jacobian(t, x, p=None, u=None):
 
     x = np.asarray(x, dtype=float)
     p_winding_L, _, = x
-    _c0 = 1/L_a
+    _d0 = 1/L_a
+    _d2 = K*_d0
+    _d3 = 1/J_r
+    _d4 = K*_d3
     # winding_L (I, integral): flow from momentum
-    f_b3 = _c0*p_winding_L
-    _dx0 = _c0
-    _dx1 = K*_dx0
-    _dx2 = 1/J_r
-    _dx3 = K*_dx2
+    f_b3 = p_winding_L/L_a
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
     _C = np.zeros((5, 2) + _bs)
     _D = np.zeros((5, 2) + _bs)
-    _C[0, 0] = _dx0
-    _C[1, 1] = _dx2
-    _C[2, 1] = _dx3
-    _C[3, 0] = _dx1
-    _C[4, 0] = u_V*_dx0
+    _C[0, 0] = _d0
+    _C[1, 1] = _d3
+    _C[2, 1] = _d4
+    _C[3, 0] = _d2
+    _C[4, 0] = u_V*_d0
     _D[4, 0] = f_b3
     return _C, _D
 

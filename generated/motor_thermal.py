@@ -516,28 +516,28 @@ def output_jacobian(t, x, p=None, u=None):
     _c2 = R_a*(1 + e_b10*alpha)
     # winding_R (R): effort = r f
     e_b2 = _c2*f_b3
-    _dx0 = _c0
-    _dx1 = 1/J_m
-    _dx2 = 1/J_L
-    _dx3 = _c1
-    _dx4 = _c2*_dx0
-    _dx5 = R_a*f_b3*_dx3*alpha
-    _dx6 = 1/C_h
+    _d0 = _c0
+    _d2 = 1/J_m
+    _d6 = 1/J_L
+    _d15 = _c1
+    _d16 = _c2*_d0
+    _d17 = R_a*f_b3*_d15*alpha
+    _d20 = 1/C_h
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
     _C = np.zeros((10, 8) + _bs)
     _D = np.zeros((10, 2) + _bs)
-    _C[0, 0] = _dx0
-    _C[1, 1] = _dx1
-    _C[2, 3] = _dx2
+    _C[0, 0] = _d0
+    _C[1, 1] = _d2
+    _C[2, 3] = _d6
     _C[3, 6] = 1
     _C[4, 2] = k_s
-    _C[5, 0] = u_V*_dx0
-    _C[6, 0] = e_b2*_dx0 + f_b3*_dx4
-    _C[6, 4] = f_b3*_dx5
+    _C[5, 0] = u_V*_d0
+    _C[6, 0] = _d0*e_b2 + f_b3*_d16
+    _C[6, 4] = f_b3*_d17
     _C[7, 7] = 1
-    _C[8, 4] = _dx3
-    _C[9, 5] = _dx6
+    _C[8, 4] = _d15
+    _C[9, 5] = _d20
     _D[5, 0] = f_b3
     return _C, _D
 

@@ -234,13 +234,13 @@ def output_jacobian(t, x, p=None, u=None):
     k = _pv[1]
 
     x = np.asarray(x, dtype=float)
-    _dx0 = 1/m
+    _d0 = 1/m
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
     _C = np.zeros((3, 2) + _bs)
     _D = np.zeros((3, 1) + _bs)
     _C[0, 1] = 1
-    _C[1, 0] = _dx0
+    _C[1, 0] = _d0
     _C[2, 1] = k
     return _C, _D
 

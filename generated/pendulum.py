@@ -216,17 +216,16 @@ def output_jacobian(t, x, p=None, u=None):
 
     x = np.asarray(x, dtype=float)
     p_bob, q_gravity, = x
-    _c0 = 1/(l*l*m)
+    _d0 = 1/(l*l*m)
     # bob (I, integral): flow from momentum
-    f_b1 = _c0*p_bob
-    _dx0 = _c0
+    f_b1 = p_bob/(l*l*m)
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
     _C = np.zeros((3, 2) + _bs)
     _D = np.zeros((3, 0) + _bs)
     _C[0, 1] = 1
-    _C[1, 0] = _dx0
-    _C[2, 0] = (1/2)*f_b1 + (1/2)*_dx0*p_bob
+    _C[1, 0] = _d0
+    _C[2, 0] = (1/2)*f_b1 + (1/2)*_d0*p_bob
     _C[2, 1] = g*l*m*xp.sin(q_gravity)
     return _C, _D
 

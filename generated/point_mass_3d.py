@@ -363,9 +363,9 @@ def output_jacobian(t, x, p=None, u=None):
 
     x = np.asarray(x, dtype=float)
     _c0 = 1/m
-    _dx0 = _c0
-    _dx1 = _c0
-    _dx2 = _c0
+    _d0 = _c0
+    _d1 = _c0
+    _d2 = _c0
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
     _C = np.zeros((9, 6) + _bs)
@@ -373,9 +373,9 @@ def output_jacobian(t, x, p=None, u=None):
     _C[0, 3] = 1
     _C[1, 4] = 1
     _C[2, 5] = 1
-    _C[3, 0] = _dx0
-    _C[4, 1] = _dx1
-    _C[5, 2] = _dx2
+    _C[3, 0] = _d0
+    _C[4, 1] = _d1
+    _C[5, 2] = _d2
     _C[6, 3] = K_0_0
     _C[6, 4] = K_0_1
     _C[6, 5] = K_0_2

@@ -288,7 +288,7 @@ def output_jacobian(t, x, p=None, u=None):
     k_t = _pv[4]
 
     x = np.asarray(x, dtype=float)
-    _dx0 = 1/m_s
+    _d0 = 1/m_s
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
     _C = np.zeros((5, 4) + _bs)
@@ -296,7 +296,7 @@ def output_jacobian(t, x, p=None, u=None):
     _C[0, 2] = 1
     _C[0, 3] = 1
     _C[1, 3] = 1
-    _C[2, 0] = _dx0
+    _C[2, 0] = _d0
     _C[3, 2] = 1
     _C[4, 3] = k_t
     _D[4, 0] = -k_t

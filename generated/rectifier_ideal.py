@@ -237,14 +237,14 @@ def output_jacobian(t, x, p=None, u=None):
 
     x = np.asarray(x, dtype=float)
     _, s_on, = x
-    _dx0 = 1/Cap
-    _dx1 = -_dx0*xp.where((s_on > 0.5), 1/Ron, 0)
+    _d0 = 1/Cap
+    _d1 = -_d0*xp.where((s_on > 0.5), 1/Ron, 0)
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
     _C = np.zeros((3, 2) + _bs)
     _D = np.zeros((3, 0) + _bs)
-    _C[0, 0] = _dx0
-    _C[1, 0] = _dx1
+    _C[0, 0] = _d0
+    _C[1, 0] = _d1
     _C[2, 1] = 1
     return _C, _D
 

@@ -298,21 +298,16 @@ def output_jacobian(t, x, p=None, u=None):
 
     x = np.asarray(x, dtype=float)
     _, _, s_d_a__on, s_d_b__on, = x
-    _c0 = 1/Cap
-    _dx0 = _c0
-    _dx1 = _c0
-    _dx2 = _c0
-    _dx3 = _c0
-    _c1 = (s_d_a__on > 1/2)
-    _c2 = (s_d_b__on > 1/2)
-    _c3 = xp.where(_c2, 0, 1)
-    _c4 = xp.where(_c1, 0, _c3)
+    _dx0 = 1/Cap
+    _dx1 = 1/Cap
+    _dx2 = 1/Cap
+    _dx3 = 1/Cap
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
     _C = np.zeros((2, 4) + _bs)
     _D = np.zeros((2, 0) + _bs)
-    _C[0, 0] = _c4*_dx2 + _dx1*xp.where(_c1, 0, xp.where(_c2, 1, 0))
-    _C[1, 1] = _c4*_dx3 + _dx0*xp.where(_c1, _c3, 0)
+    _C[0, 0] = _dx1*xp.where((s_d_a__on > 1/2), 0, xp.where((s_d_b__on > 1/2), 1, 0)) + _dx2*xp.where((s_d_a__on > 1/2), 0, xp.where((s_d_b__on > 1/2), 0, 1))
+    _C[1, 1] = _dx0*xp.where((s_d_a__on > 1/2), xp.where((s_d_b__on > 1/2), 0, 1), 0) + _dx3*xp.where((s_d_a__on > 1/2), 0, xp.where((s_d_b__on > 1/2), 0, 1))
     return _C, _D
 
 

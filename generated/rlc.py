@@ -270,20 +270,19 @@ def output_jacobian(t, x, p=None, u=None):
     _c0 = 1/L
     # inductor (I, integral): flow from momentum
     f_b2 = _c0*p_inductor
-    _c1 = 1/C
+    _d0 = _c0
+    _d1 = 1/C
     # capacitor (C, integral): effort from displacement
-    e_b3 = _c1*q_capacitor
-    _dx0 = _c0
-    _dx1 = _c1
+    e_b3 = q_capacitor/C
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
     _C = np.zeros((6, 4) + _bs)
     _D = np.zeros((6, 1) + _bs)
     _C[0, 1] = 1
-    _C[1, 0] = _dx0
-    _C[2, 1] = _dx1
-    _C[3, 0] = (1/2)*f_b2 + (1/2)*_dx0*p_inductor
-    _C[3, 1] = (1/2)*e_b3 + (1/2)*_dx1*q_capacitor
+    _C[1, 0] = _d0
+    _C[2, 1] = _d1
+    _C[3, 0] = (1/2)*f_b2 + (1/2)*_d0*p_inductor
+    _C[3, 1] = (1/2)*e_b3 + (1/2)*_d1*q_capacitor
     _C[4, 2] = 1
     _C[5, 3] = 1
     return _C, _D

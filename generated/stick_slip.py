@@ -246,17 +246,17 @@ def output_jacobian(t, x, p=None, u=None):
     x = np.asarray(x, dtype=float)
     _, _, s_stuck, _, = x
     _c0 = (s_stuck > 0.5)
-    _dx0 = xp.where(_c0, k, 0)
-    _dx1 = xp.where(_c0, 0, Fk)
-    _dx2 = 1/m
+    _d0 = xp.where(_c0, k, 0)
+    _d1 = xp.where(_c0, 0, Fk)
+    _d2 = 1/m
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
     _C = np.zeros((4, 4) + _bs)
     _D = np.zeros((4, 0) + _bs)
     _C[0, 1] = 1
-    _C[1, 0] = _dx2
-    _C[2, 1] = _dx0
-    _C[2, 3] = _dx1
+    _C[1, 0] = _d2
+    _C[2, 1] = _d0
+    _C[2, 3] = _d1
     _C[3, 2] = 1
     return _C, _D
 

@@ -304,10 +304,10 @@ def output_jacobian(t, x, p=None, u=None):
     c2 = _pv[5]
 
     x = np.asarray(x, dtype=float)
-    _dx0 = 1/m1
-    _dx1 = 1/m2
-    _dx2 = -c2*_dx0
-    _dx3 = c2*_dx1
+    _d0 = 1/m1
+    _d1 = 1/m2
+    _d3 = -c2*_d0
+    _d4 = c2*_d1
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
     _C = np.zeros((5, 4) + _bs)
@@ -315,10 +315,10 @@ def output_jacobian(t, x, p=None, u=None):
     _C[0, 2] = 1
     _C[1, 2] = 1
     _C[1, 3] = 1
-    _C[2, 0] = _dx0
-    _C[3, 1] = _dx1
-    _C[4, 0] = _dx2
-    _C[4, 1] = _dx3
+    _C[2, 0] = _d0
+    _C[3, 1] = _d1
+    _C[4, 0] = _d3
+    _C[4, 1] = _d4
     _C[4, 3] = k2
     return _C, _D
 

@@ -339,26 +339,24 @@ def output_jacobian(t, x, p=None, u=None):
     e_b6 = _c1*_c2*q_tank2
     # 1-junction j12: effort balance
     e_b4 = e_b2 - e_b6
-    _dx0 = _c0*g*rho
-    _dx1 = _c2*g*rho
-    _c3 = 1/rho
-    _c4 = (1/2)*Cd*xp.sqrt(2)*xp.sqrt(_c3)
-    _c5 = _c4*a12*xp.sign(e_b4)*xp.sign(e_b4)/xp.sqrt(abs(e_b4))
-    _dx2 = _c5*_dx0
-    _dx3 = -_c5*_dx1
-    _dx4 = _c4*_dx1*aout*xp.sign(e_b6)*xp.sign(e_b6)/xp.sqrt(abs(e_b6))
-    _c6 = 1/g
+    _d0 = _c0*g*rho
+    _d1 = _c2*g*rho
+    _c3 = (1/2)*Cd*xp.sqrt(2)*xp.sqrt(1/rho)
+    _c4 = _c3*a12*xp.sign(e_b4)*xp.sign(e_b4)/xp.sqrt(abs(e_b4))
+    _d2 = _c4*_d0
+    _d3 = -_c4*_d1
+    _d4 = _c3*_d1*aout*xp.sign(e_b6)*xp.sign(e_b6)/xp.sqrt(abs(e_b6))
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
     _C = np.zeros((8, 4) + _bs)
     _D = np.zeros((8, 1) + _bs)
-    _C[0, 0] = _c3*_c6*_dx0
-    _C[1, 1] = _c3*_c6*_dx1
+    _C[0, 0] = _d0/(g*rho)
+    _C[1, 1] = _d1/(g*rho)
     _C[2, 0] = 1
     _C[3, 1] = 1
-    _C[4, 0] = _dx2
-    _C[4, 1] = _dx3
-    _C[5, 1] = _dx4
+    _C[4, 0] = _d2
+    _C[4, 1] = _d3
+    _C[5, 1] = _d4
     _C[6, 2] = 1
     _C[7, 3] = 1
     return _C, _D

@@ -252,18 +252,18 @@ def output_jacobian(t, x, p=None, u=None):
     _c0 = 1/C
     # cap (C, integral): effort from displacement
     e_b1 = _c0*q_cap
-    _dx0 = _c0
-    _dx1 = 1/L
-    _dx2 = g*_dx0*(-1 + e_b1*e_b1/(V0*V0))
+    _d0 = _c0
+    _d1 = 1/L
+    _d2 = g*_d0*(-1 + e_b1*e_b1/(V0*V0))
 
     _bs = np.broadcast_shapes(x.shape[1:], _bshape)
     _C = np.zeros((4, 2) + _bs)
     _D = np.zeros((4, 0) + _bs)
-    _C[0, 0] = _dx0
-    _C[1, 0] = -_c0*_dx2
-    _C[1, 1] = -_c0*_dx1
-    _C[2, 1] = _dx1
-    _C[3, 0] = _dx2
+    _C[0, 0] = _d0
+    _C[1, 0] = -_d2/C
+    _C[1, 1] = -_d1/C
+    _C[2, 1] = _d1
+    _C[3, 0] = _d2
     return _C, _D
 
 

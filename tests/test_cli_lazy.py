@@ -63,3 +63,12 @@ def test_the_listed_summaries_are_the_commands_own():
         for limit in (45, 60, 200):
             assert click.Command(name, help=summary).get_short_help_str(limit) == \
                 real.get_short_help_str(limit)
+
+
+def test_the_closed_loops_start_check_loads_numpy_only_when_it_runs():
+    """bgc.core.assembly (imported by every derivation) defers numpy to the closed loops'
+    numerics; `bgc check` still loads numpy through symengine, whose extension imports it."""
+    code = "import sys, bgc.core.assembly; print('numpy' in sys.modules)"
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=600, cwd=ROOT, check=True)
+    assert r.stdout.strip() == "False"

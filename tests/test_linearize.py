@@ -214,3 +214,49 @@ def test_bode_plot_shows_dollar_signs_as_written(tmp_path):
     path = tmp_path / "bode.png"
     bode_plot(path, (A, B, C, D), 0, 0, "u$\\frac", "y$", in_unit="$\\frac{", out_unit="m$")
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_output_jacobian_of_angles_and_of_what_only_outputs_read():
+    """C and D where an output is an angle atan2(y, x) (differentiated by its chain rule in
+    symengine) and where an output reads an assignment the rhs never needs (the source's
+    flow: C's forward sweep goes on from the state Jacobian's past what that one visited),
+    against central differences of the outputs; and the same matrices as C swept anew."""
+    import dataclasses
+    from pathlib import Path
+
+    from bgc.backends.load import load_module
+    from bgc.format.parse import parse_text
+    from bgc.lower import ir
+    from bgc.run.driver import compile_model
+
+    text = (Path(__file__).resolve().parents[1] / "models" / "msd.yaml").read_text()
+    text = text.replace("outputs:\n", 'outputs:\n  angle: {expr: "atan2(k*q(spring), '
+                        'c*f(force) + F)", unit: rad}\n  power_in: {expr: "e(force)*f(force)", '
+                        'unit: W}\n')
+    c = compile_model(parse_text(text, "msd_angle.yaml"))
+    m = load_module(c.source, "msd_angle")
+    assert m.OUTPUT_NAMES[:2] == ("angle", "power_in")
+    t, x = 0.3, np.array([0.7, -0.02])
+    A, B, C, D = m.linearize(t, x)
+
+    def y(z, u=None):
+        return np.concatenate([np.ravel(v) for v in m.outputs(t, z, None, u).values()])
+
+    h = 1e-6 * (1 + np.abs(x))
+    np.testing.assert_allclose(C, _fd(y, x, h), rtol=1e-6, atol=1e-9)
+    assert abs(C[1, 0]) > 1.0  # d(F v)/dp = F/m: the source's flow, read by no derivative
+    Dfd = _fd(lambda uf: y(x, {"F": lambda tt, v=uf[0]: v}), np.array([10.0]), np.array([1e-5]))
+    np.testing.assert_allclose(D, Dfd, rtol=1e-6, atol=1e-9)
+    # the same C and D as a sweep that does not go on from the Jacobian's (a sliced scene's)
+    again = ir.lower_linear(dataclasses.replace(c.equations, jac_tangents=None))
+    low = dataclasses.replace(c.lowered, linear=again)
+    m2 = load_module(_render(c, low), "msd_angle_anew")
+    for a, b in zip(m.output_jacobian(t, x), m2.output_jacobian(t, x)):
+        np.testing.assert_allclose(a, b, rtol=1e-13, atol=1e-15)
+
+
+def _render(c, low) -> str:
+    from bgc.backends.numpy.printer import render
+
+    return render(c.equations, source="msd_angle.yaml", source_hash=c.model.source_hash,
+                  lowered=low)

@@ -28,21 +28,12 @@ from __future__ import annotations
 
 from dataclasses import replace as dc_replace
 
-import numpy as np
 import sympy as sp
 
 from bgc.base.errors import ModelError
 from bgc.core.constraints import closure_of, initial_values, lock_of, loop_text, number_of
 from bgc.core.context import Context
 from bgc.core.eqtypes import T, flat
-from bgc.core.projection import (
-    NEWTON_ITER,
-    affine_rows,
-    changes,
-    kinetic_projection,
-    newton_positions,
-    quadratic_hessian,
-)
 
 _TOL = 1e-9  # relative tolerance of the checks
 
@@ -162,6 +153,11 @@ def _set_initial(state_vars, vals, sym, value: float) -> None:
 def _project_positions(ctx, state_vars, vals, closing) -> list[str]:
     """Newton's method on Phi(x) = 0 over the states the closures read; each step the
     minimum-norm correction (least squares)."""
+    # lazy: numpy, which only closed loops' numerics need (not on this module's import)
+    import numpy as np
+
+    from bgc.core.projection import NEWTON_ITER, changes, newton_positions  # lazy: numpy
+
     phis = [phi for c in closing for phi in c.closure]
     states = {sv.symbol for sv in state_vars}
     xs = sorted({s for phi in phis for s in phi.free_symbols if s in states}, key=str)
@@ -234,6 +230,12 @@ class _Velocity:
 def _project_velocities(ctx, state_vars, vals, velocity: _Velocity) -> list[str]:
     """The momenta moved onto the velocity constraints (affine in the momenta at fixed
     positions) by the change of least kinetic-energy distance (bgc.core.projection)."""
+    # lazy: numpy, which only closed loops' numerics need (not on this module's import)
+    import numpy as np
+
+    from bgc.core.projection import (  # lazy: numpy, as above
+        affine_rows, changes, kinetic_projection, quadratic_hessian)
+
     ps = velocity.momenta
     base = velocity.residuals(vals)
     if base is None or not ps:
@@ -281,6 +283,9 @@ def numeric_redundancy(ctx: Context, defs: dict, state_vars) -> set:
     at run time. Empty where the initial state cannot be evaluated at compile time."""
     if not ctx.constraints:
         return set()
+    # lazy: numpy, which only closed loops' numerics need (not on this module's import)
+    import numpy as np
+
     vals = initial_values(ctx, state_vars)
     if vals is None:
         return set()

@@ -22,9 +22,9 @@ instead of drifting.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
-import numpy as np
 import sympy as sp
 
 from bgc.base.errors import ModelError
@@ -156,8 +156,7 @@ def alpha_of(model) -> float:
 def initial_values(ctx: Context, state_vars) -> dict | None:
     vals: dict = {T: sp.Float(0)}
     for pv in ctx.params.values():
-        flatv = (np.asarray(pv.value, dtype=float).ravel() if isinstance(pv.value, tuple)
-                 else [pv.value])
+        flatv = _flat_floats(pv.value) if isinstance(pv.value, tuple) else [pv.value]
         for s, v in zip(pv.symbols, flatv):
             vals[s] = sp.Float(float(v))
     for key in ctx.derived_order:
@@ -183,12 +182,20 @@ def initial_values(ctx: Context, state_vars) -> dict | None:
     return vals
 
 
+def _flat_floats(value) -> list[float]:
+    """A parameter's value (a number, or nested tuples of them) as floats in row-major order
+    (without numpy, which `bgc check` does not load)."""
+    if isinstance(value, tuple):
+        return [f for v in value for f in _flat_floats(v)]
+    return [float(value)]
+
+
 def number_of(expr, vals) -> float | None:
     try:
         v = complex(sp.sympify(expr).xreplace(vals).evalf())
     except (TypeError, ValueError, AttributeError):
         return None
-    return sp.Float(v.real) if abs(v.imag) <= 1e-300 and np.isfinite(v.real) else None
+    return sp.Float(v.real) if abs(v.imag) <= 1e-300 and math.isfinite(v.real) else None
 
 
 def lock_of(bg, source: str):

@@ -124,6 +124,9 @@ class Equations:
     closure_states: tuple = field(default=())  # the states the closures read (positions)
     #: the violation states of the components dropped as redundant: a run watches their rates
     constraint_dropped: tuple = field(default=())
+    #: the state Jacobian's forward sweep (bgc.core.forward.StateTangents), which the
+    #: linearisation's C goes on from instead of differentiating the same assignments again
+    jac_tangents: object = field(default=None, compare=False, repr=False)
 
 
 class LinSolve(sp.Function):

@@ -106,7 +106,8 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
     if progress:
         progress("deriving the Jacobian")
     nloops = [dc_replace(nl, g=tuple(e.xreplace(subs) for e in nl.g)) for nl in nloops or ()]
-    jac, jac_assign = jacobian(kept, state_vars, derivatives, nloops)
+    tangents: list = []  # the Jacobian's sweep, which the linearisation's C goes on from
+    jac, jac_assign = jacobian(kept, state_vars, derivatives, nloops, keep=tangents)
     check_names(bg, ctx, state_vars)
     standing = tuple(w for w in caus.warnings if not w.startswith("R elements with causality"))
     standing += tuple(notes)
@@ -119,7 +120,8 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
                      constraint_states=tuple(sv.name for sv in state_vars
                                              if sv.owner in {c.source for c in ctx.constraints}),
                      constraint_alpha=alpha_of(bg.model) if ctx.constraints else 0.0,
-                     constraint_dropped=dropped_states(ctx), **cvals)
+                     constraint_dropped=dropped_states(ctx), jac_tangents=tangents[0],
+                     **cvals)
 
 
 def _declare(ctx: Context) -> None:

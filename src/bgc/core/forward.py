@@ -33,14 +33,42 @@ def _name(s) -> str:
     return s.name if type(s) is sp.Symbol else str(s)
 
 
-def jacobian(kept: list[Assignment], state_vars, derivatives, nloops=()):
-    """Forward-mode Jacobian d(derivatives)/dx along the causal assignments."""
-    return forward_mode(kept, {sv.symbol: j for j, sv in enumerate(state_vars)},
-                        list(derivatives), "_d", nloops)
+def jacobian(kept: list[Assignment], state_vars, derivatives, nloops=(), keep=None):
+    """Forward-mode Jacobian d(derivatives)/dx along the causal assignments. ``keep``: a list
+    the sweep is appended to (as :class:`StateTangents`), for the linearisation's C to go on
+    from (every assignment's derivative with respect to the states is the same there)."""
+    seeds = {sv.symbol: j for j, sv in enumerate(state_vars)}
+    sweep = _Sweep(kept, seeds, "_d", nloops)
+    out, assigns = forward_mode(kept, seeds, list(derivatives), "_d", nloops, sweep=sweep)
+    if keep is not None:
+        sweep.bridge = None  # (its conversions' memo freed: a fork makes its own)
+        keep.append(StateTangents(tuple(sv.symbol for sv in state_vars), tuple(kept),
+                                  tuple(nloops), sweep))
+    return out, assigns
+
+
+@dataclass(frozen=True, eq=False)
+class StateTangents:
+    """The state Jacobian's sweep with what it was made from: the states (its columns), the
+    causal assignments and the Newton loops. :func:`linear_parts` goes on from it only for
+    equations made of the very same (a sliced scene's are not: it sweeps anew)."""
+
+    states: tuple
+    kept: tuple
+    nloops: tuple
+    sweep: object
+
+    def fits(self, eq: Equations) -> bool:
+        nl = tuple(getattr(eq, "newton", ()))
+        return (len(self.states) == len(eq.states) and len(self.kept) == len(eq.assignments)
+                and len(self.nloops) == len(nl)
+                and all(s is sv.symbol for s, sv in zip(self.states, eq.states))
+                and all(a is b for a, b in zip(self.kept, eq.assignments))
+                and all(a is b for a, b in zip(self.nloops, nl)))
 
 
 def forward_mode(kept: list[Assignment], seeds: dict, finals: list, prefix: str = "_d",
-                 nloops=()):
+                 nloops=(), sweep=None):
     """Forward-mode derivatives of ``finals`` with respect to the seed symbols (symbol ->
     column) along the causal assignments ``kept``: the state Jacobian (seeds: the states) and
     the linearisation's B, C, D (seeds: inputs or states; finals: derivatives or outputs).
@@ -50,16 +78,40 @@ def forward_mode(kept: list[Assignment], seeds: dict, finals: list, prefix: str 
     solves and Newton loops are differentiated through (one more solve per column). Only the
     assignments the finals depend on are visited (linear in model size).
     """
-    sweep = _Sweep(kept, seeds, prefix, nloops)
+    sweep = _Sweep(kept, seeds, prefix, nloops) if sweep is None else sweep
     used = prune(finals, kept, lambda a: (  # a Newton loop's own assignments feed it
         nloops[int(a.expr.args[0])].rest if isinstance(a.expr, NewtonSolve) else ()))
     for a in used:
-        sweep.step(a)
+        if a.symbol not in sweep.visited:  # (a sweep gone on from: each assignment once)
+            sweep.step(a)
     out = {}
     for i, expr in enumerate(finals):
         for j, v in sweep.grad(expr).items():
             out[(i, j)] = v
     return out, sweep.jac_assign
+
+
+def _partials(bridge, expr, syms) -> dict | None:
+    """{s: d expr / d s} through symengine (bgc.core.fastsym), or None (sympy's ``diff``).
+    An output angle ``atan2(y, x)`` of convertible y and x (symengine does not take atan2) is
+    differentiated by its chain rule, (x dy - y dx) / (x^2 + y^2), in symengine: sympy's
+    ``diff`` of it asks the assumptions system about its arguments, and the 3R2S's four joint
+    angles cost more there than all its other outputs together."""
+    parts = fastsym.partials(bridge, expr, syms)
+    if parts is not None or type(expr) is not sp.atan2:
+        return parts
+    y, x = expr.args
+    ys, xs = bridge.to_se(y), bridge.to_se(x)
+    py, px = fastsym.partials(bridge, y, syms), fastsym.partials(bridge, x, syms)
+    if ys is None or xs is None or py is None or px is None:
+        return None
+    r2 = xs ** 2 + ys ** 2
+    out = {}
+    for s in syms:
+        d = (xs * py.get(s, 0) - ys * px.get(s, 0)) / r2
+        if d != 0:
+            out[s] = d
+    return out
 
 
 class _Sweep:
@@ -76,6 +128,18 @@ class _Sweep:
         self.bridge = fastsym.Bridge() if fastsym.available() else None
         self.solves: dict = {}  # LinSolve result symbol -> {state index: symbol of its derivative}
         self.kept_map = {a.symbol: a for a in kept}
+        self.visited: set = set()  # the assignments differentiated so far
+
+    def fork(self) -> "_Sweep":
+        """A copy to go on from (new intermediates numbered on), this sweep left as it is:
+        the tangents made so far are shared, never changed."""
+        new = object.__new__(_Sweep)
+        new.__dict__.update(self.__dict__)
+        new.D, new.solves, new.visited = dict(self.D), dict(self.solves), set(self.visited)
+        new.jac_assign = list(self.jac_assign)
+        new.counter = itertools.count(len(self.jac_assign))
+        new.bridge = fastsym.Bridge() if fastsym.available() else None
+        return new
 
     def new(self, expr) -> sp.Symbol:
         """A new intermediate ``<prefix><k>`` assigned ``expr``."""
@@ -88,7 +152,7 @@ class _Sweep:
         syms = sorted((s for s in expr.free_symbols if D.get(s)), key=_name)  # deterministic
         if not syms:
             return {}
-        parts = fastsym.partials(bridge, expr, syms) if bridge is not None else None
+        parts = _partials(bridge, expr, syms) if bridge is not None else None
         if parts is not None:  # symengine: same algebra, a hundred times faster
             acc_se: dict[int, object] = {}
             for s, partial in parts.items():
@@ -145,6 +209,7 @@ class _Sweep:
 
     def step(self, a: Assignment) -> None:
         """Differentiate one assignment (in causal order)."""
+        self.visited.add(a.symbol)
         if isinstance(a.expr, NewtonSolve):
             self.newton(a)
         elif isinstance(a.expr, LinSolve):
@@ -241,9 +306,17 @@ def linear_parts(eq: Equations) -> LinearParts:
     kept = list(eq.assignments)
     nloops = tuple(getattr(eq, "newton", ()))
     B, b_assign = forward_mode(kept, useeds, list(eq.derivatives), "_du", nloops)
-    C, c_assign = forward_mode(kept, xseeds, youts, "_dx", nloops)
+    tangents = getattr(eq, "jac_tangents", None)
+    if tangents is not None and tangents.fits(eq):
+        # C goes on from the state Jacobian's sweep: the assignments the derivatives read
+        # already have their derivatives (the Jacobian's intermediates _d*, which C's
+        # function then computes too); only those that only the outputs read are new
+        C, c_assign = forward_mode(kept, xseeds, youts, "_d", nloops,
+                                   sweep=tangents.sweep.fork())
+    else:
+        C, c_assign = forward_mode(kept, xseeds, youts, "_dx", nloops)
     D, d_assign = forward_mode(kept, useeds, youts, "_du", nloops)
     # B's and D's intermediates share a prefix: they live in different generated functions
-    # except D's, which sits beside C's (prefix _dx): no clash inside one function.
+    # except D's, which sits beside C's (prefix _d or _dx): no clash inside one function.
     return LinearParts(B, tuple(b_assign), C, D, tuple(c_assign) + tuple(d_assign),
                        tuple(ilabels), tuple(olabels))

@@ -144,19 +144,34 @@ def count_ops(exprs) -> int:
     return n
 
 
-def lower_linear(eq: Equations, progress=None) -> Linear:
+def lower_linear(eq: Equations, progress=None, jac: Function | None = None) -> Linear:
     """B, C and D of the linearisation (forward mode along the rhs's assignments:
-    bgc.core.equations.linear_parts), lowered like the other functions."""
+    bgc.core.forward.linear_parts), lowered like the other functions. ``jac``: the model's
+    lowered Jacobian, whose lines (assignments, derivative intermediates, CSE temporaries)
+    C and D then read instead of eliminating common subexpressions over them again."""
     (progress or (lambda msg: None))("emitting the linearisation's B, C, D")
     lp = linear_parts(eq)
     bkeys = sorted(lp.B)
     ujac = lower_function(eq, [lp.B[k] for k in bkeys],
                           list(eq.assignments) + list(lp.B_assignments), bkeys)
     ckeys, dkeys = sorted(lp.C), sorted(lp.D)
-    yjac = lower_function(eq, [lp.C[k] for k in ckeys] + [lp.D[k] for k in dkeys],
-                          list(eq.assignments) + list(lp.CD_assignments),
-                          [("C",) + k for k in ckeys] + [("D",) + k for k in dkeys])
+    results = [lp.C[k] for k in ckeys] + [lp.D[k] for k in dkeys]
+    keys = [("C",) + k for k in ckeys] + [("D",) + k for k in dkeys]
+    assigns = list(eq.assignments) + list(lp.CD_assignments)
+    if jac is None:
+        yjac = lower_function(eq, results, assigns, keys)
+    else:
+        yjac = lower_function(eq, results, _on_lines(jac, assigns), keys, cse=False)
     return Linear(ujac, yjac, lp.input_labels, lp.output_labels)
+
+
+def _on_lines(base: Function, assigns: list[Assignment]) -> list[Assignment]:
+    """A lowered function's lines as assignments (already scheduled and CSE'd), then those of
+    ``assigns`` that they do not define, in their order: a valid order, since the lines
+    never read what they do not define themselves."""
+    own = [Assignment(ln.target, ln.expr, ln.comment) for ln in base.lines]
+    defined = {a.symbol for a in own}
+    return own + [a for a in assigns if a.symbol not in defined]
 
 
 def lower(eq: Equations, progress=None, linear: bool = True) -> Lowered:
@@ -179,7 +194,7 @@ def lower(eq: Equations, progress=None, linear: bool = True) -> Lowered:
     outs = lower_function(eq, oexprs, list(eq.assignments), okeys)
     init = lower_function(eq, [sv.initial for sv in eq.states], [], list(range(n)), cse=False)
     derived = tuple(Line(a.symbol, a.expr, a.why) for a in eq.derived)
-    lin = lower_linear(eq, progress) if linear else None
+    lin = lower_linear(eq, progress, jac) if linear else None
     cvals = list(getattr(eq, "constraint_values", ()))
     cons = lower_function(eq, cvals, list(eq.assignments), list(range(len(cvals)))) \
         if cvals else None

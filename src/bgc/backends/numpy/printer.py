@@ -325,7 +325,7 @@ def _printed_functions(eq: Equations, low, printer, progress, equations: bool) -
     # a vectorised Jacobian's values scattered into the dense matrix at JAC_SPARSITY's entries
     jac_index = (tables.ref(tuple(k[0] for k in low.jac_keys)),
                  tables.ref(tuple(k[1] for k in low.jac_keys))) if jac.rolled else None
-    lin = low.linear if low.linear is not None else lower.lower_linear(eq, progress)
+    lin = low.linear if low.linear is not None else lower.lower_linear(eq, progress, low.jac)
     cons = printed(low.cons, printer) if getattr(low, "cons", None) is not None else None
     return dict(rhs=rhs, jac=jac, outs=outs, init=init, cons=cons, ujac=printed(lin.ujac, printer),
                 yjac=printed(lin.yjac, printer), input_labels=lin.input_labels,

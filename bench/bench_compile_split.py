@@ -1,0 +1,120 @@
+"""Where the CPU of one `bgc compile MODEL -o OUT` goes, stage by stage, each round a fresh
+process per checkout (issue 27).
+
+    python bench/bench_compile_split.py [--model models/3r2s.yaml] [--repeats 3] \
+        [--before /tmp/before/src]
+
+Each round runs this file with ``--child`` in a new interpreter (its own empty compile cache),
+for this checkout and, alternating, for ``--before``'s src folder. The child measures its own
+CPU (user + sys): importing the libraries a compile needs, bgc's modules, the driver's compile
+(`bgc.run.driver.compile_file`) and its parts (parse, equations, lowering with the
+linearisation's B, C, D apart, printing with the module's check apart), the start check (`check_module_start`: the module loaded and its
+rhs called, as `bgc compile` does) and the write. Prints every round and the medians.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def child(model: str, out: str) -> dict:
+    times = {}
+    t = _cpu()
+    import click  # noqa: F401
+    import jinja2  # noqa: F401
+    import networkx  # noqa: F401
+    import numpy  # noqa: F401
+    import symengine  # noqa: F401
+    import sympy  # noqa: F401
+    import yaml  # noqa: F401
+    times["libraries"] = _cpu() - t
+    t = _cpu()
+    import bgc.core.equations as equations
+    from bgc.backends.numpy import printer
+    from bgc.lower import ir
+    from bgc.run import driver, runner
+    times["bgc modules"] = _cpu() - t
+    spent: dict = {}
+
+    def timed(owner, name: str, label: str):  # (each looked up at call time by its caller)
+        real = getattr(owner, name)
+
+        def wrapper(*a, **k):
+            t0 = _cpu()
+            try:
+                return real(*a, **k)
+            finally:
+                spent[label] = spent.get(label, 0.0) + _cpu() - t0
+        setattr(owner, name, wrapper)
+    for owner, name, label in ((driver, "parse", "parse"), (equations, "derive", "equations"),
+                               (ir, "lower", "lower"), (ir, "lower_linear", "of it B, C, D"),
+                               (printer, "render", "print"),
+                               (printer, "check_skeleton", "of it the check")):
+        timed(owner, name, label)
+    t = _cpu()
+    c = driver.compile_file(model)
+    times["compile"] = _cpu() - t
+    for label in ("parse", "equations", "lower", "of it B, C, D", "print", "of it the check"):
+        times["  " + label] = spent.get(label, 0.0)
+    t = _cpu()
+    runner.check_module_start(c)
+    times["start check"] = _cpu() - t
+    t = _cpu()
+    Path(out).write_text(c.source, encoding="utf-8")
+    times["write"] = _cpu() - t
+    times["whole process"] = _cpu()
+    return times
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--model", default=str(ROOT / "models" / "3r2s.yaml"))
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--before", default=None, help="src folder of the bgc to compare with")
+    ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--out", default=None, help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a.child:
+        print(json.dumps(child(a.model, a.out)))
+        return
+    srcs = {"after": str(ROOT / "src")}
+    if a.before:
+        srcs["before"] = a.before
+    rows: dict = {k: [] for k in srcs}
+    for r in range(a.repeats):
+        for label, src in srcs.items():
+            with tempfile.TemporaryDirectory() as d:
+                cache = Path(d) / "cache"
+                cache.mkdir(mode=0o700)
+                env = {**os.environ, "PYTHONPATH": src, "BGC_CACHE_DIR": str(cache)}
+                got = subprocess.run([sys.executable, __file__, "--child", "--model", a.model,
+                                      "--out", str(Path(d) / "m.py")], env=env, check=True,
+                                     capture_output=True, text=True)
+                times = json.loads(got.stdout.strip().splitlines()[-1])
+            rows[label].append(times)
+            print(f"round {r + 1} {label}: " + ", ".join(f"{k.strip()} {v:.3f}"
+                                                         for k, v in times.items()))
+    print(f"\nCPU seconds, median of {a.repeats} ({Path(a.model).name}):")
+    keys = list(rows["after"][0])
+    print("| stage | " + " | ".join(srcs) + " |\n|---|" + "---|" * len(srcs))
+    for k in keys:
+        print(f"| {k} | " + " | ".join(f"{statistics.median(t[k] for t in rows[lb]):.3f}"
+                                       for lb in srcs) + " |")
+
+
+if __name__ == "__main__":
+    main()
