@@ -12,11 +12,10 @@ from __future__ import annotations
 import itertools
 from dataclasses import dataclass
 
-import networkx as nx
 import sympy as sp
 
 from bgc.core import fastsym
-from bgc.core.eqtypes import Assignment, Equations, prune, schedule
+from bgc.core.eqtypes import Assignment, DepGraph, Equations, prune, schedule
 from bgc.core.forward import linear_parts
 from bgc.lower import cse as lcse
 
@@ -93,7 +92,7 @@ def lower_function(eq: Equations, results: list, assigns: list[Assignment], keys
     # schedule: cse temporaries just before their first use, assignments in causal order
     # (each definition's free symbols found once: sympy walks the whole tree for them)
     free = [e.free_symbols for _, e, _ in defs]
-    g = nx.DiGraph()
+    g = DepGraph()
     index = {}
     byname = {}
     defined = {s for s, _, _ in defs}
