@@ -257,17 +257,19 @@ def clean_derivative(d):
     return d
 
 
-def prune(results: list, assigns: list[Assignment], also=None) -> list[Assignment]:
+def prune(results: list, assigns: list[Assignment], also=None, free=None) -> list[Assignment]:
     """The assignments (in their order) that ``results`` depend on, directly or through each
-    other; ``also(a)`` names further symbols an assignment needs (beyond its expression's)."""
+    other; ``also(a)`` names further symbols an assignment needs (beyond its expression's);
+    ``free(expr)``: its free symbols (a caller's memo), else sympy's ``free_symbols``."""
+    free = free or (lambda e: e.free_symbols)
     need: set = set()
     for r in results:
-        need |= r.free_symbols
+        need |= free(r)
     keep = []
     for a in reversed(assigns):
         if a.symbol in need:
             keep.append(a)
-            need |= a.expr.free_symbols
+            need |= free(a.expr)
             if also is not None:
                 need.update(also(a))
     keep.reverse()
