@@ -9,9 +9,8 @@ node is visited once to count its parents, and once to rebuild it. It finds ever
 subtree, but not a sum ``a + b`` hidden inside two different sums ``a + b + c`` and
 ``a + b + d``; bgc.lower.ir uses it for bodies beyond :data:`LINEAR_ABOVE` nodes, where the
 pairwise search stops paying (measured: bench/profile_compile.py, bench/RESULTS_compile_scale.md),
-and for *binary-rational* bodies (sums, products of at most two operands besides a numeric
-coefficient, integer powers, symbols and numbers: a linear network such as an RC ladder)
-beyond :data:`RATIONAL_ABOVE` nodes: there the pairwise search cost 1.4-1.7 s at 1,000 ladder
+and for *binary* bodies (every sum and product of at most two operands besides a numeric
+coefficient: a linear network such as an RC ladder) beyond :data:`BINARY_ABOVE` nodes: there the pairwise search cost 1.4-1.7 s at 1,000 ladder
 nodes (11,000 nodes of body) against 0.2 s for the linear pass, for the same rhs (6,000
 operations) and a Jacobian of 5,998 operations instead of 4,999 (its sub-products ``d/R``
 inside ``-d/R``), evaluated once per Jacobian (bench/bench_scale.py's cold runs).
@@ -27,9 +26,9 @@ import sympy as sp
 #: pairwise one; the goldens and the 3R2S lie below it
 LINEAR_ABOVE = 15_000
 
-#: binary-rational bodies (:func:`survey`) above this many nodes take the linear pass too; the
-#: goldens' bodies above it hold functions or products of three and more symbols
-RATIONAL_ABOVE = 2_000
+#: binary bodies (:func:`survey`) above this many nodes take the linear pass too; the goldens'
+#: bodies above it hold sums or products of three and more operands
+BINARY_ABOVE = 2_000
 
 #: work counters: "nodes" visited by linear_cse and size_of since the last reset
 stats = {"nodes": 0}
@@ -53,8 +52,8 @@ def size_of(exprs, limit: int | None = None) -> int:
 
 def survey(exprs, limit: int) -> tuple[int, bool]:
     """(the number of distinct nodes of ``exprs``, counting stopped past ``limit``; whether
-    the body is *binary-rational*: every node a symbol, a number, an integer power, or a sum or
-    product of at most two operands besides a numeric coefficient)."""
+    the body is *binary*: every sum and product in it has at most two operands besides a
+    numeric coefficient)."""
     seen: set = set()
     stack = list(exprs)
     plain = True
@@ -65,11 +64,8 @@ def survey(exprs, limit: int) -> tuple[int, bool]:
         seen.add(e)
         if len(seen) > limit:
             break
-        if plain:
-            if e.is_Add or e.is_Mul:
-                plain = sum(1 for a in e.args if not a.is_Number) <= 2
-            else:
-                plain = e.is_Symbol or e.is_Number or (e.is_Pow and e.args[1].is_Integer)
+        if plain and (e.is_Add or e.is_Mul):
+            plain = sum(1 for a in e.args if not a.is_Number) <= 2
         stack.extend(e.args)
     stats["nodes"] += len(seen)
     return len(seen), plain
@@ -77,12 +73,12 @@ def survey(exprs, limit: int) -> tuple[int, bool]:
 
 def linear_wanted(exprs) -> bool:
     """Whether a body takes :func:`linear_cse` rather than the pairwise search: beyond
-    :data:`LINEAR_ABOVE` nodes, or binary-rational (:func:`survey`) beyond
-    :data:`RATIONAL_ABOVE`. In a binary-rational body no sum or product has a sub-sum or
-    sub-product of two operands other than itself: what the pairwise search would find beyond
-    repeated subtrees is only a shared operand pair under a numeric coefficient."""
+    :data:`LINEAR_ABOVE` nodes, or binary (:func:`survey`) beyond :data:`BINARY_ABOVE`. In a
+    binary body no sum or product has a sub-sum or sub-product of two operands other than
+    itself: what the pairwise search would find beyond repeated subtrees is only a shared
+    operand pair under a numeric coefficient."""
     n, plain = survey(exprs, LINEAR_ABOVE)
-    return n > LINEAR_ABOVE or (plain and n > RATIONAL_ABOVE)
+    return n > LINEAR_ABOVE or (plain and n > BINARY_ABOVE)
 
 
 def _worth(e) -> bool:

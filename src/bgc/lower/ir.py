@@ -3,7 +3,7 @@
 Each generated function (rhs, Jacobian values on JAC_SPARSITY, outputs, initial state)
 computes only what its results need: the assignments are pruned backwards from the results,
 common subexpressions are eliminated (symengine's ``cse``, else sympy's; beyond
-:data:`bgc.lower.cse.LINEAR_ABOVE` nodes, or beyond :data:`~bgc.lower.cse.RATIONAL_ABOVE` for sums and products of two symbols,
+:data:`bgc.lower.cse.LINEAR_ABOVE` nodes, or beyond :data:`~bgc.lower.cse.BINARY_ABOVE` where every sum and product has two operands,
 bgc.lower.cse's linear pass), and the definitions are scheduled in
 causal order. The result is a tree of frozen dataclasses holding sympy expressions; printing
 them as numpy (:mod:`bgc.backends.numpy.printer`) or C (:mod:`bgc.backends.c.printer`) is the printers' business.
@@ -93,7 +93,7 @@ def lower_function(eq: Equations, results: list, assigns: list[Assignment], keys
     exprs = [a.expr for a in assigns] + list(results)
     if cse and exprs:
         names = (sp.Symbol(f"_c{i}", real=True) for i in itertools.count())
-        # a large body, or a large binary-rational one: the linear pass (the pairwise search's cost
+        # a large body, or a large binary one: the linear pass (the pairwise search's cost
         # grows as its square)
         big = lcse.linear_wanted(exprs)
         fast = lcse.linear_cse(exprs, lambda: next(names)) if big else \
