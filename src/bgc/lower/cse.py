@@ -10,10 +10,11 @@ subtree, but not a sum ``a + b`` hidden inside two different sums ``a + b + c`` 
 ``a + b + d``; bgc.lower.ir uses it for bodies beyond :data:`LINEAR_ABOVE` nodes, where the
 pairwise search stops paying (measured: bench/profile_compile.py, bench/RESULTS_compile_scale.md),
 and for *binary* bodies (every sum and product of at most two operands besides a numeric
-coefficient: a linear network such as an RC ladder) beyond :data:`BINARY_ABOVE` nodes: there the pairwise search cost 1.4-1.7 s at 1,000 ladder
-nodes (11,000 nodes of body) against 0.2 s for the linear pass, for the same rhs (6,000
-operations) and a Jacobian of 5,998 operations instead of 4,999 (its sub-products ``d/R``
-inside ``-d/R``), evaluated once per Jacobian (bench/bench_scale.py's cold runs).
+coefficient: a linear network such as an RC ladder) beyond :data:`BINARY_ABOVE` nodes. There
+the pairwise search found nothing more in a 1,000-node ladder's rhs (11,000 nodes; 6,000
+operations either way) and cost 1.2-1.7 s against 0.2 s for the linear pass (one process, a
+load of 4-5); its Jacobian has 5,998 operations instead of 4,999 (the pairwise search shares
+``d/R`` inside ``-d/R``), evaluated once per Jacobian.
 
 ``stats`` counts the nodes each call visited (tests/test_compile_scale.py holds the work
 linear in the model's size through it).
