@@ -157,3 +157,41 @@ def test_linear_cse_module_equals_pairwise(tmp_path, monkeypatch):
         oa, ob = a.outputs(t, x), b.outputs(t, x)
         for k in oa:
             np.testing.assert_allclose(ob[k], oa[k], rtol=1e-12, atol=1e-12)
+
+
+def test_survey_tells_binary_bodies():
+    a, b, c = sp.symbols("a b c", real=True)
+    assert lcse.survey([a / b - c, -2 * a, a ** 2 + b, sp.sin(a) - b / c], 100) == (17, True)
+    assert not lcse.survey([a * b * c], 100)[1]  # a product of three: pairwise pays
+    assert not lcse.survey([a - b, sp.cos(a + b + c)], 100)[1]
+
+
+def test_large_ladder_takes_the_linear_pass_and_means_the_ladder(tmp_path, monkeypatch):
+    """A 400-node ladder's rhs and Jacobian bodies (over BINARY_ABOVE nodes of sums and
+    quotients of two operands) go through the linear CSE; the module's rhs and Jacobian are the
+    ladder's, written here from Kirchhoff's laws (q_i' = (v_(i-1) - v_i)/R - (v_i -
+    v_(i+1))/R, v_i = q_i/C, v_(-1) = V0 sin(w t), nothing beyond the last node)."""
+    n, R, C, V0, w = 400, 1.0, 0.01, 1.0, 6.0
+    p = tmp_path / "ladder.yaml"
+    p.write_text(ladder(n))
+    seen = []
+    real = lcse.linear_cse
+    monkeypatch.setattr(lcse, "linear_cse", lambda e, m: seen.append(len(e)) or real(e, m))
+    c = compile_model(parse_file(p))
+    assert len(seen) >= 2  # rhs and Jacobian
+    mod = load_module(c.source, "ladder_linear_pass")
+    rng = np.random.default_rng(5)
+    x, t = rng.standard_normal(n), 0.37
+    v = x / C
+    left = np.concatenate(([V0 * np.sin(w * t)], v[:-1]))
+    right = np.concatenate((v[1:], [np.nan]))
+    want = (left - v) / R - np.where(np.arange(n) < n - 1, (v - np.nan_to_num(right)) / R, 0)
+    np.testing.assert_allclose(mod.rhs(t, x), want, rtol=1e-12, atol=1e-9)
+    J = np.zeros((n, n))
+    for i in range(n):
+        J[i, i] = -(2.0 if i < n - 1 else 1.0) / (R * C)
+        if i > 0:
+            J[i, i - 1] = 1 / (R * C)
+        if i < n - 1:
+            J[i, i + 1] = 1 / (R * C)
+    np.testing.assert_allclose(np.asarray(mod.jacobian(t, x)), J, rtol=1e-12)

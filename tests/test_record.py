@@ -85,10 +85,11 @@ def test_replay_equals_the_full_way(tmp_path, backend):
 
 
 _IMPORTS = r"""
-import sys, json, runpy
+import sys, json
 sys.argv = ["bgc"] + sys.argv[1:]
+from bgc.cli.launch import main  # what `python -m bgc` runs (before ending the process)
 try:
-    runpy.run_module("bgc", run_name="__main__")
+    main()
 except SystemExit as e:
     pass
 heavy = ["click", "yaml", "bgc.cli.commands", "bgc.format.parse", "bgc.format.scene", "bgc.run.runner", "sympy",

@@ -1,3 +1,3 @@
-from bgc.cli.launch import main
+from bgc.cli.launch import run
 
-main()
+run()

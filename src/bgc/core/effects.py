@@ -169,13 +169,8 @@ def remove_effects(bg: BondGraph, off: frozenset, coord=None) -> Removal:
     bonds = [b for b in bg.bonds if b.id not in zero]
     bonds, elements, merged = _merge_through(bg, removed, sources, kind, touched, bonds, elements)
     kept_states = tuple(s for s in bg.states if s.id not in states)
-    g = bg.graph.copy()
-    g.remove_nodes_from(list(removed) + list(merged))
-    for b in bonds:
-        if not g.has_edge(b.src, b.dst, key=b.id):
-            g.add_edge(b.src, b.dst, key=b.id, n=b.n)
     new_bg = BondGraph(bg.model, bg.params, tuple(elements), tuple(bonds), kept_states,
-                       bg.scopes, g)
+                       bg.scopes)
     notes = _notes(bg, removed, states, sources, kind, merged)
     return Removal(new_bg, removed, states, zero, sources, merged, notes)
 

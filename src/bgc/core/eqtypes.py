@@ -11,7 +11,6 @@ from __future__ import annotations
 import heapq
 from dataclasses import dataclass, field
 
-import networkx as nx
 import sympy as sp
 
 from bgc.base.errors import ModelError
@@ -187,8 +186,43 @@ def is_trivial(v) -> bool:
     return False
 
 
-def schedule(g: nx.DiGraph, index: dict) -> list:
-    """Topological order that keeps the given priority wherever dependencies allow."""
+class DepGraph:
+    """A directed graph as insertion-ordered adjacency dicts: the part of
+    ``networkx.DiGraph`` that scheduling reads (``nodes``, ``successors``, ``in_degree``),
+    without importing networkx or paying its per-edge attribute dicts."""
+
+    def __init__(self):
+        self._succ: dict = {}
+        self._npred: dict = {}
+
+    def add_node(self, n) -> None:
+        if n not in self._succ:
+            self._succ[n] = {}
+            self._npred[n] = 0
+
+    def add_edge(self, u, v) -> None:
+        self.add_node(u)
+        self.add_node(v)
+        if v not in self._succ[u]:
+            self._succ[u][v] = None
+            self._npred[v] += 1
+
+    @property
+    def nodes(self):
+        return self._succ.keys()
+
+    def successors(self, n):
+        return iter(self._succ[n])
+
+    def in_degree(self, n) -> int:
+        return self._npred[n]
+
+
+def topological(g, index: dict) -> list | None:
+    """Topological order that keeps the given priority wherever dependencies allow; None
+    when ``g`` has a cycle. The order is unique (the heap pops the least (index, name) among
+    the nodes whose dependencies are done), so it does not depend on how ``g`` stores its
+    edges: a :class:`DepGraph` and a networkx graph of the same edges give the same list."""
     indeg = {n: g.in_degree(n) for n in g.nodes}
     heap = [(index[n], n.name if hasattr(n, "name") else str(n), n)
             for n, d in indeg.items() if d == 0]
@@ -201,7 +235,14 @@ def schedule(g: nx.DiGraph, index: dict) -> list:
             indeg[m] -= 1
             if indeg[m] == 0:
                 heapq.heappush(heap, (index[m], m.name if hasattr(m, "name") else str(m), m))
-    if len(out) != len(indeg):
+    return out if len(out) == len(indeg) else None
+
+
+def schedule(g, index: dict) -> list:
+    """:func:`topological`, where a cycle is an internal error (``g``: a :class:`DepGraph`
+    or a networkx ``DiGraph``)."""
+    out = topological(g, index)
+    if out is None:
         raise ModelError(None, "internal: cycle left after solving algebraic loops")
     return out
 
@@ -219,17 +260,19 @@ def clean_derivative(d):
     return d
 
 
-def prune(results: list, assigns: list[Assignment], also=None) -> list[Assignment]:
+def prune(results: list, assigns: list[Assignment], also=None, free=None) -> list[Assignment]:
     """The assignments (in their order) that ``results`` depend on, directly or through each
-    other; ``also(a)`` names further symbols an assignment needs (beyond its expression's)."""
+    other; ``also(a)`` names further symbols an assignment needs (beyond its expression's);
+    ``free(expr)``: its free symbols (a caller's memo), else sympy's ``free_symbols``."""
+    free = free or (lambda e: e.free_symbols)
     need: set = set()
     for r in results:
-        need |= r.free_symbols
+        need |= free(r)
     keep = []
     for a in reversed(assigns):
         if a.symbol in need:
             keep.append(a)
-            need |= a.expr.free_symbols
+            need |= free(a.expr)
             if also is not None:
                 need.update(also(a))
     keep.reverse()

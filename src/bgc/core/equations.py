@@ -21,6 +21,7 @@ from dataclasses import replace as dc_replace
 import sympy as sp
 
 from bgc.base.errors import ModelError
+from bgc.core.canon import replaced
 from bgc.core.causality import Causality
 from bgc.core.assembly import consistent_initial, constraint_values, numeric_redundancy
 from bgc.core.constraints import alpha_of, constraint_states, dropped_states, stabilise
@@ -93,9 +94,8 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
     events = tuple(ev.replace(subs) for ev in events)
     rates = tuple((s, d.xreplace(subs), s.xreplace(subs)) for _, syms, dots in ctx.dependent
                   for s, d in zip(syms, dots))
-    derivatives = tuple((derivs[sv.symbol].xreplace(subs) if subs else derivs[sv.symbol])
-                        for sv in state_vars)
-    outputs = tuple((n, shp, tuple(e.xreplace(subs) for e in vals)) for n, shp, vals in outputs)
+    derivatives = tuple(replaced(derivs[sv.symbol], subs) for sv in state_vars)
+    outputs = tuple((n, shp, tuple(replaced(e, subs) for e in vals)) for n, shp, vals in outputs)
     ctx_derived = [ctx.derived[k] for k in ctx.derived_order]
     _check_declared(ctx, state_vars, ctx_derived, kept, derivatives, outputs,
                     [e for ev in events for e in ev.exprs()])
@@ -218,7 +218,7 @@ def _inline(order: list, defs: dict) -> tuple[list, dict]:
     kept: list[Assignment] = []
     for s in order:
         a = defs[s]
-        v = a.expr.xreplace(subs) if subs else a.expr
+        v = replaced(a.expr, subs)  # (xreplace, plain sums and products built directly)
         if is_trivial(v):
             subs[s] = v
         else:

@@ -1,4 +1,5 @@
-"""Stage 2: a :class:`~bgc.format.parse.Model` -> a flat, checked bond graph (networkx).
+"""Stage 2: a :class:`~bgc.format.parse.Model` -> a flat, checked bond graph (its networkx
+view, ``BondGraph.graph``, is built only when asked for).
 
 Component instances are expanded here: an element ``It`` inside instance ``link1`` becomes the
 flat element ``link1.It`` (``link1__It`` in generated code). Each flat element remembers its
@@ -10,8 +11,6 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
-
-import networkx as nx
 
 from bgc.base.errors import Coord, ModelError
 from bgc.base.limits import LIMITS
@@ -97,7 +96,6 @@ class BondGraph:
     bonds: tuple[FlatBond, ...]
     states: tuple[FlatState, ...]
     scopes: dict
-    graph: nx.MultiDiGraph = field(repr=False, compare=False)
     units: object = field(default=None, repr=False, compare=False)  # bgc.core.units.UnitReport
 
     def element(self, eid: str) -> FlatElement:
@@ -109,6 +107,24 @@ class BondGraph:
     def bonds_of(self, eid: str) -> list[FlatBond]:
         """The element's bonds in declaration order."""
         return self._adj[eid]
+
+    @property
+    def graph(self):
+        """The bond graph as a ``networkx.MultiDiGraph`` (elements as nodes with their
+        ``type``, bonds as edges keyed by bond id with their cardinality ``n``), built on first
+        use: the compile itself reads the elements and bonds, never this view, and a cold run
+        does not import networkx for it."""
+        g = self.__dict__.get("_nx")
+        if g is None:
+            import networkx as nx  # lazy: only a caller that asks for the graph view needs it
+
+            g = nx.MultiDiGraph()
+            for el in self.elements:
+                g.add_node(el.id, type=el.type)
+            for bd in self.bonds:
+                g.add_edge(bd.src, bd.dst, key=bd.id, n=bd.n)
+            object.__setattr__(self, "_nx", g)
+        return g
 
     def __post_init__(self):
         object.__setattr__(self, "_el", {e.id: e for e in self.elements})
@@ -134,13 +150,8 @@ def build_graph(model: Model) -> BondGraph:
     b.body(model.body, (), None, {}, (), 0)
     for inp in model.inputs:
         b.scopes[()].names[inp.name] = "input"
-    g = nx.MultiDiGraph()
-    for el in b.elements:
-        g.add_node(el.id, type=el.type)
-    for bd in b.bonds:
-        g.add_edge(bd.src, bd.dst, key=bd.id, n=bd.n)
     bg = BondGraph(model, tuple(b.params), tuple(b.elements), tuple(b.bonds), tuple(b.states),
-                   b.scopes, g)
+                   b.scopes)
     _check(bg)
     # dimensions: a located error where a law, unit or output disagrees; the report (each
     # bond's, output's and state's dimension) stays with the graph for units of FMI and plots

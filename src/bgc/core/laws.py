@@ -11,6 +11,7 @@ from __future__ import annotations
 import sympy as sp
 
 from bgc.base.errors import ModelError
+from bgc.core.canon import quotient
 from bgc.core.constraints import constraint_source
 from bgc.core.context import Context, zero_value
 from bgc.core.eqtypes import StateVar, flat, shape_name, symbol_vector
@@ -227,7 +228,7 @@ def _solve(m, rhs, el, key):
         if m == 0:
             raise ModelError(el.coord, f"{el.type} {el.id!r}: its {key} is zero and must be "
                                        "inverted here (a division by zero)")
-        return rhs / m
+        return quotient(rhs, m)
     if m.shape[0] > 4:
         raise ModelError(el.coord, f"{el.type} {el.id!r}: inverting a {m.shape[0]}x"
                                    f"{m.shape[0]} {key} symbolically is not supported; give the "

@@ -12,7 +12,6 @@ from __future__ import annotations
 import itertools
 import os
 
-import networkx as nx
 import sympy as sp
 
 from bgc.base.errors import ModelError
@@ -20,6 +19,7 @@ from bgc.core.context import Context
 from bgc.core.eqtypes import (
     SYMBOLIC_MAX,
     Assignment,
+    DepGraph,
     LinSolve,
     LinSolveEntry,
     NewtonLoop,
@@ -29,6 +29,7 @@ from bgc.core.eqtypes import (
     is_trivial,
     real_symbol,
     schedule,
+    topological,
 )
 from bgc.core.graph import BondGraph, FlatElement
 
@@ -194,7 +195,7 @@ def _tear_choice(g, comp: list, index: dict, tear_sets, residual=frozenset()) ->
         cands.append(sorted(set(cands[0]) | set(cands[1]), key=index.get))
     for cand in sorted(cands, key=len):
         rest = [s for s in comp if s not in set(cand)]
-        if nx.is_directed_acyclic_graph(g.subgraph(rest)):
+        if topological(g.subgraph(rest), index) is not None:  # acyclic
             best = cand
             break
     return best
@@ -242,9 +243,11 @@ def _solve_torn(tear, defs, owner, a_rows, zero, tag, add, symbolic_max,
     return how
 
 
-def _cut_set(g: nx.DiGraph, comp: list, index: dict) -> list:
+def _cut_set(g, comp: list, index: dict) -> list:
     """Tear variables that leave the loop acyclic: greedily the node with the most
     in x out edges inside what is still cyclic (ties: the first in causal priority)."""
+    import networkx as nx  # lazy: only models with nonlinear algebraic loops come here
+
     tear: list = []
     rest = set(comp)
     while True:
@@ -341,15 +344,42 @@ def causal_order(bg: BondGraph, defs: dict, owner: dict, tear_sets=(),
     nonlinear ones by Newton's method in the generated code when ``newton`` (a list that
     receives the loops) is given. ``residual``: unknowns defined by a residual (constraint
     reactions), each of which must lie in a loop torn at it."""
-    torn: set = set()
-    g = nx.DiGraph()
     index = {s: i for i, s in enumerate(defs)}
-    for s, a in defs.items():
+    deps = {s: [d for d in a.expr.free_symbols if d in defs] for s, a in defs.items()}
+    quick = DepGraph()
+    for s, ds in deps.items():
+        quick.add_node(s)
+        for dep in ds:
+            quick.add_edge(dep, s)
+    order = topological(quick, index)  # no algebraic loop (most models): nothing to solve
+    loops: list = []
+    torn: set = set()
+    if order is None:
+        order = _solve_loops(bg, defs, owner, deps, index, tear_sets, symbolic_max, newton,
+                             residual, loops, torn)
+    loose = sorted(residual - torn, key=str)
+    if loose:
+        src = owner[loose[0]]
+        raise ModelError(_coord(bg, src), f"constraint {src!r}: its reaction "
+                         f"({', '.join(map(str, loose))}) does not act on the motion it "
+                         "constrains (no loop from the reaction through the accelerations back "
+                         "to the constraint): the constraint is singular or redundant; remove "
+                         "it or make the connection compliant")
+    return order, loops
+
+
+def _solve_loops(bg, defs, owner, deps, index, tear_sets, symbolic_max, newton, residual,
+                 loops: list, torn: set) -> list:
+    """The algebraic loops (strongly connected components) solved, appending to ``loops``
+    and ``torn``; returns the causal order. On networkx's graph, built as it always was (the
+    order of its components names the loops)."""
+    import networkx as nx  # lazy: only models with algebraic loops need its components
+
+    g = nx.DiGraph()
+    for s, ds in deps.items():
         g.add_node(s)
-        for dep in a.expr.free_symbols:
-            if dep in defs:
-                g.add_edge(dep, s)
-    loops = []
+        for dep in ds:
+            g.add_edge(dep, s)
     for comp in list(nx.strongly_connected_components(g)):
         if len(comp) == 1:
             (s,) = comp
@@ -401,16 +431,7 @@ def causal_order(bg: BondGraph, defs: dict, owner: dict, tear_sets=(),
             for dep in defs[s].expr.free_symbols:
                 if dep in defs:
                     g.add_edge(dep, s)
-    loose = sorted(residual - torn, key=str)
-    if loose:
-        src = owner[loose[0]]
-        raise ModelError(_coord(bg, src), f"constraint {src!r}: its reaction "
-                         f"({', '.join(map(str, loose))}) does not act on the motion it "
-                         "constrains (no loop from the reaction through the accelerations back "
-                         "to the constraint): the constraint is singular or redundant; remove "
-                         "it or make the connection compliant")
-    order = schedule(g, index)
-    return order, loops
+    return schedule(g, index)
 
 
 def _who(bg: BondGraph, oid: str) -> str:

@@ -58,10 +58,7 @@ def mode_graph(bg: BondGraph, combo: tuple[bool, ...]) -> BondGraph:
             law = ("effort", Expr("0", el.coord)) if sws[el.id] else ("flow", Expr("0", el.coord))
             el = dc_replace(el, type="Se" if sws[el.id] else "Sf", law=law)
         elements.append(el)
-    g = bg.graph.copy()
-    for eid, closed in sws.items():
-        g.nodes[eid]["type"] = "Se" if closed else "Sf"
-    return BondGraph(bg.model, bg.params, tuple(elements), bg.bonds, bg.states, bg.scopes, g)
+    return BondGraph(bg.model, bg.params, tuple(elements), bg.bonds, bg.states, bg.scopes)
 
 
 def derive_switched(bg: BondGraph, fold, zero, derive_one, declare) -> Equations:

@@ -211,7 +211,7 @@ def select_outputs(full: BondGraph, rem: Removal, plan: Plan) -> tuple[BondGraph
     body = dataclasses.replace(model.body, outputs=tuple(keep))
     g = rem.graph
     new = BondGraph(dataclasses.replace(model, body=body), g.params, g.elements, g.bonds,
-                    g.states, g.scopes, g.graph)
+                    g.states, g.scopes)
     return new, tuple(notes)
 
 

@@ -8,7 +8,13 @@ structural equality, which sympy's cached hashes make one dictionary look-up per
 node is visited once to count its parents, and once to rebuild it. It finds every repeated
 subtree, but not a sum ``a + b`` hidden inside two different sums ``a + b + c`` and
 ``a + b + d``; bgc.lower.ir uses it for bodies beyond :data:`LINEAR_ABOVE` nodes, where the
-pairwise search stops paying (measured: bench/profile_compile.py, bench/RESULTS_compile_scale.md).
+pairwise search stops paying (measured: bench/profile_compile.py, bench/RESULTS_compile_scale.md),
+and for *binary* bodies (every sum and product of at most two operands besides a numeric
+coefficient: a linear network such as an RC ladder) beyond :data:`BINARY_ABOVE` nodes. There
+the pairwise search found nothing more in a 1,000-node ladder's rhs (11,000 nodes; 6,000
+operations either way) and cost 1.2-1.7 s against 0.2 s for the linear pass (one process, a
+load of 4-5); its Jacobian has 5,998 operations instead of 4,999 (the pairwise search shares
+``d/R`` inside ``-d/R``), evaluated once per Jacobian.
 
 ``stats`` counts the nodes each call visited (tests/test_compile_scale.py holds the work
 linear in the model's size through it).
@@ -20,6 +26,10 @@ import sympy as sp
 #: bodies (counted in distinct expression nodes) above which the linear pass replaces the
 #: pairwise one; the goldens and the 3R2S lie below it
 LINEAR_ABOVE = 15_000
+
+#: binary bodies (:func:`survey`) above this many nodes take the linear pass too; the goldens'
+#: bodies above it hold sums or products of three and more operands
+BINARY_ABOVE = 2_000
 
 #: work counters: "nodes" visited by linear_cse and size_of since the last reset
 stats = {"nodes": 0}
@@ -39,6 +49,37 @@ def size_of(exprs, limit: int | None = None) -> int:
         stack.extend(e.args)
     stats["nodes"] += len(seen)
     return len(seen)
+
+
+def survey(exprs, limit: int) -> tuple[int, bool]:
+    """(the number of distinct nodes of ``exprs``, counting stopped past ``limit``; whether
+    the body is *binary*: every sum and product in it has at most two operands besides a
+    numeric coefficient)."""
+    seen: set = set()
+    stack = list(exprs)
+    plain = True
+    while stack:
+        e = stack.pop()
+        if e in seen:
+            continue
+        seen.add(e)
+        if len(seen) > limit:
+            break
+        if plain and (e.is_Add or e.is_Mul):
+            plain = sum(1 for a in e.args if not a.is_Number) <= 2
+        stack.extend(e.args)
+    stats["nodes"] += len(seen)
+    return len(seen), plain
+
+
+def linear_wanted(exprs) -> bool:
+    """Whether a body takes :func:`linear_cse` rather than the pairwise search: beyond
+    :data:`LINEAR_ABOVE` nodes, or binary (:func:`survey`) beyond :data:`BINARY_ABOVE`. In a
+    binary body no sum or product has a sub-sum or sub-product of two operands other than
+    itself: what the pairwise search would find beyond repeated subtrees is only a shared
+    operand pair under a numeric coefficient."""
+    n, plain = survey(exprs, LINEAR_ABOVE)
+    return n > LINEAR_ABOVE or (plain and n > BINARY_ABOVE)
 
 
 def _worth(e) -> bool:

@@ -3,7 +3,8 @@
 Each generated function (rhs, Jacobian values on JAC_SPARSITY, outputs, initial state)
 computes only what its results need: the assignments are pruned backwards from the results,
 common subexpressions are eliminated (symengine's ``cse``, else sympy's; beyond
-:data:`bgc.lower.cse.LINEAR_ABOVE` nodes bgc.lower.cse's linear pass), and the definitions are scheduled in
+:data:`bgc.lower.cse.LINEAR_ABOVE` nodes, or beyond :data:`~bgc.lower.cse.BINARY_ABOVE` where every sum and product has two operands,
+bgc.lower.cse's linear pass), and the definitions are scheduled in
 causal order. The result is a tree of frozen dataclasses holding sympy expressions; printing
 them as numpy (:mod:`bgc.backends.numpy.printer`) or C (:mod:`bgc.backends.c.printer`) is the printers' business.
 """
@@ -12,11 +13,10 @@ from __future__ import annotations
 import itertools
 from dataclasses import dataclass
 
-import networkx as nx
 import sympy as sp
 
 from bgc.core import fastsym
-from bgc.core.eqtypes import Assignment, Equations, prune, schedule
+from bgc.core.eqtypes import Assignment, DepGraph, Equations, prune, schedule
 from bgc.core.forward import linear_parts
 from bgc.lower import cse as lcse
 
@@ -70,15 +70,32 @@ class Lowered:
         return len(self.eq.states)
 
 
+def free_memo():
+    """``free(expr)``: sympy's ``free_symbols``, each expression's computed once (sympy walks
+    the whole tree for it, and the functions of one model share their assignments)."""
+    memo: dict = {}
+
+    def free(e):
+        try:
+            return memo[e]
+        except KeyError:
+            memo[e] = out = e.free_symbols
+            return out
+    return free
+
+
 def lower_function(eq: Equations, results: list, assigns: list[Assignment], keys: list,
-                   cse: bool = True) -> Function:
-    """Prune, CSE and schedule one generated function's body."""
-    assigns = prune(results, assigns)
+                   cse: bool = True, free=None) -> Function:
+    """Prune, CSE and schedule one generated function's body (``free``: a :func:`free_memo`
+    shared by the functions of one model)."""
+    free_of = free or free_memo()
+    assigns = prune(results, assigns, free=free_of)
     exprs = [a.expr for a in assigns] + list(results)
     if cse and exprs:
         names = (sp.Symbol(f"_c{i}", real=True) for i in itertools.count())
-        big = lcse.size_of(exprs, limit=lcse.LINEAR_ABOVE) > lcse.LINEAR_ABOVE
-        # a large body: the linear pass (the pairwise search's cost grows as its square)
+        # a large body, or a large binary one: the linear pass (the pairwise search's cost
+        # grows as its square)
+        big = lcse.linear_wanted(exprs)
         fast = lcse.linear_cse(exprs, lambda: next(names)) if big else \
             fastsym.cse(exprs, lambda: next(names))  # symengine, when it can read them all
         if fast is not None:
@@ -92,8 +109,8 @@ def lower_function(eq: Equations, results: list, assigns: list[Assignment], keys
     res = reduced[len(assigns):]
     # schedule: cse temporaries just before their first use, assignments in causal order
     # (each definition's free symbols found once: sympy walks the whole tree for them)
-    free = [e.free_symbols for _, e, _ in defs]
-    g = nx.DiGraph()
+    free = [free_of(e) for _, e, _ in defs]
+    g = DepGraph()
     index = {}
     byname = {}
     defined = {s for s, _, _ in defs}
@@ -123,7 +140,7 @@ def lower_function(eq: Equations, results: list, assigns: list[Assignment], keys
     lines = tuple(Line(s, byname[s][0], byname[s][1]) for s in order)
     used = set().union(*free) if free else set()
     for r in res:
-        used |= r.free_symbols
+        used |= free_of(r)
     pnames = tuple(str(s) for pv in eq.params for s in pv.symbols if s in used)
     pnames += tuple(str(a.symbol) for a in eq.derived if a.symbol in used)
     inames = tuple(str(s) for iv in eq.inputs for s in iv.symbols if s in used)
@@ -135,12 +152,14 @@ def lower_function(eq: Equations, results: list, assigns: list[Assignment], keys
 def count_ops(exprs) -> int:
     """Arithmetic operations and function calls, counted on the expression trees (cheap)."""
     n = 0
-    for e in exprs:
-        for node in sp.preorder_traversal(e):
-            if node.is_Add or node.is_Mul:
-                n += len(node.args) - 1
-            elif node.is_Pow or node.is_Function or isinstance(node, sp.Piecewise):
-                n += 1
+    stack = list(exprs)  # every node of every tree, as sympy's preorder traversal visits them
+    while stack:
+        node = stack.pop()
+        if node.is_Add or node.is_Mul:
+            n += len(node.args) - 1
+        elif node.is_Pow or node.is_Function or isinstance(node, sp.Piecewise):
+            n += 1
+        stack.extend(node.args)
     return n
 
 
@@ -180,22 +199,25 @@ def lower(eq: Equations, progress=None, linear: bool = True) -> Lowered:
     say = progress or (lambda msg: None)
     n = len(eq.states)
     say("lowering rhs")
-    rhs = lower_function(eq, list(eq.derivatives), list(eq.assignments), list(range(n)))
+    free = free_memo()
+    rhs = lower_function(eq, list(eq.derivatives), list(eq.assignments), list(range(n)),
+                         free=free)
     say("lowering jacobian")
     jkeys = sorted(eq.jacobian)
     jac = lower_function(eq, [eq.jacobian[k] for k in jkeys],
-                         list(eq.assignments) + list(eq.jac_assignments), jkeys)
+                         list(eq.assignments) + list(eq.jac_assignments), jkeys, free=free)
     say("lowering outputs")
     oexprs, okeys = [], []
     for name, shp, vals in eq.outputs:
         for k, v in enumerate(vals):
             oexprs.append(v)
             okeys.append((name, k))
-    outs = lower_function(eq, oexprs, list(eq.assignments), okeys)
+    outs = lower_function(eq, oexprs, list(eq.assignments), okeys, free=free)
     init = lower_function(eq, [sv.initial for sv in eq.states], [], list(range(n)), cse=False)
     derived = tuple(Line(a.symbol, a.expr, a.why) for a in eq.derived)
     lin = lower_linear(eq, progress, jac) if linear else None
     cvals = list(getattr(eq, "constraint_values", ()))
-    cons = lower_function(eq, cvals, list(eq.assignments), list(range(len(cvals)))) \
+    cons = lower_function(eq, cvals, list(eq.assignments), list(range(len(cvals))),
+                          free=free) \
         if cvals else None
     return Lowered(eq, rhs, jac, outs, init, tuple(jkeys), derived, lin, cons)
