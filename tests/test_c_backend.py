@@ -117,13 +117,13 @@ def test_parameter_batches_broadcast_like_numpy(compiled_model):
 
 def _span(name):
     # the references (scipy's Radau on the numpy module at rtol 1e-11) are the cost here:
-    # the rigid 3R2S's (a 21-unknown reaction solve per call, some 4,200 steps and 30,000 calls
-    # over a quarter second) took about 70 CPU s over 0.25 s and about 200 s over 1 s: 0.1 s
-    # keeps some 1,700 reference steps and a few hundred C steps, every one of them through
-    # the reaction solve; the compliant 3R2S's stiff couplings take as many steps over 0.05 s,
-    # and 0.02 s keeps the first of its joints' fast oscillations; the rectifier's 76 s over
-    # 50 periods (15,000 steps), 23 s over the 10 periods kept, each with both diode
-    # switchings; the top's 48 s over 1 s of its 300 rad/s spin, 14 s over 0.3 s (14 turns)
+    # the rigid 3R2S's (a 21-unknown reaction solve per call) took 4,233 steps and 30,149
+    # calls over a quarter second (73 CPU s for the whole test), about 200 s over 1 s: its
+    # first 0.1 s are checked; the compliant 3R2S's stiff couplings take 8,935 steps (62,782 calls, 20
+    # CPU s) over 0.02 s, in which its joint angles move by up to 1e-2 rad (46 CPU s for the
+    # whole test over 0.05 s); the rectifier's 76 s over 50 periods (15,000 steps), 23 s over
+    # the 10 periods kept, each with both diode switchings; the top's 48 s over 1 s of its
+    # 300 rad/s spin, 14 s over 0.3 s (14 turns)
     return {"van_der_pol": (0.0, 0.5), "3r2s": (0.0, 0.02), "3r2s_rigid": (0.0, 0.1),
             "rectifier": (0.0, 0.2), "top": (0.0, 0.3)}.get(name, (0.0, 1.0))
 
