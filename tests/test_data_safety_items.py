@@ -5,6 +5,7 @@ missing-column message. The sweeping table of every output option is test_data_s
 """
 from __future__ import annotations
 
+import functools
 import marshal
 import os
 import subprocess
@@ -354,11 +355,18 @@ def test_cache_clear_on_a_linked_sub_folder_is_a_located_message(tmp_path):
 
 # -- 10: the API's run-time arguments are bounded ----------------------------------------------
 
-@pytest.fixture(scope="module")
-def msd():
+@functools.cache
+def _msd():
     import bgc
 
     return bgc.compile(ROOT / "models" / "msd.yaml")
+
+
+@pytest.fixture
+def msd():
+    # compiled once per worker, not a module-scoped fixture: that would send the whole file
+    # to one worker as one unit (conftest.work_unit), and its CLI tests are independent
+    return _msd()
 
 
 @pytest.mark.parametrize("kwargs,words", [
