@@ -6,6 +6,10 @@ module must be importable standalone: nothing of bgc is on the path for it).
 ``BGC_GENERATED_DIR`` may point at another directory of generated modules.
 
 ``bgc_cli(*args)`` runs the bgc command line and returns the CompletedProcess.
+
+``compiled_model(stem)`` is ``compile_file("models/<stem>.yaml")``, compiled once per worker:
+the golden, symengine and C-backend tests of a model share one compile (their tests of one
+model go to one worker together: ``work_unit``).
 """
 from __future__ import annotations
 
@@ -15,7 +19,7 @@ import re
 import subprocess
 import sys
 import tempfile
-from functools import cache
+from functools import cache, lru_cache
 from pathlib import Path
 
 import pytest
@@ -62,6 +66,20 @@ def gen():
     return _import_generated
 
 
+@lru_cache(maxsize=6)  # a model's tests run one after another (one unit): a few suffice
+def _compiled_model(stem: str):
+    from bgc.run.driver import compile_file
+
+    return compile_file(MODELS / f"{stem}.yaml")
+
+
+@pytest.fixture(scope="session")
+def compiled_model():
+    """``compiled_model(stem)`` -> bgc.run.driver.compile_file of models/<stem>.yaml, once per
+    worker (callers must not change what it returns)."""
+    return _compiled_model
+
+
 def _bgc_command() -> list[str]:
     exe = Path(sys.executable).with_name("bgc")
     if exe.exists():
@@ -86,14 +104,18 @@ def bgc_cli():
 # How the two xdist workers share the work (pytest -n 2). xdist's default hands out single
 # tests, so a module-scoped fixture (a compiled 3R2S scene, a set of FMUs, a Dask cluster) is
 # built by each worker that runs one of its tests. Here a module that has module-scoped
-# fixtures goes to one worker as one unit (so each is built once), the C backend's tests of one
-# model go together (they share its build), and the units holding a test marked slow go
-# first, so that the two workers finish together. (xdist's own `--dist loadgroup` marks do not
-# take under pytest 9: xdist renames node ids through an attribute pytest 9 no longer reads.)
+# fixtures goes to one worker as one unit (so each is built once), the golden, symengine and
+# C-backend tests of one example model go together (they share its compile, ``compiled_model``,
+# and its C build), and the units holding a test marked slow go first, so that the two workers
+# finish together. (xdist's own `--dist loadgroup` marks do not take under pytest 9: xdist
+# renames node ids through an attribute pytest 9 no longer reads.)
 
 _MODULE_SCOPED = re.compile(r"""scope\s*=\s*["']module["']""")
-_C_BACKEND_MODEL = re.compile(r"^tests/test_c_backend\.py::test_(?:rhs_jacobian_outputs_match_"
-                              r"numpy|whole_runs_match_numpy)\[(?:Rodas4-|Radau-)?([^\]]+)\]$")
+# the tests of one example model that share its compile (``compiled_model``) and its C build
+_PER_MODEL = re.compile(
+    r"^tests/(?:test_c_backend\.py::test_(?:rhs_jacobian_outputs_match_numpy|whole_runs_match_"
+    r"numpy)\[(?:Rodas4-|Radau-)?|test_golden\.py::test_compiling_reproduces_the_golden_file\["
+    r"|test_fastsym\.py::test_symengine_equals_sympy\[)([^\]]+?)(?:\.yaml)?\]$")
 
 
 @cache
@@ -104,11 +126,34 @@ def _has_module_fixtures(path: str) -> bool:
         return False
 
 
+# tests of one file that build the same compile-cache entries (the session's cache has no
+# lock: two workers missing one entry at once would both build it): unit name -> node ids
+_SHARED_BUILDS = {
+    "closed_loop_refs:3r2s": re.compile(  # the circle scenes' C builds, compliant and rigid
+        r"^tests/test_closed_loop_refs\.py::test_(?:compliant_3r2s_converges_to_the_rigid_"
+        r"(?:ik|3r2s)|rigid_3r2s_circle_follows_its_own_ik)$"),
+    "model:msd": re.compile(  # test_c_backend's tests on msd's pair
+        r"^tests/test_c_backend\.py::test_(?:closed_form_msd|nonfinite_is_located|other_methods_"
+        r"and_input_overrides_use_the_python_loop|c_rodas4_takes_the_numpy_rodas4_steps|"
+        r"generated_c_is_golden\[msd\])$"),
+    "model:dc_motor": re.compile(  # and on dc_motor's
+        r"^tests/test_c_backend\.py::test_(?:parameter_batches_broadcast_like_numpy|batch_equals_"
+        r"single_runs\[\w+\]|generated_c_is_golden\[dc_motor\])$"),
+    "closed_loop_refs:fourbar": re.compile(  # the four-bars' C builds (its _compiled)
+        r"^tests/test_closed_loop_refs\.py::test_(?:rigid_fourbar_against_the_reference|"
+        r"compliant_fourbar_converges_to_the_(?:rigid_model|reference_as_1_over_k))$"),
+}
+
+
 def work_unit(nodeid: str) -> str:
-    """The unit of work a test goes to a worker in: its module's, its model's, or its own."""
-    m = _C_BACKEND_MODEL.match(nodeid)
+    """The unit of work a test goes to a worker in: its module's, its model's, its shared
+    builds', or its own."""
+    m = _PER_MODEL.match(nodeid)
     if m:
-        return f"c_backend:{m.group(1)}"
+        return f"model:{m.group(1)}"
+    for unit, pattern in _SHARED_BUILDS.items():
+        if pattern.match(nodeid):
+            return unit
     path = nodeid.split("::", 1)[0]
     return path if _has_module_fixtures(path) else nodeid
 

@@ -37,13 +37,14 @@ needs_runtime = pytest.mark.skipif(not HAVE_RUNTIME,
 _built: dict = {}
 
 
-def _pair(name):
-    """(numpy module, C module) of models/<name>.yaml, built once per worker; the C library
-    through the test session's compile cache (the C runtime's objects are built once there,
-    and a model another test file builds for C is built once)."""
+def _pair(name, compiled_model):
+    """(numpy module, C module) of models/<name>.yaml, built once per worker from the model's
+    one compile there (conftest's ``compiled_model``, shared with its golden and symengine
+    tests); the C library through the test session's compile cache (the C runtime's objects
+    are built once there, and a model another test file builds for C is built once)."""
     if name not in _built:
         path = ROOT / "models" / f"{name}.yaml"
-        c = compile_file(path)
+        c = compiled_model(name)
         np_mod = load_module(c.source, f"{name}_np_test")
         _, c_mod = backends.load(f"{name}_c_test", "c", cache_mod.key("c", path), lambda: c,
                                  cache_mod.Cache())
@@ -81,8 +82,8 @@ def _points(m, rng, k=4):
 @needs_cc
 @needs_runtime
 @pytest.mark.parametrize("name", [_param(n) for n in MODELS])
-def test_rhs_jacobian_outputs_match_numpy(name):
-    npm, cm = _pair(name)
+def test_rhs_jacobian_outputs_match_numpy(name, compiled_model):
+    npm, cm = _pair(name, compiled_model)
     # the rigid 3R2S: its rhs and Jacobian go through a 21x21 numeric solve, whose rounding
     # differs between the C runtime's LU and LAPACK's
     rel = 1e-9 if name == "3r2s_rigid" else 1e-12
@@ -105,8 +106,8 @@ def test_rhs_jacobian_outputs_match_numpy(name):
 
 @needs_cc
 @needs_runtime
-def test_parameter_batches_broadcast_like_numpy():
-    npm, cm = _pair("dc_motor")
+def test_parameter_batches_broadcast_like_numpy(compiled_model):
+    npm, cm = _pair("dc_motor", compiled_model)
     p = {"R_a": np.array([1.0, 2.0, 3.0]), "K": np.array([[0.04], [0.06]])}  # batch (2, 3)
     x = npm.X0 + 0.5
     assert cm.rhs(0.1, x, p).shape == npm.rhs(0.1, x, p).shape == (2, 2, 3)
@@ -116,12 +117,16 @@ def test_parameter_batches_broadcast_like_numpy():
 
 def _span(name):
     # the references (scipy's Radau on the numpy module at rtol 1e-11) are the cost here:
-    # the rigid 3R2S's (a 21-unknown reaction solve per call) took about 200 s over 1 s of
-    # motion, and a quarter second still swings every joint; the rectifier's 76 s over 50
-    # periods (15,000 steps), 23 s over the 10 periods kept, each with both diode switchings;
-    # the top's 48 s over 1 s of its 300 rad/s spin, 14 s over 0.3 s (14 turns)
-    return {"van_der_pol": (0.0, 0.5), "3r2s": (0.0, 0.05), "3r2s_rigid": (0.0, 0.25),
-            "rectifier": (0.0, 0.2), "top": (0.0, 0.3)}.get(name, (0.0, 1.0))
+    # the rigid 3R2S's (a 21-unknown reaction solve per call) took 4,233 steps and 30,149
+    # calls over a quarter second (73 CPU s for the whole test), about 200 s over 1 s: its
+    # first 0.1 s are checked; the compliant 3R2S's stiff couplings take 8,935 steps (62,782 calls, 20
+    # CPU s) over 0.02 s, in which its joint angles move by up to 1e-2 rad (46 CPU s for the
+    # whole test over 0.05 s); the rectifier's 76 s over 50 periods (15,000 steps), 23 s over
+    # 10 periods (19 CPU s for the whole test), 5 periods kept, each with both diode
+    # switchings; the top's 48 s over 1 s of its 300 rad/s spin, 14 s over 0.3 s, 0.15 s kept
+    # (7 turns)
+    return {"van_der_pol": (0.0, 0.5), "3r2s": (0.0, 0.02), "3r2s_rigid": (0.0, 0.1),
+            "rectifier": (0.0, 0.1), "top": (0.0, 0.15)}.get(name, (0.0, 1.0))
 
 
 _REFERENCES: dict = {}
@@ -140,11 +145,11 @@ def _reference(name, npm, span, x0, ms):
 @needs_runtime
 @pytest.mark.parametrize("name", [_param(n) for n in MODELS])
 @pytest.mark.parametrize("method", ["Rodas4", "Radau"])
-def test_whole_runs_match_numpy(name, method):
+def test_whole_runs_match_numpy(name, method, compiled_model):
     """C Rodas4 and Radau at rtol 1e-8 (atol 1e-11) against scipy's Radau (numpy module) at
     rtol 1e-11: every state, at every output time, within 1e-5 of its scale plus 1e-7 (states
     that stay near zero, such as stiff joint deflections, are held to the absolute floor)."""
-    npm, cm = _pair(name)
+    npm, cm = _pair(name, compiled_model)
     span = _span(name)
     # off zero head: a square-root orifice has an infinite slope there
     x0 = npm.X0 + 0.1 if name == "two_tanks" else None
@@ -166,8 +171,8 @@ def test_whole_runs_match_numpy(name, method):
 @needs_cc
 @needs_runtime
 @pytest.mark.parametrize("method", ["Rodas4", "Radau"])
-def test_batch_equals_single_runs(method):
-    npm, cm = _pair("dc_motor")
+def test_batch_equals_single_runs(method, compiled_model):
+    npm, cm = _pair("dc_motor", compiled_model)
     Ra = np.array([1.0, 2.0, 4.0, 8.0])
     batch = cm.simulate((0, 0.5), dt=0.01, method=method, rtol=1e-7, p={"R_a": Ra})
     assert batch.x.shape == (2, 4, 51)
@@ -181,9 +186,9 @@ def test_batch_equals_single_runs(method):
 
 @needs_cc
 @needs_runtime
-def test_closed_form_msd():
+def test_closed_form_msd(compiled_model):
     """The mass-spring-damper's step response against its closed form (no bgc code)."""
-    _, cm = _pair("msd")
+    _, cm = _pair("msd", compiled_model)
     m, k, c, F0 = 2.0, 200.0, 4.0, 10.0
     wn, zeta = np.sqrt(k / m), c / (2 * np.sqrt(k * m))
     wd = wn * np.sqrt(1 - zeta ** 2)
@@ -197,9 +202,9 @@ def test_closed_form_msd():
 
 @needs_cc
 @needs_runtime
-def test_nonfinite_is_located():
+def test_nonfinite_is_located(compiled_model):
     """A zero mass makes the velocity p/m non-finite: the error names the state and time."""
-    _, cm = _pair("msd")
+    _, cm = _pair("msd", compiled_model)
     with pytest.raises(cm.SimulationError) as exc:
         cm.simulate((0, 1), dt=0.1, method="Rodas4", p={"m": 0.0})
     msg = str(exc.value)
@@ -210,8 +215,8 @@ def test_nonfinite_is_located():
 
 @needs_cc
 @needs_runtime
-def test_other_methods_and_input_overrides_use_the_python_loop():
-    npm, cm = _pair("msd")
+def test_other_methods_and_input_overrides_use_the_python_loop(compiled_model):
+    npm, cm = _pair("msd", compiled_model)
     a = cm.simulate((0, 1), dt=0.1, method="RK45", rtol=1e-9, atol=1e-12)
     b = npm.simulate((0, 1), dt=0.1, method="RK45", rtol=1e-9, atol=1e-12)
     assert np.allclose(a.x, b.x, rtol=1e-9, atol=1e-12)
@@ -259,8 +264,8 @@ def test_c_comment_cannot_end_the_comment():
 # Golden C sources (scripts/regenerate.py writes them)
 
 @pytest.mark.parametrize("name", ["msd", "dc_motor"])
-def test_generated_c_is_golden(name):
-    c = compile_file(ROOT / "models" / f"{name}.yaml")
+def test_generated_c_is_golden(name, compiled_model):
+    c = compiled_model(name)
     files, wrapper = backends.c_files(c)
     gold = ROOT / "generated" / "c" / name
     assert sorted(p.name for p in gold.glob("*.c")) == sorted(files)
@@ -375,11 +380,11 @@ def test_simulate_backend_c_agrees_with_numpy(tmp_path):
 
 @needs_cc
 @needs_runtime
-def test_c_rodas4_takes_the_numpy_rodas4_steps():
+def test_c_rodas4_takes_the_numpy_rodas4_steps(compiled_model):
     """The C Rodas4 and the numpy module's Rodas4 are two implementations of one method (same
     tableau, error norm and step control): on the step response they take the same steps and
     agree far below the tolerance."""
-    npm, cm = _pair("msd")
+    npm, cm = _pair("msd", compiled_model)
     a = cm.simulate((0, 2), dt=0.01, method="Rodas4", rtol=1e-6, atol=1e-9)
     b = npm.simulate((0, 2), dt=0.01, method="Rodas4", rtol=1e-6, atol=1e-9)
     assert abs(a.stats["nsteps"] - b.stats["nsteps"]) <= max(2, b.stats["nsteps"] // 50)

@@ -11,6 +11,8 @@ singular system and of a non-convergent loop.
 """
 from __future__ import annotations
 
+import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +23,7 @@ from bgc.backends.c import build as cbuild
 from bgc.backends.load import load_module
 from bgc.base.errors import ModelError
 from bgc.format.parse import parse_text
+from bgc.run import cache as cache_mod
 from bgc.run.driver import compile_model
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -50,13 +53,27 @@ def _text(name):
     return (ROOT / "models" / f"{name}.yaml").read_text(), f"{name}.yaml"
 
 
+def _key(name, text, fname):
+    """The C library's key in the test session's compile cache: the model text (written
+    where the key can read it) with symbolic_max=0, bgc's code, the compiler and its flags.
+    Through the cache the C runtime's objects are built once per session, and a model's
+    library once for both workers."""
+    d = Path(tempfile.mkdtemp(prefix="bgc-c-solve-"))
+    (d / fname).write_text(text, encoding="utf-8")
+    try:
+        return cache_mod.key("c", d / fname, extra=f"c_solve:{name}:symbolic_max=0")
+    finally:
+        shutil.rmtree(d, ignore_errors=True)
+
+
 def _pair(name):
     """(compiled, numpy module, C module), every linear system solved numerically."""
     if name not in _built:
         text, fname = _text(name)
         c = compile_model(parse_text(text, fname), symbolic_max=0)
         npm = load_module(c.source, f"solve_{name}_np")
-        _, cm = backends.load(f"solve_{name}_c", "c", None, lambda: c, None)
+        _, cm = backends.load(f"solve_{name}_c", "c", _key(name, text, fname), lambda: c,
+                              cache_mod.Cache())
         _built[name] = (c, npm, cm)
     return _built[name]
 

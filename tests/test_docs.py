@@ -234,11 +234,29 @@ def _needs(line: str):
     return None
 
 
+def run_by_test_readme(line: str) -> bool:
+    """Whether tests/test_readme.py runs this line as written (in a fresh copy of the whole
+    repository, with a private cache: the same check, stricter); such a line is not run twice."""
+    from test_readme import COMMANDS  # (tests/ is on the path, as for conftest)
+
+    return shlex.join(shlex.split(line, comments=True)) in COMMANDS
+
+
+def test_every_readme_command_is_run_here_or_by_test_readme():
+    """The split below loses no line: each README command runs in one of the two files, and
+    the set-up line's own `bgc` command (test_readme.py skips the set-up lines) runs here."""
+    lines = readme_commands()
+    here = [c for c in lines if not run_by_test_readme(c)]
+    assert lines and lines[0] in here and "3r2s_circle" in lines[0]
+    assert len(lines) - len(here) >= 10  # the tour's commands, in test_readme.py
+
+
 @pytest.mark.parametrize("line", [pytest.param(c, marks=[pytest.mark.slow] if any(
-    s in c for s in SLOW) else []) for c in readme_commands()])
+    s in c for s in SLOW) else []) for c in readme_commands() if not run_by_test_readme(c)])
 def test_readme_command_runs(line, tmp_path):
-    """Each command line of the README, as written, from a fresh folder that holds the
-    repository's models (a fresh clone's root): exit status 0, no traceback."""
+    """Each command line of the README that tests/test_readme.py does not run (the set-up
+    line's main job), as written, from a fresh folder that holds the repository's models (a
+    fresh clone's root): exit status 0, no traceback."""
     why = _needs(line)
     if why:
         pytest.skip(why)

@@ -25,10 +25,14 @@ def _points(mod, rng, k=4):
     return [x0 + 0.05 * scale * rng.standard_normal(x0.shape) for _ in range(k)]
 
 
-@pytest.mark.parametrize("model", [m for m in MODELS if m != "3r2s.yaml"] + [
-    pytest.param("3r2s.yaml", marks=pytest.mark.slow)])
-def test_symengine_equals_sympy(model, monkeypatch):
-    fast = load_module(compile_file(ROOT / "models" / model).source, f"fast_{model[:-5]}")
+SLOW = {"3r2s.yaml", "3r2s_rigid.yaml"}  # sympy's own diff and cse of these take tens of seconds
+
+
+@pytest.mark.parametrize("model", [pytest.param(m, marks=pytest.mark.slow) if m in SLOW else m
+                                   for m in MODELS])
+def test_symengine_equals_sympy(model, monkeypatch, compiled_model):
+    # the symengine compile is the one the model's golden and C-backend tests share
+    fast = load_module(compiled_model(model[:-5]).source, f"fast_{model[:-5]}")
     monkeypatch.setattr(fastsym, "se", None)
     slow = load_module(compile_file(ROOT / "models" / model).source, f"slow_{model[:-5]}")
     rng = np.random.default_rng(7)
