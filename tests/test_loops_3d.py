@@ -76,7 +76,9 @@ def test_against_the_lagrange_reference_c(compiled_c):
 
 @pytest.mark.slow
 def test_against_the_lagrange_reference_numpy():
-    t = np.linspace(0.0, 5.0, 501)
+    """The numpy module over the first 2 s (the C module above runs the whole 5 s): the crank
+    swings through more than 1 rad there too, and the bounds are the same."""
+    t = np.linspace(0.0, 2.0, 201)
     _against_reference(_run(bgc.compile(str(MODEL)), t), t)
 
 
