@@ -158,26 +158,20 @@ def test_every_input_invalidates_the_record(tmp_path):
 
 
 def test_options_select_their_own_record(tmp_path):
-    """On the numpy backend: each option selecting its own record does not depend on the
-    backend, and the C default would add a C build (test_replay_equals_the_full_way and
-    test_a_changed_compiler_is_not_replayed replay C runs)."""
     cdir = tmp_path / "cache"
-    np_ = ("--backend", "numpy")
-    a = _bgc("simulate", MSD, *np_, "--out", tmp_path / "a.npz", cache_dir=cdir)
+    a = _bgc("simulate", MSD, "--out", tmp_path / "a.npz", cache_dir=cdir)
     assert a.returncode == 0
-    b = _bgc("simulate", MSD, *np_, "--rtol", "1e-9", "--out", tmp_path / "b.npz",
-             cache_dir=cdir)
+    b = _bgc("simulate", MSD, "--rtol", "1e-9", "--out", tmp_path / "b.npz", cache_dir=cdir)
     assert b.returncode == 0 and not _replayed(b) and "rtol=1e-09" in b.stdout
-    c = _bgc("simulate", MSD, *np_, "--rtol=1e-9", "-q", "--out", tmp_path / "c.npz",
-             cache_dir=cdir)
+    c = _bgc("simulate", MSD, "--rtol=1e-9", "-q", "--out", tmp_path / "c.npz", cache_dir=cdir)
     assert c.returncode == 0 and "rtol=1e-09" in c.stdout
     _same(tmp_path / "b.npz", tmp_path / "c.npz")
-    d = _bgc("simulate", MSD, *np_, "--out", tmp_path / "d.npz", cache_dir=cdir)
+    d = _bgc("simulate", MSD, "--out", tmp_path / "d.npz", cache_dir=cdir)
     assert _replayed(d)
     _same(tmp_path / "a.npz", tmp_path / "d.npz")
     # what a record does not replay goes the full way
     for extra in (["--no-cache"], ["--plot", str(tmp_path / "figs")], ["--method", "BDF"]):
-        p = _bgc("simulate", MSD, *np_, *extra, cache_dir=cdir)
+        p = _bgc("simulate", MSD, *extra, cache_dir=cdir)
         assert p.returncode == 0, p.stderr
         assert not _replayed(p)
     # a usage error is the full way's, from click
