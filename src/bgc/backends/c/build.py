@@ -242,6 +242,40 @@ def _runtime_objects(cache, jobs: int, tmpdir, coord=None) -> list[Path]:
     return sorted(d.glob("*.o"))
 
 
+#: the compile cache's folder -> the thread building the runtime's objects there ahead
+_EARLY: dict = {}
+
+
+def start_runtime(cache) -> None:
+    """Build the runtime's objects into ``cache`` in a background thread, unless they are
+    there already: a cold C compile's Python stages (parse to print, one core) run meanwhile,
+    and :func:`build_library` finds the objects built (it waits for the thread first). The
+    compilers run one at a time, leaving a core to the compile. A failure here is silent:
+    the build then compiles them itself and reports it where it always did. The thread is no
+    daemon: a process that ends early waits for it, so no entry is left half-built."""
+    import threading
+
+    root = str(cache.path)
+    if root in _EARLY:
+        return
+
+    def work():
+        try:
+            _runtime_objects(cache, max(1, (os.cpu_count() or 1) - 1), None)
+        except Exception:  # noqa: BLE001 - reported by the build, which compiles them again
+            pass
+    t = threading.Thread(target=work, name="bgc-c-runtime", daemon=False)
+    _EARLY[root] = t
+    t.start()
+
+
+def _wait_runtime(cache) -> None:
+    """Wait for :func:`start_runtime`'s thread for this cache, if one was started."""
+    t = _EARLY.pop(str(cache.path), None) if cache is not None else None
+    if t is not None:
+        t.join()
+
+
 def build_library(srcdir: Path, files: list[str], cache=None, jobs: int | None = None,
                   extra: tuple[str, ...] = (), lib_name: str = LIB_NAME, coord=None,
                   inputs=None) -> Path:
@@ -264,9 +298,13 @@ def build_library(srcdir: Path, files: list[str], cache=None, jobs: int | None =
     from concurrent.futures import ThreadPoolExecutor
 
     objdir = Path(tempfile.mkdtemp(prefix="bgc-obj-"))
+
+    def runtime():  # (those start_runtime is building: waited for beside the model's units)
+        _wait_runtime(cache)
+        return _runtime_objects(cache, jobs, objdir, coord)
     try:
         with ThreadPoolExecutor(max_workers=jobs) as ex:
-            rt = ex.submit(_runtime_objects, cache, jobs, objdir, coord)
+            rt = ex.submit(runtime)
             objs = list(ex.map(
                 lambda f: (_cc(unit_fl + list(extra) + ["-I", inc, "-c", str(srcdir / f), "-o",
                                                    str(objdir / (Path(f).stem + ".o"))],
