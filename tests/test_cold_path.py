@@ -189,3 +189,26 @@ def test_a_failing_early_runtime_build_is_silent(fresh_cache, monkeypatch):
     assert not cbuild._EARLY
     with pytest.raises(cbuild.CompilerMissing):
         cbuild.build_library(fresh_cache, [], cache=cache)
+
+
+@needs_cc
+def test_a_failing_compile_stops_the_early_runtime_build(tmp_path, fresh_cache, monkeypatch):
+    """A C compile that fails (a user's error) stops the runtime's early build: its error is
+    raised as always, no compiler starts after it, and the cache keeps no runtime entry, whole
+    or half-built."""
+    from bgc.base.errors import ModelError
+    from bgc.base.store import Cache
+
+    started = []
+    real_start = cbuild.start_runtime
+    monkeypatch.setattr(cbuild, "start_runtime", lambda cache: (
+        real_start(cache), started.append(cbuild._EARLY[str(cache.path)]))[0])
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(MSD.read_text(encoding="utf-8").replace("bonds:", "bonds:\n  - [nowhere, m]", 1))
+    with pytest.raises(ModelError):
+        driver.build(bad, backend="c")
+    assert len(started) == 1 and started[0][1].is_set() and not cbuild._EARLY
+    started[0][0].join()
+    assert Cache().get("c-runtime", cbuild.runtime_key()) is None
+    left = list((fresh_cache / "c-runtime").rglob("*"))  # (the compiler's identity stays)
+    assert not [p for p in left if p.suffix == ".o" or p.name.startswith(".")], left

@@ -310,9 +310,15 @@ def load(name: str, backend: str, key: str | None, compile_fn, cache=None, progr
         mod = _cached(cache, backend, key, name, say)
         if mod is not None:
             return None, mod
-    if backend == "c" and cache is not None and key is not None:
+    early = backend == "c" and cache is not None and key is not None
+    if early:
         cbuild.start_runtime(cache)  # gcc on the runtime while the compile runs
-    compiled = compile_fn()
+    try:
+        compiled = compile_fn()
+    except BaseException:
+        if early:  # (a user's error: its compiler stops, the error is said at once)
+            cbuild.stop_runtime(cache)
+        raise
     if backend == "numpy" and (cache is None or key is None):
         return compiled, load_module(compiled.source, name)
     if cache is None or key is None:
