@@ -121,3 +121,94 @@ def test_a_standalone_wrapper_says_what_it_cannot_do(tmp_path, fresh_cache):
     assert mod.simulate((0.0, 1.0)).x.shape == (2, 1001)
     with pytest.raises(RuntimeError, match="numpy module"):
         mod.rhs(0.0, mod.X0, u={"F": lambda t: 0.0})
+
+
+def test_the_c_sources_print_with_the_collector_paused(monkeypatch):
+    """The C stages print with the cyclic collector off (its full passes over the compile's
+    objects found nothing and cost as much as the printing), and leave it as they found it,
+    also when the printer fails."""
+    import gc
+
+    from bgc.backends.c import printer as cprinter
+
+    seen = []
+    real = cprinter.render_c
+    monkeypatch.setattr(cprinter, "render_c",
+                        lambda *a, **k: (seen.append(gc.isenabled()), real(*a, **k))[1])
+    c = driver.compile_source(MSD, target="c")
+    assert gc.isenabled()
+    c_files(c)
+    assert seen == [False] and gc.isenabled()
+
+    def broken(*a, **k):
+        raise RuntimeError("printer failed")
+    monkeypatch.setattr(cprinter, "render_c", broken)
+    with pytest.raises(RuntimeError, match="printer failed"):
+        c_files(c)
+    assert gc.isenabled()
+
+
+@needs_cc
+def test_the_runtime_builds_beside_the_compile(fresh_cache, monkeypatch):
+    """A cold C build starts the compiler on the runtime's objects before the compile runs
+    (a background thread); the library links what it built, each runtime source compiled
+    once, and the thread is done when the build returns."""
+    from bgc.base.store import Cache
+
+    order, compiled = [], []
+    real_start, real_cc = cbuild.start_runtime, cbuild._cc
+    monkeypatch.setattr(cbuild, "start_runtime", lambda cache: (order.append("runtime"),
+                                                                real_start(cache))[1])
+    monkeypatch.setattr(cbuild, "_cc", lambda args, *a, **k: (compiled.append(args),
+                                                              real_cc(args, *a, **k))[1])
+    real_compile = driver.compile_source
+    monkeypatch.setattr(driver, "compile_source",
+                        lambda *a, **k: (order.append("compile"), real_compile(*a, **k))[1])
+    b = driver.build(MSD, backend="c")
+    assert order == ["runtime", "compile"]
+    rt_dir = cbuild.runtime_sources()[0].parent
+    runtime_objs = [a[a.index("-o") + 1] for a in compiled
+                    if "-c" in a and Path(a[a.index("-c") + 1]).parent == rt_dir]
+    names = sorted(Path(o).name for o in runtime_objs)
+    assert names == sorted(s.stem + ".o" for s in cbuild.runtime_sources())  # once each
+    assert Cache().get("c-runtime", cbuild.runtime_key()) is not None
+    assert not cbuild._EARLY  # joined
+    x = b.module.simulate((0.0, 0.5)).x
+    assert np.isfinite(x).all()
+
+
+def test_a_failing_early_runtime_build_is_silent(fresh_cache, monkeypatch):
+    """Without a compiler, the early runtime build says nothing; the build reports it as it
+    always did (one error, no compiler)."""
+    from bgc.base.store import Cache
+
+    monkeypatch.setenv("CC", "/nonexistent/cc")
+    cache = Cache()
+    cbuild.start_runtime(cache)
+    cbuild._wait_runtime(cache)  # (nothing raised in or by the thread)
+    assert not cbuild._EARLY
+    with pytest.raises(cbuild.CompilerMissing):
+        cbuild.build_library(fresh_cache, [], cache=cache)
+
+
+@needs_cc
+def test_a_failing_compile_stops_the_early_runtime_build(tmp_path, fresh_cache, monkeypatch):
+    """A C compile that fails (a user's error) stops the runtime's early build: its error is
+    raised as always, no compiler starts after it, and the cache keeps no runtime entry, whole
+    or half-built."""
+    from bgc.base.errors import ModelError
+    from bgc.base.store import Cache
+
+    started = []
+    real_start = cbuild.start_runtime
+    monkeypatch.setattr(cbuild, "start_runtime", lambda cache: (
+        real_start(cache), started.append(cbuild._EARLY[str(cache.path)]))[0])
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(MSD.read_text(encoding="utf-8").replace("bonds:", "bonds:\n  - [nowhere, m]", 1))
+    with pytest.raises(ModelError):
+        driver.build(bad, backend="c")
+    assert len(started) == 1 and started[0][1].is_set() and not cbuild._EARLY
+    started[0][0].join()
+    assert Cache().get("c-runtime", cbuild.runtime_key()) is None
+    left = list((fresh_cache / "c-runtime").rglob("*"))  # (the compiler's identity stays)
+    assert not [p for p in left if p.suffix == ".o" or p.name.startswith(".")], left

@@ -424,3 +424,27 @@ def test_numpy_rolled_ladder_run_matches_hand_written_scipy(tmp_path):
     scale = np.abs(ref.y).max()
     assert scale > 1e-4
     assert np.abs(np.asarray(r.x) - ref.y).max() <= 1e-6 * scale
+
+
+def test_a_function_is_rolled_once_whichever_printer_asks(tmp_path, monkeypatch):
+    """The C parts and the numpy module printed from one compile share the rolls: each
+    function of the IR is rolled once (the numpy module, printed after the C sources, finds
+    the rhs's and the Jacobian's rolls made for them), and the rolled texts are the same as
+    from a fresh roll."""
+    (tmp_path / "m.yaml").write_text(ladder(30))
+    comp = compile_model(parse_file(tmp_path / "m.yaml"), target="c")
+    calls = []
+    real = rr._reroll
+    monkeypatch.setattr(rr, "_reroll", lambda fn, *a: (calls.append(fn), real(fn, *a))[1])
+    files = c_files(comp)[0]
+    low = comp.lowered
+    assert sum(f is low.rhs for f in calls) == 1 and sum(f is low.jac for f in calls) == 1
+    source = comp.source  # the numpy module: rhs, Jacobian and outputs vectorised
+    assert "_w[" in source
+    assert sum(f is low.rhs for f in calls) == 1 and sum(f is low.jac for f in calls) == 1
+    assert len(calls) == len({id(f) for f in calls})  # no function rolled twice
+    ctx = PartContext(low)
+    assert rr.reroll(low.rhs, ctx.state_syms, ctx.param_syms) is \
+        rr.reroll(low.rhs, ctx.state_syms, ctx.param_syms)
+    rr._DONE.clear()  # a fresh roll of everything prints the same text
+    assert c_files(comp)[0] == files

@@ -7,6 +7,8 @@ module without importing sympy or the compiler; on a miss it compiles (the calle
 """
 from __future__ import annotations
 
+import contextlib
+import gc
 import shutil
 import sys
 import time
@@ -35,9 +37,34 @@ def _timed(times, stage: str, t0: float) -> float:
     return now
 
 
+@contextlib.contextmanager
+def _gc_paused():
+    """The cyclic collector off for the block, its survivors moved to the oldest generation
+    as it ends (bgc.run.driver.gc_paused's pause, for the C stages that run after the compile:
+    this floor cannot import it). A compile's results are hundreds of thousands of objects
+    that the printers keep alive; the collector's full passes over them during printing found
+    nothing and cost as much as the printing (a 3000-node ladder: one full pass of about 1 s of
+    CPU inside "print C": bench/bench_cstages.py, docs/performance.md)."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            if gc.get_freeze_count() == 0:  # (a host's own frozen objects stay frozen)
+                gc.freeze()
+                gc.unfreeze()
+            gc.enable()
+
+
 def c_files(compiled, times: list | None = None) -> tuple[dict, str]:
     """(C sources by file name, wrapper text) of a compiled model; ``times`` (a list) gets
-    the stages' seconds ("print C", "wrapper")."""
+    the stages' seconds ("print C", "wrapper"). The collector is paused while they print."""
+    with _gc_paused():
+        return _c_files(compiled, times)
+
+
+def _c_files(compiled, times: list | None) -> tuple[dict, str]:
     # lazy: the compile path, which a warm run never loads
     from bgc.backends.c.printer import render_c, render_wrapper
 
@@ -283,7 +310,15 @@ def load(name: str, backend: str, key: str | None, compile_fn, cache=None, progr
         mod = _cached(cache, backend, key, name, say)
         if mod is not None:
             return None, mod
-    compiled = compile_fn()
+    early = backend == "c" and cache is not None and key is not None
+    if early:
+        cbuild.start_runtime(cache)  # gcc on the runtime while the compile runs
+    try:
+        compiled = compile_fn()
+    except BaseException:
+        if early:  # (a user's error: its compiler stops, the error is said at once)
+            cbuild.stop_runtime(cache)
+        raise
     if backend == "numpy" and (cache is None or key is None):
         return compiled, load_module(compiled.source, name)
     if cache is None or key is None:

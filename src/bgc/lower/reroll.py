@@ -28,6 +28,7 @@ bench/RESULTS_reroll.md); below it, and in a function without repetition, nothin
 from __future__ import annotations
 
 import itertools
+import weakref
 from dataclasses import dataclass
 
 import sympy as sp
@@ -113,7 +114,9 @@ class Rolled:
 
 
 class _Shapes:
-    """Shapes by hash-consing: one number per distinct (role-replaced) tree."""
+    """Shapes by hash-consing: one number per distinct (role-replaced) tree. Each node's shape
+    and leaves are computed once (memoised on the node object: a subtree that lines share, an
+    atom read many times, the sort keys of :func:`_canonical`)."""
 
     def __init__(self, states, params, temps):
         self.ids: dict = {}
@@ -121,7 +124,9 @@ class _Shapes:
         self.params = {s: k for k, s in enumerate(params)}
         self.temps = temps
         self.fresh = itertools.count(-1, -1)
-        self.memo: dict = {}  # atom -> leaf()
+        # id(node) -> (node, shape id or None, its leaves): the node is held, so its id stays
+        # its own while the memo lives (one pass)
+        self.memo: dict = {}
 
     def id(self, key) -> int:
         got = self.ids.get(key)
@@ -129,14 +134,8 @@ class _Shapes:
             got = self.ids[key] = len(self.ids)
         return got
 
-    def leaf(self, e):
-        """(shape id, the leaf as (array, index or symbol, symbol), or None) of an atom."""
-        got = self.memo.get(e)
-        if got is None:
-            got = self.memo[e] = self._leaf(e)
-        return got
-
     def _leaf(self, e):
+        """(shape id, the leaf as (array, index or symbol, symbol), or None) of an atom."""
         if e.is_Symbol:
             if e in self.states:
                 return self.id("x"), ("x", self.states[e], e)
@@ -147,47 +146,52 @@ class _Shapes:
             return self.id(("s", e)), None
         return self.id(("n", type(e).__name__, e)), None
 
-    def shape(self, e, leaves: list | None):
-        """The shape id of an expression (None for what cannot be rolled: numeric solves);
-        its leaves appended to ``leaves`` in canonical order."""
+    def of(self, e) -> tuple:
+        """(node, shape id or None for what cannot be rolled (numeric solves), its leaves in
+        canonical order as a tuple)."""
+        got = self.memo.get(id(e))
+        if got is None:
+            got = self.memo[id(e)] = (e,) + self._shape(e)
+        return got
+
+    def shape(self, e) -> int | None:
+        return self.of(e)[1]
+
+    def _shape(self, e) -> tuple:
         args = e.args
         if not args:
-            sid, lf = self.leaf(e)
-            if lf is not None and leaves is not None:
-                leaves.append(lf)
-            return sid
+            sid, lf = self._leaf(e)
+            return sid, (() if lf is None else (lf,))
         if isinstance(e, _OPAQUE):
-            return None
-        if not (e.is_Add or e.is_Mul):  # arguments in their order: leaves straight in
-            kids = []
-            for a in args:
-                k = self.shape(a, leaves)
-                if k is None:
-                    return None
-                kids.append(k)
-            return self.id((e.func, tuple(kids)))
-        pairs = []
+            return None, ()
+        memo, kids = self.memo, []
         for a in args:
-            sub: list | None = [] if leaves is not None else None
-            k = self.shape(a, sub)
-            if k is None:
-                return None
-            pairs.append((k, sub))
-        pairs.sort(key=lambda kv: kv[0])
-        if leaves is not None:
-            for _, sub in pairs:
-                leaves.extend(sub)
-        return self.id((e.func, tuple(k for k, _ in pairs)))
+            got = memo.get(id(a))
+            if got is None:
+                got = memo[id(a)] = (a,) + self._shape(a)
+            if got[1] is None:
+                return None, ()
+            kids.append(got)
+        if e.is_Add or e.is_Mul:  # arguments in one order, by their shapes (a stable sort)
+            kids.sort(key=_SID)
+        leaves = kids[0][2] if len(kids) == 1 else tuple(
+            lf for k in kids for lf in k[2])
+        return self.id((e.func, tuple(k[1] for k in kids))), leaves
+
+
+def _SID(entry) -> int:
+    return entry[1]
 
 
 def _canonical(e, shapes: _Shapes, make):
     """The expression rebuilt with its sum and product arguments in canonical order (that of
-    :meth:`_Shapes.shape`) and its k-th leaf replaced by ``make(leaf)``."""
+    :meth:`_Shapes.of`) and its k-th leaf replaced by ``make(leaf)``."""
     if not e.args:
-        return make(shapes.leaf(e)[1]) if shapes.leaf(e)[1] is not None else e
+        leaves = shapes.of(e)[2]
+        return make(leaves[0]) if leaves else e
     kids = list(e.args)
     if e.is_Add or e.is_Mul:
-        kids.sort(key=lambda a: shapes.shape(a, None))
+        kids.sort(key=shapes.shape)
     return _rebuilt(e, tuple(_canonical(a, shapes, make) for a in kids))
 
 
@@ -223,11 +227,30 @@ def _runs(seq: list, min_run: int) -> list[tuple[int, int, int]]:
     return out
 
 
+#: id(function) -> (a weak reference to it, {(states, params, min_run): its Rolled}): each
+#: function of the IR is rolled once, whichever printers ask (the C parts, the numpy module
+#: printed beside them); an entry goes with its function
+_DONE: dict = {}
+
+
 def reroll(fn: Function, states, params, min_run: int | None = None) -> Rolled:
     """The function's body with its runs of :data:`MIN_RUN` or more repetitions as loops.
     ``states`` and ``params``: the symbols of the state and parameter vectors, in order (the
-    indices the loops read them at)."""
+    indices the loops read them at). Computed once per function and arguments (the IR is
+    immutable; a :class:`Rolled` is only read)."""
     min_run = max(2, MIN_RUN if min_run is None else min_run)
+    key = (tuple(states), tuple(params), min_run)
+    k = id(fn)
+    entry = _DONE.get(k)
+    if entry is None or entry[0]() is not fn:
+        entry = _DONE[k] = (weakref.ref(fn, lambda _: _DONE.pop(k, None)), {})
+    got = entry[1].get(key)
+    if got is None:
+        got = entry[1][key] = _reroll(fn, states, params, min_run)
+    return got
+
+
+def _reroll(fn: Function, states, params, min_run: int) -> Rolled:
     items = tuple(fn.lines) + tuple(Result(k, r) for k, (_, r) in enumerate(fn.results))
     if len(items) < min_run:  # too short for a run (or the pass switched off)
         return Rolled(items, {}, 0)
@@ -241,8 +264,10 @@ def reroll(fn: Function, states, params, min_run: int | None = None) -> Rolled:
     leaves: list = []
     for kind, e in itertools.chain((("line", ln.expr) for ln in fn.lines),
                                    (("out", r) for _, r in fn.results)):
-        lv: list = []
-        sid = shapes.shape(e, lv) if kind == "out" or not e.is_Symbol or e not in vec else None
+        if kind == "line" and e.is_Symbol and e in vec:
+            sid, lv = None, ()
+        else:
+            _, sid, lv = shapes.of(e)
         seq.append(next(shapes.fresh) if sid is None else shapes.id((kind, sid)))
         leaves.append(lv)
     runs = _runs(seq, min_run)

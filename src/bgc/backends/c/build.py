@@ -219,8 +219,13 @@ def _cc(args: list[str], cwd: Path, coord=None) -> None:
                                     f"{Path(target).name}: {oneline(what, 300)}")
 
 
-def _runtime_objects(cache, jobs: int, tmpdir, coord=None) -> list[Path]:
-    """The runtime's object files, compiled once per (sources, compiler, flags)."""
+class _Stopped(Exception):
+    """An early runtime build stopped because its compile failed (nothing is kept)."""
+
+
+def _runtime_objects(cache, jobs: int, tmpdir, coord=None, stop=None) -> list[Path]:
+    """The runtime's object files, compiled once per (sources, compiler, flags). ``stop`` (a
+    threading.Event): set, no further source is started and the entry is not made."""
     fl = list(flags() + RUNTIME_FLAGS)
     key = runtime_key()
 
@@ -229,9 +234,14 @@ def _runtime_objects(cache, jobs: int, tmpdir, coord=None) -> list[Path]:
 
         inc = runtime_sources()[0].parent if runtime_sources() else tmp
         srcs = runtime_sources()
+
+        def one(s):
+            if stop is not None and stop.is_set():
+                raise _Stopped
+            _cc(fl + ["-I", str(inc), "-c", str(s), "-o", str(tmp / (s.stem + ".o"))], tmp,
+                coord)
         with ThreadPoolExecutor(max_workers=jobs) as ex:
-            list(ex.map(lambda s: _cc(fl + ["-I", str(inc), "-c", str(s), "-o",
-                                            str(tmp / (s.stem + ".o"))], tmp, coord), srcs))
+            list(ex.map(one, srcs))
 
     if cache is not None:
         d = cache.get_or_build("c-runtime", key, build)
@@ -240,6 +250,52 @@ def _runtime_objects(cache, jobs: int, tmpdir, coord=None) -> list[Path]:
         d.mkdir()
         build(d)
     return sorted(d.glob("*.o"))
+
+
+#: the compile cache's folder -> (the thread building the runtime's objects there ahead, the
+#: event that stops it)
+_EARLY: dict = {}
+
+
+def start_runtime(cache) -> None:
+    """Build the runtime's objects into ``cache`` in a background thread, unless they are
+    there already: a cold C compile's Python stages (parse to print, one core) run meanwhile,
+    and :func:`build_library` finds the objects built (it waits for the thread first). The
+    compilers run one at a time, leaving a core to the compile. A failure here is silent:
+    the build then compiles them itself and reports it where it always did. A compile that
+    fails stops the thread (:func:`stop_runtime`: no source started after, no entry made);
+    the thread is no daemon, so a process that ends waits for its last compiler and leaves
+    nothing half-built."""
+    import threading
+
+    root = str(cache.path)
+    if root in _EARLY:
+        return
+    stop = threading.Event()
+
+    def work():
+        try:
+            _runtime_objects(cache, max(1, (os.cpu_count() or 1) - 1), None, stop=stop)
+        except Exception:  # noqa: BLE001 - reported by the build, which compiles them again
+            pass
+    t = threading.Thread(target=work, name="bgc-c-runtime", daemon=False)
+    _EARLY[root] = (t, stop)
+    t.start()
+
+
+def stop_runtime(cache) -> None:
+    """Stop :func:`start_runtime`'s thread for this cache (its compile failed): the compiler
+    running finishes, no other starts, nothing is kept."""
+    got = _EARLY.pop(str(cache.path), None)
+    if got is not None:
+        got[1].set()
+
+
+def _wait_runtime(cache) -> None:
+    """Wait for :func:`start_runtime`'s thread for this cache, if one was started."""
+    got = _EARLY.pop(str(cache.path), None) if cache is not None else None
+    if got is not None:
+        got[0].join()
 
 
 def build_library(srcdir: Path, files: list[str], cache=None, jobs: int | None = None,
@@ -264,9 +320,13 @@ def build_library(srcdir: Path, files: list[str], cache=None, jobs: int | None =
     from concurrent.futures import ThreadPoolExecutor
 
     objdir = Path(tempfile.mkdtemp(prefix="bgc-obj-"))
+
+    def runtime():  # (those start_runtime is building: waited for beside the model's units)
+        _wait_runtime(cache)
+        return _runtime_objects(cache, jobs, objdir, coord)
     try:
         with ThreadPoolExecutor(max_workers=jobs) as ex:
-            rt = ex.submit(_runtime_objects, cache, jobs, objdir, coord)
+            rt = ex.submit(runtime)
             objs = list(ex.map(
                 lambda f: (_cc(unit_fl + list(extra) + ["-I", inc, "-c", str(srcdir / f), "-o",
                                                    str(objdir / (Path(f).stem + ".o"))],

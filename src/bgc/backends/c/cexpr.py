@@ -62,6 +62,12 @@ def c_name(name: str) -> str:
     return name
 
 
+def c_sym(sym) -> str:
+    """:func:`c_name` of a symbol's text: a plain Symbol's name read directly (``str`` runs
+    sympy's printer, about 20 us a call: a large model's C names cost a second that way)."""
+    return c_name(sym.name if type(sym) is sp.Symbol else str(sym))
+
+
 class CPrinter(FastPrinting, C99CodePrinter):
     """C99 printer writing the numpy printer's cheap forms; strict: an unknown function is an
     error, never a comment in the code; each expression printed without sympy's per-call

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import sympy as sp
 
-from bgc.backends.c.cexpr import CPrinter, c_comment, c_name
+from bgc.backends.c.cexpr import CPrinter, c_comment, c_sym
 from bgc.core.eqtypes import LinSolve, LinSolveEntry, NewtonSolve
 from bgc.core.equations import T
 from bgc.lower.ir import Lowered
@@ -145,18 +145,18 @@ def cut_parts(name: str, fn, printer: CPrinter, ctx: PartContext, limit: int = P
         # inputs used (directly); their defaults bring t and parameters; a table input is
         # its table's function of t
         inputs = [s for s in ctx.input_syms if s in used and s not in ctx.table_of]
-        tabs = tuple((c_name(str(s)), ctx.table_of[s], ctx.table_fail(ctx.table_of[s]))
+        tabs = tuple((c_sym(s), ctx.table_of[s], ctx.table_fail(ctx.table_of[s]))
                      for s in ctx.input_syms if s in used and s in ctx.table_of)
         need_p = set(used)
         for s in inputs:
             need_p |= ctx.input_default[s].free_symbols
         uses_t = uses_t or T in need_p or bool(tabs)
-        params = tuple((c_name(str(s)), k) for k, s in enumerate(ctx.param_syms) if s in need_p)
-        ins = tuple((c_name(str(s)), printer.doprint(ctx.input_default[s])) for s in inputs)
-        states = tuple((c_name(str(s)), k) for k, s in enumerate(ctx.state_syms) if s in used)
-        imports = tuple((c_name(str(s)), slots[s]) for s in order
+        params = tuple((c_sym(s), k) for k, s in enumerate(ctx.param_syms) if s in need_p)
+        ins = tuple((c_sym(s), printer.doprint(ctx.input_default[s])) for s in inputs)
+        states = tuple((c_sym(s), k) for k, s in enumerate(ctx.state_syms) if s in used)
+        imports = tuple((c_sym(s), slots[s]) for s in order
                         if s in used and defined_in[s] < ci and s not in vsize)
-        vimports = tuple((c_name(str(s)), slots[s]) for s in order
+        vimports = tuple((c_sym(s), slots[s]) for s in order
                          if s in used and defined_in[s] < ci and s in vsize)
         lines = []
         fallible, newton = any(f for _, _, f in tabs), False
@@ -181,7 +181,7 @@ def cut_parts(name: str, fn, printer: CPrinter, ctx: PartContext, limit: int = P
             if tgt is None:
                 lines.append(CLine("", code, "", k))
             else:
-                lines.append(CLine(c_name(str(tgt)), code, why, -1, slots.get(tgt, -1)))
+                lines.append(CLine(c_sym(tgt), code, why, -1, slots.get(tgt, -1)))
         parts.append(Part(f"bgcm_{name}_{ci}", params, ins, states, imports, tuple(lines),
                           vimports, tabs, fallible, newton,
                           tuple((nm, _table_text(v)) for v, nm in tables.items())))
@@ -228,7 +228,7 @@ def _solve_line(tgt, e, why, export, n, printer, ctx, lus: dict) -> CLine:
     """The C line of a numeric solve's result (an array of n values). Solves with the same
     matrix in one part (the Jacobian's columns through a solve: d(A^-1 b) = A^-1 (db - dA x))
     share one LU."""
-    target = c_name(str(tgt))
+    target = c_sym(tgt)
     if isinstance(e, LinSolve):
         a = tuple(printer.doprint(v) for v in e.args[1:1 + n * n])
         b = tuple(printer.doprint(v) for v in e.args[1 + n * n:])
@@ -244,7 +244,7 @@ def _solve_line(tgt, e, why, export, n, printer, ctx, lus: dict) -> CLine:
                              f"bgc_ws ? bgc_ws + {ctx.newton_ws[k]} : NULL, {target})",
                      why, -1, export, "newton", n, (), (), ctx.newton_ws[k],
                      ctx.fail_code(ctx.newton_message(k)))
-    return CLine(target, c_name(str(e)), why, -1, export, "alias", n)
+    return CLine(target, c_sym(e), why, -1, export, "alias", n)
 
 
 class PartContext:

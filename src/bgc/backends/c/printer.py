@@ -30,6 +30,7 @@ from bgc.backends.c.cexpr import (  # noqa: F401 (the C text helpers, as printer
     c_comment,
     c_name,
     c_string_literal,
+    c_sym,
 )
 from bgc.backends.c.events import c_events, event_parts
 from bgc.backends.c.parts import PART_LINES, UNIT_PARTS, PartContext, cut_parts
@@ -104,11 +105,11 @@ def render_c(low: Lowered, *, source: str, source_hash: str, description: str = 
            (("rhs", low.rhs), ("jac", low.jac), ("outputs", low.outs), ("init", low.init))
            + ((("cons", low.cons),) if getattr(low, "cons", None) is not None else ())}
     events = c_events(eq, lambda name, fn: cut_parts(name, fn, printer, ctx, PART_LINES))
-    names = [c_name(str(s)) for s in ctx.param_syms + ctx.state_syms + ctx.input_syms]
-    names += [c_name(str(a.symbol)) for a in eq.assignments + eq.jac_assignments]
+    names = [c_sym(s) for s in ctx.param_syms + ctx.state_syms + ctx.input_syms]
+    names += [c_sym(a.symbol) for a in eq.assignments + eq.jac_assignments]
     for nm in names:
         assert nm.isidentifier() and nm.isascii(), nm
-    if len(set(c_name(str(s)) for s in ctx.param_syms + ctx.state_syms + ctx.input_syms)) != \
+    if len(set(c_sym(s) for s in ctx.param_syms + ctx.state_syms + ctx.input_syms)) != \
             len(ctx.param_syms) + len(ctx.state_syms) + len(ctx.input_syms):
         raise AssertionError("two model identifiers map to one C name")
     all_parts = [p for f in fns.values() for p in f.parts] + event_parts(events)
@@ -162,7 +163,7 @@ def _newton_protos(ctx) -> list[str]:
     """The prototypes of the Newton loops' functions (model_newton.c)."""
     out = []
     for k, nl in enumerate(ctx.newton):
-        args = "".join(f"double {c_name(str(a))}, " for a in nl.args)
+        args = "".join(f"double {c_sym(a)}, " for a in nl.args)
         out.append(f"int bgcm_newton_{k}({args}double *restrict bgc_warm, "
                    "double *restrict bgc_z)")
     return out
@@ -176,9 +177,9 @@ def _newton_loops(ctx, printer) -> list[dict]:
         gd = guarded(nl)  # exponentials guarded and listed (bgc.lower.newton)
         loops.append({
             "proto": protos[k], "n": len(nl.tear), "where": nl.where,
-            "args": [c_name(str(a)) for a in nl.args],
-            "tear": [c_name(str(t)) for t in nl.tear],
-            "body": [(c_name(str(sym)), printer.doprint(e)) for sym, e in gd["body"]],
+            "args": [c_sym(a) for a in nl.args],
+            "tear": [c_sym(t) for t in nl.tear],
+            "body": [(c_sym(sym), printer.doprint(e)) for sym, e in gd["body"]],
             "residual": [printer.doprint(e) for e in gd["residual"]],
             "jac": [printer.doprint(e) for e in gd["jac"]],
             "exponents": [printer.doprint(e) for e in gd["exponents"]]})
