@@ -7,8 +7,6 @@ module without importing sympy or the compiler; on a miss it compiles (the calle
 """
 from __future__ import annotations
 
-import contextlib
-import gc
 import shutil
 import sys
 import time
@@ -20,6 +18,7 @@ from bgc.base import (
     BACKENDS,  # noqa: F401 (the one list, re-exported)
     __version__,
 )
+from bgc.base.collector import gc_paused
 from bgc.base.outfiles import write_output
 from bgc.base.safeio import read_bytes
 from bgc.base.store import Cache, UnsafeCache
@@ -37,30 +36,10 @@ def _timed(times, stage: str, t0: float) -> float:
     return now
 
 
-@contextlib.contextmanager
-def _gc_paused():
-    """The cyclic collector off for the block, its survivors moved to the oldest generation
-    as it ends (bgc.run.driver.gc_paused's pause, for the C stages that run after the compile:
-    this floor cannot import it). A compile's results are hundreds of thousands of objects
-    that the printers keep alive; the collector's full passes over them during printing found
-    nothing and cost as much as the printing (a 3000-node ladder: one full pass of about 1 s of
-    CPU inside "print C": bench/bench_cstages.py, docs/performance.md)."""
-    was = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if was:
-            if gc.get_freeze_count() == 0:  # (a host's own frozen objects stay frozen)
-                gc.freeze()
-                gc.unfreeze()
-            gc.enable()
-
-
 def c_files(compiled, times: list | None = None) -> tuple[dict, str]:
     """(C sources by file name, wrapper text) of a compiled model; ``times`` (a list) gets
     the stages' seconds ("print C", "wrapper"). The collector is paused while they print."""
-    with _gc_paused():
+    with gc_paused():
         return _c_files(compiled, times)
 
 
