@@ -249,17 +249,21 @@ def _pyrepr(v) -> str:
 def render(eq: Equations, *, source: str, source_hash: str, description: str = "",
            header_notes: tuple[str, ...] = (), progress=None,
            output_units: dict | None = None, input_units: dict | None = None,
-           lowered=None, equations: bool = True, check: bool = True) -> str:
+           lowered=None, equations: bool = True, check: bool = True,
+           linear: bool = True) -> str:
     """The numpy module's text; ``lowered`` (the model's :func:`bgc.lower.ir.lower`) is made
     here unless given, so that several backends can share one lowering.
 
     ``equations=False``: the module without its equation functions (rhs, jacobian, outputs,
     initial_state, input_jacobian, output_jacobian and what only they call): names,
     parameters, metadata and the runtime, for the C backend's wrapper, whose binding supplies
-    those functions. ``check=False``: the caller checks the text (the wrapper's one check)."""
+    those functions. ``check=False``: the caller checks the text (the wrapper's one check).
+    ``linear=False``: input_jacobian and output_jacobian (so linearize) only raise an error
+    that names the fix (a scene's runs never call them; B, C, D cost a fair share of the
+    compile)."""
     printer = BgcPrinter()
     low = lowered if lowered is not None else lower.lower(eq, progress)
-    fns = _printed_functions(eq, low, printer, progress, equations)
+    fns = _printed_functions(eq, low, printer, progress, equations, linear)
     events = events_part(eq, printer, printed)  # None without events: the module is unchanged
     newton = _newton_parts(eq, printer) if equations or events else []
     if newton:
@@ -307,9 +311,10 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
     return text
 
 
-def _printed_functions(eq: Equations, low, printer, progress, equations: bool) -> dict:
-    """The template's functions, printed (None each without ``equations``), and the labels of
-    the linearisation's inputs and outputs."""
+def _printed_functions(eq: Equations, low, printer, progress, equations: bool,
+                       linear: bool = True) -> dict:
+    """The template's functions, printed (None each without ``equations``; ujac and yjac None
+    without ``linear``), and the labels of the linearisation's inputs and outputs."""
     if not equations:
         ilabels, olabels = linear_labels(eq)
         return dict(rhs=None, jac=None, outs=None, init=None, ujac=None, yjac=None, cons=None,
@@ -325,11 +330,17 @@ def _printed_functions(eq: Equations, low, printer, progress, equations: bool) -
     # a vectorised Jacobian's values scattered into the dense matrix at JAC_SPARSITY's entries
     jac_index = (tables.ref(tuple(k[0] for k in low.jac_keys)),
                  tables.ref(tuple(k[1] for k in low.jac_keys))) if jac.rolled else None
-    lin = low.linear if low.linear is not None else lower.lower_linear(eq, progress, low.jac)
     cons = printed(low.cons, printer) if getattr(low, "cons", None) is not None else None
-    return dict(rhs=rhs, jac=jac, outs=outs, init=init, cons=cons, ujac=printed(lin.ujac, printer),
-                yjac=printed(lin.yjac, printer), input_labels=lin.input_labels,
-                output_labels=lin.output_labels, index_tables=tables.literals,
+    if linear:
+        lin = low.linear if low.linear is not None else lower.lower_linear(eq, progress, low.jac)
+        ujac, yjac = printed(lin.ujac, printer), printed(lin.yjac, printer)
+        ilabels, olabels = lin.input_labels, lin.output_labels
+    else:
+        ujac = yjac = None
+        ilabels, olabels = linear_labels(eq)
+    return dict(rhs=rhs, jac=jac, outs=outs, init=init, cons=cons, ujac=ujac,
+                yjac=yjac, input_labels=ilabels,
+                output_labels=olabels, index_tables=tables.literals,
                 jac_index=jac_index,
                 out_ranges=_out_ranges(eq, low.outs))
 
