@@ -41,7 +41,7 @@ A_, B_, C_, D_ = [[-1 / (R * C)]], [[1 / R]], [[1.0], [-1 / (R * C)]], [[0.0], [
 
 def cli(*args):
     return subprocess.run([sys.executable, "-m", "bgc", *map(str, args)], capture_output=True,
-                          text=True, timeout=600)
+                          text=True, timeout=600, check=False)
 
 
 def load(path, name):

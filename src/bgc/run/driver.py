@@ -196,7 +196,8 @@ def compile_model(model: Model, progress=None, plan: Plan | None = None,
                   linear: bool = True) -> Compiled:
     """Compile a model, specialised to a scene's plan (effects, folded parameters, outputs).
 
-    A plan that changes nothing gives exactly the module of the model alone. Storage elements
+    A plan that changes nothing gives exactly the module of the model alone (with the same
+    ``linear``). Storage elements
     in derivative causality are eliminated (their states follow from the others) unless
     ``strict_causality`` or the model's ``causality: strict`` asks for today's error.
     ``target``: "numpy" prints the numpy module (stage 7); any other target leaves it to be
