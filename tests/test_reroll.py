@@ -448,3 +448,59 @@ def test_a_function_is_rolled_once_whichever_printer_asks(tmp_path, monkeypatch)
         rr.reroll(low.rhs, ctx.state_syms, ctx.param_syms)
     rr._DONE.clear()  # a fresh roll of everything prints the same text
     assert c_files(comp)[0] == files
+
+
+def _ladder_1000() -> str:
+    """bench/bench_scale.py's 1000-node ladder, each capacitor charged at the start (q = C V0:
+    initial_state reads parameters) and each resistor's current an output (f(r_k) = (v_k-1 -
+    v_k) / R: C has two entries per output, D one for the source's)."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    from bench_scale import ladder_yaml
+
+    n = 1000
+    text = ladder_yaml(n).replace('compliance: "C"}', 'compliance: "C", initial: "C * V0"}')
+    assert text.count('initial: "C * V0"') == n
+    return text + "".join(f'  i{k}: "f(r{k})"\n' for k in range(n))
+
+
+@pytest.mark.slow
+def test_numpy_ladder_1000_initial_state_and_b_c_d_rolled_equal_unrolled(tmp_path, monkeypatch):
+    """initial_state, input_jacobian and output_jacobian of the 1000-node ladder, vectorised
+    at the defaults (MIN_RUN, MIN_COVER), equal the unrolled printing to 1e-13 (one instance
+    and a batch, default and batched parameters); and the closed forms: q0 = C V0, B = e_0 / R,
+    C = (e_k-1 - e_k) / (R C) per current, D = 1/R for the first current only."""
+    n, R_, C_, V0_ = 1000, 1.0, 0.01, 1.0
+    comp = _compiled(tmp_path, _ladder_1000())
+    rolled, flat, text = _np_pair(comp, monkeypatch, rr.MIN_RUN)
+    init = text[text.index("\ndef initial_state("):text.index("\ndef rhs(")]
+    assert len(init.splitlines()) < 40  # (it did roll: not a line per state)
+    assert "_Yv = np.empty" in text
+    rng = np.random.default_rng(11)
+    for p in (None, {"C": np.array([0.01, 0.02, 0.05]), "V0": np.array([1.0, -2.0, 3.0])}):
+        a, b = rolled.initial_state(p), flat.initial_state(p)
+        assert a.shape == b.shape
+        np.testing.assert_allclose(a, b, rtol=1e-13, atol=0)
+        for shape in ((), (3,)):
+            x = rng.standard_normal((n,) + shape)
+            t = float(rng.uniform(0, 2))
+            for f in ("input_jacobian", "output_jacobian"):
+                ra, rb = getattr(rolled, f)(t, x, p), getattr(flat, f)(t, x, p)
+                for ma, mb in zip(*((ra, rb) if f == "output_jacobian" else ((ra,), (rb,)))):
+                    assert ma.shape == mb.shape
+                    np.testing.assert_allclose(ma, mb, rtol=1e-13, atol=0)
+    np.testing.assert_allclose(rolled.initial_state(), np.full(n, C_ * V0_), rtol=1e-15)
+    B = rolled.input_jacobian(0.0, rolled.X0)
+    want_b = np.zeros((n, 1))
+    want_b[0, 0] = 1 / R_
+    np.testing.assert_allclose(B, want_b, rtol=1e-14)
+    Cm, D = rolled.output_jacobian(0.0, rolled.X0)
+    rows = [rolled.OUTPUT_LABELS.index(f"i{k}") for k in range(n)]
+    want_c = np.zeros((n, n))
+    for k in range(n):
+        want_c[k, k] = -1 / (R_ * C_)
+        if k:
+            want_c[k, k - 1] = 1 / (R_ * C_)
+    np.testing.assert_allclose(Cm[rows], want_c, rtol=1e-13)
+    want_d = np.zeros((n, 1))
+    want_d[0, 0] = 1 / R_
+    np.testing.assert_allclose(D[rows], want_d, rtol=1e-14)

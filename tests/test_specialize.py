@@ -229,11 +229,23 @@ def test_3r2s_p3_only_slices_states(tmp_path):
 # A scene that disables nothing is the full model, byte for byte
 
 
+def _but_linear(text: str) -> str:
+    """The module's text without its input_jacobian and output_jacobian (a scene's module
+    has only stubs there: B, C, D are left out of what its runs compile)."""
+    i = min(k for k in (text.find("\ndef input_jacobian("), text.find("\n_NO_LINEAR = ("))
+            if k >= 0)
+    return text[:i] + text[text.index("\nclass SimulationError("):]
+
+
 def test_scene_without_changes_is_the_full_module(tmp_path):
     """The full module, as `bgc compile MODEL` writes it (test_golden checks that one against
-    generated/motor_thermal.py)."""
+    generated/motor_thermal.py), but for B, C, D: byte for byte the model's module printed
+    without them, and the golden's text but for those two functions."""
     model = ROOT / "models" / "motor_thermal.yaml"
-    golden = compile_model(parse_file(model)).source
+    full = compile_model(parse_file(model)).source
+    golden = compile_model(parse_file(model), linear=False).source
+    assert "def input_jacobian(" in full and "_NO_LINEAR" in golden
+    assert _but_linear(golden) == _but_linear(full)
     outs = ("housing_temp, current, motor_speed, load_speed, load_angle, shaft_torque, "
             "power_in, copper_loss, copper_energy, winding_temp")
     for i, extra in enumerate(["", "effects: {thermal: on, load: on}",

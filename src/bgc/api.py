@@ -336,6 +336,9 @@ def linearize(model, at="equilibrium", p=None, u=None, x0=None) -> Linearization
         mod = model
         if model.scene is not None:
             pv, t0, sc = scene_start(model.scene, model.module)
+            if hasattr(model.module, "_NO_LINEAR"):  # a scene's module: B, C, D left out
+                mod = CompiledModel(build(model.origin, model.scene, linear=True).module,
+                                    None, model.origin, model.scene)
     elif not _is_text(model) and isinstance(model, (str, Path)) and Path(model).is_file():
         mod, pv, t0, sc = load_target(model)
     else:

@@ -203,7 +203,8 @@ def load_target(path, progress=None):
 
     if "bgc_scene" in head:
         sc = parse_scene(path)
-        mod = build(scene=sc, progress=progress).module  # numpy, through the cache
+        # numpy, through the cache; with B, C, D (a scene's runs leave them out)
+        mod = build(scene=sc, progress=progress, linear=True).module
         return (mod,) + scene_start(sc, mod)
     b = build(path, None, "numpy", progress=progress)
     if b.compiled is not None:  # compiled now: a zero mass, a root of a negative parameter

@@ -67,7 +67,7 @@ _MODEL_TOP = {
                "EVENT_NAMES", "EVENT_DIRECTIONS", "EVENT_TIMED", "EVENT_WHERE", "MODE_NAMES",
                "_RESETS", "_BGC_EXP_CAP", "_BGC_EXP_STEP", "CONSTRAINT_STATES",
                "CONSTRAINT_ALPHA", "CONSTRAINT_CLOSED", "MOMENTUM_STATES", "CLOSURE_STATES",
-               "_IX", "_PARAM_ARRAY", "CONSTRAINT_DROPPED"},
+               "_IX", "_PARAM_ARRAY", "CONSTRAINT_DROPPED", "_NO_LINEAR"},
     "FunctionDef": {"_unpack", "_floats", "_params", "_inputs", "initial_state", "rhs", "jacobian",
                     "outputs", "input_jacobian", "output_jacobian", "_bgc_linsolve",
                     "event_values", "apply_event", "_bgc_newton", "_bgc_norm",

@@ -48,7 +48,8 @@ def compile_cmd(model, output, scene, target, no_cache, quiet, strict_causality)
         prog("parsing")
         sc = parse_scene(scene)
     # the scene's module is the one `bgc simulate` runs: bgc.run.driver's one scene compile
-    c = compile_source(model, sc, prog, strict_causality)
+    # (without the linearisation's B, C, D: `bgc linearize SCENE` compiles its own)
+    c = compile_source(model, sc, prog, strict_causality, linear=False)
     if sc is not None and output is None:
         output = Path(f"{c.model.name}_{sc.name}.py")
     if target == "c":

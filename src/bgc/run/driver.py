@@ -168,18 +168,22 @@ def analyse(model: Model, progress=None, allow_derivative: bool = False
 
 def compile_model(model: Model, progress=None, plan: Plan | None = None,
                   strict_causality: bool = False, symbolic_max: int | None = None,
-                  target: str = "numpy", graph: BondGraph | None = None) -> Compiled:
+                  target: str = "numpy", graph: BondGraph | None = None,
+                  linear: bool = True) -> Compiled:
     """Compile a model, specialised to a scene's plan (effects, folded parameters, outputs).
 
-    A plan that changes nothing gives exactly the module of the model alone. Storage elements
+    A plan that changes nothing gives exactly the module of the model alone (with the same
+    ``linear``). Storage elements
     in derivative causality are eliminated (their states follow from the others) unless
     ``strict_causality`` or the model's ``causality: strict`` asks for today's error.
     ``target``: "numpy" prints the numpy module (stage 7); any other target leaves it to be
     printed on demand (:attr:`Compiled.source`), and the linearisation's B, C, D unlowered.
-    ``graph``: the model's bond graph, when the caller built it already (stage 2)."""
+    ``graph``: the model's bond graph, when the caller built it already (stage 2).
+    ``linear=False``: the numpy module without the linearisation's B, C, D (a scene's runs
+    never call them; its input_jacobian and output_jacobian then say how to get them)."""
     with gc_paused():
         return _compile_model(model, progress, plan, strict_causality, symbolic_max, target,
-                              graph)
+                              graph, linear)
 
 
 @dataclass(frozen=True)
@@ -245,7 +249,8 @@ def specialise(graph: BondGraph, caus: Causality, plan: Plan, progress=None) -> 
 
 
 def _compile_model(model: Model, progress, plan: Plan | None, strict_causality: bool,
-                   symbolic_max: int | None, target: str = "numpy", graph=None) -> Compiled:
+                   symbolic_max: int | None, target: str = "numpy", graph=None,
+                   linear: bool = True) -> Compiled:
     clock = _Clock()
     with clock("imports"):
         # lazy: the compile path, which a warm run never loads
@@ -278,11 +283,13 @@ def _compile_model(model: Model, progress, plan: Plan | None, strict_causality: 
     if notes:
         notes.insert(0, f"specialised for scene {plan.scene!r}")
     with clock("lower"):
-        low = lower(eqs, progress, linear=target == "numpy")
+        low = lower(eqs, progress, linear=target == "numpy" and linear)
     units = graph.units
 
     def printer(equations: bool = True, check: bool = True) -> str:
-        return print_numpy(model, low, tuple(notes), progress, units, equations, check)
+        # (the C target's numpy twin lowers B, C, D on demand, when it is first linearised)
+        return print_numpy(model, low, tuple(notes), progress, units, equations, check,
+                           linear or target != "numpy")
     text = None
     if target == "numpy":
         with clock("print"):
@@ -308,7 +315,8 @@ def _sliced(eqs, plan, sp_: _Special, progress) -> tuple[Equations, list[str]]:
 
 
 def print_numpy(model: Model, low, notes: tuple[str, ...], progress=None,
-                units=None, equations: bool = True, check: bool = True) -> str:
+                units=None, equations: bool = True, check: bool = True,
+                linear: bool = True) -> str:
     """Stage 7 for the numpy backend: the module's text from the IR. ``units``: the unit
     check's report (bgc.core.units.UnitReport): an output without a declared unit gets its
     inferred one in OUTPUT_UNITS (the axes of plots)."""
@@ -320,7 +328,7 @@ def print_numpy(model: Model, low, notes: tuple[str, ...], progress=None,
                   output_units={o.name: units.output_unit(o.name, o.unit) if units else o.unit
                                 for o in model.body.outputs},
                   input_units={i.name: i.unit for i in model.inputs}, lowered=low,
-                  equations=equations, check=check)
+                  equations=equations, check=check, linear=linear)
 
 
 def _short(v) -> str:
@@ -357,7 +365,8 @@ def check_scene_for(scene, model_path, label=None) -> None:
 
 
 def scene_compiled(scene, progress=None, specialise: bool = True,
-                   strict_causality: bool = False, target: str = "numpy") -> Compiled:
+                   strict_causality: bool = False, target: str = "numpy",
+                   linear: bool = True) -> Compiled:
     """Stages 1-7 of a scene: the scene's model (its signals and parameter values:
     :func:`bgc.format.scene.scene_model`) specialised to its plan (``specialise=False``: the
     scene's full model). Plots must name outputs the module keeps."""
@@ -374,7 +383,7 @@ def scene_compiled(scene, progress=None, specialise: bool = True,
         plan = plan_for(scene, graph.params) if specialise else None
     t3 = time.perf_counter()
     c = compile_model(model, progress, plan, strict_causality=strict_causality, target=target,
-                      graph=graph)
+                      graph=graph, linear=linear)
     if specialise:
         check_outputs(scene, [o[0] for o in c.equations.outputs])
     more = {"imports": t1 - t0, "graph": t3 - t2}
@@ -383,14 +392,16 @@ def scene_compiled(scene, progress=None, specialise: bool = True,
 
 
 def compile_source(model=None, scene=None, progress=None, strict_causality: bool = False,
-                   label=None, specialise: bool = True, target: str = "numpy") -> Compiled:
+                   label=None, specialise: bool = True, target: str = "numpy",
+                   linear: bool = True) -> Compiled:
     """Stages 1-7 of a model (a path, or a parsed Model) or of a scene (for that model, when
     both are given; ``specialise=False``: the scene's full model): the one compile every
-    caller shares."""
+    caller shares. ``linear=False``: a scene's numpy module without B, C, D (a bare model
+    keeps them always)."""
     if scene is not None:
         if model is not None:
             check_scene_for(scene, model if isinstance(model, (str, Path)) else None, label)
-        return scene_compiled(scene, progress, specialise, strict_causality, target)
+        return scene_compiled(scene, progress, specialise, strict_causality, target, linear)
     if isinstance(model, (str, Path)):
         return compile_file(model, progress, strict_causality=strict_causality, target=target)
     return compile_model(model, progress, strict_causality=strict_causality, target=target)
@@ -445,15 +456,19 @@ def module_name(model, scene=None, specialise: bool = True) -> str:
 
 def build(model=None, scene=None, backend: str = "numpy", *, use_cache: bool = True,
           strict_causality: bool = False, progress=None, fallback: bool = False,
-          label=None, specialise: bool = True) -> Built:
+          label=None, specialise: bool = True, linear: bool | None = None) -> Built:
     """The one compile of a scene (or a bare model: a path, or a parsed Model, never cached)
     for a backend, through the compile cache: a hit loads the entry without compiling (and
     without importing sympy); a miss compiles (:func:`compile_source`), keeps the entry and
     loads it. ``fallback``: without a C compiler or for a model the C backend refuses, say so
     and use numpy (else the error stands). A scene's plots must name the module's outputs.
-    ``specialise=False``: the scene's full model (every effect, parameter and output)."""
+    ``specialise=False``: the scene's full model (every effect, parameter and output).
+    ``linear``: a scene's numpy module with the linearisation's B, C, D; by default a
+    scene's module has none (its runs never call them: `bgc linearize SCENE` asks for them,
+    a cache entry of its own), a bare model's always has them."""
     import numpy as np
 
+    linear = scene is None if linear is None else linear
     if fallback:
         backend = usable_backend(backend, progress)
     path = scene.model_path if scene is not None else model
@@ -461,14 +476,15 @@ def build(model=None, scene=None, backend: str = "numpy", *, use_cache: bool = T
     store = cache_mod.Cache() if cached else None
     key, files, scene_bytes = (cache_mod.key_inputs(
         backend, path, None if scene is None else scene.file,
-        extra="strict" if strict_causality else "") if cached else (None, [], None))
+        extra=("strict" if strict_causality else "") + _nolinear(scene, backend, linear))
+        if cached else (None, [], None))
     name = module_name(model, scene, specialise)
     made: list[Compiled] = []
     ctimes: list[tuple[str, float]] = []  # the C stages (print C, wrapper, build C, ...)
 
     def compile_fn():
         made.append(compile_source(model, scene, progress, strict_causality, label,
-                                   specialise, backend))
+                                   specialise, backend, linear))
         return made[-1]
     t0 = time.perf_counter()
     with np.errstate(all="ignore"):  # X0 is computed on import: no numpy warnings
@@ -481,7 +497,7 @@ def build(model=None, scene=None, backend: str = "numpy", *, use_cache: bool = T
             (progress or (lambda msg: None))(f"{exc.message}: using the numpy backend")
             return build(model, scene, "numpy", use_cache=use_cache,
                          strict_causality=strict_causality, progress=progress, label=label,
-                         specialise=specialise)
+                         specialise=specialise, linear=linear)
     if backend == "c":  # what only the numpy module's equations compute (u=, B, C, D)
         mod._NUMPY_MODULE = _numpy_twin(made, model, scene, name, use_cache, strict_causality,
                                         label, specialise)
@@ -493,6 +509,11 @@ def build(model=None, scene=None, backend: str = "numpy", *, use_cache: bool = T
                  (backend, key, files, scene_bytes), name, times)
 
 
+def _nolinear(scene, backend: str, linear: bool) -> str:
+    """The cache key's mark of a scene's numpy module printed without B, C, D."""
+    return "" if linear or scene is None or backend != "numpy" else "\0nolinear"
+
+
 def _numpy_twin(made, model, scene, name, use_cache, strict_causality, label, specialise):
     """() -> the numpy module of what a C wrapper was built from, made on first call: printed
     from this process's compile when there was one, else through the cache (numpy entry)."""
@@ -501,7 +522,7 @@ def _numpy_twin(made, model, scene, name, use_cache, strict_causality, label, sp
             return backends.load_module(made[-1].source, f"{name}_numpy")
         return build(model, scene, "numpy", use_cache=use_cache,
                      strict_causality=strict_causality, label=label,
-                     specialise=specialise).module
+                     specialise=specialise, linear=True).module
     return twin
 
 

@@ -53,14 +53,15 @@ class SceneResult:
 
 
 def compile_scene(scene: Scene, progress=None, specialise: bool = True,
-                  strict_causality: bool = False):
+                  strict_causality: bool = False, linear: bool = False):
     """(Compiled, module) of the scene, compiled now and loaded from memory: its signals
     compiled in, and (by default) specialised to it (bgc.run.driver.scene_compiled).
 
     ``specialise=False`` gives the scene's full model: the model with the scene's input
-    signals, every effect on, every parameter and output kept."""
+    signals, every effect on, every parameter and output kept. ``linear``: keep the
+    linearisation's B, C, D (runs and studies never call them)."""
     b = build(scene=scene, use_cache=False, strict_causality=strict_causality,
-              progress=progress, specialise=specialise)
+              progress=progress, specialise=specialise, linear=linear)
     return b.compiled, b.module
 
 

@@ -249,17 +249,21 @@ def _pyrepr(v) -> str:
 def render(eq: Equations, *, source: str, source_hash: str, description: str = "",
            header_notes: tuple[str, ...] = (), progress=None,
            output_units: dict | None = None, input_units: dict | None = None,
-           lowered=None, equations: bool = True, check: bool = True) -> str:
+           lowered=None, equations: bool = True, check: bool = True,
+           linear: bool = True) -> str:
     """The numpy module's text; ``lowered`` (the model's :func:`bgc.lower.ir.lower`) is made
     here unless given, so that several backends can share one lowering.
 
     ``equations=False``: the module without its equation functions (rhs, jacobian, outputs,
     initial_state, input_jacobian, output_jacobian and what only they call): names,
     parameters, metadata and the runtime, for the C backend's wrapper, whose binding supplies
-    those functions. ``check=False``: the caller checks the text (the wrapper's one check)."""
+    those functions. ``check=False``: the caller checks the text (the wrapper's one check).
+    ``linear=False``: input_jacobian and output_jacobian (so linearize) only raise an error
+    that names the fix (a scene's runs never call them; B, C, D cost a fair share of the
+    compile)."""
     printer = BgcPrinter()
     low = lowered if lowered is not None else lower.lower(eq, progress)
-    fns = _printed_functions(eq, low, printer, progress, equations)
+    fns = _printed_functions(eq, low, printer, progress, equations, linear)
     events = events_part(eq, printer, printed)  # None without events: the module is unchanged
     newton = _newton_parts(eq, printer) if equations or events else []
     if newton:
@@ -297,8 +301,8 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
         linsolve=getattr(printer, "uses_linsolve", False), newton=newton,
         all_param_symbols=[s for p in params for s in p["symbols"]] + [d.target for d in derived],
         runtime=runtime_source() + (f"\n\n\n{events_runtime_source()}" if events else ""),
-        events=events, rolled_any=any(f is not None and f.rolled
-                                      for f in (fns["rhs"], fns["jac"], fns["outs"])),
+        events=events, rolled_any=any(f is not None and f.rolled for f in (
+            fns["rhs"], fns["jac"], fns["outs"], fns["init"], fns["ujac"], fns["yjac"])),
     )
     for ident in _identifiers(eq):
         assert ident.isidentifier() and not keyword.iskeyword(ident) and set(ident) <= _IDENT_OK
@@ -307,31 +311,62 @@ def render(eq: Equations, *, source: str, source_hash: str, description: str = "
     return text
 
 
-def _printed_functions(eq: Equations, low, printer, progress, equations: bool) -> dict:
-    """The template's functions, printed (None each without ``equations``), and the labels of
-    the linearisation's inputs and outputs."""
+def _printed_functions(eq: Equations, low, printer, progress, equations: bool,
+                       linear: bool = True) -> dict:
+    """The template's functions, printed (None each without ``equations``; ujac and yjac None
+    without ``linear``), and the labels of the linearisation's inputs and outputs."""
     if not equations:
         ilabels, olabels = linear_labels(eq)
         return dict(rhs=None, jac=None, outs=None, init=None, ujac=None, yjac=None, cons=None,
                     input_labels=ilabels, output_labels=olabels, index_tables=[],
-                    jac_index=None,
+                    jac_index=None, lin_index=None,
                     out_ranges=None)
     tables = Tables()
     rhs, jac, outs = (_maybe_rolled(eq, f, printer, kind, tables)
                       for f, kind in ((low.rhs, "rhs"), (low.jac, "jac"), (low.outs, "outs")))
-    if any(f.rolled for f in (rhs, jac, outs)):  # a large model: read only the states used
+    big = any(f.rolled for f in (rhs, jac, outs))
+    if big:  # a large model: read only the states used
         rhs, jac, outs = (f if f.rolled else _state_reads(f) for f in (rhs, jac, outs))
-    init = printed(low.init, printer)
+
+    def rest(fn, kind):  # the other functions vectorised only in a module of repeated structure
+        return _maybe_rolled(eq, fn, printer, kind, tables) if big else printed(fn, printer)
+    init = rest(low.init, "init")
     # a vectorised Jacobian's values scattered into the dense matrix at JAC_SPARSITY's entries
     jac_index = (tables.ref(tuple(k[0] for k in low.jac_keys)),
                  tables.ref(tuple(k[1] for k in low.jac_keys))) if jac.rolled else None
-    lin = low.linear if low.linear is not None else lower.lower_linear(eq, progress, low.jac)
     cons = printed(low.cons, printer) if getattr(low, "cons", None) is not None else None
-    return dict(rhs=rhs, jac=jac, outs=outs, init=init, cons=cons, ujac=printed(lin.ujac, printer),
-                yjac=printed(lin.yjac, printer), input_labels=lin.input_labels,
-                output_labels=lin.output_labels, index_tables=tables.literals,
-                jac_index=jac_index,
+    lin_index = None
+    if linear:
+        lin = low.linear if low.linear is not None else lower.lower_linear(eq, progress, low.jac)
+        ujac, yjac = rest(lin.ujac, "ujac"), rest(lin.yjac, "yjac")
+        lin_index = _lin_index(lin, ujac, yjac, tables)
+        ilabels, olabels = lin.input_labels, lin.output_labels
+    else:
+        ujac = yjac = None
+        ilabels, olabels = linear_labels(eq)
+    return dict(rhs=rhs, jac=jac, outs=outs, init=init, cons=cons, ujac=ujac,
+                yjac=yjac, input_labels=ilabels,
+                output_labels=olabels, index_tables=tables.literals,
+                jac_index=jac_index, lin_index=lin_index,
                 out_ranges=_out_ranges(eq, low.outs))
+
+
+def _lin_index(lin, ujac: Function, yjac: Function, tables) -> dict:
+    """Where vectorised B, C, D values go: "B": (rows, columns) of ``_B`` for ``_Bv`` in
+    order; "C", "D": (rows, columns, positions in ``_Yv``) of each matrix's entries (None
+    where that function is printed line by line, or the matrix has no entries)."""
+    out: dict = {"B": None, "C": None, "D": None}
+    if ujac.rolled:
+        keys = [k for k, _ in lin.ujac.results]
+        out["B"] = (tables.ref(tuple(k[0] for k in keys)), tables.ref(tuple(k[1] for k in keys)))
+    if yjac.rolled:
+        keys = [k for k, _ in lin.yjac.results]
+        for part in ("C", "D"):
+            pos = [i for i, k in enumerate(keys) if k[0] == part]
+            if pos:
+                out[part] = (tables.ref(tuple(keys[i][1] for i in pos)),
+                             tables.ref(tuple(keys[i][2] for i in pos)), tables.ref(tuple(pos)))
+    return out
 
 
 def _maybe_rolled(eq: Equations, fn: lower.Function, printer, kind: str, tables) -> Function:

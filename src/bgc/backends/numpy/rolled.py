@@ -176,7 +176,9 @@ def rolled_function(fn: lower.Function, printer, line_cls, function_cls, states:
     """The function printed vectorised (a ``function_cls`` with ``rolled`` set), or None where
     it has no runs or they cover less than :data:`MIN_COVER` of it. ``kind``: "rhs" (results
     into ``_dx`` by state), "jac" (into ``_Jv``: the values at JAC_SPARSITY's nonzeros, in
-    order) or "outs" (into ``_o``)."""
+    order), "outs" (into ``_o``), "init" (into ``_x0`` by state), "ujac" and "yjac" (into
+    ``_Bv`` and ``_Yv``, in the order of their results; numpy arrays only, as their unrolled
+    forms)."""
     rolled = reroll(fn, states, params)
     covered = sum(it.count * len(it.body) for it in rolled.items if isinstance(it, Loop))
     if not rolled.loops or covered < MIN_COVER * (len(fn.lines) + len(fn.results)):
@@ -185,7 +187,11 @@ def rolled_function(fn: lower.Function, printer, line_cls, function_cls, states:
     out_name, out_ref = {
         "rhs": ("_dx", lambda pos: int(keys[pos])),
         "jac": ("_Jv", lambda pos: pos),
-        "outs": ("_o", lambda pos: pos)}[kind]
+        "outs": ("_o", lambda pos: pos),
+        "init": ("_x0", lambda pos: int(keys[pos])),
+        "ujac": ("_Bv", lambda pos: pos),
+        "yjac": ("_Yv", lambda pos: pos)}[kind]
+    xp = "np" if kind in ("init", "ujac", "yjac") else "xp"
     em = Emitter(printer, line_cls, rolled, out_ref, tables)
     body = em.lines(out_name)
     used = set()
@@ -194,11 +200,12 @@ def rolled_function(fn: lower.Function, printer, line_cls, function_cls, states:
     names = {str(s) for s in used}
     head = []
     if rolled.nvalues:
-        head.append(line_cls("_w", f"xp.empty(({rolled.nvalues},) + _bs, dtype=xp.float64, "
-                                   "device=_device(x))"))
+        head.append(line_cls("_w", f"np.empty(({rolled.nvalues},) + _bs)" if xp == "np" else
+                             f"xp.empty(({rolled.nvalues},) + _bs, dtype=xp.float64, "
+                             "device=_device(x))"))
     if any(r.array == "p" for it in rolled.items if isinstance(it, Loop)
            for st in it.body for r in st.reads):
-        head.append(line_cls("_pa", "_param_array(_pv, _bshape, _bs, xp)"))
+        head.append(line_cls("_pa", f"_param_array(_pv, _bshape, _bs, {xp})"))
     state_names = {str(s): k for k, s in enumerate(states)}
     head += [line_cls(name, f"x[{state_names[name]}]") for name in fn.states
              if name != "_" and name in names]
