@@ -80,6 +80,55 @@ def compiled_model():
     return _compiled_model
 
 
+_SESSION_CACHE = Path(os.environ["BGC_CACHE_DIR"])
+
+
+@cache
+def _session_runtime() -> Path | None:
+    """The session cache's ``c-runtime`` folder once the C runtime's objects (and the
+    compiler's facts: identity, OpenMP) are in it, built once per worker; None without a
+    compiler or runtime."""
+    from bgc.backends.c import build
+    from bgc.base.store import Cache
+
+    saved = os.environ.get("BGC_CACHE_DIR")
+    os.environ["BGC_CACHE_DIR"] = str(_SESSION_CACHE)  # (a test may have pointed it elsewhere)
+    try:
+        if not (build.available() and build.runtime_sources()):
+            return None
+        build.flags()
+        build._runtime_objects(Cache(_SESSION_CACHE), 1, None)
+    finally:
+        if saved is None:
+            os.environ.pop("BGC_CACHE_DIR", None)
+        else:
+            os.environ["BGC_CACHE_DIR"] = saved
+    return _SESSION_CACHE / "c-runtime"
+
+
+def seed_c_runtime(cache_dir) -> Path:
+    """``cache_dir`` (made if missing, mode 700) holding a copy of the session cache's
+    ``c-runtime`` entries: the C runtime's objects and the compiler's facts, so that a test's
+    fresh cache does not rebuild the runtime (1.4-2 s of CPU each time). For tests whose
+    property is not the runtime's build; the model's own entries still start empty."""
+    import shutil
+
+    cache_dir = Path(cache_dir)
+    cache_dir.mkdir(parents=True, mode=0o700, exist_ok=True)
+    src = _session_runtime()
+    if src is not None and src.is_dir():
+        shutil.copytree(src, cache_dir / "c-runtime", dirs_exist_ok=True,
+                        ignore=shutil.ignore_patterns(".*"))
+    return cache_dir
+
+
+@pytest.fixture(scope="session")
+def c_runtime_seed():
+    """``c_runtime_seed(cache_dir)`` -> cache_dir seeded with the C runtime's built objects
+    (:func:`seed_c_runtime`)."""
+    return seed_c_runtime
+
+
 def _bgc_command() -> list[str]:
     exe = Path(sys.executable).with_name("bgc")
     if exe.exists():

@@ -4,8 +4,9 @@ Each file in tests/bad/ holds one mistake (its first line, a YAML comment, says 
 table pairs it with the place the error must point at and a piece of the message. Every case
 runs through the whole pipeline in-process (parse, graph, causality, equations, rendering);
 a representative handful also runs through the command line (``bgc check`` and
-``bgc compile -o``), in parallel, checking the exit status, the single ``file:line:col:``
-line on stderr, the absence of a traceback, and that no file was written.
+``bgc compile -o``), checking the exit status, the single ``file:line:col:`` line on stderr,
+the absence of a traceback, and that no file was written: in-process under click's runner,
+and a few of them in real processes too (in parallel).
 """
 from __future__ import annotations
 
@@ -180,10 +181,24 @@ def test_in_process(name):
 if sys.platform == "win32":  # pragma: no cover
     pytest.skip("POSIX paths in messages", allow_module_level=True)
 
-#: The cases that also go through the command line: a sample from every stage.
+#: The cases that also go through the command line: a sample from every stage. Each runs
+#: both commands in-process (click's runner: exit status, the one located line on stderr, no
+#: traceback, nothing written); a few of them also in a real process (:data:`PROCESS_RUNS`).
 CLI_CASES = ["yaml_syntax", "unknown_key", "self_loop", "expr_import", "import_cycle_a",
              "causal_conflict", "undefined_symbol", "nonlinear_loop", "expr_exp_tower",
              "zero_inertia", "library_lock_inconsistent"]
+#: The runs that also go through a real `python -m bgc.cli.commands` process (its exit status
+#: and stderr as a shell sees them): one per command and stage group (YAML, graph/causality,
+#: expressions, the library lock).
+PROCESS_RUNS = [("yaml_syntax", "check"), ("causal_conflict", "compile"),
+                ("expr_exp_tower", "check"), ("library_lock_inconsistent", "compile")]
+
+
+def _args(name: str, command: str, out: Path) -> list[str]:
+    rel = str(path_of(name).relative_to(ROOT))
+    if command == "check":
+        return ["check", rel]
+    return ["compile", "-q", rel, "-o", str(out / "out.py")]
 
 
 def _run(args: list[str]) -> subprocess.CompletedProcess:
@@ -196,16 +211,25 @@ def _run(args: list[str]) -> subprocess.CompletedProcess:
 
 @pytest.fixture(scope="module")
 def cli_runs(tmp_path_factory):
-    """Run every CLI case (check and compile) at once; {(name, command): (result, outdir)}."""
+    """Run the real-process cases at once; {(name, command): (result, outdir)}."""
     jobs = {}
-    for name in CLI_CASES:
-        rel = str(path_of(name).relative_to(ROOT))
+    for name, command in PROCESS_RUNS:
         out = tmp_path_factory.mktemp(f"out_{name}")
-        jobs[(name, "check")] = (["check", rel], out)
-        jobs[(name, "compile")] = (["compile", "-q", rel, "-o", str(out / "out.py")], out)
+        jobs[(name, command)] = (_args(name, command, out), out)
     with ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 2)) as pool:
         futures = {k: pool.submit(_run, args) for k, (args, _) in jobs.items()}
         return {k: (f.result(), jobs[k][1]) for k, f in futures.items()}
+
+
+def _check_one_located_line(case: Case, name: str, status: int, stderr: str, out: Path):
+    rel = str(path_of(name).relative_to(ROOT))
+    assert status == 2, (status, stderr)
+    assert "Traceback" not in stderr, stderr
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1, stderr
+    assert lines[0].startswith(_prefix(case, rel)), stderr
+    assert case.substr in lines[0], stderr
+    assert list(out.iterdir()) == [], "something was written"
 
 
 CLI_PARAMS = [pytest.param(name, command, id=f"{name}-{command}")
@@ -213,14 +237,25 @@ CLI_PARAMS = [pytest.param(name, command, id=f"{name}-{command}")
 
 
 @pytest.mark.parametrize("name,command", CLI_PARAMS)
-def test_cli(cli_runs, name, command):
-    case = BY_NAME[name]
+def test_cli(name, command, tmp_path, monkeypatch):
+    """The command line in-process (bgc.cli.commands.main under click's runner, from the
+    repository root as the real runs): the same one line, exit 2, nothing written."""
+    from click.testing import CliRunner
+
+    from bgc.cli.commands import main
+
+    monkeypatch.chdir(ROOT)
+    out = tmp_path / "out"
+    out.mkdir()
+    r = CliRunner().invoke(main, _args(name, command, out), prog_name="bgc")
+    assert r.exception is None or isinstance(r.exception, SystemExit), \
+        (r.exception, r.stderr)
+    _check_one_located_line(BY_NAME[name], name, r.exit_code, r.stderr, out)
+
+
+@pytest.mark.parametrize("name,command", [pytest.param(n, c, id=f"{n}-{c}")
+                                          for n, c in PROCESS_RUNS])
+def test_cli_process(cli_runs, name, command):
+    """A real process: exit status 2, one located line on stderr, no traceback."""
     res, out = cli_runs[(name, command)]
-    rel = str(path_of(name).relative_to(ROOT))
-    assert res.returncode == 2, (res.returncode, res.stderr)
-    assert "Traceback" not in res.stderr, res.stderr
-    lines = res.stderr.strip().splitlines()
-    assert len(lines) == 1, res.stderr
-    assert lines[0].startswith(_prefix(case, rel)), res.stderr
-    assert case.substr in lines[0], res.stderr
-    assert list(out.iterdir()) == [], "something was written"
+    _check_one_located_line(BY_NAME[name], name, res.returncode, res.stderr, out)

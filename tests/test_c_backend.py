@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import seed_c_runtime
 
 from bgc.backends import load as backends
 from bgc.backends.c import build as cbuild
@@ -300,7 +301,7 @@ def test_without_a_compiler_simulate_falls_back_to_numpy(tmp_path):
 def test_simulate_defaults_to_c_where_a_compiler_works(tmp_path):
     """No --backend and no solver backend in the scene: C for a method the C step loop runs,
     numpy for one it does not; the summary line says which and why."""
-    env = {"BGC_CACHE_DIR": str(tmp_path / "cache")}
+    env = {"BGC_CACHE_DIR": str(seed_c_runtime(tmp_path / "cache"))}  # runtime objects built
     scene = str(ROOT / "models/scenes/msd_step.yaml")
     p = _bgc("simulate", scene, "--out", str(tmp_path / "c.npz"), env=env)
     assert p.returncode == 0, p.stderr
@@ -365,7 +366,7 @@ def test_compile_target_c_writes_an_importable_folder(tmp_path):
 @needs_cc
 @needs_runtime
 def test_simulate_backend_c_agrees_with_numpy(tmp_path):
-    env = {"BGC_CACHE_DIR": str(tmp_path / "cache")}
+    env = {"BGC_CACHE_DIR": str(seed_c_runtime(tmp_path / "cache"))}  # runtime objects built
     scene = str(ROOT / "models/scenes/msd_step.yaml")
     a = _bgc("simulate", scene, "--backend", "c", "--out", str(tmp_path / "c.npz"),
              "--rtol", "1e-9", "--atol", "1e-12", env=env)

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import seed_c_runtime
 
 from bgc.base.errors import ModelError
 from bgc.run import cache as cache_mod
@@ -237,6 +238,8 @@ def test_warm_simulate_imports_only_what_it_needs(tmp_path, backend):
     if backend == "c" and not (cbuild.available() and cbuild.runtime_sources()):
         pytest.skip("no C compiler or C runtime")
     cdir = tmp_path / "cache"
+    if backend == "c":  # the runtime's objects built (their build is not what is tested here)
+        seed_c_runtime(cdir)
     args = ["simulate", str(SCENE), "--backend", backend, "--out", str(tmp_path / "r.npz")]
     first = _bgc(*args, cache_dir=cdir)
     assert first.returncode == 0, first.stderr

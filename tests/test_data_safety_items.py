@@ -17,12 +17,17 @@ import pytest
 from click.testing import CliRunner
 
 from bgc.cli.commands import main
+from conftest import seed_c_runtime
 from test_data_safety import MODEL, PARTS, SCENE, TABLE, project, snapshot
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def bgc(*args, cache, cwd=None, timeout=300):
+    """`bgc ARGS` with the compile cache ``cache``; a cache not made yet starts with the C
+    runtime's objects built (conftest's seed_c_runtime: no test here is about their build)."""
+    if not os.path.lexists(cache):
+        seed_c_runtime(cache)
     env = {**os.environ, "BGC_CACHE_DIR": str(cache)}
     return subprocess.run([sys.executable, "-m", "bgc", *map(str, args)], capture_output=True,
                           text=True, env=env, cwd=cwd, timeout=timeout)
@@ -54,7 +59,7 @@ def outside_unchanged(root: Path, before: dict, allowed=()) -> None:
 
 @pytest.mark.parametrize("out", ["..", ".", "proj"])
 def test_sweep_restart_never_empties_a_folder_bgc_did_not_make(tmp_path, monkeypatch, out):
-    monkeypatch.setenv("BGC_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("BGC_CACHE_DIR", str(seed_c_runtime(tmp_path / "cache")))
     proj = project(tmp_path)
     (tmp_path / "unrelated.txt").write_text("mine")
     monkeypatch.chdir(proj if out != "proj" else tmp_path)
@@ -125,7 +130,7 @@ def test_repointed_link_is_not_replayed(tmp_path, where):
 
 @pytest.mark.parametrize("out,words", [("", "the path is empty"), ("/proc/x.fmu", "'/proc")])
 def test_fmu_bad_paths_are_located_errors(tmp_path, monkeypatch, out, words):
-    monkeypatch.setenv("BGC_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("BGC_CACHE_DIR", str(seed_c_runtime(tmp_path / "cache")))
     proj = project(tmp_path)
     r = cli("export", proj / "model.yaml", "--fmu", out, "-q")
     assert r.exit_code == 2 and "--fmu" in r.output and words in r.output, r.output
@@ -143,7 +148,7 @@ def test_fmu_description_with_control_characters_parses(tmp_path, monkeypatch):
 
     from fmpy import read_model_description
 
-    monkeypatch.setenv("BGC_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("BGC_CACHE_DIR", str(seed_c_runtime(tmp_path / "cache")))
     proj = project(tmp_path)
     m = proj / "model.yaml"
     m.write_text(MODEL.replace("name: model\n", 'name: model\ndescription: "a\\x01b\\x0bc"\n')
@@ -178,7 +183,7 @@ def _c():
 
 def test_c_target_never_overwrites_a_model_called_model_c(tmp_path, monkeypatch):
     _c()
-    monkeypatch.setenv("BGC_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("BGC_CACHE_DIR", str(seed_c_runtime(tmp_path / "cache")))
     proj = project(tmp_path)
     (proj / "model.yaml").rename(proj / "model.c")
     monkeypatch.chdir(proj)
@@ -191,7 +196,7 @@ def test_c_target_never_overwrites_a_model_called_model_c(tmp_path, monkeypatch)
 @pytest.mark.parametrize("link", ["runtime", "runtime/bgc_runtime.c"])
 def test_c_target_never_copies_the_runtime_through_a_link(tmp_path, monkeypatch, link):
     _c()
-    monkeypatch.setenv("BGC_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("BGC_CACHE_DIR", str(seed_c_runtime(tmp_path / "cache")))
     proj = project(tmp_path)
     out, away = tmp_path / "out", tmp_path / "away"
     away.mkdir()
@@ -208,7 +213,7 @@ def test_c_target_never_copies_the_runtime_through_a_link(tmp_path, monkeypatch,
 
 def test_linearize_never_replaces_its_model_or_follows_old_temporary_names(tmp_path,
                                                                           monkeypatch):
-    monkeypatch.setenv("BGC_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("BGC_CACHE_DIR", str(seed_c_runtime(tmp_path / "cache")))
     proj = project(tmp_path)
     first = tmp_path / "first"
     assert cli("linearize", proj / "model.yaml", "--out", first, "-q").exit_code == 0
@@ -394,7 +399,7 @@ def test_api_compile_refuses_what_is_not_a_path_or_text(src):
 # -- 11: a missing column's message quotes only what the model wrote ----------------------------
 
 def test_missing_column_message_never_echoes_the_file(tmp_path, monkeypatch):
-    monkeypatch.setenv("BGC_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("BGC_CACHE_DIR", str(seed_c_runtime(tmp_path / "cache")))
     proj = project(tmp_path)
     secret = tmp_path / "secret.csv"
     secret.write_text("root:x:0:0:secret-header,other\n0,1\n1,2\n")
@@ -488,7 +493,7 @@ def test_api_result_size_is_bounded(tmp_path, monkeypatch, target):
     says the limit, before anything is allocated (the C wrapper's own step loop too)."""
     if target == "c":
         _c()
-    monkeypatch.setenv("BGC_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("BGC_CACHE_DIR", str(seed_c_runtime(tmp_path / "cache")))
     import bgc
 
     m = bgc.compile(ROOT / "models" / "msd.yaml", target=target)

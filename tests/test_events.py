@@ -23,6 +23,7 @@ G = 9.81
 
 
 from backend_targets import TARGETS, has_cc, private_cache  # noqa: F401 (fixture)
+from conftest import seed_c_runtime
 
 
 def ball_height(t, h0, e, g=G):
@@ -255,7 +256,8 @@ def test_mode_mistakes_are_located(tmp_path):
 
 @pytest.mark.parametrize("run", ["full", "replayed"])
 def test_cli_summary_counts_events_and_writes_the_log(tmp_path, run):
-    env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "BGC_CACHE_DIR": str(tmp_path / "c")}
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src"),
+           "BGC_CACHE_DIR": str(seed_c_runtime(tmp_path / "c"))}
     scene = ROOT / "models" / "scenes" / "bouncing_ball.yaml"
     out = tmp_path / "run.npz"
     for _ in range(1 if run == "full" else 2):  # the second run replays the run record

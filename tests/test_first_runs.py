@@ -8,12 +8,14 @@ deflection (the run of the model alone must settle there).
 """
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import seed_c_runtime
 
 from bgc.backends.c import build as cbuild
 from bgc.format.scene import MODEL_T_END, is_model_file, model_scene, parse_scene
@@ -24,10 +26,10 @@ HAS_C = cbuild.available() and bool(cbuild.runtime_sources())
 
 
 def _bgc(*args, cache_dir, timeout=600):
+    if not os.path.lexists(cache_dir):  # a fresh cache: the C runtime's objects built (the
+        seed_c_runtime(cache_dir)        # tests here are about the runs, not that build)
     env = {"BGC_CACHE_DIR": str(cache_dir), "PYTHONPATH": str(ROOT / "src"),
            "PATH": "/usr/bin:/bin"}
-    import os
-
     env = {**os.environ, **env}
     return subprocess.run([sys.executable, "-m", "bgc", *map(str, args)], capture_output=True,
                           text=True, env=env, timeout=timeout, cwd=ROOT)
@@ -303,7 +305,7 @@ outputs:
 def test_accuracy_judges_stiffness_along_the_run(tmp_path, monkeypatch):
     """Free flight until x = 0.05 m (t = 0.32 s), then a 1e7 N/m wall: the Jacobian at t0 has
     eigenvalues 0 (index 0), on the wall sqrt(1e7) = 3162 1/s (index 3162 over 1 s): stiff."""
-    from bgc.studies.accuracy import STIFF_THRESHOLD, prepare, is_stiff
+    from bgc.studies.accuracy import STIFF_THRESHOLD, is_stiff, prepare
 
     monkeypatch.setenv("BGC_CACHE_DIR", str(tmp_path / "cache"))
     (tmp_path / "contact.yaml").write_text(CONTACT)

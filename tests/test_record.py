@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import seed_c_runtime
 
 from bgc.run import record
 from bgc.run.cache import Cache
@@ -27,6 +28,8 @@ MSD = ROOT / "models" / "scenes" / "msd_step.yaml"
 
 def _bgc(*args, cache_dir, extra_env=None, via_cli=False):
     """`bgc ARGS` as the console script runs it (bgc.cli.launch), or straight into click."""
+    if not os.path.lexists(cache_dir):  # a fresh cache: the C runtime's objects built
+        seed_c_runtime(cache_dir)        # (no test here is about their build)
     env = {**os.environ, "BGC_CACHE_DIR": str(cache_dir), **(extra_env or {})}
     cmd = [sys.executable, "-m", "bgc"] if not via_cli else [
         sys.executable, "-c", "import sys; from bgc.cli.commands import main; main(sys.argv[1:])"]

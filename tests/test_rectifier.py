@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 import scipy.integrate as si
 import scipy.optimize as so
+from conftest import seed_c_runtime
 
 from bgc.backends.c import build as cbuild
 from bgc.format.scene import parse_scene
@@ -60,7 +61,7 @@ def _ripple(t, v):
 def test_rectifier_default_settings_match_scipy(backend, reference, tmp_path, monkeypatch):
     """Default scene settings (Radau, rtol 1e-6, no max_step given): the load voltage within
     2 mV of the reference over the whole run, charge-up included, and its ripple within 1 %."""
-    monkeypatch.setenv("BGC_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("BGC_CACHE_DIR", str(seed_c_runtime(tmp_path)))
     res = run_scene(parse_scene(SCENE), backend=backend)
     t_ref, v_ref = reference
     np.testing.assert_allclose(res.t, t_ref)
@@ -76,7 +77,7 @@ def test_rectifier_default_settings_match_scipy(backend, reference, tmp_path, mo
 def test_ripple_default_vs_tight_max_step(tmp_path, monkeypatch):
     """The input's period bounds the step by default: the ripple at default settings is within
     1 % of a run at max_step = 1e-5 s (C backend when there is a compiler: it is fast)."""
-    monkeypatch.setenv("BGC_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("BGC_CACHE_DIR", str(seed_c_runtime(tmp_path)))
     backend = "c" if cbuild.available() and cbuild.runtime_sources() else "numpy"
     scene = parse_scene(SCENE)
     default = run_scene(scene, backend=backend)
@@ -104,7 +105,7 @@ def test_loop_converges_from_a_cold_start(backend, tmp_path, monkeypatch):
     """At the sine's peak with an empty capacitor the loop current is ~9.3 A; from a cold
     start (0 A) plain Newton moves the diode's exponent by one unit per iteration (~360 of
     them). The damped Newton solves it; the derivative agrees with the bracketed root."""
-    monkeypatch.setenv("BGC_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("BGC_CACHE_DIR", str(seed_c_runtime(tmp_path)))
     mod = _module(backend, tmp_path)
     getattr(mod, "_NEWTON_WARM", {}).clear()
     for vc in (0.0, 5.0, 9.0):
@@ -118,7 +119,7 @@ def test_loop_converges_from_a_cold_start(backend, tmp_path, monkeypatch):
 def test_loop_without_root_names_time_and_remedy(backend, tmp_path, monkeypatch):
     """A negative saturation current leaves the loop without a root (the residual is
     positive everywhere): the failure names the loop's place, when, and what to try."""
-    monkeypatch.setenv("BGC_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("BGC_CACHE_DIR", str(seed_c_runtime(tmp_path)))
     mod = _module(backend, tmp_path)
     with pytest.raises(mod.SimulationError) as e:
         mod.simulate((0.0, 0.01), p={"Is": -1e-12}, method="Radau")

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import seed_c_runtime
 
 from bgc.base.errors import ModelError
 
@@ -222,7 +223,7 @@ def test_a_process_without_the_library_builds_it_from_the_shipped_sources(tmp_pa
     p = _scene(tmp_path, "sweep:\n  parameters:\n    m: {values: [1.0, 2.0]}\n")
     prep = pickle.loads(pickle.dumps(sweep.prepare(p)))  # as Dask ships it
     here = sweep.run_chunk(prep, 0, 2)
-    cache = tmp_path / "other-cache"
+    cache = seed_c_runtime(tmp_path / "other-cache")  # (the runtime's objects built)
     monkeypatch.setenv("BGC_CACHE_DIR", str(cache))
     monkeypatch.setattr(sweep, "_MODULES", {})
     there = sweep.run_chunk(prep, 0, 2)
