@@ -293,11 +293,19 @@ def load(name: str, backend: str, key: str | None, compile_fn, cache=None, progr
     if early:
         cbuild.start_runtime(cache)  # gcc on the runtime while the compile runs
     try:
-        compiled = compile_fn()
-    except BaseException:
-        if early:  # (a user's error: its compiler stops, the error is said at once)
+        return _compiled_and_loaded(name, backend, key, compile_fn, cache, progress, times)
+    finally:
+        # a build that got as far as linking has taken the early build (waited for it): this
+        # then does nothing. Otherwise (a user's error, the C printer's refusal and the run
+        # going on in numpy, an entry another process built meanwhile) its compiler stops
+        # and no entry is left behind for this cache.
+        if early:
             cbuild.stop_runtime(cache)
-        raise
+
+
+def _compiled_and_loaded(name, backend, key, compile_fn, cache, progress, times):
+    """:func:`load` past the cache lookup: compile, then build and load."""
+    compiled = compile_fn()
     if backend == "numpy" and (cache is None or key is None):
         return compiled, load_module(compiled.source, name)
     if cache is None or key is None:
