@@ -49,6 +49,24 @@ def _module_code(extra: str = "") -> str:
             "open('out.py', 'w').write(src)\n")
 
 
+def test_scene_variant_is_what_a_scene_compile_gives(tmp_path):
+    """The reference skeletons' scene variant (built from the golden) equals the skeleton of
+    a module really compiled for a scene: msd with its step scene."""
+    import ast
+    import subprocess
+
+    out = tmp_path / "m.py"
+    env = dict(os.environ, BGC_CACHE_DIR=str(tmp_path / "cache"))
+    subprocess.run([sys.executable, "-m", "bgc", "compile", str(harness.ROOT / "models/msd.yaml"),
+                    "--scene", str(harness.ROOT / "models/scenes/msd_step.yaml"), "-o", str(out),
+                    "-q"], check=True, env=env, cwd=tmp_path)
+    plain = harness.skeleton(ast.parse(harness.golden_of(harness.ROOT / "models/msd.yaml")
+                                       .read_text(encoding="utf-8")))
+    scene = harness.skeleton(ast.parse(out.read_text(encoding="utf-8")))
+    assert scene != plain
+    assert harness.scene_variant(plain) == scene
+
+
 def test_harness_passes_a_clean_module(tmp_path):
     out = _selftest(tmp_path, _module_code())
     assert out.ok, out.describe()
