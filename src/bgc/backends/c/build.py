@@ -284,8 +284,9 @@ def start_runtime(cache) -> None:
 
 
 def stop_runtime(cache) -> None:
-    """Stop :func:`start_runtime`'s thread for this cache (its compile failed): the compiler
-    running finishes, no other starts, nothing is kept."""
+    """Stop :func:`start_runtime`'s thread for this cache, if no build took it (the compile
+    failed, the C printer refused, another process made the entry): the compiler running
+    finishes, no other starts, nothing is kept. After a build that linked: nothing to do."""
     got = _EARLY.pop(str(cache.path), None)
     if got is not None:
         got[1].set()
