@@ -13,10 +13,11 @@ import sympy as sp
 from bgc.base.errors import ModelError
 from bgc.core.canon import quotient
 from bgc.core.constraints import constraint_source
-from bgc.core.context import Context, zero_value
+from bgc.core.context import Context
 from bgc.core.eqtypes import StateVar, flat, shape_name, symbol_vector
 from bgc.core.graph import FlatElement, code_name
 from bgc.format.expr import shape_of
+from bgc.format.matrices import matmul, matrix, neg, scale
 from bgc.format.parse import TWO_PORTS
 
 _BAD_VALUES = (sp.zoo, sp.oo, -sp.oo, sp.nan, sp.I)
@@ -120,17 +121,17 @@ def element_equations(ctx: Context, el: FlatElement, define, derivs, state_vars)
             else:
                 val = _card(ctx.build(law, el.scope, what, local={"p": state}), n, el, key)
             define(f, val, el, f"{el.id} (I, integral): flow from momentum")
-            rate = e * sgn
+            rate = _signed(e, sgn)
         else:
             if key == "stiffness":
                 k = _card(ctx.build(law, el.scope, what), n, el, key, square=True)
-                val = k * state
+                val = _times(k, state)
             elif key == "compliance":
                 c = _card(ctx.build(law, el.scope, what), n, el, key, square=True)
                 val = _solve(c, state, el, key)
             else:
                 val = _card(ctx.build(law, el.scope, what, local={"q": state}), n, el, key)
-            define(e, val * sgn, el, f"{el.id} (C, integral): effort from displacement")
+            define(e, _signed(val, sgn), el, f"{el.id} (C, integral): effort from displacement")
             rate = f
         init = (ctx.build(el.initial, el.scope, f"{what} initial", params_only=True)
                 if el.initial is not None else sp.Integer(0))
@@ -145,16 +146,16 @@ def element_equations(ctx: Context, el: FlatElement, define, derivs, state_vars)
             state_vars.append(StateVar(label, s, el.id, i0))
         return
     if t == "R":
-        fe, ff = e * sgn, f  # the element's own effort and flow
+        fe, ff = _signed(e, sgn), f  # the element's own effort and flow
         if key == "resistance":
             r = _card(ctx.build(law, el.scope, what), n, el, key, square=True)
             if sets_effort:
-                define(e, (r * ff) * sgn, el, f"{el.id} (R): effort = r f")
+                define(e, _signed(_times(r, ff), sgn), el, f"{el.id} (R): effort = r f")
             else:
                 define(f, _solve(r, fe, el, key), el, f"{el.id} (R): flow = e / r")
         elif key == "effort":
             val = _card(ctx.build(law, el.scope, what, local={"f": ff}), n, el, key)
-            define(e, val * sgn, el, f"{el.id} (R): effort law")
+            define(e, _signed(val, sgn), el, f"{el.id} (R): effort law")
         else:
             val = _card(ctx.build(law, el.scope, what, local={"e": fe}), n, el, key)
             define(f, val, el, f"{el.id} (R): flow law")
@@ -181,13 +182,14 @@ def _dependent_storage(ctx: Context, el: FlatElement, b, sgn: int, define):
                                        "the other states), which needs its momentum as a function "
                                        "of its flow: give it an `inertia:` law, not `flow:`")
         m = _card(ctx.build(law, el.scope, what), n, el, key, square=True)
-        val = m * f
+        val = _times(m, f)
     else:
         if key == "stiffness":
             k = _card(ctx.build(law, el.scope, what), n, el, key, square=True)
-            val = _solve(k, e * sgn, el, key)
+            val = _solve(k, _signed(e, sgn), el, key)
         elif key == "compliance":
-            val = _card(ctx.build(law, el.scope, what), n, el, key, square=True) * (e * sgn)
+            val = _times(_card(ctx.build(law, el.scope, what), n, el, key, square=True),
+                         _signed(e, sgn))
         else:
             raise ModelError(el.coord, f"{what} is in derivative causality (its effort follows "
                                        "from the other states), which needs its displacement as "
@@ -197,11 +199,33 @@ def _dependent_storage(ctx: Context, el: FlatElement, b, sgn: int, define):
     dot = symbol_vector(f"_dt_{letter}_{code_name(el.id)}", n)
     define(state, val, el, f"{el.id} ({t}, derivative): {'momentum from flow' if t == 'I' else 'displacement from effort'}")
     if t == "I":
-        define(e, dot * sgn, el, f"{el.id} (I, derivative): effort = dp/dt")
+        define(e, _signed(dot, sgn), el, f"{el.id} (I, derivative): effort = dp/dt")
     else:
         define(f, dot, el, f"{el.id} (C, derivative): flow = dq/dt")
     ctx.states[el.id] = state  # p() / q() read the dependent state
     ctx.dependent.append((el.id, tuple(flat(state)), tuple(flat(dot))))
+
+
+def _signed(v, sgn: int):
+    """``v * sgn`` for a sign +1 or -1 (a matrix entry by entry, as sympy's matrices)."""
+    if sgn == 1:
+        return v
+    return neg(v) if shape_of(v) else v * sp.S.NegativeOne
+
+
+def _times(a, b):
+    """``a * b``: a matrix product (bgc.format.matrices.matmul: sympy's entries), a scalar
+    times a matrix, or a product of scalars."""
+    if shape_of(a):
+        return matmul(a, b) if shape_of(b) else scale(a, b)
+    return scale(b, a, left=True) if shape_of(b) else a * b
+
+
+def _eye_times(val, n: int):
+    """``val * eye(n)`` of a scalar ``val``: ``val`` on the diagonal (sympy's entries)."""
+    if val == 0 or val == 1:  # (sympy's scaling gives zeros, or the identity, for these)
+        val = sp.S.Zero if val == 0 else sp.S.One
+    return matrix(n, n, [val if i == j else sp.S.Zero for i in range(n) for j in range(n)])
 
 
 def _card(val, n, el, key, square=False):
@@ -212,7 +236,7 @@ def _card(val, n, el, key, square=False):
             return val[0] if s else val
     elif square:
         if s == ():
-            return sp.ImmutableMatrix(val * sp.eye(n))
+            return _eye_times(val, n)
         if s == (n, n):
             return val
     elif s == (n, 1):
@@ -267,14 +291,12 @@ def _balance(var: dict, el, bonds, src):
     one by one and negating the total, in one constructor call instead of one per bond: the
     per-bond sums and the negated total were most of a large ladder's junctions)."""
     out = src.dst == el.id  # the others' sum as it stands (else negated)
+    terms = [(var[b.id], (b.src == el.id) == out) for b in bonds if b is not src]
     if src.n == 1:
-        return signed_sum([(var[b.id], (b.src == el.id) == out) for b in bonds if b is not src])
-    total = zero_value(src.n)
-    for b in bonds:
-        if b is src:
-            continue
-        total = total + (var[b.id] if b.src == el.id else -var[b.id])
-    return total if out else -total
+        return signed_sum(terms)
+    # a multibond's balance, component by component: the entries of the matrices' sum
+    return matrix(src.n, 1, [signed_sum([(v[i], pos) for v, pos in terms])
+                             for i in range(src.n)])
 
 
 def signed_sum(terms) -> sp.Expr:
@@ -304,7 +326,7 @@ def _two_port(ctx: Context, el: FlatElement, bonds, define):
             raise ModelError(el.coord, f"{what}: cardinality mismatch: a scalar {key} needs equal "
                                        f"cardinalities, its bonds have {n1} and {n2}")
         if n1 > 1:
-            m = sp.ImmutableMatrix(m * sp.eye(n1))
+            m = _eye_times(m, n1)
     elif s != (n2, n1):
         raise ModelError(el.coord, f"{what}: cardinality mismatch: {key} is {shape_name(s)}, "
                                    f"its bonds need {n2}x{n1} (out x in)")
@@ -313,8 +335,8 @@ def _two_port(ctx: Context, el: FlatElement, bonds, define):
     forward = ctx.caus.effort_by[b1.id] == el.id
     if el.type in ("TF", "MTF"):
         if forward:
-            define(f2, m * f1, el, f"{el.id} ({el.type}): f2 = M f1")
-            define(e1, mt * e2, el, f"{el.id} ({el.type}): e1 = M^T e2")
+            define(f2, _times(m, f1), el, f"{el.id} ({el.type}): f2 = M f1")
+            define(e1, _times(mt, e2), el, f"{el.id} ({el.type}): e1 = M^T e2")
         else:
             if n1 != n2:
                 raise ModelError(el.coord, f"{what}: causality needs its {key} inverted, but it "
@@ -323,8 +345,8 @@ def _two_port(ctx: Context, el: FlatElement, bonds, define):
             define(e2, _solve(mt, e1, el, key), el, f"{el.id} ({el.type}): e2 = M^-T e1")
     else:
         if forward:  # the gyrator sets both efforts
-            define(e2, m * f1, el, f"{el.id} ({el.type}): e2 = M f1")
-            define(e1, mt * f2, el, f"{el.id} ({el.type}): e1 = M^T f2")
+            define(e2, _times(m, f1), el, f"{el.id} ({el.type}): e2 = M f1")
+            define(e1, _times(mt, f2), el, f"{el.id} ({el.type}): e1 = M^T f2")
         else:
             if n1 != n2:
                 raise ModelError(el.coord, f"{what}: causality needs its {key} inverted, but it "

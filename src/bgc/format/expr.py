@@ -77,9 +77,20 @@ def build(expr: Expr, resolver: Resolver):
 
 
 
-def _finite(v) -> bool:
-    items = v if isinstance(v, sp.MatrixBase) else (v,)
-    return not any(isinstance(x, sp.Basic) and x.has(sp.zoo, sp.oo, -sp.oo, sp.nan) for x in items)
+def _finite(v, seen: set) -> bool:
+    """No infinite or undefined value anywhere in ``v`` (``has(zoo, oo, -oo, nan)``, in one
+    walk); ``seen``: the sub-expressions found finite before, not walked again."""
+    bad = {sp.zoo, sp.oo, -sp.oo, sp.nan}
+    stack = [x for x in (v if isinstance(v, sp.MatrixBase) else (v,)) if isinstance(x, sp.Basic)]
+    while stack:
+        x = stack.pop()
+        if x in seen:
+            continue
+        if not x.args and x in bad:
+            return False
+        seen.add(x)
+        stack.extend(x.args)
+    return True
 
 
 def _too_big(v) -> bool:
@@ -250,6 +261,7 @@ class _Builder:
         self.expr = expr
         self.r = resolver
         self.memo: dict = {}  # constant sub-expression -> its double value (or None)
+        self.finite: set = set()  # sub-expressions found free of infinities
         self.work = 0  # operations done so far (bounded by LIMITS.built_ops)
 
     def err(self, node, msg):
@@ -273,7 +285,7 @@ class _Builder:
         return v
 
     def _number_guard(self, node, v):
-        if not _finite(v):
+        if not _finite(v, self.finite):
             raise self.err(node, "the expression is infinite or undefined (division by zero?)")
         if _too_big(v):
             raise self.err(node, f"a number larger than 10**{MAX_EXPONENT}")
@@ -301,7 +313,9 @@ class _Builder:
             return self.r.value(path, node_coord(self.expr, node))
         if isinstance(node, ast.UnaryOp):
             v = self.visit(node.operand)
-            return -v if isinstance(node.op, ast.USub) else v
+            if not isinstance(node.op, ast.USub):
+                return v
+            return _mat().neg(v) if isinstance(v, sp.MatrixBase) else -v
         if isinstance(node, ast.BinOp):
             return self._number_guard(node, self.binop(node))
         if isinstance(node, ast.List):
@@ -320,6 +334,8 @@ class _Builder:
             if isinstance(op, (ast.Add, ast.Sub)):
                 if sa != sb:
                     raise self.err(node, f"shape mismatch: {_fmt(sa)} {'+' if isinstance(op, ast.Add) else '-'} {_fmt(sb)}")
+                if sa:  # entry by entry (bgc.format.matrices: sympy's entries, directly)
+                    return (_mat().add if isinstance(op, ast.Add) else _mat().sub)(a, b)
                 return a + b if isinstance(op, ast.Add) else a - b
             if isinstance(op, (ast.Mult, ast.MatMult)):
                 if sa and sb:
@@ -330,14 +346,16 @@ class _Builder:
                     self._spend(node, sa[0] * sa[1] * sb[1])
                     self._spend(node, sb[1] * _tree_size(a, LIMITS.built_ops)
                                 + sa[0] * _tree_size(b, LIMITS.built_ops))
-                    return _matmul(a, b)
+                    return _mat().matmul(a, b)
                 if isinstance(op, ast.MatMult):
                     raise self.err(node, "@ needs two matrices")
+                if sa or sb:
+                    return _mat().scale(a, b) if sa else _mat().scale(b, a, left=True)
                 return a * b
             if isinstance(op, ast.Div):
                 if sb:
                     raise self.err(node, "division by a matrix (use inv())")
-                return a / b
+                return _mat().scale(a, sp.S.One / b) if sa else a / b
             if isinstance(op, ast.Pow):
                 if sa or sb:
                     raise self.err(node, "** needs scalars")
@@ -529,12 +547,9 @@ def _fmt(shape: tuple[int, ...]) -> str:
     return "scalar" if not shape else "x".join(map(str, shape))
 
 
-def _matmul(a, b):
-    """The matrix product as sums of products, entry by entry: the same canonical sympy
-    expressions as ``a * b``, without the domain-matrix machinery that made the 3R2S's
-    rotation products a fifth of its equation derivation."""
-    n, k = a.shape
-    m = b.shape[1]
-    return sp.ImmutableMatrix(n, m, [sp.Add(*[a[i, q] * b[q, j] for q in range(k)])
-                                     for i in range(n) for j in range(m)])
+def _mat():
+    """bgc.format.matrices (sympy's matrices entry by entry), imported with sympy on first use."""
+    # lazy: it imports sympy, which parsing and checking a model never need
+    from bgc.format import matrices
 
+    return matrices
