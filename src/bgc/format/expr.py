@@ -177,7 +177,7 @@ def _num1(v, memo):  # noqa: C901 - one case per sympy class
         return float(v)
     if v.is_Symbol:
         return None
-    if v in (sp.zoo, sp.nan, sp.oo, -sp.oo):
+    if not v.args and v in (sp.zoo, sp.nan, sp.oo, -sp.oo):  # (atoms: only they can be)
         raise _NumError("undefined" if v in (sp.zoo, sp.nan) else "overflow")
     if v is sp.I:
         raise _NumError("complex")
@@ -336,7 +336,7 @@ class _Builder:
                     raise self.err(node, f"shape mismatch: {_fmt(sa)} {'+' if isinstance(op, ast.Add) else '-'} {_fmt(sb)}")
                 if sa:  # entry by entry (bgc.format.matrices: sympy's entries, directly)
                     return (_mat().add if isinstance(op, ast.Add) else _mat().sub)(a, b)
-                return a + b if isinstance(op, ast.Add) else a - b
+                return _ar().plus(a, b) if isinstance(op, ast.Add) else _ar().plus(a, -b)
             if isinstance(op, (ast.Mult, ast.MatMult)):
                 if sa and sb:
                     if sa[1] != sb[0]:
@@ -351,11 +351,15 @@ class _Builder:
                     raise self.err(node, "@ needs two matrices")
                 if sa or sb:
                     return _mat().scale(a, b) if sa else _mat().scale(b, a, left=True)
-                return a * b
+                return a * b if a.is_Number and b.is_Number else _ar().times(a, b)
             if isinstance(op, ast.Div):
                 if sb:
                     raise self.err(node, "division by a matrix (use inv())")
-                return _mat().scale(a, sp.S.One / b) if sa else a / b
+                if sa:
+                    return _mat().scale(a, sp.S.One / b)
+                if a.is_Number or b.is_Number or a is sp.S.One:
+                    return a / b
+                return _ar().times(a, sp.Pow(b, sp.S.NegativeOne))  # (sympy's a / b)
             if isinstance(op, ast.Pow):
                 if sa or sb:
                     raise self.err(node, "** needs scalars")
@@ -545,6 +549,14 @@ def _funcs() -> dict[str, Callable]:
 
 def _fmt(shape: tuple[int, ...]) -> str:
     return "scalar" if not shape else "x".join(map(str, shape))
+
+
+def _ar():
+    """bgc.format.arith (sympy's products and sums, directly), imported with sympy."""
+    # lazy: it imports sympy, which parsing and checking a model never need
+    from bgc.format import arith
+
+    return arith
 
 
 def _mat():

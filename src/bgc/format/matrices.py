@@ -9,11 +9,14 @@ operation sympy's sparse representation applies to each stored (nonzero) entry: 
 so it is skipped here too, and a product with a zero factor is the zero it makes (unless the
 other factor may be infinite, which is then multiplied as sympy would). The results are
 equal, entry for entry and in form, to sympy's (tests/test_matrices.py holds them to it);
-the matrices are built without re-checking entries that are sympy objects already.
+the matrices are built without re-checking entries that are sympy objects already, and the
+entries' products and sums by bgc.format.arith (sympy's constructors' results, directly).
 """
 from __future__ import annotations
 
 import sympy as sp
+
+from bgc.format.arith import plus, times, total
 
 _ZERO = sp.S.Zero
 _ONE = sp.S.One
@@ -33,13 +36,13 @@ def entries(m) -> list:
 
 def add(a, b) -> sp.ImmutableMatrix:
     """``a + b`` of two matrices of one shape."""
-    return matrix(a.rows, a.cols, [y if x is _ZERO else x if y is _ZERO else x + y
+    return matrix(a.rows, a.cols, [y if x is _ZERO else x if y is _ZERO else plus(x, y)
                                    for x, y in zip(a.flat(), b.flat())])
 
 
 def neg(a) -> sp.ImmutableMatrix:
     """``-a``."""
-    return matrix(a.rows, a.cols, [x if x is _ZERO else x * _NEG for x in a.flat()])
+    return matrix(a.rows, a.cols, [x if x is _ZERO else times(x, _NEG) for x in a.flat()])
 
 
 def sub(a, b) -> sp.ImmutableMatrix:
@@ -55,8 +58,8 @@ def scale(a, s, left: bool = False) -> sp.ImmutableMatrix:
     if s is _ONE:
         return a
     if left:
-        return matrix(a.rows, a.cols, [x if x is _ZERO else s * x for x in a.flat()])
-    return matrix(a.rows, a.cols, [x if x is _ZERO else x * s for x in a.flat()])
+        return matrix(a.rows, a.cols, [x if x is _ZERO else times(s, x) for x in a.flat()])
+    return matrix(a.rows, a.cols, [x if x is _ZERO else times(x, s) for x in a.flat()])
 
 
 def _skip(x, y) -> bool:
@@ -76,6 +79,6 @@ def matmul(a, b) -> sp.ImmutableMatrix:
     for i in range(n):
         row = fa[i * k:(i + 1) * k]
         for j in range(m):
-            terms = [x * y for x, y in zip(row, fb[j::m]) if not _skip(x, y)]
-            out.append(sp.Add(*terms) if len(terms) != 1 else terms[0])
+            terms = [times(x, y) for x, y in zip(row, fb[j::m]) if not _skip(x, y)]
+            out.append(total(terms) if len(terms) != 1 else terms[0])
     return matrix(n, m, out)

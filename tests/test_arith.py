@@ -1,0 +1,64 @@
+"""bgc.format.arith against sympy's constructors: the same products and sums, in form.
+
+Operands are drawn at random from what a model's expressions hold (numbers of every kind the
+builder makes, plain and signed symbols, powers, products, sums, functions), combined at
+random depth, so that both the direct paths and the fall-backs to sympy run; each result is
+compared with ``Mul``/``Add``'s by ``srepr``.
+"""
+from __future__ import annotations
+
+import random
+
+import pytest
+import sympy as sp
+
+from bgc.format import arith
+
+X = sp.symbols("x0:5", real=True)
+N = sp.Symbol("n", commutative=False)
+
+
+def _atom(rng):
+    x, y = rng.sample(X, 2)
+    return rng.choice([
+        sp.Integer(2), sp.S.NegativeOne, sp.S.One, sp.Rational(-3, 4), sp.Float(0.1),
+        sp.Float(2.5), x, -x, x ** 2, x ** -1, y ** -2, 3 * x, -x * y, x * y ** 2 / 7,
+        x + y, x - y, 2 * x + 1, sp.sin(x), sp.sqrt(x), sp.sqrt(2), sp.pi, x * (x + y),
+    ])
+
+
+def _expr(rng, depth):
+    if depth == 0 or rng.random() < 0.3:
+        return _atom(rng)
+    a, b = _expr(rng, depth - 1), _expr(rng, depth - 1)
+    return rng.choice([a * b, a + b, a - b])
+
+
+def _same(a, b):
+    assert sp.srepr(a) == sp.srepr(b), (a, b)
+
+
+@pytest.mark.parametrize("seed", range(30))
+def test_products_and_sums_equal_sympy(seed):
+    rng = random.Random(seed)
+    for _ in range(25):
+        a, b = _expr(rng, 2), _expr(rng, 2)
+        _same(arith.times(a, b), sp.Mul(a, b))
+        _same(arith.times(a, b), a * b)
+        _same(arith.plus(a, b), a + b)
+        terms = [_expr(rng, 1) for _ in range(rng.randint(0, 5))]
+        _same(arith.total(terms), sp.Add(*terms))
+
+
+def test_cases_that_collect():
+    x, y = X[:2]
+    _same(arith.times(x, x), x * x)
+    _same(arith.times(x ** 2, x ** -2), x ** 2 * x ** -2)
+    _same(arith.times(3 * x, x ** -1), 3 * x * x ** -1)
+    _same(arith.times(sp.Rational(1, 2), x + y), sp.Rational(1, 2) * (x + y))
+    _same(arith.times(x + y, x + y), (x + y) * (x + y))
+    _same(arith.plus(x * y, -2 * x * y), x * y - 2 * x * y)
+    _same(arith.plus(x, -x), x - x)
+    _same(arith.total([x * y, y * x, x]), sp.Add(x * y, y * x, x))
+    _same(arith.times(N, x), N * x)
+    _same(arith.plus(N, x), N + x)
