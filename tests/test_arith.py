@@ -62,3 +62,14 @@ def test_cases_that_collect():
     _same(arith.total([x * y, y * x, x]), sp.Add(x * y, y * x, x))
     _same(arith.times(N, x), N * x)
     _same(arith.plus(N, x), N + x)
+
+
+def test_bases_shared_by_powers_and_functions():
+    x, y = X[:2]
+    for a, b in [(x, sp.sqrt(x)), (sp.sqrt(x), x), (sp.exp(x), sp.exp(y)), (x + y, (x + y) ** 2),
+                 ((x + y) ** -1, x + y), (x ** -1, sp.sqrt(x)), (sp.sin(x), sp.sin(x)),
+                 (sp.S.NegativeOne, x + y + 1), (x + y, sp.S.NegativeOne), (sp.I, x),
+                 (sp.Float(2.0), x + y), (sp.Rational(1, 2) * x, x + y), (3 * (x + y), y)]:
+        _same(arith.times(a, b), a * b)
+    _same(arith.total([x, sp.Integer(2), y]), x + 2 + y)
+    _same(arith.total([x + 1, y, sp.Float(0.5)]), sp.Add(x + 1, y, sp.Float(0.5)))

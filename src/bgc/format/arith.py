@@ -5,14 +5,14 @@ sorting them; most of their cost is the general machinery around that (sympifica
 cache, the many special cases of numbers, infinities, orders and non-commutative factors).
 For the operands a model's expressions are mostly made of the result is plain:
 
-* :func:`times`: a product of finite rational or float coefficients, commutative plain
-  symbols raised to integer powers, and sums (only without any numeric coefficient, where no
-  distribution happens), each base at most once except a symbol's powers, whose exponents
-  add: the coefficient (if not 1) first, then the factors in ``Mul``'s own order
-  (``_mulsort``).
-* :func:`total`: a sum of commutative terms, none of them a number, no two alike (the same
-  factors but for the coefficient): the terms (nested sums flattened) in ``Add``'s own order
-  (``_addsort``).
+* :func:`times`: a product of finite rational or float coefficients and commutative factors
+  (symbols, their integer powers, sums, functions, other powers), each base at most once but
+  a symbol's integer powers, whose exponents add; not where sympy distributes a number over a
+  sum: the coefficient (if not 1) first, then the factors in ``Mul``'s own order
+  (``_mulsort``). -1 times a sum is the sum of its terms negated, as sympy distributes it.
+* :func:`total`: a sum of commutative terms, at most one of them a (finite, nonzero) number,
+  no two alike (the same factors but for the coefficient): the number first, then the terms
+  (nested sums flattened) in ``Add``'s own order (``_addsort``).
 
 Anything else goes to sympy's constructors, so the result is always exactly theirs
 (tests/test_arith.py holds both to them, in form). bgc.core.canon does the same for the plain
@@ -29,6 +29,8 @@ except ImportError:  # pragma: no cover - a sympy without them: always the const
     _addsort = _mulsort = None
 
 _ONE = sp.S.One
+_NEG = sp.S.NegativeOne
+_I = sp.S.ImaginaryUnit
 _Symbol = sp.Symbol
 _Mul, _Add, _Pow, _Integer = sp.Mul, sp.Add, sp.Pow, sp.Integer
 
@@ -40,9 +42,11 @@ def times(a, b):
 
 
 def _times(a, b):  # noqa: C901 - one case per kind of factor
+    if a is _NEG and b.is_Add or b is _NEG and a.is_Add:  # -1 distributed over a sum
+        return total([-t for t in (b if a is _NEG else a).args])
     coeff = _ONE
-    numbers = has_add = False
-    exps: dict = {}  # base -> integer exponent (a sum's: 1)
+    has_add = False
+    exps: dict = {}  # base -> integer exponent (of a symbol; other bases: 1, once)
     first: dict = {}  # base -> the factor as given (kept where its exponent is unchanged)
     for o in (a, b):
         for f in (o.args if o.is_Mul else (o,)):
@@ -50,39 +54,41 @@ def _times(a, b):  # noqa: C901 - one case per kind of factor
                 if not (f.is_Rational or f.is_Float) or f.is_zero:
                     return None
                 coeff = coeff * f
-                numbers = True
                 continue
             if type(f) is _Symbol:
                 base, e = f, 1
             elif f.is_Pow and type(f.args[0]) is _Symbol and f.args[1].is_Integer:
                 base, e = f.args[0], int(f.args[1])
-            elif f.is_Add:
-                base, e = f, 1
-                has_add = True
-            else:
-                return None
+            else:  # a sum, a function, a power: its own base, which must be unique
+                if f is _I or f.is_Order or isinstance(f, sp.MatrixExpr):
+                    return None
+                base = f.as_base_exp()[0]
+                if base.is_Number or base in exps:
+                    return None
+                has_add = has_add or f.is_Add
+                e = None
             if not base.is_commutative:
                 return None
             if base in exps:
-                if base.is_Add:
+                if exps[base] is None:
                     return None
                 exps[base] += e
             else:
                 exps[base] = e
                 first[base] = f
-    if has_add and numbers:  # (sympy distributes a number over a sum)
+    if has_add and (a.is_Rational or b.is_Rational):  # (sympy's two-argument distribution)
         return None
     factors = []
     for base, e in exps.items():
         f = first[base]
-        if e == 0:
-            continue
-        if f is base or not f.is_Pow:
+        if e is None or (f.is_Pow and f.args[1] == e) or (f is base and e == 1):
+            factors.append(f)
+        elif e != 0:
             factors.append(base if e == 1 else _Pow(base, _Integer(e)))
-        else:
-            factors.append(f if f.args[1] == e else base if e == 1 else _Pow(base, _Integer(e)))
     if not factors:
         return coeff
+    if coeff is not _ONE and len(factors) == 1 and factors[0].is_Add:  # (distributed)
+        return None
     if len(factors) == 1 and coeff is _ONE:
         return factors[0]
     _mulsort(factors)
@@ -111,14 +117,21 @@ def _total(terms):
     if len(flat) < 2:
         return None
     seen = set()
+    number = None
     for t in flat:
-        if t.is_Number or t.is_Order or not t.is_commutative or (
-                t.is_Pow and t.args[0].is_Number) or not isinstance(t, sp.Expr) or (
-                isinstance(t, sp.MatrixExpr)):
+        if t.is_Number:  # one finite nonzero number at most: it goes first
+            if number is not None or not (t.is_Rational or t.is_Float) or t.is_zero:
+                return None
+            number = t
+            continue
+        if t.is_Order or not t.is_commutative or (t.is_Pow and t.args[0].is_Number) or (
+                not isinstance(t, sp.Expr)) or isinstance(t, sp.MatrixExpr):
             return None
         key = (t.args[1:] if t.args[0].is_Number else t.args) if t.is_Mul else (t,)
         if key in seen:
             return None
         seen.add(key)
+    if number is not None:
+        flat.remove(number)
     _addsort(flat)
-    return _Add._from_args(flat)
+    return _Add._from_args(flat if number is None else [number] + flat)
