@@ -73,3 +73,9 @@ def test_bases_shared_by_powers_and_functions():
         _same(arith.times(a, b), a * b)
     _same(arith.total([x, sp.Integer(2), y]), x + 2 + y)
     _same(arith.total([x + 1, y, sp.Float(0.5)]), sp.Add(x + 1, y, sp.Float(0.5)))
+
+
+def test_summed_is_pythons_sum():
+    x, y, z = X[:3]
+    for terms in ([], [x], [x, y * z, -x], [x * y, 2 * x * y, sp.Float(1.5)], [x + 1, sp.Integer(-1), y]):
+        _same(arith.summed(iter(terms)), sum(terms, sp.Integer(0)))

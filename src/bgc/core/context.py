@@ -24,6 +24,7 @@ from bgc.core.eqtypes import (
     symbol_vector,
 )
 from bgc.core.graph import BondGraph, a_kind, code_name, join
+from bgc.format.arith import summed, times
 from bgc.format.expr import Expr, build, shape_of
 from bgc.format.parse import TWO_PORTS
 
@@ -208,7 +209,7 @@ class NameResolver:
             return e
         if func == "f":
             return f
-        return sum((a * b for a, b in zip(flat(e), flat(f))), sp.Integer(0))
+        return summed(times(a, b) for a, b in zip(flat(e), flat(f)))
 
 
 def _inputs_value(self: Context, name: str, coord: Coord):

@@ -41,7 +41,7 @@ def symbol_array(prefix: str, shape: tuple[int, ...]):
 
 
 def flat(v) -> list:
-    return list(v) if isinstance(v, sp.MatrixBase) else [v]
+    return v.flat() if isinstance(v, sp.MatrixBase) else [v]
 
 
 def shape_name(shape):

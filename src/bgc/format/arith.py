@@ -107,6 +107,14 @@ def plus(a, b):
     return a + b if out is None else out
 
 
+def summed(terms):
+    """``sum(terms, Integer(0))``: the terms added one by one, as Python's ``sum`` does."""
+    out = sp.S.Zero
+    for t in terms:
+        out = plus(out, t)
+    return out
+
+
 def _total(terms):
     flat = []
     for t in terms:

@@ -497,11 +497,11 @@ class _Builder:
         if name == "dot":
             if not (shapes[0] and shapes[0] == shapes[1] and shapes[0][1] == 1):
                 raise self.err(node, "dot() needs two vectors of the same length")
-            return sum((a * b for a, b in zip(args[0], args[1])), sp.Integer(0))
+            return _ar().summed(_ar().times(a, b) for a, b in zip(args[0], args[1]))
         if name == "norm":  # Euclidean of a vector, Frobenius of a matrix
             if not shapes[0]:
                 raise self.err(node, "norm() needs a vector or a matrix")
-            return sp.sqrt(sum((a ** 2 for a in args[0]), sp.Integer(0)))
+            return sp.sqrt(_ar().summed(a ** 2 for a in args[0]))
         if name == "transpose":
             return sp.ImmutableMatrix(_as_matrix(args[0]).T)
         if name == "diag":
