@@ -5,6 +5,8 @@ from __future__ import annotations
 import os
 import sys
 
+from bgc.base.collector import gc_paused
+
 
 def main(argv: list[str] | None = None) -> None:
     args = sys.argv[1:] if argv is None else list(argv)
@@ -19,8 +21,9 @@ def main(argv: list[str] | None = None) -> None:
             sys.exit(1)
         if status is not None:
             sys.exit(status)
-    # lazy: a warm `bgc simulate` replays its record before click and the CLI load
-    from bgc.cli.commands import main as cli_main
+    with gc_paused():  # (importing allocates much and frees little: see gc_paused)
+        # lazy: a warm `bgc simulate` replays its record before click and the CLI load
+        from bgc.cli.commands import main as cli_main
 
     cli_main(args=args)
 

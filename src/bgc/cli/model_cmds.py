@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from bgc.base import BACKENDS
+from bgc.base.collector import gc_paused
 from bgc.base.errors import ModelError
 from bgc.base.outfiles import check_output, write_output
 from bgc.base.reach import run_inputs
@@ -34,13 +35,14 @@ from bgc.run.progress import Progress
 @click.option("-q", "--quiet", is_flag=True)
 def compile_cmd(model, output, scene, target, no_cache, quiet, strict_causality):
     """Compile MODEL.yaml into a Python module (or, --target c, C sources and a library)."""
-    # lazy: what this command runs; `bgc --help` and the other commands never load it
-    from bgc.backends import load as backends
-    from bgc.backends.c import build as cbuild
-    from bgc.format.scene import parse_scene
-    from bgc.run import cache as cache_mod
-    from bgc.run.driver import compile_source
-    from bgc.run.runner import check_module_start
+    with gc_paused():  # (the imports below allocate much and free little: see gc_paused)
+        # lazy: what this command runs; `bgc --help` and the other commands never load it
+        from bgc.backends import load as backends
+        from bgc.backends.c import build as cbuild
+        from bgc.format.scene import parse_scene
+        from bgc.run import cache as cache_mod
+        from bgc.run.driver import compile_source
+        from bgc.run.runner import check_module_start
 
     prog = Progress(quiet)
     sc = None

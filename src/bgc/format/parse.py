@@ -302,11 +302,11 @@ def parse_root(r: Reader, root, source_hash: str, _imports: _Imports | None = No
 
 def _hybrid(r: Reader, top: dict, body: Body):
     """``modes:`` and ``events:`` (bgc.format.events); each mode joins the states (d/dt = 0)."""
+    if "modes" not in top and "events" not in top:
+        return body, (), ()
     from dataclasses import replace
 
-    # lazy: the compile path, which a warm run never loads
-    from bgc.format import events as _events
-
+    from bgc.format import events as _events  # lazy: only a hybrid model has these sections
     modes = _events.read_modes(r, top["modes"][1]) if "modes" in top else ()
     events = _events.read_events(r, top["events"][1]) if "events" in top else ()
     states = tuple(State(m.name, (), m.initial, Expr("0", m.initial.coord), m.coord)
