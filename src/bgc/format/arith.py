@@ -6,8 +6,8 @@ cache, the many special cases of numbers, infinities, orders and non-commutative
 For the operands a model's expressions are mostly made of the result is plain:
 
 * :func:`times`: a product of finite rational or float coefficients and commutative factors
-  (symbols, their integer powers, sums, functions, other powers), each base at most once but
-  a symbol's integer powers, whose exponents add; not where sympy distributes a number over a
+  (symbols, sums, functions, powers), the integer exponents of a base met more than once
+  added (as sympy's ``Pow`` makes the power); not where sympy distributes a number over a
   sum: the coefficient (if not 1) first, then the factors in ``Mul``'s own order
   (``_mulsort``). -1 times a sum is the sum of its terms negated, as sympy distributes it.
 * :func:`total`: a sum of commutative terms, at most one of them a (finite, nonzero) number,
@@ -31,6 +31,7 @@ except ImportError:  # pragma: no cover - a sympy without them: always the const
 _ONE = sp.S.One
 _NEG = sp.S.NegativeOne
 _I = sp.S.ImaginaryUnit
+_INFINITE = (sp.S.ComplexInfinity, sp.S.Infinity, sp.S.NegativeInfinity)
 _Symbol = sp.Symbol
 _Mul, _Add, _Pow, _Integer = sp.Mul, sp.Add, sp.Pow, sp.Integer
 
@@ -46,8 +47,9 @@ def _times(a, b):  # noqa: C901 - one case per kind of factor
         return total([-t for t in (b if a is _NEG else a).args])
     coeff = _ONE
     has_add = False
-    exps: dict = {}  # base -> integer exponent (of a symbol; other bases: 1, once)
-    first: dict = {}  # base -> the factor as given (kept where its exponent is unchanged)
+    exps: dict = {}  # base -> its integer exponent (None: another exponent, met once)
+    first: dict = {}  # base -> the factor as given (kept where it is met once)
+    merged = set()  # the bases met more than once
     for o in (a, b):
         for f in (o.args if o.is_Mul else (o,)):
             if f.is_Number:
@@ -57,22 +59,21 @@ def _times(a, b):  # noqa: C901 - one case per kind of factor
                 continue
             if type(f) is _Symbol:
                 base, e = f, 1
-            elif f.is_Pow and type(f.args[0]) is _Symbol and f.args[1].is_Integer:
-                base, e = f.args[0], int(f.args[1])
-            else:  # a sum, a function, a power: its own base, which must be unique
+            else:  # a power, a sum, a function: its base and exponent as Mul sees them
                 if f is _I or f.is_Order or isinstance(f, sp.MatrixExpr):
                     return None
-                base = f.as_base_exp()[0]
-                if base.is_Number or base in exps:
+                base, e = f.as_base_exp()
+                if base.is_Number:
                     return None
+                e = int(e) if e.is_Integer else None
                 has_add = has_add or f.is_Add
-                e = None
             if not base.is_commutative:
                 return None
             if base in exps:
-                if exps[base] is None:
+                if e is None or exps[base] is None:
                     return None
                 exps[base] += e
+                merged.add(base)
             else:
                 exps[base] = e
                 first[base] = f
@@ -80,11 +81,18 @@ def _times(a, b):  # noqa: C901 - one case per kind of factor
         return None
     factors = []
     for base, e in exps.items():
-        f = first[base]
-        if e is None or (f.is_Pow and f.args[1] == e) or (f is base and e == 1):
-            factors.append(f)
-        elif e != 0:
-            factors.append(base if e == 1 else _Pow(base, _Integer(e)))
+        if base not in merged:
+            factors.append(first[base])
+        elif e == 0:
+            if (base.is_Add or base.is_Mul) and any(i in base.args for i in _INFINITE):
+                return None  # (sympy: nan)
+        elif e == 1:
+            factors.append(base)
+        else:
+            p = _Pow(base, _Integer(e))
+            if not (p.is_Pow and p.args[0] == base):
+                return None  # (a power that evaluates to something else)
+            factors.append(p)
     if not factors:
         return coeff
     if coeff is not _ONE and len(factors) == 1 and factors[0].is_Add:  # (distributed)
@@ -109,10 +117,10 @@ def plus(a, b):
 
 def summed(terms):
     """``sum(terms, Integer(0))``: the terms added one by one, as Python's ``sum`` does."""
-    out = sp.S.Zero
+    out = None
     for t in terms:
-        out = plus(out, t)
-    return out
+        out = t if out is None else plus(out, t)  # (0 + t is t itself)
+    return sp.S.Zero if out is None else out
 
 
 def _total(terms):
