@@ -16,6 +16,7 @@ from bgc.core.constraints import constraint_source
 from bgc.core.context import Context
 from bgc.core.eqtypes import StateVar, flat, shape_name, symbol_vector
 from bgc.core.graph import FlatElement, code_name
+from bgc.format.arith import times
 from bgc.format.expr import shape_of
 from bgc.format.matrices import matmul, matrix, neg, scale
 from bgc.format.parse import TWO_PORTS
@@ -210,7 +211,7 @@ def _signed(v, sgn: int):
     """``v * sgn`` for a sign +1 or -1 (a matrix entry by entry, as sympy's matrices)."""
     if sgn == 1:
         return v
-    return neg(v) if shape_of(v) else v * sp.S.NegativeOne
+    return neg(v) if shape_of(v) else times(v, sp.S.NegativeOne)
 
 
 def _times(a, b):
@@ -218,7 +219,7 @@ def _times(a, b):
     times a matrix, or a product of scalars."""
     if shape_of(a):
         return matmul(a, b) if shape_of(b) else scale(a, b)
-    return scale(b, a, left=True) if shape_of(b) else a * b
+    return scale(b, a, left=True) if shape_of(b) else times(a, b)
 
 
 def _eye_times(val, n: int):
