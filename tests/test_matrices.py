@@ -64,3 +64,10 @@ def test_zero_times_infinity_stays_undefined():
     a = sp.ImmutableMatrix([[0, 1]])
     b = sp.ImmutableMatrix([[sp.oo], [2]])
     assert matrices.matmul(a, b)[0, 0] == (a * b)[0, 0]
+
+
+def test_zero_times_a_product_with_an_infinite_factor():
+    x = sp.Symbol("x", real=True)
+    a = sp.ImmutableMatrix([[0, 1]])
+    b = sp.ImmutableMatrix([[sp.Mul(sp.oo, x, evaluate=False)], [2]])
+    assert sp.srepr(matrices.matmul(a, b)[0, 0]) == sp.srepr((a * b)[0, 0])

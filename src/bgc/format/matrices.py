@@ -63,10 +63,11 @@ def scale(a, s, left: bool = False) -> sp.ImmutableMatrix:
 
 
 def _skip(x, y) -> bool:
-    """A product that is the zero it makes: a zero factor, the other not possibly infinite."""
+    """A product that is the zero it makes: a zero factor, and no factor of the other that
+    may be infinite (what sympy's ``Mul(0, y)`` asks: else it is nan)."""
     if x is _ZERO:
-        return y.is_finite is not False
-    return y is _ZERO and x.is_finite is not False
+        return not any(c.is_finite is False for c in (y.args if y.is_Mul else (y,)))
+    return y is _ZERO and _skip(y, x)
 
 
 def matmul(a, b) -> sp.ImmutableMatrix:
