@@ -71,3 +71,9 @@ def test_zero_times_a_product_with_an_infinite_factor():
     a = sp.ImmutableMatrix([[0, 1]])
     b = sp.ImmutableMatrix([[sp.Mul(sp.oo, x, evaluate=False)], [2]])
     assert sp.srepr(matrices.matmul(a, b)[0, 0]) == sp.srepr((a * b)[0, 0])
+
+
+def test_entries_are_the_flat_list():
+    for m in (sp.ImmutableMatrix([[1, X[0]], [X[1] ** 2, 0]]), sp.ImmutableMatrix(sp.eye(3)),
+              sp.Matrix([[X[2], 2]]), sp.ImmutableMatrix(3, 1, [0, 0, 0])):
+        assert matrices.entries(m) == m.flat() and type(matrices.entries(m)) is list

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import sympy as sp
 
 from bgc.base.errors import ModelError
+from bgc.format.matrices import entries
 
 T = sp.Symbol("t", real=True)
 # Linear systems from derivative causality up to this size are solved symbolically (Cramer-like
@@ -41,7 +42,7 @@ def symbol_array(prefix: str, shape: tuple[int, ...]):
 
 
 def flat(v) -> list:
-    return v.flat() if isinstance(v, sp.MatrixBase) else [v]
+    return entries(v) if isinstance(v, sp.MatrixBase) else [v]
 
 
 def shape_name(shape):

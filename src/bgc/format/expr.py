@@ -81,7 +81,7 @@ def _finite(v, seen: set) -> bool:
     """No infinite or undefined value anywhere in ``v`` (``has(zoo, oo, -oo, nan)``, in one
     walk); ``seen``: the sub-expressions found finite before, not walked again."""
     bad = {sp.zoo, sp.oo, -sp.oo, sp.nan}
-    items = v.flat() if isinstance(v, sp.MatrixBase) else (v,)
+    items = _mat().entries(v) if isinstance(v, sp.MatrixBase) else (v,)
     stack = [x for x in items if isinstance(x, sp.Basic)]
     while stack:
         x = stack.pop()
@@ -97,7 +97,7 @@ def _finite(v, seen: set) -> bool:
 def _too_big(v) -> bool:
     """An exact number too large to print, or a float beyond the double range."""
     limit = 10 ** MAX_EXPONENT
-    items = v.flat() if isinstance(v, sp.MatrixBase) else (v,)
+    items = _mat().entries(v) if isinstance(v, sp.MatrixBase) else (v,)
     for x in items:
         if isinstance(x, sp.Rational) and (abs(x.p) > limit or x.q > limit):
             return True
@@ -292,7 +292,7 @@ class _Builder:
             raise self.err(node, f"a number larger than 10**{MAX_EXPONENT}")
         self._shape_guard(node, v)
         try:
-            for x in (v.flat() if isinstance(v, sp.MatrixBase) else (v,)):
+            for x in (_mat().entries(v) if isinstance(v, sp.MatrixBase) else (v,)):
                 numeric(x, self.memo)
         except _NumError as exc:
             raise self.err(node, _NUM_MESSAGES[str(exc)]) from None

@@ -22,6 +22,8 @@ _ZERO = sp.S.Zero
 _ONE = sp.S.One
 _NEG = sp.S.NegativeOne
 _new = sp.ImmutableMatrix._new
+_Dense = sp.ImmutableDenseMatrix
+_Tuple = sp.Tuple
 
 
 def matrix(rows: int, cols: int, entries) -> sp.ImmutableMatrix:
@@ -30,19 +32,24 @@ def matrix(rows: int, cols: int, entries) -> sp.ImmutableMatrix:
 
 
 def entries(m) -> list:
-    """The flat entries of a matrix, row by row."""
+    """The flat entries of a matrix, row by row (an immutable dense matrix holds them as its
+    third argument, sympy objects already: read there, without converting its representation)."""
+    if type(m) is _Dense:
+        args = m.args
+        if len(args) == 3 and type(args[2]) is _Tuple:
+            return list(args[2].args)
     return m.flat()
 
 
 def add(a, b) -> sp.ImmutableMatrix:
     """``a + b`` of two matrices of one shape."""
     return matrix(a.rows, a.cols, [y if x is _ZERO else x if y is _ZERO else plus(x, y)
-                                   for x, y in zip(a.flat(), b.flat())])
+                                   for x, y in zip(entries(a), entries(b))])
 
 
 def neg(a) -> sp.ImmutableMatrix:
     """``-a``."""
-    return matrix(a.rows, a.cols, [x if x is _ZERO else times(x, _NEG) for x in a.flat()])
+    return matrix(a.rows, a.cols, [x if x is _ZERO else times(x, _NEG) for x in entries(a)])
 
 
 def sub(a, b) -> sp.ImmutableMatrix:
@@ -58,8 +65,8 @@ def scale(a, s, left: bool = False) -> sp.ImmutableMatrix:
     if s is _ONE:
         return a
     if left:
-        return matrix(a.rows, a.cols, [x if x is _ZERO else times(s, x) for x in a.flat()])
-    return matrix(a.rows, a.cols, [x if x is _ZERO else times(x, s) for x in a.flat()])
+        return matrix(a.rows, a.cols, [x if x is _ZERO else times(s, x) for x in entries(a)])
+    return matrix(a.rows, a.cols, [x if x is _ZERO else times(x, s) for x in entries(a)])
 
 
 def _skip(x, y) -> bool:
@@ -75,7 +82,7 @@ def matmul(a, b) -> sp.ImmutableMatrix:
     the products with a zero factor left out."""
     n, k = a.shape
     m = b.shape[1]
-    fa, fb = a.flat(), b.flat()
+    fa, fb = entries(a), entries(b)
     out = []
     for i in range(n):
         row = fa[i * k:(i + 1) * k]
