@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import sympy as sp
 
 from bgc.base.errors import ModelError
-from bgc.format.matrices import entries
+from bgc.format.matrices import entries, matrix
 
 T = sp.Symbol("t", real=True)
 # Linear systems from derivative causality up to this size are solved symbolically (Cramer-like
@@ -29,16 +29,16 @@ def real_symbol(name: str) -> sp.Symbol:
 def symbol_vector(prefix: str, n: int):
     if n == 1:
         return real_symbol(prefix)
-    return sp.ImmutableMatrix(n, 1, [real_symbol(f"{prefix}_{i}") for i in range(n)])
+    return matrix(n, 1, [real_symbol(f"{prefix}_{i}") for i in range(n)])
 
 
 def symbol_array(prefix: str, shape: tuple[int, ...]):
     if not shape:
         return real_symbol(prefix)
     if len(shape) == 1:
-        return sp.ImmutableMatrix(shape[0], 1, [real_symbol(f"{prefix}_{i}") for i in range(shape[0])])
+        return matrix(shape[0], 1, [real_symbol(f"{prefix}_{i}") for i in range(shape[0])])
     r, c = shape
-    return sp.ImmutableMatrix(r, c, [real_symbol(f"{prefix}_{i}_{j}") for i in range(r) for j in range(c)])
+    return matrix(r, c, [real_symbol(f"{prefix}_{i}_{j}") for i in range(r) for j in range(c)])
 
 
 def flat(v) -> list:

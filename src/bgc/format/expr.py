@@ -393,7 +393,7 @@ class _Builder:
         items = [self.visit(e) for e in node.elts]
         shapes = {shape_of(i) for i in items}
         if shapes == {()}:
-            return sp.ImmutableMatrix(len(items), 1, items)
+            return _mat().matrix(len(items), 1, items)
         if len(shapes) == 1:
             (s,) = shapes
             if len(s) == 2 and s[1] == 1:  # a list of column vectors: rows
