@@ -34,7 +34,7 @@ def child(model: str, count: bool) -> dict:
     import networkx  # noqa: F401
     import numpy  # noqa: F401
     import symengine  # noqa: F401
-    import sympy  # noqa: F401
+    import sympy
     import sympy.tensor.tensor  # noqa: F401
 
     from bgc.base.collector import gc_paused

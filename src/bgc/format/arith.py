@@ -42,7 +42,7 @@ def times(a, b):
     return a * b if out is None else out
 
 
-def _times(a, b):  # noqa: C901 - one case per kind of factor
+def _times(a, b):
     if a is _NEG and b.is_Add or b is _NEG and a.is_Add:  # -1 distributed over a sum
         return total([-t for t in (b if a is _NEG else a).args])
     coeff = _ONE

@@ -7,7 +7,7 @@ loaders keep the last one silently). Expressions are checked here by the whiteli
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import yaml
@@ -304,9 +304,9 @@ def _hybrid(r: Reader, top: dict, body: Body):
     """``modes:`` and ``events:`` (bgc.format.events); each mode joins the states (d/dt = 0)."""
     if "modes" not in top and "events" not in top:
         return body, (), ()
-    from dataclasses import replace
+    # lazy: only a hybrid model has these sections
+    from bgc.format import events as _events
 
-    from bgc.format import events as _events  # lazy: only a hybrid model has these sections
     modes = _events.read_modes(r, top["modes"][1]) if "modes" in top else ()
     events = _events.read_events(r, top["events"][1]) if "events" in top else ()
     states = tuple(State(m.name, (), m.initial, Expr("0", m.initial.coord), m.coord)
