@@ -270,3 +270,36 @@ def test_no_fcntl_builds_as_before(tmp_path, monkeypatch):
     d = c.get_or_build("numpy", KEY, lambda tmp: seen.append(
         (tmp.parent / f".{KEY}.lock").exists()))
     assert seen == [False] and d.is_dir()  # no lock file ever made
+
+
+def test_a_stopped_build_ahead_stops_waiting(tmp_path, capsys):
+    """A build ahead that is called off (bgc.backends.c.build.stop_runtime's event) while it
+    waits for another process's build of its entry ends its wait, and its build refuses."""
+    p = _holder(tmp_path)
+    try:
+        c = Cache(tmp_path / "cache")
+        c.lock_wait = 120.0
+        stop, got = threading.Event(), []
+
+        def build(tmp):
+            got.append("build ran")
+            if stop.is_set():
+                raise RuntimeError("stopped")
+
+        def run():
+            try:
+                c.get_or_build("numpy", KEY, build, stop=stop)
+            except RuntimeError as exc:
+                got.append(str(exc))
+        t = threading.Thread(target=run)
+        t.start()
+        time.sleep(0.3)
+        assert t.is_alive() and got == []  # waiting for the holder
+        stop.set()
+        t.join(60)
+        assert not t.is_alive() and got == ["build ran", "stopped"]
+        assert "note: waited" not in capsys.readouterr().err
+        assert c.get("numpy", KEY) is None  # nothing kept
+    finally:
+        p.kill()
+        p.communicate(timeout=60)

@@ -97,10 +97,12 @@ class Cache:
     #: this cache's :data:`LOCK_WAIT` (a test may shorten it)
     lock_wait = LOCK_WAIT
 
-    def get_or_build(self, target: str, key: str, build) -> Path:
+    def get_or_build(self, target: str, key: str, build, stop=None) -> Path:
         """The entry, built by ``build(tmpdir)`` when missing; the rename makes it visible.
         A miss takes the entry's lock first (see the module's docstring): of the processes
-        that miss one entry at once, one builds and the others get its entry."""
+        that miss one entry at once, one builds and the others get its entry. ``stop`` (a
+        threading.Event, for a build ahead that may be called off): once set, a wait for
+        another process's build ends, and ``build`` runs (it is the build's to refuse)."""
         d = self.get(target, key)
         if d is not None:
             return d  # a hit: no lock
@@ -111,7 +113,7 @@ class Cache:
             check_dir(sub)
         lock = _EntryLock(parent / f".{key}.lock", self.entry(target, key))
         try:
-            if lock.acquire(self.lock_wait, f"{target} {key[:12]}"):
+            if lock.acquire(self.lock_wait, f"{target} {key[:12]}", stop):
                 d = self.get(target, key)  # built by another process while we waited?
                 if d is not None:
                     return d
@@ -213,10 +215,11 @@ class _EntryLock:
     def __init__(self, path: Path, entry: Path):
         self.path, self.entry, self.fd = path, entry, None
 
-    def acquire(self, wait: float, what: str) -> bool:
+    def acquire(self, wait: float, what: str, stop=None) -> bool:
         """Take the lock, waiting at most ``wait`` seconds; True when taken or when the entry
         appeared meanwhile (the caller looks again), False when the build goes on without it
-        (no fcntl, a file system without locks, a nested build, the wait over: a note)."""
+        (no fcntl, a file system without locks, a nested build, ``stop`` set, the wait over:
+        a note)."""
         import threading
 
         fcntl = _fcntl()
@@ -230,6 +233,8 @@ class _EntryLock:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:  # another process builds it
                 os.close(fd)
+                if stop is not None and stop.is_set():
+                    return False
                 if time.monotonic() >= deadline:
                     print(f"note: waited {wait:.0f} s for another process building the compile "
                           f"cache's entry {what}; building it here too", file=sys.stderr)
