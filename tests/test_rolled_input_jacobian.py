@@ -66,8 +66,8 @@ def fed_ladder(n: int, own: bool, reverse: bool = False) -> str:
             els += [f'  s{i}: {{type: "1"}}', f"  r{i}: {{type: R, resistance: R}}"]
             bonds += [f"  - [n{i - 1}, s{i}]", f"  - [s{i}, r{i}]", f"  - [s{i}, n{i}]"]
     return "\n".join(["bgc: 1", f"name: fed_ladder{n}{'_own' if own else ''}", "parameters:"]
-                     + par + ["inputs:"] + (inputs[::-1] if reverse else inputs) + ["elements:"] + els + ["bonds:"] + bonds
-                     + ["outputs:"] + outs) + "\n"
+                     + par + ["inputs:"] + (inputs[::-1] if reverse else inputs)
+                     + ["elements:"] + els + ["bonds:"] + bonds + ["outputs:"] + outs) + "\n"
 
 
 def closed_form(n: int, rs, cap, reverse: bool = False):
