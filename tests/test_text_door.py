@@ -157,3 +157,46 @@ def test_lit_refuses_non_finite_and_objects():
         lit(float("inf"))
     with pytest.raises(TypeError):
         lit(object())
+
+
+def test_start_check_code_leaves_out_only_the_functions_named():
+    """The start check's code (skeleton.checked_code(..., without=)): the module less exactly
+    the functions named, every other line where it was, and the same rhs at X0 as the whole
+    module (msd's: an independent closed form, p' = F0 - k q - c p/m, q' = p/m)."""
+    import numpy as np
+
+    from bgc.backends.skeleton import checked_code
+    from bgc.run.runner import START_UNUSED
+
+    src = compile_file(ROOT / "models" / "msd.yaml").source
+    whole, part = {}, {}
+    exec(checked_code(src, "<bgc msd_whole>"), whole)  # noqa: S102 - the checked module
+    exec(checked_code(src, "<bgc msd_part>", without=START_UNUSED), part)  # noqa: S102
+    assert set(START_UNUSED) <= set(whole) and not set(START_UNUSED) & set(part)
+    assert set(whole) - set(part) == set(START_UNUSED)
+    for name in ("rhs", "initial_state", "_params", "simulate"):
+        assert part[name].__code__.co_firstlineno == whole[name].__code__.co_firstlineno
+    x = np.array([0.3, -0.02])  # p, q
+    m, k, c, f0 = 2.0, 200.0, 4.0, 10.0
+    want = [f0 - k * x[1] - c * x[0] / m, x[0] / m]
+    assert np.allclose(part["rhs"](0.0, x), want, rtol=1e-14, atol=0)
+    assert np.array_equal(part["rhs"](0.0, x), whole["rhs"](0.0, x))
+    cut = src.index("\ndef rhs(")
+    bad = src[:cut] + "\nimport os\n" + src[cut:]
+    with pytest.raises(SkeletonError):
+        checked_code(bad, "<bgc bad>", without=START_UNUSED)
+
+
+def test_compile_start_check_names_the_law_that_is_not_finite(tmp_path):
+    """A module whose rhs is not finite at X0 with its defaults (a zero mass: v = p/m) is one
+    located ModelError from the start check, with the module loaded less its unused parts."""
+    from bgc.run.runner import check_module_start
+
+    text = (ROOT / "models" / "msd.yaml").read_text(encoding="utf-8")
+    text = text.replace("m:  {value: 2.0,", "m:  {value: 0.0,", 1)
+    (tmp_path / "zero.yaml").write_text(text, encoding="utf-8")
+    c = compile_file(tmp_path / "zero.yaml")
+    with pytest.raises(ModelError) as exc:
+        check_module_start(c)
+    assert "not finite with the default parameters" in str(exc.value)
+    assert "zero.yaml:28:3:" in str(exc.value) and "divides by m, which is 0" in str(exc.value)

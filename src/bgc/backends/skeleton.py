@@ -101,6 +101,9 @@ def _top_names(node) -> tuple[str, set]:
 #: and loading it would check it again; the second check of the same text is a lookup
 #: (parsing the 3R2S module takes 0.4 s). In memory only, never persisted.
 _PASSED: set[tuple[str, bytes]] = set()
+#: digest of a checked module -> its model part's top-level functions: name -> (first line,
+#: last line), as the check's tree has them (what :func:`checked_code` may leave out)
+_SPANS: dict[tuple[str, bytes], dict[str, tuple[int, int]]] = {}
 
 
 def _digest(text: str, kind: str) -> tuple[str, bytes]:
@@ -114,18 +117,35 @@ def check_skeleton(text: str, backend: str = _TEMPLATES) -> None:
     digest = _digest(text, backend)
     if digest in _PASSED:
         return
-    _check_skeleton(text, backend)
+    spans = _check_skeleton(text, backend)
     _PASSED.add(digest)
+    _SPANS[digest] = spans
 
 
-def checked_code(text: str, filename: str, wrapper: bool = False):
+def checked_code(text: str, filename: str, wrapper: bool = False, without=()):
     """The code object of a generated module (``wrapper``: a C wrapper), its text checked
     first (a lookup when rendering checked it already in this process). Only the model's part
     is parsed into a syntax tree for the check (the template's verbatim parts are compared as
     text); the code is compiled from the text, which costs a fraction of building the tree.
-    Raises SkeletonError for a text whose top level is not the template's."""
+    Raises SkeletonError for a text whose top level is not the template's.
+
+    ``without``: names of the model part's top-level functions the caller never calls (a
+    start check: bgc.run.runner.check_module_start), compiled as blank lines: the same text
+    less whole top-level statements of the checked tree, so its top level is still the
+    template's, and every line keeps its number. (The 3R2S's Jacobian and its linearisation
+    are four fifths of its text.) A text with a carriage return, whose lines Python may count
+    apart from ``\\n``, is compiled whole."""
     (check_wrapper if wrapper else check_skeleton)(text)
-    return compile(text, filename, "exec")
+    spans = None if wrapper or not without or "\r" in text else \
+        _SPANS.get(_digest(text, _TEMPLATES))
+    if not spans:
+        return compile(text, filename, "exec")
+    lines = text.split("\n")
+    for name in without:
+        if name in spans:
+            first, last = spans[name]
+            lines[first - 1:last] = [""] * (last - first + 1)
+    return compile("\n".join(lines), filename, "exec")
 
 
 def _parse(text: str, what: str) -> ast.Module:
@@ -143,11 +163,12 @@ def _check_skeleton(text: str, backend: str) -> None:
     if not body.endswith("\n\n\n" + runtime):  # the runtime, verbatim, at the end
         raise SkeletonError(f"the runtime part differs from templates/{backend}/runtime.py")
     # the model part must parse on its own: nothing in it can reach into the runtime
-    _check_head(_parse(body[:-len(runtime)], "generated module").body)
+    return _check_head(_parse(body[:-len(runtime)], "generated module").body)
 
 
-def _check_head(head: list) -> None:
-    """The model part's statements: the docstring, allowed imports, the template's names."""
+def _check_head(head: list) -> dict[str, tuple[int, int]]:
+    """The model part's statements: the docstring, allowed imports, the template's names.
+    Returns the lines of its undecorated top-level functions (name -> (first, last))."""
     if not head:
         raise SkeletonError("the generated module has no model part")
     doc = head[0]
@@ -172,6 +193,8 @@ def _check_head(head: list) -> None:
             seen[nm] = seen.get(nm, 0) + 1
             if seen[nm] > (2 if nm == "JAC_SPARSITY" else 1):
                 raise SkeletonError(f"{nm} bound twice at top level")
+    return {node.name: (node.lineno, node.end_lineno) for node in head[1:]
+            if isinstance(node, ast.FunctionDef) and not node.decorator_list}
 
 
 # ---------------------------------------------------------------------------------------------
