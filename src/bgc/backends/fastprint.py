@@ -23,7 +23,7 @@ NumPyPrinter)``) and changes no character of what it prints:
 """
 from __future__ import annotations
 
-from sympy import Basic, Mul, Pow, S
+from sympy import Basic, Mul, Pow, S, Symbol
 from sympy.core.expr import UnevaluatedExpr
 from sympy.core.function import AppliedUndef, Function, UndefinedFunction
 from sympy.core.mul import _keep_coeff
@@ -92,6 +92,11 @@ class FastPrinting:
         return "\n".join(self._format_code(text.splitlines()))
 
     def _print(self, expr, **kwargs):
+        if type(expr) is Symbol and not kwargs:  # the commonest node: its text, once made
+            got = self._symbol_names.get(expr)
+            if got is None:
+                got = self._symbol_names[expr] = self._symbol_text(expr)
+            return got
         method = self._methods.get(type(expr))
         if method is None:
             key = (type(self), type(expr))
@@ -156,6 +161,21 @@ class FastPrinting:
         if p < level or (not strict and p <= level):
             return f"({self._print(item)})"
         return self._print(item)
+
+    def _symbol_text(self, expr) -> str:
+        """A Symbol's text as the printer's own dispatch makes it (a printer's names do not
+        change once it is made: :meth:`_print` keeps each symbol's text)."""
+        method = self._methods.get(Symbol)
+        if method is None:
+            method = self._methods[Symbol] = _METHODS.setdefault(
+                (type(self), Symbol), self._method_for(Symbol))
+        if method is False:
+            return super()._print(expr)
+        self._print_level += 1
+        try:
+            return method(self, expr)
+        finally:
+            self._print_level -= 1
 
     def _print_Symbol(self, expr):
         got = self._symbol_names.get(expr)
