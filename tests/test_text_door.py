@@ -200,3 +200,89 @@ def test_compile_start_check_names_the_law_that_is_not_finite(tmp_path):
         check_module_start(c)
     assert "not finite with the default parameters" in str(exc.value)
     assert "zero.yaml:28:3:" in str(exc.value) and "divides by m, which is 0" in str(exc.value)
+
+
+# The plain runs (bgc.backends.skeleton): a long run of plain lines is parsed as one `pass`.
+# The reference verdict is the whole model part's syntax tree, checked the same way.
+
+def _whole_verdict(text: str):
+    """What the check says when the model part is parsed whole: (top-level statements, the
+    functions' spans), or the refusal."""
+    from bgc.backends import skeleton
+
+    rt = skeleton.runtime_source()
+    body = text.rstrip("\n")
+    if not body.endswith("\n\n\n" + rt):
+        return "refused"
+    try:
+        tree = ast.parse(body[:-len(rt)])
+        spans = skeleton._check_head(tree.body)
+    except (SyntaxError, SkeletonError):
+        return "refused"
+    return [(type(n).__name__, n.lineno) for n in tree.body], spans
+
+
+def _plain_verdict(text: str):
+    from bgc.backends import skeleton
+
+    rt = skeleton.runtime_source()
+    try:
+        spans = skeleton._check_skeleton(text, "numpy")
+    except SkeletonError:
+        return "refused"
+    head, _ = skeleton._plain_runs_passed(text.rstrip("\n")[:-len(rt)])
+    return [(type(n).__name__, n.lineno) for n in ast.parse(head).body], spans
+
+
+def test_plain_runs_give_every_golden_the_whole_tree_s_verdict():
+    """Every golden module: the same top-level statements and the same function spans as
+    its whole syntax tree; the large ones' equations really are left to the scan."""
+    from bgc.backends import skeleton
+
+    reduced = 0
+    for path in sorted((ROOT / "generated").glob("*.py")):
+        text = path.read_text(encoding="utf-8")
+        if "\nEVENT_NAMES = (" in text:
+            continue  # (the events' runtime follows: checked by the other tests)
+        assert _plain_verdict(text) == _whole_verdict(text) != "refused", path.name
+        rt = skeleton.runtime_source()
+        reduced += bool(skeleton._plain_runs_passed(text.rstrip("\n")[:-len(rt)])[1])
+    assert reduced >= 5
+
+
+def _in_jacobian(text: str, line: str, after: int = 200) -> str:
+    """``line`` put ``after`` lines into the Jacobian's body (inside its plain run)."""
+    at = text.index("\ndef jacobian(")
+    for _ in range(after):
+        at = text.index("\n", at + 1)
+    return text[:at] + "\n" + line + text[at:]
+
+
+@pytest.mark.parametrize("line, refused", [
+    ("import os", True),  # a top-level statement in the middle of the equations
+    ("X0 = 1", True),
+    ("rhs = None", True),
+    ("    # a note\rimport os", True),  # a line break only Python sees
+    ("    _z = (1 +\nimport os\n    )", True),  # a bracket left open over a top-level line
+    ("\t_z = 1", True),  # a tab in the indentation
+    ("    _z = 1)", True),  # a bracket closed that was never opened
+    ("def rhs(t, x):\n    pass", True),
+    ("    import os", False),  # inside the function: a body is not looked into, as before
+    ("    _z = 1  # \"quoted\" 'text'", False),
+])
+def test_plain_runs_refuse_what_the_whole_tree_refuses(line, refused):
+    text = (ROOT / "generated" / "mech3r2s.py").read_text(encoding="utf-8")
+    bad = _in_jacobian(text, line)
+    whole = _whole_verdict(bad)
+    assert (whole == "refused") is refused
+    assert _plain_verdict(bad) == whole
+
+
+def test_plain_runs_in_a_string_stay_string():
+    """Plain lines inside the module's docstring (a model's description may hold anything)
+    are string content: the same verdict as the whole tree, and the description unchanged."""
+    text = (ROOT / "generated" / "mech3r2s.py").read_text(encoding="utf-8")
+    block = "\n".join(["    x = 1"] * 60 + ["import os"] + ["    y = 2"] * 60)
+    at = text.index("\n", text.index('"""') + 3)
+    doc = text[:at] + "\n" + block + text[at:]
+    assert _plain_verdict(doc) == _whole_verdict(doc) != "refused"
