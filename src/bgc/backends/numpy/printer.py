@@ -488,11 +488,17 @@ class TemplateBytecode(jinja2.BytecodeCache):
 @functools.lru_cache(maxsize=None)
 def _environment():
     """The jinja environment of the numpy templates (made once per process; its templates'
-    compiled code kept by :class:`TemplateBytecode`)."""
+    compiled code kept in templates/__pycache__ by :class:`TemplateBytecode`)."""
+    return make_environment(templates_dir() / "__pycache__")
+
+
+def make_environment(bytecode_folder: Path):
+    """A jinja environment of the numpy templates, their compiled code kept in
+    ``bytecode_folder``."""
     env = jinja2.Environment(loader=template_loader(), keep_trailing_newline=True,
                              trim_blocks=True, lstrip_blocks=True,
                              undefined=jinja2.StrictUndefined, autoescape=False,
-                             bytecode_cache=TemplateBytecode(templates_dir() / "__pycache__"))
+                             bytecode_cache=TemplateBytecode(bytecode_folder))
     env.filters.update(lit=lit, oneline=oneline, comment=comment, docstring=docstring)
     return env
 
