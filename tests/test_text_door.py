@@ -230,8 +230,13 @@ def _plain_verdict(text: str):
         spans = skeleton._check_skeleton(text, "numpy")
     except SkeletonError:
         return "refused"
-    head, _ = skeleton._plain_runs_passed(text.rstrip("\n")[:-len(rt)])
-    return [(type(n).__name__, n.lineno) for n in ast.parse(head).body], spans
+    whole = text.rstrip("\n")[:-len(rt)]
+    head, _ = skeleton._plain_runs_passed(whole)
+    try:
+        tree = ast.parse(head)
+    except SyntaxError:  # (runs inside brackets: the whole tree decided)
+        tree = ast.parse(whole)
+    return [(type(n).__name__, n.lineno) for n in tree.body], spans
 
 
 def test_plain_runs_give_every_golden_the_whole_tree_s_verdict():
@@ -286,3 +291,13 @@ def test_plain_runs_in_a_string_stay_string():
     at = text.index("\n", text.index('"""') + 3)
     doc = text[:at] + "\n" + block + text[at:]
     assert _plain_verdict(doc) == _whole_verdict(doc) != "refused"
+
+
+def test_plain_runs_inside_brackets_are_no_refusal():
+    """Plain lines inside a top-level bracket (a long table of index arrays) do not parse as
+    pass: the whole tree decides, and accepts the module as before."""
+    text = (ROOT / "generated" / "mech3r2s.py").read_text(encoding="utf-8")
+    rows = "".join("    np.array([%d, %d], dtype=np.intp),\n" % (k, k + 1) for k in range(80))
+    at = text.index("\ndef _unpack(") + 1
+    tables = text[:at] + "_IX = (\n" + rows + ")\n\n\n" + text[at:]
+    assert _plain_verdict(tables) == _whole_verdict(tables) != "refused"
