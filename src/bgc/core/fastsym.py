@@ -31,6 +31,12 @@ _SAFE_FUNCS = {sp.sin: "sin", sp.cos: "cos", sp.tan: "tan", sp.asin: "asin",
                sp.tanh: "tanh", sp.exp: "exp", sp.log: "log"}
 
 
+_ADD, _MUL, _POW, _SYMBOL = (se.Add, se.Mul, se.Pow, se.Symbol) if se else (None,) * 4
+_SP_ADD, _SP_MUL = sp.Add._from_args, sp.Mul._from_args
+_SE_OPS = {sp.Add: se.Add, sp.Mul: se.Mul, sp.Pow: se.Pow} if se else {}
+_MISSING = object()
+
+
 def available() -> bool:
     return se is not None
 
@@ -58,7 +64,15 @@ class Bridge:
         return out
 
     def _convert(self, e):
+        t = type(e)
+        if t is sp.Add or t is sp.Mul or t is sp.Pow:  # the most common nodes, first
+            args = self._args_to(e)
+            if args is None:
+                return None
+            return _SE_OPS[t](*args)
         if e.is_Symbol:
+            if e.is_commutative is False:
+                return None
             s = se.Symbol(e.name)
             prev = self.sym_back.setdefault(s, e)
             return s if prev == e else None  # two sympy symbols of one name: refuse
@@ -70,22 +84,24 @@ class Bridge:
             return se.RealDouble(float(e))
         if e is sp.pi:
             return se.pi
+        f = self._se_funcs.get(e.func)
+        if f is None:
+            return None
+        args = self._args_to(e)
+        return None if args is None else f(*args)
+
+    def _args_to(self, e) -> list | None:
+        """``e``'s arguments in symengine (the memo read inline), or None if one is not."""
+        memo = self._to
         args = []
         for a in e.args:
-            c = self.to_se(a)
+            c = memo.get(a, _MISSING)
+            if c is _MISSING:
+                c = self.to_se(a)
             if c is None:
                 return None
             args.append(c)
-        if e.is_Add:
-            return se.Add(*args)
-        if e.is_Mul:
-            return se.Mul(*args)
-        if e.is_Pow:
-            return se.Pow(*args)
-        f = self._se_funcs.get(e.func)
-        if f is not None:
-            return f(*args)
-        return None
+        return args
 
     # -- symengine -> sympy ------------------------------------------------------------------
     def from_se(self, e):
@@ -97,7 +113,38 @@ class Bridge:
         self._back[e] = out
         return out
 
+    def _args_back(self, e) -> list:
+        """``e``'s arguments converted back (the memo read inline: most are met before)."""
+        back = self._back
+        out = []
+        for a in e.args:
+            v = back.get(a)
+            out.append(self.from_se(a) if v is None else v)
+        return out
+
     def _unconvert(self, e):
+        t = type(e)
+        # symengine's result is already canonical in its own algebra: build the sympy node
+        # without sympy's (slow) re-canonicalisation; its meaning is the same. _from_args is
+        # what Add(*args, evaluate=False) does, less the constructor cache's hashing of args
+        # (a third of the 3R2S's CSE time); every node converted is commutative (real
+        # symbols, numbers and the functions of _SAFE_FUNCS of them), which _from_args would
+        # otherwise ask each argument again
+        if t is _ADD:
+            return _SP_ADD(self._args_back(e), is_commutative=True)
+        if t is _MUL:
+            return _SP_MUL(self._args_back(e), is_commutative=True)
+        if t is _SYMBOL:
+            s = self.sym_back.get(e)
+            return s if s is not None else sp.Symbol(str(e), real=True)
+        if t is _POW:
+            if e.args[0] == se.E:  # symengine writes exp(z) as E**z
+                return sp.exp(self.from_se(e.args[1]))
+            return sp.Pow(*self._args_back(e), evaluate=False)
+        return self._unconvert_other(e)
+
+    def _unconvert_other(self, e):
+        """Numbers, constants and functions (and the rare subclasses of the types above)."""
         if isinstance(e, se.Symbol):
             s = self.sym_back.get(e)
             return s if s is not None else sp.Symbol(str(e), real=True)
@@ -111,13 +158,9 @@ class Bridge:
             return sp.pi
         if e == se.E:
             return sp.E
-        if isinstance(e, se.Pow) and e.args[0] == se.E:  # symengine writes exp(z) as E**z
+        if isinstance(e, se.Pow) and e.args[0] == se.E:
             return sp.exp(self.from_se(e.args[1]))
-        args = [self.from_se(a) for a in e.args]
-        # symengine's result is already canonical in its own algebra: build the sympy node
-        # without sympy's (slow) re-canonicalisation; its meaning is the same. _from_args is
-        # what Add(*args, evaluate=False) does, less the constructor cache's hashing of args
-        # (a third of the 3R2S's CSE time)
+        args = self._args_back(e)
         if isinstance(e, se.Add):
             return sp.Add._from_args(args)
         if isinstance(e, se.Mul):

@@ -10,13 +10,15 @@ them as numpy (:mod:`bgc.backends.numpy.printer`) or C (:mod:`bgc.backends.c.pri
 """
 from __future__ import annotations
 
+import heapq
 import itertools
 from dataclasses import dataclass
 
 import sympy as sp
 
 from bgc.core import fastsym
-from bgc.core.eqtypes import Assignment, DepGraph, Equations, prune, schedule
+from bgc.base.errors import ModelError
+from bgc.core.eqtypes import Assignment, Equations, prune
 from bgc.core.forward import linear_parts
 from bgc.lower import cse as lcse
 
@@ -70,16 +72,54 @@ class Lowered:
         return len(self.eq.states)
 
 
+#: per node class, how its free symbols are found: _SYMBOL (the node itself), _WALK (those
+#: of its arguments: sympy's generic rule) or _OWN (the class's own rule: bound variables)
+_SYMBOL, _WALK, _OWN = 0, 1, 2
+_RULE: dict = {}
+
+
+def _rule(t) -> int:
+    for k in t.__mro__:
+        if "free_symbols" in k.__dict__:
+            rule = _SYMBOL if k is sp.Symbol else _WALK if k is sp.Basic else _OWN
+            break
+    else:  # pragma: no cover - every sympy class inherits Basic's
+        rule = _OWN
+    _RULE[t] = rule
+    return rule
+
+
+def free_symbols(e) -> set:
+    """``e.free_symbols``, found by one walk of the tree (sympy builds a set at every node and
+    unites them on the way up); a class with its own rule (bound variables) keeps it."""
+    out = set()
+    stack = [e]
+    rules = _RULE
+    while stack:
+        n = stack.pop()
+        t = type(n)
+        rule = rules.get(t)
+        if rule is None:
+            rule = _rule(t)
+        if rule == _WALK:
+            stack.extend(n.args)
+        elif rule == _SYMBOL:
+            out.add(n)
+        else:
+            out |= n.free_symbols
+    return out
+
+
 def free_memo():
-    """``free(expr)``: sympy's ``free_symbols``, each expression's computed once (sympy walks
-    the whole tree for it, and the functions of one model share their assignments)."""
+    """``free(expr)``: sympy's ``free_symbols``, each expression's computed once (the
+    functions of one model share their assignments)."""
     memo: dict = {}
 
     def free(e):
         try:
             return memo[e]
         except KeyError:
-            memo[e] = out = e.free_symbols
+            memo[e] = out = free_symbols(e)
             return out
     return free
 
@@ -107,37 +147,9 @@ def lower_function(eq: Equations, results: list, assigns: list[Assignment], keys
     defs = [(s, e, "") for s, e in repl]
     defs += [(a.symbol, r, a.why) for a, r in zip(assigns, reduced[:len(assigns)])]
     res = reduced[len(assigns):]
-    # schedule: cse temporaries just before their first use, assignments in causal order
-    # (each definition's free symbols found once: sympy walks the whole tree for them)
     free = [free_of(e) for _, e, _ in defs]
-    g = DepGraph()
-    index = {}
-    byname = {}
-    defined = {s for s, _, _ in defs}
-    for (s, e, why), fs in zip(defs, free):
-        g.add_node(s)
-        byname[s] = (e, why)
-        for d in fs:
-            if d in defined:
-                g.add_edge(d, s)
-    pos = {a.symbol: i for i, a in enumerate(assigns)}
-    first_use: dict = {}
-    for (s, _, _), fs in zip(defs, free):
-        if s in pos:
-            for d in fs:
-                if d in defined:
-                    first_use[d] = min(first_use.get(d, 10 ** 9), pos[s])
-    for (s, _, _), fs in reversed(list(zip(defs[:len(repl)], free))):  # temporaries used
-        for d in fs:  # by later temporaries
-            if d in defined and s in first_use:
-                first_use[d] = min(first_use.get(d, 10 ** 9), first_use[s])
-    for s, _, _ in defs:
-        if s in pos:
-            index[s] = 2 * pos[s] + 1
-        else:
-            index[s] = 2 * first_use.get(s, len(assigns)) if s in first_use else 2 * len(assigns)
-    order = schedule(g, index)
-    lines = tuple(Line(s, byname[s][0], byname[s][1]) for s in order)
+    order = _schedule(defs, free, len(repl))
+    lines = tuple(Line(*defs[i]) for i in order)
     used = set().union(*free) if free else set()
     for r in res:
         used |= free_of(r)
@@ -147,6 +159,53 @@ def lower_function(eq: Equations, results: list, assigns: list[Assignment], keys
     snames = tuple(str(sv.symbol) if sv.symbol in used else "_" for sv in eq.states)
     ops = count_ops([e for _, e, _ in defs] + list(res))
     return Function(pnames, inames, snames, lines, tuple(zip(keys, res)), ops)
+
+
+def _schedule(defs: list, free: list, ntemp: int) -> list[int]:
+    """The definitions' order (indices into ``defs``, whose first ``ntemp`` are CSE
+    temporaries and the rest assignments in causal order; ``free``: each one's free symbols):
+    assignments in causal order, each temporary just before its first use. A topological
+    order that keeps the priority (index, name) wherever dependencies allow: the order of
+    bgc.core.eqtypes.schedule, on positions rather than symbols (each symbol hashed once)."""
+    at = {s: i for i, (s, _, _) in enumerate(defs)}
+    nassign = len(defs) - ntemp
+    reads = [[k for k in map(at.get, fs) if k is not None] for fs in free]
+    first_use = [None] * len(defs)
+    for i in range(ntemp, len(defs)):  # assignments, at their position among the assignments
+        p = i - ntemp
+        for k in reads[i]:
+            if first_use[k] is None or p < first_use[k]:
+                first_use[k] = p
+    for i in range(ntemp - 1, -1, -1):  # temporaries used by later temporaries
+        fu = first_use[i]
+        if fu is None:
+            continue
+        for k in reads[i]:
+            if first_use[k] is None or fu < first_use[k]:
+                first_use[k] = fu
+    prio = [2 * (i - ntemp) + 1 if i >= ntemp else
+            2 * (first_use[i] if first_use[i] is not None else nassign)
+            for i in range(len(defs))]
+    succ: list[list[int]] = [[] for _ in defs]
+    indeg = [0] * len(defs)
+    for i, ks in enumerate(reads):
+        for k in set(ks):
+            succ[k].append(i)
+            indeg[i] += 1
+    names = [s.name if hasattr(s, "name") else str(s) for s, _, _ in defs]
+    heap = [(prio[i], names[i], i) for i in range(len(defs)) if indeg[i] == 0]
+    heapq.heapify(heap)
+    out = []
+    while heap:
+        _, _, i = heapq.heappop(heap)
+        out.append(i)
+        for m in succ[i]:
+            indeg[m] -= 1
+            if indeg[m] == 0:
+                heapq.heappush(heap, (prio[m], names[m], m))
+    if len(out) != len(defs):
+        raise ModelError(None, "internal: cycle left after solving algebraic loops")
+    return out
 
 
 def count_ops(exprs) -> int:
