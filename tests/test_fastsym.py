@@ -58,3 +58,27 @@ def test_bridge_keeps_symbols_and_refuses_what_it_cannot_read():
         assert abs(float(b.from_se(d[s]).subs(pt)) - ref) < 1e-13
     for bad in (sp.sign(x), sp.Piecewise((x, x > 0), (y, True)), sp.Max(x, y), sp.atan2(x, y)):
         assert b.to_se(bad * y) is None  # the caller differentiates these with sympy
+
+
+def test_cse_passes_atan2_through_as_an_opaque_function():
+    # an output angle atan2(y, x) beside other outputs that share y and x: symengine's CSE
+    # takes the whole body (atan2 crosses as a function of no meaning there) and still finds
+    # the common terms inside its arguments; substituting the temporaries back gives the very
+    # values sympy computes from the original expressions
+    x, y, z = sp.symbols("x y z", real=True)
+    r = sp.sqrt(x ** 2 + y ** 2)
+    exprs = [sp.atan2(y * z + x, r), (y * z + x) * r, sp.atan2(sp.sin(z), x) + sp.sin(z)]
+    k = iter(range(100))
+    out = fastsym.cse(exprs, lambda: sp.Symbol(f"_c{next(k)}", real=True))
+    assert out is not None  # (without the opaque crossing: None, and sympy's cse)
+    repl, reduced = out
+    assert any(e.has(sp.atan2) for e in reduced) or any(e.has(sp.atan2) for _, e in repl)
+    assert any(v in (y * z + x, r) for _, v in repl)  # a term shared through atan2's argument
+    back = {}
+    for s, e in repl:
+        back[s] = e.xreplace(back)
+    pt = {x: 0.3, y: -1.7, z: 0.9}
+    for orig, red in zip(exprs, reduced):
+        ref = float(orig.subs(pt).evalf(30))
+        assert abs(float(red.xreplace(back).subs(pt).evalf(30)) - ref) < 1e-14 * (1 + abs(ref))
+    assert fastsym.Bridge().to_se(sp.atan2(y, x)) is None  # never so for differentiation

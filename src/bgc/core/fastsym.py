@@ -36,6 +36,17 @@ _SP_ADD, _SP_MUL = sp.Add._from_args, sp.Mul._from_args
 _SE_OPS = {sp.Add: se.Add, sp.Mul: se.Mul, sp.Pow: se.Pow} if se else {}
 _MISSING = object()
 
+#: sympy functions that common-subexpression elimination passes through symengine as
+#: undefined functions of the same name (nothing there evaluates or rewrites them; CSE reads
+#: only their arguments): an output angle atan2(y, x) kept the 3R2S's outputs in sympy's cse,
+#: a tenth of its lowering
+_OPAQUE = {sp.atan2: "atan2"}
+_OPAQUE_BACK = {v: k for k, v in _OPAQUE.items()}
+
+
+def _opaque(name: str):
+    return lambda *args: se.function_symbol(name, *args)
+
 
 def available() -> bool:
     return se is not None
@@ -44,11 +55,15 @@ def available() -> bool:
 class Bridge:
     """Conversions sympy <-> symengine for one compilation (symbols keep their identity)."""
 
-    def __init__(self):
+    def __init__(self, opaque: bool = False):
+        """``opaque``: the functions of :data:`_OPAQUE` cross over too, as symengine functions
+        of no meaning (for CSE only: never differentiate through such a bridge)."""
         self.sym_back: dict = {}  # symengine Symbol -> original sympy Symbol
         self._to: dict = {}  # sympy expr -> symengine expr (None: not convertible)
         self._back: dict = {}
         self._se_funcs = {k: getattr(se, v) for k, v in _SAFE_FUNCS.items()} if se else {}
+        if opaque and se is not None:
+            self._se_funcs.update({k: _opaque(v) for k, v in _OPAQUE.items()})
         self._back_funcs = {v: k for k, v in _SAFE_FUNCS.items()}
 
     # -- sympy -> symengine ------------------------------------------------------------------
@@ -167,8 +182,10 @@ class Bridge:
             return sp.Mul._from_args(args)
         if isinstance(e, se.Pow):
             return sp.Pow(*args, evaluate=False)
-        name = type(e).__name__.lower()
-        f = self._back_funcs.get(name)
+        if isinstance(e, se.FunctionSymbol):  # (only an opaque bridge makes them)
+            f = _OPAQUE_BACK.get(e.get_name())
+        else:
+            f = self._back_funcs.get(type(e).__name__.lower())
         if f is None:
             # symengine's own form of something it produced (e.g. a derivative it could not
             # evaluate); let sympy read it, then refuse if meaning could differ
@@ -203,7 +220,7 @@ def cse(exprs: list, make_symbol) -> tuple[list, list] | None:
     convertible (the caller uses sympy's cse)."""
     if se is None:
         return None
-    bridge = Bridge()
+    bridge = Bridge(opaque=True)
     conv = []
     for e in exprs:
         c = bridge.to_se(e)
