@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import sympy as sp
 
-from bgc.core import fastsym
 from bgc.base.errors import ModelError
+from bgc.core import fastsym
 from bgc.core.eqtypes import Assignment, Equations, prune
 from bgc.core.forward import linear_parts
 from bgc.lower import cse as lcse
@@ -38,7 +38,15 @@ class Function:
     states: tuple[str, ...]  # state identifiers, "_" where unused
     lines: tuple[Line, ...]
     results: tuple[tuple[object, sp.Basic], ...]  # (key, expression)
-    ops: int  # operation count after CSE
+    #: operation count after CSE, or None: not counted (nothing on the compile path reads it;
+    #: :meth:`op_count` counts on demand)
+    ops: int | None = None
+
+    def op_count(self) -> int:
+        """Arithmetic operations and function calls of the body and results (:func:`count_ops`)."""
+        if self.ops is not None:
+            return self.ops
+        return count_ops([ln.expr for ln in self.lines] + [r for _, r in self.results])
 
 
 @dataclass(frozen=True)
@@ -157,8 +165,7 @@ def lower_function(eq: Equations, results: list, assigns: list[Assignment], keys
     pnames += tuple(str(a.symbol) for a in eq.derived if a.symbol in used)
     inames = tuple(str(s) for iv in eq.inputs for s in iv.symbols if s in used)
     snames = tuple(str(sv.symbol) if sv.symbol in used else "_" for sv in eq.states)
-    ops = count_ops([e for _, e, _ in defs] + list(res))
-    return Function(pnames, inames, snames, lines, tuple(zip(keys, res)), ops)
+    return Function(pnames, inames, snames, lines, tuple(zip(keys, res)))
 
 
 def _schedule(defs: list, free: list, ntemp: int) -> list[int]:
