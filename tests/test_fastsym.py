@@ -82,3 +82,16 @@ def test_cse_passes_atan2_through_as_an_opaque_function():
         ref = float(orig.subs(pt).evalf(30))
         assert abs(float(red.xreplace(back).subs(pt).evalf(30)) - ref) < 1e-14 * (1 + abs(ref))
     assert fastsym.Bridge().to_se(sp.atan2(y, x)) is None  # never so for differentiation
+
+
+def test_free_symbols_by_one_walk_are_sympys():
+    # the one-walk free symbols (forward sweep, lowering) against sympy's own, on the kinds of
+    # node bgc's expressions hold, and on classes with bound variables, which keep their rule
+    x, y, z, t = sp.symbols("x y z t", real=True)
+    f = sp.Function("f")
+    exprs = [x, sp.Integer(3), sp.pi, x * y + sp.sin(z) ** 2, sp.atan2(y, x) * sp.exp(-t),
+             sp.Piecewise((x, y > 0), (z, True)), sp.Max(x, sp.Abs(y)) + sp.sign(z),
+             f(x, y) + t, sp.Derivative(f(x, z), x), sp.Integral(x * y, (x, 0, z)),
+             sp.Lambda(x, x + y)(z), (x + y) * (x + y) ** 2 + sp.sqrt(x + y)]
+    for e in exprs:
+        assert fastsym.free_symbols(e) == e.free_symbols, e

@@ -193,6 +193,45 @@ class Bridge:
         return f(*args)
 
 
+#: per node class, how its free symbols are found: _SYMBOL (the node itself), _WALK (those
+#: of its arguments: sympy's generic rule) or _OWN (the class's own rule: bound variables)
+_SYMBOL, _WALK, _OWN = 0, 1, 2
+_RULE: dict = {}
+
+
+def _rule(t) -> int:
+    for k in t.__mro__:
+        if "free_symbols" in k.__dict__:
+            rule = _SYMBOL if k is sp.Symbol else _WALK if k is sp.Basic else _OWN
+            break
+    else:  # pragma: no cover - every sympy class inherits Basic's
+        rule = _OWN
+    _RULE[t] = rule
+    return rule
+
+
+def free_symbols(e) -> set:
+    """``e.free_symbols``, found by one walk of the tree (sympy builds a set at every node and
+    unites them on the way up); a class with its own rule (bound variables) keeps it. Pure
+    sympy: what the forward sweep and the lowering ask of every expression they read."""
+    out = set()
+    stack = [e]
+    rules = _RULE
+    while stack:
+        n = stack.pop()
+        t = type(n)
+        rule = rules.get(t)
+        if rule is None:
+            rule = _rule(t)
+        if rule == _WALK:
+            stack.extend(n.args)
+        elif rule == _SYMBOL:
+            out.add(n)
+        else:
+            out |= n.free_symbols
+    return out
+
+
 class _Unsupported(Exception):
     pass
 

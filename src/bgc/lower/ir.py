@@ -80,44 +80,6 @@ class Lowered:
         return len(self.eq.states)
 
 
-#: per node class, how its free symbols are found: _SYMBOL (the node itself), _WALK (those
-#: of its arguments: sympy's generic rule) or _OWN (the class's own rule: bound variables)
-_SYMBOL, _WALK, _OWN = 0, 1, 2
-_RULE: dict = {}
-
-
-def _rule(t) -> int:
-    for k in t.__mro__:
-        if "free_symbols" in k.__dict__:
-            rule = _SYMBOL if k is sp.Symbol else _WALK if k is sp.Basic else _OWN
-            break
-    else:  # pragma: no cover - every sympy class inherits Basic's
-        rule = _OWN
-    _RULE[t] = rule
-    return rule
-
-
-def free_symbols(e) -> set:
-    """``e.free_symbols``, found by one walk of the tree (sympy builds a set at every node and
-    unites them on the way up); a class with its own rule (bound variables) keeps it."""
-    out = set()
-    stack = [e]
-    rules = _RULE
-    while stack:
-        n = stack.pop()
-        t = type(n)
-        rule = rules.get(t)
-        if rule is None:
-            rule = _rule(t)
-        if rule == _WALK:
-            stack.extend(n.args)
-        elif rule == _SYMBOL:
-            out.add(n)
-        else:
-            out |= n.free_symbols
-    return out
-
-
 def free_memo():
     """``free(expr)``: sympy's ``free_symbols``, each expression's computed once (the
     functions of one model share their assignments)."""
@@ -127,7 +89,7 @@ def free_memo():
         try:
             return memo[e]
         except KeyError:
-            memo[e] = out = free_symbols(e)
+            memo[e] = out = fastsym.free_symbols(e)
             return out
     return free
 
@@ -229,24 +191,27 @@ def count_ops(exprs) -> int:
     return n
 
 
-def lower_linear(eq: Equations, progress=None, jac: Function | None = None) -> Linear:
+def lower_linear(eq: Equations, progress=None, jac: Function | None = None,
+                 free=None) -> Linear:
     """B, C and D of the linearisation (forward mode along the rhs's assignments:
     bgc.core.forward.linear_parts), lowered like the other functions. ``jac``: the model's
     lowered Jacobian, whose lines (assignments, derivative intermediates, CSE temporaries)
-    C and D then read instead of eliminating common subexpressions over them again."""
+    C and D then read instead of eliminating common subexpressions over them again; ``free``:
+    the :func:`free_memo` its lowering shared (the Jacobian's lines' free symbols known)."""
     (progress or (lambda msg: None))("emitting the linearisation's B, C, D")
     lp = linear_parts(eq)
     bkeys = sorted(lp.B)
+    free = free or free_memo()
     ujac = lower_function(eq, [lp.B[k] for k in bkeys],
-                          list(eq.assignments) + list(lp.B_assignments), bkeys)
+                          list(eq.assignments) + list(lp.B_assignments), bkeys, free=free)
     ckeys, dkeys = sorted(lp.C), sorted(lp.D)
     results = [lp.C[k] for k in ckeys] + [lp.D[k] for k in dkeys]
     keys = [("C",) + k for k in ckeys] + [("D",) + k for k in dkeys]
     assigns = list(eq.assignments) + list(lp.CD_assignments)
     if jac is None:
-        yjac = lower_function(eq, results, assigns, keys)
+        yjac = lower_function(eq, results, assigns, keys, free=free)
     else:
-        yjac = lower_function(eq, results, _on_lines(jac, assigns), keys, cse=False)
+        yjac = lower_function(eq, results, _on_lines(jac, assigns), keys, cse=False, free=free)
     return Linear(ujac, yjac, lp.input_labels, lp.output_labels)
 
 
@@ -281,7 +246,7 @@ def lower(eq: Equations, progress=None, linear: bool = True) -> Lowered:
     outs = lower_function(eq, oexprs, list(eq.assignments), okeys, free=free)
     init = lower_function(eq, [sv.initial for sv in eq.states], [], list(range(n)), cse=False)
     derived = tuple(Line(a.symbol, a.expr, a.why) for a in eq.derived)
-    lin = lower_linear(eq, progress, jac) if linear else None
+    lin = lower_linear(eq, progress, jac, free) if linear else None
     cvals = list(getattr(eq, "constraint_values", ()))
     cons = lower_function(eq, cvals, list(eq.assignments), list(range(len(cvals))),
                           free=free) \
