@@ -193,19 +193,19 @@ class Bridge:
         return f(*args)
 
 
-#: per node class, how its free symbols are found: _SYMBOL (the node itself), _WALK (those
-#: of its arguments: sympy's generic rule) or _OWN (the class's own rule: bound variables)
-_SYMBOL, _WALK, _OWN = 0, 1, 2
+#: per node class, how its free symbols are found: _FREE_SELF (the node itself), _FREE_ARGS
+#: (its arguments': sympy's generic rule) or _FREE_OWN (the class's own rule: bound variables)
+_FREE_SELF, _FREE_ARGS, _FREE_OWN = 0, 1, 2
 _RULE: dict = {}
 
 
 def _rule(t) -> int:
     for k in t.__mro__:
         if "free_symbols" in k.__dict__:
-            rule = _SYMBOL if k is sp.Symbol else _WALK if k is sp.Basic else _OWN
+            rule = _FREE_SELF if k is sp.Symbol else _FREE_ARGS if k is sp.Basic else _FREE_OWN
             break
     else:  # pragma: no cover - every sympy class inherits Basic's
-        rule = _OWN
+        rule = _FREE_OWN
     _RULE[t] = rule
     return rule
 
@@ -223,9 +223,9 @@ def free_symbols(e) -> set:
         rule = rules.get(t)
         if rule is None:
             rule = _rule(t)
-        if rule == _WALK:
+        if rule == _FREE_ARGS:
             stack.extend(n.args)
-        elif rule == _SYMBOL:
+        elif rule == _FREE_SELF:
             out.add(n)
         else:
             out |= n.free_symbols
