@@ -184,6 +184,10 @@ class Bridge:
             return sp.Pow(*args, evaluate=False)
         if isinstance(e, se.FunctionSymbol):  # (only an opaque bridge makes them)
             f = _OPAQUE_BACK.get(e.get_name())
+            if f is not None:
+                # rebuilt as it was, unevaluated: CSE only named some of its arguments'
+                # parts (sympy's evaluation of atan2 asks its arguments' signs: 10 ms each)
+                return f(*args, evaluate=False)
         else:
             f = self._back_funcs.get(type(e).__name__.lower())
         if f is None:
