@@ -81,16 +81,19 @@ class Lowered:
 
 
 def free_memo():
-    """``free(expr)``: sympy's ``free_symbols``, each expression's computed once (the
-    functions of one model share their assignments)."""
+    """``free(expr)``: sympy's ``free_symbols``, each expression object's computed once (the
+    functions of one model share their assignments). Keyed by the object, not its value: a
+    fresh expression (a CSE result) is never hashed for it, which walks its whole tree; the
+    memo holds the expression, so its id is not reused while it is there."""
     memo: dict = {}
 
     def free(e):
-        try:
-            return memo[e]
-        except KeyError:
-            memo[e] = out = fastsym.free_symbols(e)
-            return out
+        hit = memo.get(id(e))
+        if hit is not None and hit[0] is e:
+            return hit[1]
+        out = fastsym.free_symbols(e)
+        memo[id(e)] = (e, out)
+        return out
     return free
 
 
