@@ -12,6 +12,9 @@ faster. Expressions cross over only where symengine's meaning is the same as sym
   so a model's meaning never depends on which engine differentiated it.
 * :func:`from_se` converts back node by node, mapping every symbol to the very sympy symbol
   it came from (with its assumptions), through a memo so shared subtrees convert once.
+* :func:`cse` (only) passes the functions of :data:`_OPAQUE` (atan2) over as symengine
+  functions of no meaning: CSE reads their arguments, and nothing there evaluates them.
+* :func:`free_symbols` is sympy's ``free_symbols`` by one walk of the tree.
 
 Both engines' results are deterministic: symengine orders terms by its own structural hash,
 which does not depend on Python's hash seed (checked by tests/test_golden.py across seeds).
