@@ -7,8 +7,8 @@ process per checkout (issue 27).
 Each round runs this file with ``--child`` in a new interpreter (its own empty compile cache),
 for this checkout and, alternating, for ``--before``'s src folder. The child measures its own
 CPU (user + sys): importing the libraries a compile needs, bgc's modules, the driver's compile
-(`bgc.run.driver.compile_file`) and its parts (parse, equations, lowering with the
-linearisation's B, C, D apart, printing with the module's check apart), the start check (`check_module_start`: the module loaded and its
+(`bgc.run.driver.compile_file`) and its parts (parse, equations with the Jacobian's forward
+sweep apart, lowering with the linearisation's B, C, D apart, printing with the module's check apart), the start check (`check_module_start`: the module loaded and its
 rhs called, as `bgc compile` does) and the write. Prints every round and the medians.
 """
 from __future__ import annotations
@@ -61,6 +61,7 @@ def child(model: str, out: str) -> dict:
                 spent[label] = spent.get(label, 0.0) + _cpu() - t0
         setattr(owner, name, wrapper)
     for owner, name, label in ((driver, "parse", "parse"), (equations, "derive", "equations"),
+                               (equations, "jacobian", "of it the Jacobian"),
                                (ir, "lower", "lower"), (ir, "lower_linear", "of it B, C, D"),
                                (printer, "render", "print"),
                                (printer, "check_skeleton", "of it the check")):
@@ -68,7 +69,8 @@ def child(model: str, out: str) -> dict:
     t = _cpu()
     c = driver.compile_file(model)
     times["compile"] = _cpu() - t
-    for label in ("parse", "equations", "lower", "of it B, C, D", "print", "of it the check"):
+    for label in ("parse", "equations", "of it the Jacobian", "lower", "of it B, C, D", "print",
+                  "of it the check"):
         times["  " + label] = spent.get(label, 0.0)
     t = _cpu()
     runner.check_module_start(c)
