@@ -84,21 +84,13 @@ def test_undamped_continuum_keeps_newton_answer():
 
 
 @pytest.mark.slow  # a compile and the settle: about 20 s on 2 shared cores
-def test_linearize_cli_on_the_spring_closed_fourbar(monkeypatch):
+def test_linearize_cli_on_the_spring_closed_fourbar(bgc_cli):
     """`bgc linearize MODEL` at its defaults: no unstable-mode or far-guess warning, the
-    settle said, and the slow oscillation printed is the rigid four-bar's (within 0.2 %).
-    The command line in-process (click's runner, from the repository root as a real run:
-    what is asserted is the command's output, not the process's)."""
-    from click.testing import CliRunner
-
-    from bgc.cli.commands import main
-
+    settle said, and the slow oscillation printed is the rigid four-bar's (within 0.2 %)."""
     _, lam_ref, _ = _rigid_equilibrium()
     (w_ref,) = lam_ref[lam_ref.imag > 0]
-    monkeypatch.chdir(ROOT)
-    r = CliRunner().invoke(main, ["linearize", str(MODEL)], prog_name="bgc")
-    assert r.exception is None or isinstance(r.exception, SystemExit), (r.exception, r.stderr)
-    assert r.exit_code == 0, r.stderr
+    r = bgc_cli("linearize", str(MODEL))
+    assert r.returncode == 0, r.stderr
     assert "unstable" not in r.stderr and "far from its initial guess" not in r.stderr
     assert "reached by letting the damped dynamics come to rest" in r.stderr
     rows = [ln.split() for ln in r.stdout.splitlines() if "+/-" in ln]
