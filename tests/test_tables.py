@@ -8,11 +8,11 @@ import os
 
 import numpy as np
 import pytest
+from conftest import seed_c_runtime
 
 from bgc.base.errors import ModelError
 from bgc.format.scene import parse_scene
 from bgc.run.runner import compile_scene, run_scene
-from conftest import seed_c_runtime
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 QC = os.path.join(ROOT, "models", "quarter_car.yaml")
