@@ -218,8 +218,8 @@ def test_batch_of_mass_variants_equals_single_runs(scenes):
     """3 mass variants (+-20 %) in one vectorised call equal 3 single calls, over the circle
     scene's first 2.5 s at its own solver settings: the move out along X0, the breakpoint at
     2 s (v_d jumps; theta1 starts to move) and the first half second of the circle. (The
-    whole 6 s with 8 variants checked the same property at 60 CPU s, with 4 at 46; this
-    span with 3 costs about 30.)
+    whole 6 s with 8 variants checked the same property at 60 CPU s; with 4, 49 CPU s
+    against 36 for this span with 3, side by side on a loaded machine: docs/performance.md.)
 
     The batched solve takes other steps (one error norm over all instances), so the two
     agree to the solver's accuracy only: measured 3.7e-6 rad in the angles, 1e-7 m in p3 and
