@@ -63,7 +63,7 @@ def child(model: str, out: str) -> dict:
     for owner, name, label in ((driver, "parse", "parse"), (driver, "graph_of", "graph"),
                                (driver, "causality_of", "causality"),
                                (equations, "derive", "equations"),
-                               (equations, "jacobian", "of equations: the Jacobian"),
+                               (equations, "jacobian", "of it the Jacobian"),
                                (ir, "lower", "lower"), (ir, "lower_linear", "of it B, C, D"),
                                (printer, "render", "print"),
                                (printer, "check_skeleton", "of it the check")):
@@ -71,8 +71,8 @@ def child(model: str, out: str) -> dict:
     t = _cpu()
     c = driver.compile_file(model)
     times["compile"] = _cpu() - t
-    for label in ("parse", "graph", "causality", "equations", "of equations: the Jacobian",
-                  "lower", "of it B, C, D", "print", "of it the check"):
+    for label in ("parse", "graph", "causality", "equations", "of it the Jacobian", "lower",
+                  "of it B, C, D", "print", "of it the check"):
         times["  " + label] = spent.get(label, 0.0)
     t = _cpu()
     runner.check_module_start(c)

@@ -7558,39 +7558,44 @@ def outputs(t, x, p=None, u=None):
     f_link1__b2_1 = _c0*p_link1__It_1
     # link1.It (I, integral): flow from momentum
     f_link1__b2_2 = _c0*p_link1__It_2
-    _c1 = 1/link1__Ixx
-    _c2 = 1/link1__Iyy
-    _c3 = _c1*s_link1__R_0_0
-    _c4 = _c2*s_link1__R_0_1
-    _c5 = _c2*s_link1__R_0_2
-    _c6 = _c3*s_link1__R_1_0 + _c4*s_link1__R_1_1 + _c5*s_link1__R_1_2
-    _c7 = _c3*s_link1__R_2_0 + _c4*s_link1__R_2_1 + _c5*s_link1__R_2_2
+    _c1 = 1/link1__Iyy
+    _c2 = _c1*s_link1__R_0_1
+    _c3 = _c1*s_link1__R_0_2
+    _c4 = 1/link1__Ixx
+    _c5 = _c4*s_link1__R_0_0
+    _c6 = _c5*s_link1__R_2_0 + _c3*s_link1__R_2_2 + _c2*s_link1__R_2_1
+    _c7 = _c5*s_link1__R_1_0 + _c2*s_link1__R_1_1 + _c3*s_link1__R_1_2
     # link1.Ir (I, integral): flow from momentum
-    f_link1__b3_0 = _c6*p_link1__Ir_1 + _c7*p_link1__Ir_2 + p_link1__Ir_0*(_c1*s_link1__R_0_0*s_link1__R_0_0 + _c2*s_link1__R_0_1*s_link1__R_0_1 + _c2*s_link1__R_0_2*s_link1__R_0_2)
-    _c8 = _c1*s_link1__R_1_0*s_link1__R_2_0 + _c2*s_link1__R_1_1*s_link1__R_2_1 + _c2*s_link1__R_1_2*s_link1__R_2_2
+    f_link1__b3_0 = _c7*p_link1__Ir_1 + (_c4*s_link1__R_0_0*s_link1__R_0_0 + _c1*s_link1__R_0_1*s_link1__R_0_1 + _c1*s_link1__R_0_2*s_link1__R_0_2)*p_link1__Ir_0 + _c6*p_link1__Ir_2
+    _c8 = _c4*s_link1__R_1_0*s_link1__R_2_0 + _c1*s_link1__R_1_1*s_link1__R_2_1 + _c1*s_link1__R_1_2*s_link1__R_2_2
     # link1.Ir (I, integral): flow from momentum
-    f_link1__b3_1 = _c6*p_link1__Ir_0 + _c8*p_link1__Ir_2 + p_link1__Ir_1*(_c1*s_link1__R_1_0*s_link1__R_1_0 + _c2*s_link1__R_1_1*s_link1__R_1_1 + _c2*s_link1__R_1_2*s_link1__R_1_2)
+    f_link1__b3_1 = _c7*p_link1__Ir_0 + (_c4*s_link1__R_1_0*s_link1__R_1_0 + _c1*s_link1__R_1_1*s_link1__R_1_1 + _c1*s_link1__R_1_2*s_link1__R_1_2)*p_link1__Ir_1 + _c8*p_link1__Ir_2
     # link1.Ir (I, integral): flow from momentum
-    f_link1__b3_2 = _c7*p_link1__Ir_0 + _c8*p_link1__Ir_1 + p_link1__Ir_2*(_c1*s_link1__R_2_0*s_link1__R_2_0 + _c2*s_link1__R_2_1*s_link1__R_2_1 + _c2*s_link1__R_2_2*s_link1__R_2_2)
+    f_link1__b3_2 = _c6*p_link1__Ir_0 + _c8*p_link1__Ir_1 + (_c4*s_link1__R_2_0*s_link1__R_2_0 + _c1*s_link1__R_2_2*s_link1__R_2_2 + _c1*s_link1__R_2_1*s_link1__R_2_1)*p_link1__Ir_2
     _c10 = l1*s_link1__R_2_0
+    _c12 = (1/2)*f_link1__b3_2
+    _c13 = l1*s_link1__R_1_0
+    _c14 = _c13*_c12
     _c9 = (1/2)*f_link1__b3_1
-    _c11 = _c10*_c9 - 1/2*f_link1__b3_2*l1*s_link1__R_1_0
+    _c11 = _c9*_c10
     # link1.mQ (MTF): f2 = M f1
-    f_link1__b5_0 = -_c11
-    _c12 = (1/2)*f_link1__b3_0
-    _c13 = (1/2)*f_link1__b3_2
-    _c14 = _c10*_c12 - _c13*l1*s_link1__R_0_0
+    f_link1__b5_0 = _c14 - _c11
+    _c15 = l1*s_link1__R_0_0
+    _c16 = _c15*_c12
+    _c17 = (1/2)*f_link1__b3_0
+    _c18 = _c10*_c17
     # link1.mQ (MTF): f2 = M f1
-    f_link1__b5_1 = _c14
-    _c15 = _c12*l1*s_link1__R_1_0 - 1/2*f_link1__b3_1*l1*s_link1__R_0_0
+    f_link1__b5_1 = _c18 - _c16
+    _c19 = _c13*_c17
+    _c20 = _c9*_c15
     # link1.mQ (MTF): f2 = M f1
-    f_link1__b5_2 = -_c15
+    f_link1__b5_2 = _c20 - _c19
     # link1.mP (MTF): f2 = M f1
-    f_link1__b9_0 = _c11
+    f_link1__b9_0 = _c11 - _c14
     # link1.mP (MTF): f2 = M f1
-    f_link1__b9_1 = -_c14
+    f_link1__b9_1 = _c16 - _c18
     # link1.mP (MTF): f2 = M f1
-    f_link1__b9_2 = _c15
+    f_link1__b9_2 = _c19 - _c20
     # 0-junction link1.sQ: flow balance
     f_link1__b7_0 = f_link1__b2_0 + f_link1__b5_0
     # 0-junction link1.sQ: flow balance
@@ -7603,46 +7608,51 @@ def outputs(t, x, p=None, u=None):
     f_link1__b11_1 = f_link1__b2_1 + f_link1__b9_1
     # 0-junction link1.sP: flow balance
     f_link1__b11_2 = f_link1__b2_2 + f_link1__b9_2
-    _c16 = 1/m2
+    _c21 = 1/m2
     # link2.It (I, integral): flow from momentum
-    f_link2__b2_0 = _c16*p_link2__It_0
+    f_link2__b2_0 = _c21*p_link2__It_0
     # link2.It (I, integral): flow from momentum
-    f_link2__b2_1 = _c16*p_link2__It_1
+    f_link2__b2_1 = _c21*p_link2__It_1
     # link2.It (I, integral): flow from momentum
-    f_link2__b2_2 = _c16*p_link2__It_2
-    _c17 = 1/link2__Ixx
-    _c18 = 1/link2__Iyy
-    _c19 = _c17*s_link2__R_0_0
-    _c20 = _c18*s_link2__R_0_1
-    _c21 = _c18*s_link2__R_0_2
-    _c22 = _c19*s_link2__R_1_0 + _c20*s_link2__R_1_1 + _c21*s_link2__R_1_2
-    _c23 = _c19*s_link2__R_2_0 + _c20*s_link2__R_2_1 + _c21*s_link2__R_2_2
+    f_link2__b2_2 = _c21*p_link2__It_2
+    _c22 = 1/link2__Iyy
+    _c23 = 1/link2__Ixx
+    _c24 = _c23*s_link2__R_0_0
+    _c25 = _c24*s_link2__R_1_0 + _c22*s_link2__R_1_1*s_link2__R_0_1 + _c22*s_link2__R_1_2*s_link2__R_0_2
+    _c26 = _c22*s_link2__R_2_2
+    _c27 = _c22*s_link2__R_2_1
+    _c28 = _c24*s_link2__R_2_0 + _c27*s_link2__R_0_1 + _c26*s_link2__R_0_2
     # link2.Ir (I, integral): flow from momentum
-    f_link2__b3_0 = _c22*p_link2__Ir_1 + _c23*p_link2__Ir_2 + p_link2__Ir_0*(_c17*s_link2__R_0_0*s_link2__R_0_0 + _c18*s_link2__R_0_1*s_link2__R_0_1 + _c18*s_link2__R_0_2*s_link2__R_0_2)
-    _c24 = _c17*s_link2__R_1_0*s_link2__R_2_0 + _c18*s_link2__R_1_1*s_link2__R_2_1 + _c18*s_link2__R_1_2*s_link2__R_2_2
+    f_link2__b3_0 = (_c22*s_link2__R_0_2*s_link2__R_0_2 + _c23*s_link2__R_0_0*s_link2__R_0_0 + _c22*s_link2__R_0_1*s_link2__R_0_1)*p_link2__Ir_0 + _c28*p_link2__Ir_2 + _c25*p_link2__Ir_1
+    _c29 = _c23*s_link2__R_2_0*s_link2__R_1_0 + _c27*s_link2__R_1_1 + _c26*s_link2__R_1_2
     # link2.Ir (I, integral): flow from momentum
-    f_link2__b3_1 = _c22*p_link2__Ir_0 + _c24*p_link2__Ir_2 + p_link2__Ir_1*(_c17*s_link2__R_1_0*s_link2__R_1_0 + _c18*s_link2__R_1_1*s_link2__R_1_1 + _c18*s_link2__R_1_2*s_link2__R_1_2)
+    f_link2__b3_1 = _c25*p_link2__Ir_0 + (_c23*s_link2__R_1_0*s_link2__R_1_0 + _c22*s_link2__R_1_1*s_link2__R_1_1 + _c22*s_link2__R_1_2*s_link2__R_1_2)*p_link2__Ir_1 + _c29*p_link2__Ir_2
     # link2.Ir (I, integral): flow from momentum
-    f_link2__b3_2 = _c23*p_link2__Ir_0 + _c24*p_link2__Ir_1 + p_link2__Ir_2*(_c17*s_link2__R_2_0*s_link2__R_2_0 + _c18*s_link2__R_2_1*s_link2__R_2_1 + _c18*s_link2__R_2_2*s_link2__R_2_2)
-    _c25 = (1/2)*f_link2__b3_1
-    _c26 = l2*s_link2__R_2_0
-    _c27 = _c25*_c26 - 1/2*f_link2__b3_2*l2*s_link2__R_1_0
+    f_link2__b3_2 = _c28*p_link2__Ir_0 + _c29*p_link2__Ir_1 + (_c22*s_link2__R_2_1*s_link2__R_2_1 + _c23*s_link2__R_2_0*s_link2__R_2_0 + _c22*s_link2__R_2_2*s_link2__R_2_2)*p_link2__Ir_2
+    _c30 = (1/2)*f_link2__b3_1
+    _c31 = l2*s_link2__R_2_0
+    _c32 = _c30*_c31
+    _c33 = (1/2)*f_link2__b3_2
+    _c34 = l2*s_link2__R_1_0
+    _c35 = _c34*_c33
     # link2.mQ (MTF): f2 = M f1
-    f_link2__b5_0 = -_c27
-    _c28 = (1/2)*f_link2__b3_0
-    _c29 = (1/2)*f_link2__b3_2
-    _c30 = _c26*_c28 - _c29*l2*s_link2__R_0_0
+    f_link2__b5_0 = _c35 - _c32
+    _c36 = l2*s_link2__R_0_0
+    _c37 = _c33*_c36
+    _c38 = (1/2)*f_link2__b3_0
+    _c39 = _c31*_c38
     # link2.mQ (MTF): f2 = M f1
-    f_link2__b5_1 = _c30
-    _c31 = _c28*l2*s_link2__R_1_0 - 1/2*f_link2__b3_1*l2*s_link2__R_0_0
+    f_link2__b5_1 = _c39 - _c37
+    _c40 = _c34*_c38
+    _c41 = _c30*_c36
     # link2.mQ (MTF): f2 = M f1
-    f_link2__b5_2 = -_c31
+    f_link2__b5_2 = _c41 - _c40
     # link2.mP (MTF): f2 = M f1
-    f_link2__b9_0 = _c27
+    f_link2__b9_0 = _c32 - _c35
     # link2.mP (MTF): f2 = M f1
-    f_link2__b9_1 = -_c30
+    f_link2__b9_1 = _c37 - _c39
     # link2.mP (MTF): f2 = M f1
-    f_link2__b9_2 = _c31
+    f_link2__b9_2 = _c40 - _c41
     # 0-junction link2.sQ: flow balance
     f_link2__b7_0 = f_link2__b2_0 + f_link2__b5_0
     # 0-junction link2.sQ: flow balance
@@ -7655,46 +7665,49 @@ def outputs(t, x, p=None, u=None):
     f_link2__b11_1 = f_link2__b2_1 + f_link2__b9_1
     # 0-junction link2.sP: flow balance
     f_link2__b11_2 = f_link2__b2_2 + f_link2__b9_2
-    _c32 = 1/m3
+    _c42 = 1/m3
     # link3.It (I, integral): flow from momentum
-    f_link3__b2_0 = _c32*p_link3__It_0
+    f_link3__b2_0 = _c42*p_link3__It_0
     # link3.It (I, integral): flow from momentum
-    f_link3__b2_1 = _c32*p_link3__It_1
+    f_link3__b2_1 = _c42*p_link3__It_1
     # link3.It (I, integral): flow from momentum
-    f_link3__b2_2 = _c32*p_link3__It_2
-    _c33 = 1/link3__Ixx
-    _c34 = 1/link3__Iyy
-    _c35 = _c33*s_link3__R_0_0
-    _c36 = _c34*s_link3__R_0_1
-    _c37 = _c34*s_link3__R_0_2
-    _c38 = _c35*s_link3__R_1_0 + _c36*s_link3__R_1_1 + _c37*s_link3__R_1_2
-    _c39 = _c35*s_link3__R_2_0 + _c36*s_link3__R_2_1 + _c37*s_link3__R_2_2
+    f_link3__b2_2 = _c42*p_link3__It_2
+    _c43 = 1/link3__Iyy
+    _c44 = _c43*s_link3__R_0_2
+    _c45 = _c43*s_link3__R_0_1
+    _c46 = 1/link3__Ixx
+    _c47 = _c45*s_link3__R_2_1 + _c46*s_link3__R_2_0*s_link3__R_0_0 + _c44*s_link3__R_2_2
+    _c48 = _c46*s_link3__R_1_0
+    _c49 = _c48*s_link3__R_0_0 + _c45*s_link3__R_1_1 + _c44*s_link3__R_1_2
     # link3.Ir (I, integral): flow from momentum
-    f_link3__b3_0 = _c38*p_link3__Ir_1 + _c39*p_link3__Ir_2 + p_link3__Ir_0*(_c33*s_link3__R_0_0*s_link3__R_0_0 + _c34*s_link3__R_0_1*s_link3__R_0_1 + _c34*s_link3__R_0_2*s_link3__R_0_2)
-    _c40 = _c33*s_link3__R_1_0*s_link3__R_2_0 + _c34*s_link3__R_1_1*s_link3__R_2_1 + _c34*s_link3__R_1_2*s_link3__R_2_2
+    f_link3__b3_0 = (_c46*s_link3__R_0_0*s_link3__R_0_0 + _c43*s_link3__R_0_1*s_link3__R_0_1 + _c43*s_link3__R_0_2*s_link3__R_0_2)*p_link3__Ir_0 + _c49*p_link3__Ir_1 + _c47*p_link3__Ir_2
+    _c50 = _c48*s_link3__R_2_0 + _c43*s_link3__R_2_1*s_link3__R_1_1 + _c43*s_link3__R_2_2*s_link3__R_1_2
     # link3.Ir (I, integral): flow from momentum
-    f_link3__b3_1 = _c38*p_link3__Ir_0 + _c40*p_link3__Ir_2 + p_link3__Ir_1*(_c33*s_link3__R_1_0*s_link3__R_1_0 + _c34*s_link3__R_1_1*s_link3__R_1_1 + _c34*s_link3__R_1_2*s_link3__R_1_2)
+    f_link3__b3_1 = _c49*p_link3__Ir_0 + (_c46*s_link3__R_1_0*s_link3__R_1_0 + _c43*s_link3__R_1_1*s_link3__R_1_1 + _c43*s_link3__R_1_2*s_link3__R_1_2)*p_link3__Ir_1 + _c50*p_link3__Ir_2
     # link3.Ir (I, integral): flow from momentum
-    f_link3__b3_2 = _c39*p_link3__Ir_0 + _c40*p_link3__Ir_1 + p_link3__Ir_2*(_c33*s_link3__R_2_0*s_link3__R_2_0 + _c34*s_link3__R_2_1*s_link3__R_2_1 + _c34*s_link3__R_2_2*s_link3__R_2_2)
-    _c41 = (1/2)*l3
-    _c42 = _c41*s_link3__R_2_0
-    _c43 = _c42*f_link3__b3_1 - 1/2*f_link3__b3_2*l3*s_link3__R_1_0
+    f_link3__b3_2 = _c47*p_link3__Ir_0 + _c50*p_link3__Ir_1 + (_c46*s_link3__R_2_0*s_link3__R_2_0 + _c43*s_link3__R_2_1*s_link3__R_2_1 + _c43*s_link3__R_2_2*s_link3__R_2_2)*p_link3__Ir_2
+    _c51 = (1/2)*l3
+    _c52 = _c51*s_link3__R_2_0
+    _c53 = _c52*f_link3__b3_1
+    _c54 = _c51*s_link3__R_1_0
+    _c55 = _c54*f_link3__b3_2
     # link3.mQ (MTF): f2 = M f1
-    f_link3__b5_0 = -_c43
-    _c44 = _c41*s_link3__R_0_0
-    _c45 = _c42*f_link3__b3_0 - _c44*f_link3__b3_2
+    f_link3__b5_0 = _c55 - _c53
+    _c56 = _c51*s_link3__R_0_0
+    _c57 = _c56*f_link3__b3_2
+    _c58 = _c52*f_link3__b3_0
     # link3.mQ (MTF): f2 = M f1
-    f_link3__b5_1 = _c45
-    _c46 = _c41*s_link3__R_1_0
-    _c47 = _c46*f_link3__b3_0 - 1/2*f_link3__b3_1*l3*s_link3__R_0_0
+    f_link3__b5_1 = _c58 - _c57
+    _c59 = _c54*f_link3__b3_0
+    _c60 = _c56*f_link3__b3_1
     # link3.mQ (MTF): f2 = M f1
-    f_link3__b5_2 = -_c47
+    f_link3__b5_2 = _c60 - _c59
     # link3.mP (MTF): f2 = M f1
-    f_link3__b9_0 = _c43
+    f_link3__b9_0 = _c53 - _c55
     # link3.mP (MTF): f2 = M f1
-    f_link3__b9_1 = -_c45
+    f_link3__b9_1 = _c57 - _c58
     # link3.mP (MTF): f2 = M f1
-    f_link3__b9_2 = _c47
+    f_link3__b9_2 = _c59 - _c60
     # 0-junction link3.sQ: flow balance
     f_link3__b7_0 = f_link3__b2_0 + f_link3__b5_0
     # 0-junction link3.sQ: flow balance
@@ -7707,46 +7720,50 @@ def outputs(t, x, p=None, u=None):
     f_link3__b11_1 = f_link3__b2_1 + f_link3__b9_1
     # 0-junction link3.sP: flow balance
     f_link3__b11_2 = f_link3__b2_2 + f_link3__b9_2
-    _c48 = 1/m4
+    _c61 = 1/m4
     # link4.It (I, integral): flow from momentum
-    f_link4__b2_0 = _c48*p_link4__It_0
+    f_link4__b2_0 = _c61*p_link4__It_0
     # link4.It (I, integral): flow from momentum
-    f_link4__b2_1 = _c48*p_link4__It_1
+    f_link4__b2_1 = _c61*p_link4__It_1
     # link4.It (I, integral): flow from momentum
-    f_link4__b2_2 = _c48*p_link4__It_2
-    _c49 = 1/link4__Ixx
-    _c50 = 1/link4__Iyy
-    _c51 = _c49*s_link4__R_0_0
-    _c52 = _c50*s_link4__R_0_1
-    _c53 = _c50*s_link4__R_0_2
-    _c54 = _c51*s_link4__R_1_0 + _c52*s_link4__R_1_1 + _c53*s_link4__R_1_2
-    _c55 = _c51*s_link4__R_2_0 + _c52*s_link4__R_2_1 + _c53*s_link4__R_2_2
+    f_link4__b2_2 = _c61*p_link4__It_2
+    _c62 = 1/link4__Iyy
+    _c63 = _c62*s_link4__R_1_1
+    _c64 = _c62*s_link4__R_0_2
+    _c65 = 1/link4__Ixx
+    _c66 = _c65*s_link4__R_0_0
+    _c67 = _c66*s_link4__R_1_0 + _c64*s_link4__R_1_2 + _c63*s_link4__R_0_1
+    _c68 = _c66*s_link4__R_2_0 + _c62*s_link4__R_0_1*s_link4__R_2_1 + _c64*s_link4__R_2_2
     # link4.Ir (I, integral): flow from momentum
-    f_link4__b3_0 = _c54*p_link4__Ir_1 + _c55*p_link4__Ir_2 + p_link4__Ir_0*(_c49*s_link4__R_0_0*s_link4__R_0_0 + _c50*s_link4__R_0_1*s_link4__R_0_1 + _c50*s_link4__R_0_2*s_link4__R_0_2)
-    _c56 = _c49*s_link4__R_1_0*s_link4__R_2_0 + _c50*s_link4__R_1_1*s_link4__R_2_1 + _c50*s_link4__R_1_2*s_link4__R_2_2
+    f_link4__b3_0 = _c68*p_link4__Ir_2 + (_c65*s_link4__R_0_0*s_link4__R_0_0 + _c62*s_link4__R_0_1*s_link4__R_0_1 + _c62*s_link4__R_0_2*s_link4__R_0_2)*p_link4__Ir_0 + _c67*p_link4__Ir_1
+    _c69 = _c65*s_link4__R_1_0*s_link4__R_2_0 + _c63*s_link4__R_2_1 + _c62*s_link4__R_1_2*s_link4__R_2_2
     # link4.Ir (I, integral): flow from momentum
-    f_link4__b3_1 = _c54*p_link4__Ir_0 + _c56*p_link4__Ir_2 + p_link4__Ir_1*(_c49*s_link4__R_1_0*s_link4__R_1_0 + _c50*s_link4__R_1_1*s_link4__R_1_1 + _c50*s_link4__R_1_2*s_link4__R_1_2)
+    f_link4__b3_1 = _c67*p_link4__Ir_0 + (_c62*s_link4__R_1_1*s_link4__R_1_1 + _c65*s_link4__R_1_0*s_link4__R_1_0 + _c62*s_link4__R_1_2*s_link4__R_1_2)*p_link4__Ir_1 + _c69*p_link4__Ir_2
     # link4.Ir (I, integral): flow from momentum
-    f_link4__b3_2 = _c55*p_link4__Ir_0 + _c56*p_link4__Ir_1 + p_link4__Ir_2*(_c49*s_link4__R_2_0*s_link4__R_2_0 + _c50*s_link4__R_2_1*s_link4__R_2_1 + _c50*s_link4__R_2_2*s_link4__R_2_2)
-    _c57 = (1/2)*f_link4__b3_1
-    _c58 = l4*s_link4__R_2_0
-    _c59 = _c57*_c58 - 1/2*f_link4__b3_2*l4*s_link4__R_1_0
+    f_link4__b3_2 = _c68*p_link4__Ir_0 + _c69*p_link4__Ir_1 + (_c62*s_link4__R_2_1*s_link4__R_2_1 + _c65*s_link4__R_2_0*s_link4__R_2_0 + _c62*s_link4__R_2_2*s_link4__R_2_2)*p_link4__Ir_2
+    _c70 = (1/2)*f_link4__b3_1
+    _c71 = l4*_c70*s_link4__R_2_0
+    _c72 = (1/2)*f_link4__b3_2
+    _c73 = l4*_c72*s_link4__R_1_0
     # link4.mQ (MTF): f2 = M f1
-    f_link4__b5_0 = -_c59
-    _c60 = (1/2)*f_link4__b3_0
-    _c61 = (1/2)*f_link4__b3_2
-    _c62 = _c58*_c60 - _c61*l4*s_link4__R_0_0
+    f_link4__b5_0 = _c73 - _c71
+    _c74 = l4*s_link4__R_0_0
+    _c75 = _c72*_c74
+    _c76 = (1/2)*f_link4__b3_0
+    _c77 = l4*_c76
+    _c78 = _c77*s_link4__R_2_0
     # link4.mQ (MTF): f2 = M f1
-    f_link4__b5_1 = _c62
-    _c63 = _c60*l4*s_link4__R_1_0 - 1/2*f_link4__b3_1*l4*s_link4__R_0_0
+    f_link4__b5_1 = _c78 - _c75
+    _c79 = _c77*s_link4__R_1_0
+    _c80 = _c70*_c74
     # link4.mQ (MTF): f2 = M f1
-    f_link4__b5_2 = -_c63
+    f_link4__b5_2 = _c80 - _c79
     # link4.mP (MTF): f2 = M f1
-    f_link4__b9_0 = _c59
+    f_link4__b9_0 = _c71 - _c73
     # link4.mP (MTF): f2 = M f1
-    f_link4__b9_1 = -_c62
+    f_link4__b9_1 = _c75 - _c78
     # link4.mP (MTF): f2 = M f1
-    f_link4__b9_2 = _c63
+    f_link4__b9_2 = _c79 - _c80
     # 0-junction link4.sQ: flow balance
     f_link4__b7_0 = f_link4__b2_0 + f_link4__b5_0
     # 0-junction link4.sQ: flow balance
@@ -7766,11 +7783,11 @@ def outputs(t, x, p=None, u=None):
     # j1.C (C, integral): effort from displacement
     e_j1__b2_2 = k_t*q_j1__C_2
     # j1.R (R): effort = r f
-    e_j1__b3_0 = -f_link1__b7_0*r_t
+    e_j1__b3_0 = -r_t*f_link1__b7_0
     # j1.R (R): effort = r f
-    e_j1__b3_1 = -f_link1__b7_1*r_t
+    e_j1__b3_1 = -r_t*f_link1__b7_1
     # j1.R (R): effort = r f
-    e_j1__b3_2 = -f_link1__b7_2*r_t
+    e_j1__b3_2 = -r_t*f_link1__b7_2
     # 0-junction j2.J: flow balance
     f_j2__b1_0 = f_link1__b11_0 - f_link2__b7_0
     # 0-junction j2.J: flow balance
@@ -7784,11 +7801,11 @@ def outputs(t, x, p=None, u=None):
     # j2.C (C, integral): effort from displacement
     e_j2__b2_2 = k_t*q_j2__C_2
     # j2.R (R): effort = r f
-    e_j2__b3_0 = f_j2__b1_0*r_t
+    e_j2__b3_0 = r_t*f_j2__b1_0
     # j2.R (R): effort = r f
-    e_j2__b3_1 = f_j2__b1_1*r_t
+    e_j2__b3_1 = r_t*f_j2__b1_1
     # j2.R (R): effort = r f
-    e_j2__b3_2 = f_j2__b1_2*r_t
+    e_j2__b3_2 = r_t*f_j2__b1_2
     # 0-junction j3.J: flow balance
     f_j3__b1_0 = f_link2__b11_0 - f_link3__b7_0
     # 0-junction j3.J: flow balance
@@ -7802,11 +7819,11 @@ def outputs(t, x, p=None, u=None):
     # j3.C (C, integral): effort from displacement
     e_j3__b2_2 = k_t*q_j3__C_2
     # j3.R (R): effort = r f
-    e_j3__b3_0 = f_j3__b1_0*r_t
+    e_j3__b3_0 = r_t*f_j3__b1_0
     # j3.R (R): effort = r f
-    e_j3__b3_1 = f_j3__b1_1*r_t
+    e_j3__b3_1 = r_t*f_j3__b1_1
     # j3.R (R): effort = r f
-    e_j3__b3_2 = f_j3__b1_2*r_t
+    e_j3__b3_2 = r_t*f_j3__b1_2
     # 0-junction j4.J: flow balance
     f_j4__b1_0 = f_link3__b11_0 - f_link4__b7_0
     # 0-junction j4.J: flow balance
@@ -7820,11 +7837,11 @@ def outputs(t, x, p=None, u=None):
     # j4.C (C, integral): effort from displacement
     e_j4__b2_2 = k_t*q_j4__C_2
     # j4.R (R): effort = r f
-    e_j4__b3_0 = f_j4__b1_0*r_t
+    e_j4__b3_0 = r_t*f_j4__b1_0
     # j4.R (R): effort = r f
-    e_j4__b3_1 = f_j4__b1_1*r_t
+    e_j4__b3_1 = r_t*f_j4__b1_1
     # j4.R (R): effort = r f
-    e_j4__b3_2 = f_j4__b1_2*r_t
+    e_j4__b3_2 = r_t*f_j4__b1_2
     # j5.C (C, integral): effort from displacement
     e_j5__b2_0 = k_t*q_j5__C_0
     # j5.C (C, integral): effort from displacement
@@ -7832,23 +7849,23 @@ def outputs(t, x, p=None, u=None):
     # j5.C (C, integral): effort from displacement
     e_j5__b2_2 = k_t*q_j5__C_2
     # j5.R (R): effort = r f
-    e_j5__b3_0 = f_link4__b11_0*r_t5
+    e_j5__b3_0 = r_t5*f_link4__b11_0
     # j5.R (R): effort = r f
-    e_j5__b3_1 = f_link4__b11_1*r_t5
+    e_j5__b3_1 = r_t5*f_link4__b11_1
     # j5.R (R): effort = r f
-    e_j5__b3_2 = f_link4__b11_2*r_t5
+    e_j5__b3_2 = r_t5*f_link4__b11_2
     # r1.M (MTF): f2 = M f1
-    f_r1__b2_0 = f_link1__b3_0*s_link1__R_0_0 + f_link1__b3_1*s_link1__R_1_0 + f_link1__b3_2*s_link1__R_2_0
+    f_r1__b2_0 = s_link1__R_0_0*f_link1__b3_0 + s_link1__R_1_0*f_link1__b3_1 + s_link1__R_2_0*f_link1__b3_2
     # r1.M (MTF): f2 = M f1
-    f_r1__b2_1 = f_link1__b3_0*s_link1__R_0_1 + f_link1__b3_1*s_link1__R_1_1 + f_link1__b3_2*s_link1__R_2_1
+    f_r1__b2_1 = s_link1__R_0_1*f_link1__b3_0 + s_link1__R_1_1*f_link1__b3_1 + s_link1__R_2_1*f_link1__b3_2
     # r1.C (C, integral): effort from displacement
     e_r1__b3_0 = k_r*q_r1__C_0
     # r1.C (C, integral): effort from displacement
     e_r1__b3_1 = k_r*q_r1__C_1
     # r1.R (R): effort = r f
-    e_r1__b4_0 = f_r1__b2_0*r_r
+    e_r1__b4_0 = r_r*f_r1__b2_0
     # r1.R (R): effort = r f
-    e_r1__b4_1 = f_r1__b2_1*r_r
+    e_r1__b4_1 = r_r*f_r1__b2_1
     # 0-junction r2.J: flow balance
     f_r2__b1_0 = f_link2__b3_0 - f_link1__b3_0
     # 0-junction r2.J: flow balance
@@ -7856,17 +7873,17 @@ def outputs(t, x, p=None, u=None):
     # 0-junction r2.J: flow balance
     f_r2__b1_2 = f_link2__b3_2 - f_link1__b3_2
     # r2.M (MTF): f2 = M f1
-    f_r2__b2_0 = f_r2__b1_0*s_link2__R_0_0 + f_r2__b1_1*s_link2__R_1_0 + f_r2__b1_2*s_link2__R_2_0
+    f_r2__b2_0 = s_link2__R_0_0*f_r2__b1_0 + s_link2__R_1_0*f_r2__b1_1 + s_link2__R_2_0*f_r2__b1_2
     # r2.M (MTF): f2 = M f1
-    f_r2__b2_1 = f_r2__b1_0*s_link2__R_0_1 + f_r2__b1_1*s_link2__R_1_1 + f_r2__b1_2*s_link2__R_2_1
+    f_r2__b2_1 = s_link2__R_0_1*f_r2__b1_0 + s_link2__R_1_1*f_r2__b1_1 + s_link2__R_2_1*f_r2__b1_2
     # r2.C (C, integral): effort from displacement
     e_r2__b3_0 = k_r*q_r2__C_0
     # r2.C (C, integral): effort from displacement
     e_r2__b3_1 = k_r*q_r2__C_1
     # r2.R (R): effort = r f
-    e_r2__b4_0 = f_r2__b2_0*r_r
+    e_r2__b4_0 = r_r*f_r2__b2_0
     # r2.R (R): effort = r f
-    e_r2__b4_1 = f_r2__b2_1*r_r
+    e_r2__b4_1 = r_r*f_r2__b2_1
     # 0-junction r3.J: flow balance
     f_r3__b1_0 = f_link3__b3_0 - f_link2__b3_0
     # 0-junction r3.J: flow balance
@@ -7874,17 +7891,17 @@ def outputs(t, x, p=None, u=None):
     # 0-junction r3.J: flow balance
     f_r3__b1_2 = f_link3__b3_2 - f_link2__b3_2
     # r3.M (MTF): f2 = M f1
-    f_r3__b2_0 = f_r3__b1_0*s_link3__R_0_0 + f_r3__b1_1*s_link3__R_1_0 + f_r3__b1_2*s_link3__R_2_0
+    f_r3__b2_0 = s_link3__R_0_0*f_r3__b1_0 + s_link3__R_1_0*f_r3__b1_1 + s_link3__R_2_0*f_r3__b1_2
     # r3.M (MTF): f2 = M f1
-    f_r3__b2_1 = f_r3__b1_0*s_link3__R_0_1 + f_r3__b1_1*s_link3__R_1_1 + f_r3__b1_2*s_link3__R_2_1
+    f_r3__b2_1 = s_link3__R_0_1*f_r3__b1_0 + s_link3__R_1_1*f_r3__b1_1 + s_link3__R_2_1*f_r3__b1_2
     # r3.C (C, integral): effort from displacement
     e_r3__b3_0 = k_r*q_r3__C_0
     # r3.C (C, integral): effort from displacement
     e_r3__b3_1 = k_r*q_r3__C_1
     # r3.R (R): effort = r f
-    e_r3__b4_0 = f_r3__b2_0*r_r
+    e_r3__b4_0 = r_r*f_r3__b2_0
     # r3.R (R): effort = r f
-    e_r3__b4_1 = f_r3__b2_1*r_r
+    e_r3__b4_1 = r_r*f_r3__b2_1
     # 0-junction jd.J: flow balance
     f_jd__b1_0 = u_vd_0 - f_link3__b11_0
     # 0-junction jd.J: flow balance
@@ -7898,39 +7915,39 @@ def outputs(t, x, p=None, u=None):
     # jd.C (C, integral): effort from displacement
     e_jd__b2_2 = k_d*q_jd__C_2
     # jd.R (R): effort = r f
-    e_jd__b3_0 = f_jd__b1_0*r_d
+    e_jd__b3_0 = r_d*f_jd__b1_0
     # 1-junction jd.rel: effort balance
     e_jd__b1_0 = e_jd__b2_0 + e_jd__b3_0
     # jd.R (R): effort = r f
-    e_jd__b3_1 = f_jd__b1_1*r_d
+    e_jd__b3_1 = r_d*f_jd__b1_1
     # 1-junction jd.rel: effort balance
     e_jd__b1_1 = e_jd__b2_1 + e_jd__b3_1
     # jd.R (R): effort = r f
-    e_jd__b3_2 = f_jd__b1_2*r_d
+    e_jd__b3_2 = r_d*f_jd__b1_2
     # 1-junction jd.rel: effort balance
     e_jd__b1_2 = e_jd__b2_2 + e_jd__b3_2
-    _c64 = s_pd_0 - P4_0
-    _c65 = s_pd_1 - P4_1
-    _c66 = s_pd_2 - P4_2
-    _c67 = l4/xp.sqrt(_c64*_c64 + _c65*_c65 + _c66*_c66)
+    _c81 = s_pd_0 - P4_0
+    _c82 = s_pd_2 - P4_2
+    _c83 = s_pd_1 - P4_1
+    _c84 = l4/xp.sqrt(_c81*_c81 + _c83*_c83 + _c82*_c82)
 
     _shape = np.broadcast_shapes(x.shape[1:], getattr(t, "shape", ()), _bshape)
     _b = lambda v: xp.broadcast_to(xp.asarray(v, device=_device(x)), _shape)  # noqa: E731
     return {
         'theta1': xp.asarray(_b(xp.atan2(s_link1__R_1_0, s_link1__R_0_0)), copy=True),
-        'theta2': xp.asarray(_b(xp.atan2(s_link2__R_0_2*(s_link1__R_1_0*s_link2__R_2_0 - s_link1__R_2_0*s_link2__R_1_0) + s_link2__R_1_2*(s_link1__R_2_0*s_link2__R_0_0 - s_link1__R_0_0*s_link2__R_2_0) + s_link2__R_2_2*(s_link1__R_0_0*s_link2__R_1_0 - s_link1__R_1_0*s_link2__R_0_0), s_link1__R_0_0*s_link2__R_0_0 + s_link1__R_1_0*s_link2__R_1_0 + s_link1__R_2_0*s_link2__R_2_0)), copy=True),
-        'theta3': xp.asarray(_b(xp.atan2(s_link3__R_0_2*(s_link2__R_1_0*s_link3__R_2_0 - s_link2__R_2_0*s_link3__R_1_0) + s_link3__R_1_2*(s_link2__R_2_0*s_link3__R_0_0 - s_link2__R_0_0*s_link3__R_2_0) + s_link3__R_2_2*(s_link2__R_0_0*s_link3__R_1_0 - s_link2__R_1_0*s_link3__R_0_0), s_link2__R_0_0*s_link3__R_0_0 + s_link2__R_1_0*s_link3__R_1_0 + s_link2__R_2_0*s_link3__R_2_0)), copy=True),
-        'theta4': xp.asarray(_b(xp.atan2(s_link3__R_0_2*(s_link3__R_1_0*s_link4__R_2_0 - s_link3__R_2_0*s_link4__R_1_0) + s_link3__R_1_2*(s_link3__R_2_0*s_link4__R_0_0 - s_link3__R_0_0*s_link4__R_2_0) + s_link3__R_2_2*(s_link3__R_0_0*s_link4__R_1_0 - s_link3__R_1_0*s_link4__R_0_0), s_link3__R_0_0*s_link4__R_0_0 + s_link3__R_1_0*s_link4__R_1_0 + s_link3__R_2_0*s_link4__R_2_0)), copy=True),
-        'p3': xp.reshape(xp.stack([_b(_c44 + s_link3__rC_0), _b(_c46 + s_link3__rC_1), _b(_c42 + s_link3__rC_2), ]), (3,) + _shape),
+        'theta2': xp.asarray(_b(xp.atan2((s_link1__R_1_0*s_link2__R_2_0 - s_link1__R_2_0*s_link2__R_1_0)*s_link2__R_0_2 + (s_link1__R_0_0*s_link2__R_1_0 - s_link1__R_1_0*s_link2__R_0_0)*s_link2__R_2_2 + (s_link1__R_2_0*s_link2__R_0_0 - s_link1__R_0_0*s_link2__R_2_0)*s_link2__R_1_2, s_link1__R_0_0*s_link2__R_0_0 + s_link1__R_1_0*s_link2__R_1_0 + s_link1__R_2_0*s_link2__R_2_0)), copy=True),
+        'theta3': xp.asarray(_b(xp.atan2((s_link3__R_2_0*s_link2__R_1_0 - s_link3__R_1_0*s_link2__R_2_0)*s_link3__R_0_2 + (s_link3__R_0_0*s_link2__R_2_0 - s_link3__R_2_0*s_link2__R_0_0)*s_link3__R_1_2 + (s_link3__R_1_0*s_link2__R_0_0 - s_link3__R_0_0*s_link2__R_1_0)*s_link3__R_2_2, s_link3__R_0_0*s_link2__R_0_0 + s_link3__R_1_0*s_link2__R_1_0 + s_link3__R_2_0*s_link2__R_2_0)), copy=True),
+        'theta4': xp.asarray(_b(xp.atan2((s_link3__R_1_0*s_link4__R_2_0 - s_link3__R_2_0*s_link4__R_1_0)*s_link3__R_0_2 + (s_link3__R_2_0*s_link4__R_0_0 - s_link3__R_0_0*s_link4__R_2_0)*s_link3__R_1_2 + (s_link3__R_0_0*s_link4__R_1_0 - s_link3__R_1_0*s_link4__R_0_0)*s_link3__R_2_2, s_link3__R_0_0*s_link4__R_0_0 + s_link3__R_1_0*s_link4__R_1_0 + s_link3__R_2_0*s_link4__R_2_0)), copy=True),
+        'p3': xp.reshape(xp.stack([_b(s_link3__rC_0 + _c56), _b(s_link3__rC_1 + _c54), _b(s_link3__rC_2 + _c52), ]), (3,) + _shape),
         'p3_desired': xp.reshape(xp.stack([_b(s_pd_0), _b(s_pd_1), _b(s_pd_2), ]), (3,) + _shape),
-        'p3_projected': xp.reshape(xp.stack([_b(P4_0 + _c64*_c67), _b(P4_1 + _c65*_c67), _b(P4_2 + _c66*_c67), ]), (3,) + _shape),
+        'p3_projected': xp.reshape(xp.stack([_b(P4_0 + _c81*_c84), _b(P4_1 + _c83*_c84), _b(P4_2 + _c82*_c84), ]), (3,) + _shape),
         'R4': xp.reshape(xp.stack([_b(s_link4__R_0_0), _b(s_link4__R_0_1), _b(s_link4__R_0_2), _b(s_link4__R_1_0), _b(s_link4__R_1_1), _b(s_link4__R_1_2), _b(s_link4__R_2_0), _b(s_link4__R_2_1), _b(s_link4__R_2_2), ]), (3, 3) + _shape),
-        'energy': xp.asarray(_b(_c12*p_link1__Ir_0 + _c13*p_link1__Ir_2 + _c25*p_link2__Ir_1 + _c28*p_link2__Ir_0 + _c29*p_link2__Ir_2 + _c57*p_link4__Ir_1 + _c60*p_link4__Ir_0 + _c61*p_link4__Ir_2 + _c9*p_link1__Ir_1 + g*(m1*s_link1__rC_2 + m2*s_link2__rC_2 + m3*s_link3__rC_2 + m4*s_link4__rC_2) + (1/2)*e_j1__b2_0*q_j1__C_0 + (1/2)*e_j1__b2_1*q_j1__C_1 + (1/2)*e_j1__b2_2*q_j1__C_2 + (1/2)*e_j2__b2_0*q_j2__C_0 + (1/2)*e_j2__b2_1*q_j2__C_1 + (1/2)*e_j2__b2_2*q_j2__C_2 + (1/2)*e_j3__b2_0*q_j3__C_0 + (1/2)*e_j3__b2_1*q_j3__C_1 + (1/2)*e_j3__b2_2*q_j3__C_2 + (1/2)*e_j4__b2_0*q_j4__C_0 + (1/2)*e_j4__b2_1*q_j4__C_1 + (1/2)*e_j4__b2_2*q_j4__C_2 + (1/2)*e_j5__b2_0*q_j5__C_0 + (1/2)*e_j5__b2_1*q_j5__C_1 + (1/2)*e_j5__b2_2*q_j5__C_2 + (1/2)*e_jd__b2_0*q_jd__C_0 + (1/2)*e_jd__b2_1*q_jd__C_1 + (1/2)*e_jd__b2_2*q_jd__C_2 + (1/2)*e_r1__b3_0*q_r1__C_0 + (1/2)*e_r1__b3_1*q_r1__C_1 + (1/2)*e_r2__b3_0*q_r2__C_0 + (1/2)*e_r2__b3_1*q_r2__C_1 + (1/2)*e_r3__b3_0*q_r3__C_0 + (1/2)*e_r3__b3_1*q_r3__C_1 + (1/2)*f_link1__b2_0*p_link1__It_0 + (1/2)*f_link1__b2_1*p_link1__It_1 + (1/2)*f_link1__b2_2*p_link1__It_2 + (1/2)*f_link2__b2_0*p_link2__It_0 + (1/2)*f_link2__b2_1*p_link2__It_1 + (1/2)*f_link2__b2_2*p_link2__It_2 + (1/2)*f_link3__b2_0*p_link3__It_0 + (1/2)*f_link3__b2_1*p_link3__It_1 + (1/2)*f_link3__b2_2*p_link3__It_2 + (1/2)*f_link3__b3_0*p_link3__Ir_0 + (1/2)*f_link3__b3_1*p_link3__Ir_1 + (1/2)*f_link3__b3_2*p_link3__Ir_2 + (1/2)*f_link4__b2_0*p_link4__It_0 + (1/2)*f_link4__b2_1*p_link4__It_1 + (1/2)*f_link4__b2_2*p_link4__It_2), copy=True),
-        'P_drive': xp.asarray(_b(e_jd__b1_0*u_vd_0 + e_jd__b1_1*u_vd_1 + e_jd__b1_2*u_vd_2), copy=True),
-        'P_diss': xp.asarray(_b(e_j2__b3_0*f_j2__b1_0 + e_j2__b3_1*f_j2__b1_1 + e_j2__b3_2*f_j2__b1_2 + e_j3__b3_0*f_j3__b1_0 + e_j3__b3_1*f_j3__b1_1 + e_j3__b3_2*f_j3__b1_2 + e_j4__b3_0*f_j4__b1_0 + e_j4__b3_1*f_j4__b1_1 + e_j4__b3_2*f_j4__b1_2 + e_j5__b3_0*f_link4__b11_0 + e_j5__b3_1*f_link4__b11_1 + e_j5__b3_2*f_link4__b11_2 + e_jd__b3_0*f_jd__b1_0 + e_jd__b3_1*f_jd__b1_1 + e_jd__b3_2*f_jd__b1_2 + e_r1__b4_0*f_r1__b2_0 + e_r1__b4_1*f_r1__b2_1 + e_r2__b4_0*f_r2__b2_0 + e_r2__b4_1*f_r2__b2_1 + e_r3__b4_0*f_r3__b2_0 + e_r3__b4_1*f_r3__b2_1 - e_j1__b3_0*f_link1__b7_0 - e_j1__b3_1*f_link1__b7_1 - e_j1__b3_2*f_link1__b7_2), copy=True),
+        'energy': xp.asarray(_b((1/2)*f_link1__b2_2*p_link1__It_2 + (1/2)*f_link4__b2_0*p_link4__It_0 + (1/2)*q_r2__C_0*e_r2__b3_0 + (1/2)*q_r1__C_0*e_r1__b3_0 + (1/2)*q_jd__C_2*e_jd__b2_2 + (1/2)*q_jd__C_1*e_jd__b2_1 + _c30*p_link2__Ir_1 + _c38*p_link2__Ir_0 + (1/2)*q_r3__C_1*e_r3__b3_1 + (1/2)*q_j5__C_2*e_j5__b2_2 + (1/2)*f_link3__b3_2*p_link3__Ir_2 + (1/2)*f_link1__b2_0*p_link1__It_0 + (1/2)*f_link3__b2_2*p_link3__It_2 + (1/2)*q_j5__C_0*e_j5__b2_0 + (1/2)*q_j3__C_2*e_j3__b2_2 + (1/2)*q_j4__C_0*e_j4__b2_0 + _c70*p_link4__Ir_1 + (1/2)*f_link4__b2_1*p_link4__It_1 + g*(m1*s_link1__rC_2 + m2*s_link2__rC_2 + m3*s_link3__rC_2 + m4*s_link4__rC_2) + (1/2)*q_r2__C_1*e_r2__b3_1 + (1/2)*q_j1__C_0*e_j1__b2_0 + _c12*p_link1__Ir_2 + (1/2)*f_link2__b2_1*p_link2__It_1 + (1/2)*f_link2__b2_0*p_link2__It_0 + _c33*p_link2__Ir_2 + (1/2)*q_j2__C_1*e_j2__b2_1 + (1/2)*f_link2__b2_2*p_link2__It_2 + (1/2)*f_link4__b2_2*p_link4__It_2 + _c9*p_link1__Ir_1 + (1/2)*f_link3__b2_0*p_link3__It_0 + (1/2)*q_j4__C_2*e_j4__b2_2 + (1/2)*f_link3__b2_1*p_link3__It_1 + (1/2)*q_j3__C_0*e_j3__b2_0 + (1/2)*f_link3__b3_0*p_link3__Ir_0 + (1/2)*q_j2__C_2*e_j2__b2_2 + (1/2)*q_r1__C_1*e_r1__b3_1 + (1/2)*q_r3__C_0*e_r3__b3_0 + _c17*p_link1__Ir_0 + (1/2)*f_link3__b3_1*p_link3__Ir_1 + (1/2)*f_link1__b2_1*p_link1__It_1 + (1/2)*q_j2__C_0*e_j2__b2_0 + (1/2)*q_jd__C_0*e_jd__b2_0 + (1/2)*q_j4__C_1*e_j4__b2_1 + (1/2)*q_j1__C_2*e_j1__b2_2 + (1/2)*q_j5__C_1*e_j5__b2_1 + (1/2)*q_j3__C_1*e_j3__b2_1 + (1/2)*q_j1__C_1*e_j1__b2_1 + _c72*p_link4__Ir_2 + _c76*p_link4__Ir_0), copy=True),
+        'P_drive': xp.asarray(_b(u_vd_0*e_jd__b1_0 + u_vd_1*e_jd__b1_1 + u_vd_2*e_jd__b1_2), copy=True),
+        'P_diss': xp.asarray(_b(e_j5__b3_1*f_link4__b11_1 + e_j4__b3_1*f_j4__b1_1 + e_j2__b3_0*f_j2__b1_0 + e_jd__b3_0*f_jd__b1_0 + e_j5__b3_0*f_link4__b11_0 + e_jd__b3_1*f_jd__b1_1 + e_j4__b3_2*f_j4__b1_2 + e_j3__b3_1*f_j3__b1_1 + e_j3__b3_0*f_j3__b1_0 + e_j2__b3_2*f_j2__b1_2 + e_j4__b3_0*f_j4__b1_0 - e_j1__b3_2*f_link1__b7_2 + f_r3__b2_1*e_r3__b4_1 - e_j1__b3_1*f_link1__b7_1 - e_j1__b3_0*f_link1__b7_0 + f_r2__b2_1*e_r2__b4_1 + f_r2__b2_0*e_r2__b4_0 + f_r1__b2_0*e_r1__b4_0 + f_r1__b2_1*e_r1__b4_1 + e_jd__b3_2*f_jd__b1_2 + e_j2__b3_1*f_j2__b1_1 + e_j5__b3_2*f_link4__b11_2 + e_j3__b3_2*f_j3__b1_2 + f_r3__b2_0*e_r3__b4_0), copy=True),
         'work_drive': xp.asarray(_b(s_W_drive), copy=True),
         'dissipated': xp.asarray(_b(s_W_diss), copy=True),
-        'joint_gap': xp.reshape(xp.stack([_b(xp.sqrt(q_j1__C_0*q_j1__C_0 + q_j1__C_1*q_j1__C_1 + q_j1__C_2*q_j1__C_2)), _b(xp.sqrt(q_j2__C_0*q_j2__C_0 + q_j2__C_1*q_j2__C_1 + q_j2__C_2*q_j2__C_2)), _b(xp.sqrt(q_j3__C_0*q_j3__C_0 + q_j3__C_1*q_j3__C_1 + q_j3__C_2*q_j3__C_2)), _b(xp.sqrt(q_j4__C_0*q_j4__C_0 + q_j4__C_1*q_j4__C_1 + q_j4__C_2*q_j4__C_2)), _b(xp.sqrt(q_j5__C_0*q_j5__C_0 + q_j5__C_1*q_j5__C_1 + q_j5__C_2*q_j5__C_2)), ]), (5,) + _shape),
+        'joint_gap': xp.reshape(xp.stack([_b(xp.sqrt(q_j1__C_0*q_j1__C_0 + q_j1__C_2*q_j1__C_2 + q_j1__C_1*q_j1__C_1)), _b(xp.sqrt(q_j2__C_0*q_j2__C_0 + q_j2__C_1*q_j2__C_1 + q_j2__C_2*q_j2__C_2)), _b(xp.sqrt(q_j3__C_0*q_j3__C_0 + q_j3__C_2*q_j3__C_2 + q_j3__C_1*q_j3__C_1)), _b(xp.sqrt(q_j4__C_0*q_j4__C_0 + q_j4__C_1*q_j4__C_1 + q_j4__C_2*q_j4__C_2)), _b(xp.sqrt(q_j5__C_0*q_j5__C_0 + q_j5__C_1*q_j5__C_1 + q_j5__C_2*q_j5__C_2)), ]), (5,) + _shape),
     }
 
 

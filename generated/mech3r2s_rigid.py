@@ -30238,189 +30238,198 @@ def outputs(t, x, p=None, u=None):
 
     x = xp.asarray(x, dtype=xp.float64)
     p_link1__Ir_0, p_link1__Ir_1, p_link1__Ir_2, p_link2__Ir_0, p_link2__Ir_1, p_link2__Ir_2, p_link3__Ir_0, p_link3__Ir_1, p_link3__Ir_2, p_link4__Ir_0, p_link4__Ir_1, p_link4__Ir_2, q_jd__C_0, q_jd__C_1, q_jd__C_2, s_link1__R_0_0, s_link1__R_0_1, s_link1__R_0_2, s_link1__R_1_0, s_link1__R_1_1, s_link1__R_1_2, s_link1__R_2_0, s_link1__R_2_1, s_link1__R_2_2, s_link1__rC_0, s_link1__rC_1, s_link1__rC_2, s_link2__R_0_0, s_link2__R_0_1, s_link2__R_0_2, s_link2__R_1_0, s_link2__R_1_1, s_link2__R_1_2, s_link2__R_2_0, s_link2__R_2_1, s_link2__R_2_2, s_link2__rC_0, s_link2__rC_1, s_link2__rC_2, s_link3__R_0_0, s_link3__R_0_1, s_link3__R_0_2, s_link3__R_1_0, s_link3__R_1_1, s_link3__R_1_2, s_link3__R_2_0, s_link3__R_2_1, s_link3__R_2_2, s_link3__rC_0, s_link3__rC_1, s_link3__rC_2, s_link4__R_0_0, s_link4__R_0_1, s_link4__R_0_2, s_link4__R_1_0, s_link4__R_1_1, s_link4__R_1_2, s_link4__R_2_0, s_link4__R_2_1, s_link4__R_2_2, s_link4__rC_0, s_link4__rC_1, s_link4__rC_2, s_pd_0, s_pd_1, s_pd_2, s_W_drive, s_W_diss, _, _, _, _, _, _, _, _, _, = xp.unstack(x)
-    _c0 = 1/link1__Ixx
-    _c1 = 1/link1__Iyy
-    _c2 = _c0*s_link1__R_0_0
-    _c3 = _c1*s_link1__R_0_1
-    _c4 = _c1*s_link1__R_0_2
-    _c5 = _c2*s_link1__R_1_0 + _c3*s_link1__R_1_1 + _c4*s_link1__R_1_2
-    _c6 = _c2*s_link1__R_2_0 + _c3*s_link1__R_2_1 + _c4*s_link1__R_2_2
+    _c0 = 1/link1__Iyy
+    _c1 = 1/link1__Ixx
+    _c2 = _c1*s_link1__R_0_0*s_link1__R_2_0 + _c0*s_link1__R_0_2*s_link1__R_2_2 + _c0*s_link1__R_0_1*s_link1__R_2_1
+    _c3 = _c0*s_link1__R_1_2
+    _c4 = _c0*s_link1__R_1_1
+    _c5 = _c1*s_link1__R_1_0
+    _c6 = _c5*s_link1__R_0_0 + _c4*s_link1__R_0_1 + _c3*s_link1__R_0_2
     # link1.Ir (I, integral): flow from momentum
-    f_link1__b3_0 = _c5*p_link1__Ir_1 + _c6*p_link1__Ir_2 + p_link1__Ir_0*(_c0*s_link1__R_0_0*s_link1__R_0_0 + _c1*s_link1__R_0_1*s_link1__R_0_1 + _c1*s_link1__R_0_2*s_link1__R_0_2)
-    _c7 = _c0*s_link1__R_1_0*s_link1__R_2_0 + _c1*s_link1__R_1_1*s_link1__R_2_1 + _c1*s_link1__R_1_2*s_link1__R_2_2
+    f_link1__b3_0 = (_c1*s_link1__R_0_0*s_link1__R_0_0 + _c0*s_link1__R_0_1*s_link1__R_0_1 + _c0*s_link1__R_0_2*s_link1__R_0_2)*p_link1__Ir_0 + _c6*p_link1__Ir_1 + _c2*p_link1__Ir_2
+    _c7 = _c5*s_link1__R_2_0 + _c4*s_link1__R_2_1 + _c3*s_link1__R_2_2
     # link1.Ir (I, integral): flow from momentum
-    f_link1__b3_1 = _c5*p_link1__Ir_0 + _c7*p_link1__Ir_2 + p_link1__Ir_1*(_c0*s_link1__R_1_0*s_link1__R_1_0 + _c1*s_link1__R_1_1*s_link1__R_1_1 + _c1*s_link1__R_1_2*s_link1__R_1_2)
+    f_link1__b3_1 = _c6*p_link1__Ir_0 + (_c1*s_link1__R_1_0*s_link1__R_1_0 + _c0*s_link1__R_1_1*s_link1__R_1_1 + _c0*s_link1__R_1_2*s_link1__R_1_2)*p_link1__Ir_1 + _c7*p_link1__Ir_2
     # link1.Ir (I, integral): flow from momentum
-    f_link1__b3_2 = _c6*p_link1__Ir_0 + _c7*p_link1__Ir_1 + p_link1__Ir_2*(_c0*s_link1__R_2_0*s_link1__R_2_0 + _c1*s_link1__R_2_1*s_link1__R_2_1 + _c1*s_link1__R_2_2*s_link1__R_2_2)
-    _c8 = (1/2)*f_link1__b3_1
-    _c9 = l1*s_link1__R_2_0
-    _c10 = _c8*_c9 - 1/2*f_link1__b3_2*l1*s_link1__R_1_0
+    f_link1__b3_2 = _c2*p_link1__Ir_0 + _c7*p_link1__Ir_1 + (_c1*s_link1__R_2_0*s_link1__R_2_0 + _c0*s_link1__R_2_2*s_link1__R_2_2 + _c0*s_link1__R_2_1*s_link1__R_2_1)*p_link1__Ir_2
+    _c8 = (1/2)*l1
+    _c11 = _c8*s_link1__R_1_0
+    _c12 = _c11*f_link1__b3_2
+    _c9 = _c8*s_link1__R_2_0
+    _c10 = _c9*f_link1__b3_1
     # link1.mQ (MTF): f2 = M f1
-    f_link1__b5_0 = -_c10
-    _c11 = (1/2)*f_link1__b3_0
-    _c12 = (1/2)*f_link1__b3_2
-    _c13 = _c11*_c9 - _c12*l1*s_link1__R_0_0
+    f_link1__b5_0 = _c12 - _c10
+    _c13 = _c8*s_link1__R_0_0
+    _c14 = _c13*f_link1__b3_2
+    _c15 = _c9*f_link1__b3_0
     # link1.mQ (MTF): f2 = M f1
-    f_link1__b5_1 = _c13
-    _c14 = _c11*l1*s_link1__R_1_0 - 1/2*f_link1__b3_1*l1*s_link1__R_0_0
+    f_link1__b5_1 = _c15 - _c14
+    _c16 = _c11*f_link1__b3_0
+    _c17 = _c13*f_link1__b3_1
     # link1.mQ (MTF): f2 = M f1
-    f_link1__b5_2 = -_c14
+    f_link1__b5_2 = _c17 - _c16
     # link1.mP (MTF): f2 = M f1
-    f_link1__b9_0 = _c10
+    f_link1__b9_0 = _c10 - _c12
     # link1.mP (MTF): f2 = M f1
-    f_link1__b9_1 = -_c13
+    f_link1__b9_1 = _c14 - _c15
     # link1.mP (MTF): f2 = M f1
-    f_link1__b9_2 = _c14
-    _c15 = 1/link2__Ixx
-    _c16 = 1/link2__Iyy
-    _c17 = _c15*s_link2__R_0_0
-    _c18 = _c16*s_link2__R_0_1
-    _c19 = _c16*s_link2__R_0_2
-    _c20 = _c17*s_link2__R_1_0 + _c18*s_link2__R_1_1 + _c19*s_link2__R_1_2
-    _c21 = _c17*s_link2__R_2_0 + _c18*s_link2__R_2_1 + _c19*s_link2__R_2_2
+    f_link1__b9_2 = _c16 - _c17
+    _c18 = 1/link2__Iyy
+    _c19 = _c18*s_link2__R_1_2
+    _c20 = _c18*s_link2__R_0_1
+    _c21 = 1/link2__Ixx
+    _c22 = _c21*s_link2__R_1_0*s_link2__R_0_0 + _c20*s_link2__R_1_1 + _c19*s_link2__R_0_2
+    _c23 = _c21*s_link2__R_2_0
+    _c24 = _c23*s_link2__R_0_0 + _c20*s_link2__R_2_1 + _c18*s_link2__R_2_2*s_link2__R_0_2
     # link2.Ir (I, integral): flow from momentum
-    f_link2__b3_0 = _c20*p_link2__Ir_1 + _c21*p_link2__Ir_2 + p_link2__Ir_0*(_c15*s_link2__R_0_0*s_link2__R_0_0 + _c16*s_link2__R_0_1*s_link2__R_0_1 + _c16*s_link2__R_0_2*s_link2__R_0_2)
-    _c22 = _c15*s_link2__R_1_0*s_link2__R_2_0 + _c16*s_link2__R_1_1*s_link2__R_2_1 + _c16*s_link2__R_1_2*s_link2__R_2_2
+    f_link2__b3_0 = (_c21*s_link2__R_0_0*s_link2__R_0_0 + _c18*s_link2__R_0_2*s_link2__R_0_2 + _c18*s_link2__R_0_1*s_link2__R_0_1)*p_link2__Ir_0 + _c24*p_link2__Ir_2 + _c22*p_link2__Ir_1
+    _c25 = _c23*s_link2__R_1_0 + _c18*s_link2__R_2_1*s_link2__R_1_1 + _c19*s_link2__R_2_2
     # link2.Ir (I, integral): flow from momentum
-    f_link2__b3_1 = _c20*p_link2__Ir_0 + _c22*p_link2__Ir_2 + p_link2__Ir_1*(_c15*s_link2__R_1_0*s_link2__R_1_0 + _c16*s_link2__R_1_1*s_link2__R_1_1 + _c16*s_link2__R_1_2*s_link2__R_1_2)
+    f_link2__b3_1 = _c22*p_link2__Ir_0 + (_c21*s_link2__R_1_0*s_link2__R_1_0 + _c18*s_link2__R_1_1*s_link2__R_1_1 + _c18*s_link2__R_1_2*s_link2__R_1_2)*p_link2__Ir_1 + _c25*p_link2__Ir_2
     # link2.Ir (I, integral): flow from momentum
-    f_link2__b3_2 = _c21*p_link2__Ir_0 + _c22*p_link2__Ir_1 + p_link2__Ir_2*(_c15*s_link2__R_2_0*s_link2__R_2_0 + _c16*s_link2__R_2_1*s_link2__R_2_1 + _c16*s_link2__R_2_2*s_link2__R_2_2)
-    _c23 = (1/2)*f_link2__b3_1
-    _c24 = l2*s_link2__R_2_0
-    _c25 = _c23*_c24 - 1/2*f_link2__b3_2*l2*s_link2__R_1_0
+    f_link2__b3_2 = _c24*p_link2__Ir_0 + _c25*p_link2__Ir_1 + (_c21*s_link2__R_2_0*s_link2__R_2_0 + _c18*s_link2__R_2_1*s_link2__R_2_1 + _c18*s_link2__R_2_2*s_link2__R_2_2)*p_link2__Ir_2
+    _c26 = (1/2)*l2
+    _c27 = _c26*s_link2__R_2_0
+    _c28 = _c27*f_link2__b3_1
+    _c29 = _c26*s_link2__R_1_0
+    _c30 = _c29*f_link2__b3_2
     # link2.mQ (MTF): f2 = M f1
-    f_link2__b5_0 = -_c25
-    _c26 = (1/2)*f_link2__b3_0
-    _c27 = (1/2)*f_link2__b3_2
-    _c28 = _c24*_c26 - _c27*l2*s_link2__R_0_0
+    f_link2__b5_0 = _c30 - _c28
+    _c31 = _c26*s_link2__R_0_0
+    _c32 = _c31*f_link2__b3_2
+    _c33 = _c27*f_link2__b3_0
     # link2.mQ (MTF): f2 = M f1
-    f_link2__b5_1 = _c28
-    _c29 = _c26*l2*s_link2__R_1_0 - 1/2*f_link2__b3_1*l2*s_link2__R_0_0
+    f_link2__b5_1 = _c33 - _c32
+    _c34 = _c29*f_link2__b3_0
+    _c35 = _c31*f_link2__b3_1
     # link2.mQ (MTF): f2 = M f1
-    f_link2__b5_2 = -_c29
+    f_link2__b5_2 = _c35 - _c34
     # link2.mP (MTF): f2 = M f1
-    f_link2__b9_0 = _c25
+    f_link2__b9_0 = _c28 - _c30
     # link2.mP (MTF): f2 = M f1
-    f_link2__b9_1 = -_c28
+    f_link2__b9_1 = _c32 - _c33
     # link2.mP (MTF): f2 = M f1
-    f_link2__b9_2 = _c29
-    _c30 = 1/link3__Ixx
-    _c31 = 1/link3__Iyy
-    _c32 = _c30*s_link3__R_0_0
-    _c33 = _c31*s_link3__R_0_1
-    _c34 = _c31*s_link3__R_0_2
-    _c35 = _c32*s_link3__R_1_0 + _c33*s_link3__R_1_1 + _c34*s_link3__R_1_2
-    _c36 = _c32*s_link3__R_2_0 + _c33*s_link3__R_2_1 + _c34*s_link3__R_2_2
+    f_link2__b9_2 = _c34 - _c35
+    _c36 = 1/link3__Iyy
+    _c37 = _c36*s_link3__R_2_2
+    _c38 = _c36*s_link3__R_2_1
+    _c39 = 1/link3__Ixx
+    _c40 = _c39*s_link3__R_2_0
+    _c41 = _c40*s_link3__R_0_0 + _c38*s_link3__R_0_1 + _c37*s_link3__R_0_2
+    _c42 = _c39*s_link3__R_1_0*s_link3__R_0_0 + _c36*s_link3__R_1_1*s_link3__R_0_1 + _c36*s_link3__R_1_2*s_link3__R_0_2
     # link3.Ir (I, integral): flow from momentum
-    f_link3__b3_0 = _c35*p_link3__Ir_1 + _c36*p_link3__Ir_2 + p_link3__Ir_0*(_c30*s_link3__R_0_0*s_link3__R_0_0 + _c31*s_link3__R_0_1*s_link3__R_0_1 + _c31*s_link3__R_0_2*s_link3__R_0_2)
-    _c37 = _c30*s_link3__R_1_0*s_link3__R_2_0 + _c31*s_link3__R_1_1*s_link3__R_2_1 + _c31*s_link3__R_1_2*s_link3__R_2_2
+    f_link3__b3_0 = (_c39*s_link3__R_0_0*s_link3__R_0_0 + _c36*s_link3__R_0_1*s_link3__R_0_1 + _c36*s_link3__R_0_2*s_link3__R_0_2)*p_link3__Ir_0 + _c42*p_link3__Ir_1 + _c41*p_link3__Ir_2
+    _c43 = _c40*s_link3__R_1_0 + _c38*s_link3__R_1_1 + _c37*s_link3__R_1_2
     # link3.Ir (I, integral): flow from momentum
-    f_link3__b3_1 = _c35*p_link3__Ir_0 + _c37*p_link3__Ir_2 + p_link3__Ir_1*(_c30*s_link3__R_1_0*s_link3__R_1_0 + _c31*s_link3__R_1_1*s_link3__R_1_1 + _c31*s_link3__R_1_2*s_link3__R_1_2)
+    f_link3__b3_1 = _c42*p_link3__Ir_0 + (_c39*s_link3__R_1_0*s_link3__R_1_0 + _c36*s_link3__R_1_1*s_link3__R_1_1 + _c36*s_link3__R_1_2*s_link3__R_1_2)*p_link3__Ir_1 + _c43*p_link3__Ir_2
     # link3.Ir (I, integral): flow from momentum
-    f_link3__b3_2 = _c36*p_link3__Ir_0 + _c37*p_link3__Ir_1 + p_link3__Ir_2*(_c30*s_link3__R_2_0*s_link3__R_2_0 + _c31*s_link3__R_2_1*s_link3__R_2_1 + _c31*s_link3__R_2_2*s_link3__R_2_2)
-    _c38 = (1/2)*l3
-    _c39 = _c38*s_link3__R_2_0
-    _c40 = _c39*f_link3__b3_1 - 1/2*f_link3__b3_2*l3*s_link3__R_1_0
+    f_link3__b3_2 = _c41*p_link3__Ir_0 + _c43*p_link3__Ir_1 + (_c39*s_link3__R_2_0*s_link3__R_2_0 + _c36*s_link3__R_2_1*s_link3__R_2_1 + _c36*s_link3__R_2_2*s_link3__R_2_2)*p_link3__Ir_2
+    _c44 = (1/2)*l3
+    _c45 = _c44*s_link3__R_2_0
+    _c46 = _c45*f_link3__b3_1
+    _c47 = _c44*s_link3__R_1_0
+    _c48 = _c47*f_link3__b3_2
     # link3.mQ (MTF): f2 = M f1
-    f_link3__b5_0 = -_c40
-    _c41 = _c38*s_link3__R_0_0
-    _c42 = _c39*f_link3__b3_0 - _c41*f_link3__b3_2
+    f_link3__b5_0 = _c48 - _c46
+    _c49 = _c44*s_link3__R_0_0
+    _c50 = _c49*f_link3__b3_2
+    _c51 = _c45*f_link3__b3_0
     # link3.mQ (MTF): f2 = M f1
-    f_link3__b5_1 = _c42
-    _c43 = _c38*s_link3__R_1_0
-    _c44 = _c43*f_link3__b3_0 - 1/2*f_link3__b3_1*l3*s_link3__R_0_0
+    f_link3__b5_1 = _c51 - _c50
+    _c52 = _c47*f_link3__b3_0
+    _c53 = _c49*f_link3__b3_1
     # link3.mQ (MTF): f2 = M f1
-    f_link3__b5_2 = -_c44
+    f_link3__b5_2 = _c53 - _c52
     # link3.mP (MTF): f2 = M f1
-    f_link3__b9_0 = _c40
+    f_link3__b9_0 = _c46 - _c48
     # link3.mP (MTF): f2 = M f1
-    f_link3__b9_1 = -_c42
+    f_link3__b9_1 = _c50 - _c51
     # link3.mP (MTF): f2 = M f1
-    f_link3__b9_2 = _c44
-    _c45 = 1/link4__Ixx
-    _c46 = 1/link4__Iyy
-    _c47 = _c45*s_link4__R_0_0
-    _c48 = _c46*s_link4__R_0_1
-    _c49 = _c46*s_link4__R_0_2
-    _c50 = _c47*s_link4__R_1_0 + _c48*s_link4__R_1_1 + _c49*s_link4__R_1_2
-    _c51 = _c47*s_link4__R_2_0 + _c48*s_link4__R_2_1 + _c49*s_link4__R_2_2
+    f_link3__b9_2 = _c52 - _c53
+    _c54 = 1/link4__Iyy
+    _c55 = _c54*s_link4__R_1_2
+    _c56 = 1/link4__Ixx
+    _c57 = _c56*s_link4__R_1_0
+    _c58 = _c57*s_link4__R_0_0 + _c55*s_link4__R_0_2 + _c54*s_link4__R_0_1*s_link4__R_1_1
+    _c59 = _c54*s_link4__R_2_1
+    _c60 = _c59*s_link4__R_0_1 + _c56*s_link4__R_0_0*s_link4__R_2_0 + _c54*s_link4__R_0_2*s_link4__R_2_2
     # link4.Ir (I, integral): flow from momentum
-    f_link4__b3_0 = _c50*p_link4__Ir_1 + _c51*p_link4__Ir_2 + p_link4__Ir_0*(_c45*s_link4__R_0_0*s_link4__R_0_0 + _c46*s_link4__R_0_1*s_link4__R_0_1 + _c46*s_link4__R_0_2*s_link4__R_0_2)
-    _c52 = _c45*s_link4__R_1_0*s_link4__R_2_0 + _c46*s_link4__R_1_1*s_link4__R_2_1 + _c46*s_link4__R_1_2*s_link4__R_2_2
+    f_link4__b3_0 = (_c56*s_link4__R_0_0*s_link4__R_0_0 + _c54*s_link4__R_0_1*s_link4__R_0_1 + _c54*s_link4__R_0_2*s_link4__R_0_2)*p_link4__Ir_0 + _c60*p_link4__Ir_2 + _c58*p_link4__Ir_1
+    _c61 = _c57*s_link4__R_2_0 + _c59*s_link4__R_1_1 + _c55*s_link4__R_2_2
     # link4.Ir (I, integral): flow from momentum
-    f_link4__b3_1 = _c50*p_link4__Ir_0 + _c52*p_link4__Ir_2 + p_link4__Ir_1*(_c45*s_link4__R_1_0*s_link4__R_1_0 + _c46*s_link4__R_1_1*s_link4__R_1_1 + _c46*s_link4__R_1_2*s_link4__R_1_2)
+    f_link4__b3_1 = _c58*p_link4__Ir_0 + (_c56*s_link4__R_1_0*s_link4__R_1_0 + _c54*s_link4__R_1_1*s_link4__R_1_1 + _c54*s_link4__R_1_2*s_link4__R_1_2)*p_link4__Ir_1 + _c61*p_link4__Ir_2
     # link4.Ir (I, integral): flow from momentum
-    f_link4__b3_2 = _c51*p_link4__Ir_0 + _c52*p_link4__Ir_1 + p_link4__Ir_2*(_c45*s_link4__R_2_0*s_link4__R_2_0 + _c46*s_link4__R_2_1*s_link4__R_2_1 + _c46*s_link4__R_2_2*s_link4__R_2_2)
-    _c53 = (1/2)*f_link4__b3_1
-    _c54 = l4*s_link4__R_2_0
+    f_link4__b3_2 = _c60*p_link4__Ir_0 + _c61*p_link4__Ir_1 + (_c56*s_link4__R_2_0*s_link4__R_2_0 + _c54*s_link4__R_2_1*s_link4__R_2_1 + _c54*s_link4__R_2_2*s_link4__R_2_2)*p_link4__Ir_2
+    _c62 = (1/2)*l4
+    _c63 = _c62*s_link4__R_2_0
+    _c64 = _c62*s_link4__R_1_0
     # link4.mQ (MTF): f2 = M f1
-    f_link4__b5_0 = -_c53*_c54 + (1/2)*f_link4__b3_2*l4*s_link4__R_1_0
-    _c55 = (1/2)*f_link4__b3_0
-    _c56 = (1/2)*f_link4__b3_2
+    f_link4__b5_0 = _c64*f_link4__b3_2 - _c63*f_link4__b3_1
+    _c65 = _c62*s_link4__R_0_0
     # link4.mQ (MTF): f2 = M f1
-    f_link4__b5_1 = _c54*_c55 - _c56*l4*s_link4__R_0_0
+    f_link4__b5_1 = _c63*f_link4__b3_0 - _c65*f_link4__b3_2
     # link4.mQ (MTF): f2 = M f1
-    f_link4__b5_2 = (1/2)*f_link4__b3_1*l4*s_link4__R_0_0 - _c55*l4*s_link4__R_1_0
+    f_link4__b5_2 = _c65*f_link4__b3_1 - _c64*f_link4__b3_0
     # link1.It (I, derivative): momentum from flow
-    p_link1__It_0 = -f_link1__b5_0*m1
+    p_link1__It_0 = -m1*f_link1__b5_0
     # 0-junction link1.sP: flow balance
     f_link1__b11_0 = f_link1__b9_0 - f_link1__b5_0
     # 0-junction link2.sQ: flow balance
     f_link2__b6_0 = f_link1__b11_0 - f_link2__b5_0
     # link2.It (I, derivative): momentum from flow
-    p_link2__It_0 = f_link2__b6_0*m2
+    p_link2__It_0 = m2*f_link2__b6_0
     # 0-junction link2.sP: flow balance
     f_link2__b11_0 = f_link2__b6_0 + f_link2__b9_0
     # 0-junction link3.sQ: flow balance
     f_link3__b6_0 = f_link2__b11_0 - f_link3__b5_0
     # link3.It (I, derivative): momentum from flow
-    p_link3__It_0 = f_link3__b6_0*m3
+    p_link3__It_0 = m3*f_link3__b6_0
     # 0-junction link3.sP: flow balance
     f_link3__b11_0 = f_link3__b6_0 + f_link3__b9_0
     # 0-junction link4.sQ: flow balance
     f_link4__b6_0 = f_link3__b11_0 - f_link4__b5_0
     # link4.It (I, derivative): momentum from flow
-    p_link4__It_0 = f_link4__b6_0*m4
+    p_link4__It_0 = m4*f_link4__b6_0
     # link1.It (I, derivative): momentum from flow
-    p_link1__It_1 = -f_link1__b5_1*m1
+    p_link1__It_1 = -m1*f_link1__b5_1
     # 0-junction link1.sP: flow balance
     f_link1__b11_1 = f_link1__b9_1 - f_link1__b5_1
     # 0-junction link2.sQ: flow balance
     f_link2__b6_1 = f_link1__b11_1 - f_link2__b5_1
     # link2.It (I, derivative): momentum from flow
-    p_link2__It_1 = f_link2__b6_1*m2
+    p_link2__It_1 = m2*f_link2__b6_1
     # 0-junction link2.sP: flow balance
     f_link2__b11_1 = f_link2__b6_1 + f_link2__b9_1
     # 0-junction link3.sQ: flow balance
     f_link3__b6_1 = f_link2__b11_1 - f_link3__b5_1
     # link3.It (I, derivative): momentum from flow
-    p_link3__It_1 = f_link3__b6_1*m3
+    p_link3__It_1 = m3*f_link3__b6_1
     # 0-junction link3.sP: flow balance
     f_link3__b11_1 = f_link3__b6_1 + f_link3__b9_1
     # 0-junction link4.sQ: flow balance
     f_link4__b6_1 = f_link3__b11_1 - f_link4__b5_1
     # link4.It (I, derivative): momentum from flow
-    p_link4__It_1 = f_link4__b6_1*m4
+    p_link4__It_1 = m4*f_link4__b6_1
     # link1.It (I, derivative): momentum from flow
-    p_link1__It_2 = -f_link1__b5_2*m1
+    p_link1__It_2 = -m1*f_link1__b5_2
     # 0-junction link1.sP: flow balance
     f_link1__b11_2 = f_link1__b9_2 - f_link1__b5_2
     # 0-junction link2.sQ: flow balance
     f_link2__b6_2 = f_link1__b11_2 - f_link2__b5_2
     # link2.It (I, derivative): momentum from flow
-    p_link2__It_2 = f_link2__b6_2*m2
+    p_link2__It_2 = m2*f_link2__b6_2
     # 0-junction link2.sP: flow balance
     f_link2__b11_2 = f_link2__b6_2 + f_link2__b9_2
     # 0-junction link3.sQ: flow balance
     f_link3__b6_2 = f_link2__b11_2 - f_link3__b5_2
     # link3.It (I, derivative): momentum from flow
-    p_link3__It_2 = f_link3__b6_2*m3
+    p_link3__It_2 = m3*f_link3__b6_2
     # 0-junction link3.sP: flow balance
     f_link3__b11_2 = f_link3__b6_2 + f_link3__b9_2
     # 0-junction link4.sQ: flow balance
     f_link4__b6_2 = f_link3__b11_2 - f_link4__b5_2
     # link4.It (I, derivative): momentum from flow
-    p_link4__It_2 = f_link4__b6_2*m4
+    p_link4__It_2 = m4*f_link4__b6_2
     # 0-junction jd.J: flow balance
     f_jd__b1_0 = u_vd_0 - f_link3__b11_0
     # 0-junction jd.J: flow balance
@@ -30434,58 +30443,46 @@ def outputs(t, x, p=None, u=None):
     # jd.C (C, integral): effort from displacement
     e_jd__b2_2 = k_d*q_jd__C_2
     # jd.R (R): effort = r f
-    e_jd__b3_0 = f_jd__b1_0*r_d
+    e_jd__b3_0 = r_d*f_jd__b1_0
     # 1-junction jd.rel: effort balance
     e_jd__b1_0 = e_jd__b2_0 + e_jd__b3_0
     # jd.R (R): effort = r f
-    e_jd__b3_1 = f_jd__b1_1*r_d
+    e_jd__b3_1 = r_d*f_jd__b1_1
     # 1-junction jd.rel: effort balance
     e_jd__b1_1 = e_jd__b2_1 + e_jd__b3_1
     # jd.R (R): effort = r f
-    e_jd__b3_2 = f_jd__b1_2*r_d
+    e_jd__b3_2 = r_d*f_jd__b1_2
     # 1-junction jd.rel: effort balance
     e_jd__b1_2 = e_jd__b2_2 + e_jd__b3_2
-    _c57 = _c41 + s_link3__rC_0
-    _c58 = _c43 + s_link3__rC_1
-    _c59 = _c39 + s_link3__rC_2
-    _c60 = s_pd_0 - P4_0
-    _c61 = s_pd_1 - P4_1
-    _c62 = s_pd_2 - P4_2
-    _c63 = l4/xp.sqrt(_c60*_c60 + _c61*_c61 + _c62*_c62)
-    _c64 = (1/2)*l1
-    _c65 = _c64*s_link1__R_0_0
-    _c66 = _c64*s_link1__R_1_0
-    _c67 = _c64*s_link1__R_2_0
-    _c68 = (1/2)*l2
-    _c69 = _c68*s_link2__R_0_0
-    _c70 = _c68*s_link2__R_1_0
-    _c71 = _c68*s_link2__R_2_0
-    _c72 = (1/2)*l4
-    _c73 = _c72*s_link4__R_0_0
-    _c74 = _c72*s_link4__R_1_0
-    _c75 = _c72*s_link4__R_2_0
-    _c76 = -P4_0
-    _c77 = -P4_1
-    _c78 = -P4_2
+    _c66 = s_link3__rC_0 + _c49
+    _c67 = s_link3__rC_1 + _c47
+    _c68 = s_link3__rC_2 + _c45
+    _c69 = -P4_0
+    _c70 = s_pd_0 + _c69
+    _c71 = -P4_2
+    _c72 = s_pd_2 + _c71
+    _c73 = -P4_1
+    _c74 = s_pd_1 + _c73
+    _c75 = l4/xp.sqrt(_c70*_c70 + _c74*_c74 + _c72*_c72)
 
     _shape = np.broadcast_shapes(x.shape[1:], getattr(t, "shape", ()), _bshape)
     _b = lambda v: xp.broadcast_to(xp.asarray(v, device=_device(x)), _shape)  # noqa: E731
     return {
         'theta1': xp.asarray(_b(xp.atan2(s_link1__R_1_0, s_link1__R_0_0)), copy=True),
-        'theta2': xp.asarray(_b(xp.atan2(s_link2__R_0_2*(s_link1__R_1_0*s_link2__R_2_0 - s_link1__R_2_0*s_link2__R_1_0) + s_link2__R_1_2*(s_link1__R_2_0*s_link2__R_0_0 - s_link1__R_0_0*s_link2__R_2_0) + s_link2__R_2_2*(s_link1__R_0_0*s_link2__R_1_0 - s_link1__R_1_0*s_link2__R_0_0), s_link1__R_0_0*s_link2__R_0_0 + s_link1__R_1_0*s_link2__R_1_0 + s_link1__R_2_0*s_link2__R_2_0)), copy=True),
-        'theta3': xp.asarray(_b(xp.atan2(s_link3__R_0_2*(s_link2__R_1_0*s_link3__R_2_0 - s_link2__R_2_0*s_link3__R_1_0) + s_link3__R_1_2*(s_link2__R_2_0*s_link3__R_0_0 - s_link2__R_0_0*s_link3__R_2_0) + s_link3__R_2_2*(s_link2__R_0_0*s_link3__R_1_0 - s_link2__R_1_0*s_link3__R_0_0), s_link2__R_0_0*s_link3__R_0_0 + s_link2__R_1_0*s_link3__R_1_0 + s_link2__R_2_0*s_link3__R_2_0)), copy=True),
-        'theta4': xp.asarray(_b(xp.atan2(s_link3__R_0_2*(s_link3__R_1_0*s_link4__R_2_0 - s_link3__R_2_0*s_link4__R_1_0) + s_link3__R_1_2*(s_link3__R_2_0*s_link4__R_0_0 - s_link3__R_0_0*s_link4__R_2_0) + s_link3__R_2_2*(s_link3__R_0_0*s_link4__R_1_0 - s_link3__R_1_0*s_link4__R_0_0), s_link3__R_0_0*s_link4__R_0_0 + s_link3__R_1_0*s_link4__R_1_0 + s_link3__R_2_0*s_link4__R_2_0)), copy=True),
-        'p3': xp.reshape(xp.stack([_b(_c57), _b(_c58), _b(_c59), ]), (3,) + _shape),
+        'theta2': xp.asarray(_b(xp.atan2((s_link1__R_1_0*s_link2__R_2_0 - s_link1__R_2_0*s_link2__R_1_0)*s_link2__R_0_2 + (s_link1__R_0_0*s_link2__R_1_0 - s_link1__R_1_0*s_link2__R_0_0)*s_link2__R_2_2 + (s_link1__R_2_0*s_link2__R_0_0 - s_link1__R_0_0*s_link2__R_2_0)*s_link2__R_1_2, s_link1__R_0_0*s_link2__R_0_0 + s_link1__R_1_0*s_link2__R_1_0 + s_link1__R_2_0*s_link2__R_2_0)), copy=True),
+        'theta3': xp.asarray(_b(xp.atan2((s_link3__R_2_0*s_link2__R_1_0 - s_link3__R_1_0*s_link2__R_2_0)*s_link3__R_0_2 + (s_link3__R_0_0*s_link2__R_2_0 - s_link3__R_2_0*s_link2__R_0_0)*s_link3__R_1_2 + (s_link3__R_1_0*s_link2__R_0_0 - s_link3__R_0_0*s_link2__R_1_0)*s_link3__R_2_2, s_link3__R_0_0*s_link2__R_0_0 + s_link3__R_1_0*s_link2__R_1_0 + s_link3__R_2_0*s_link2__R_2_0)), copy=True),
+        'theta4': xp.asarray(_b(xp.atan2((s_link3__R_1_0*s_link4__R_2_0 - s_link3__R_2_0*s_link4__R_1_0)*s_link3__R_0_2 + (s_link3__R_2_0*s_link4__R_0_0 - s_link3__R_0_0*s_link4__R_2_0)*s_link3__R_1_2 + (s_link3__R_0_0*s_link4__R_1_0 - s_link3__R_1_0*s_link4__R_0_0)*s_link3__R_2_2, s_link3__R_0_0*s_link4__R_0_0 + s_link3__R_1_0*s_link4__R_1_0 + s_link3__R_2_0*s_link4__R_2_0)), copy=True),
+        'p3': xp.reshape(xp.stack([_b(_c66), _b(_c67), _b(_c68), ]), (3,) + _shape),
         'p3_desired': xp.reshape(xp.stack([_b(s_pd_0), _b(s_pd_1), _b(s_pd_2), ]), (3,) + _shape),
-        'p3_projected': xp.reshape(xp.stack([_b(P4_0 + _c60*_c63), _b(P4_1 + _c61*_c63), _b(P4_2 + _c62*_c63), ]), (3,) + _shape),
+        'p3_projected': xp.reshape(xp.stack([_b(P4_0 + _c70*_c75), _b(P4_1 + _c75*_c74), _b(P4_2 + _c72*_c75), ]), (3,) + _shape),
         'R4': xp.reshape(xp.stack([_b(s_link4__R_0_0), _b(s_link4__R_0_1), _b(s_link4__R_0_2), _b(s_link4__R_1_0), _b(s_link4__R_1_1), _b(s_link4__R_1_2), _b(s_link4__R_2_0), _b(s_link4__R_2_1), _b(s_link4__R_2_2), ]), (3, 3) + _shape),
-        'energy': xp.asarray(_b(_c11*p_link1__Ir_0 + _c12*p_link1__Ir_2 + _c23*p_link2__Ir_1 + _c26*p_link2__Ir_0 + _c27*p_link2__Ir_2 + _c53*p_link4__Ir_1 + _c55*p_link4__Ir_0 + _c56*p_link4__Ir_2 + _c8*p_link1__Ir_1 + g*(m1*s_link1__rC_2 + m2*s_link2__rC_2 + m3*s_link3__rC_2 + m4*s_link4__rC_2) + (1/2)*e_jd__b2_0*q_jd__C_0 + (1/2)*e_jd__b2_1*q_jd__C_1 + (1/2)*e_jd__b2_2*q_jd__C_2 + (1/2)*f_link2__b6_0*p_link2__It_0 + (1/2)*f_link2__b6_1*p_link2__It_1 + (1/2)*f_link2__b6_2*p_link2__It_2 + (1/2)*f_link3__b3_0*p_link3__Ir_0 + (1/2)*f_link3__b3_1*p_link3__Ir_1 + (1/2)*f_link3__b3_2*p_link3__Ir_2 + (1/2)*f_link3__b6_0*p_link3__It_0 + (1/2)*f_link3__b6_1*p_link3__It_1 + (1/2)*f_link3__b6_2*p_link3__It_2 + (1/2)*f_link4__b6_0*p_link4__It_0 + (1/2)*f_link4__b6_1*p_link4__It_1 + (1/2)*f_link4__b6_2*p_link4__It_2 - 1/2*f_link1__b5_0*p_link1__It_0 - 1/2*f_link1__b5_1*p_link1__It_1 - 1/2*f_link1__b5_2*p_link1__It_2), copy=True),
-        'P_drive': xp.asarray(_b(e_jd__b1_0*u_vd_0 + e_jd__b1_1*u_vd_1 + e_jd__b1_2*u_vd_2), copy=True),
+        'energy': xp.asarray(_b((1/2)*f_link2__b6_0*p_link2__It_0 + (1/2)*q_jd__C_1*e_jd__b2_1 + (1/2)*f_link3__b6_2*p_link3__It_2 + (1/2)*f_link4__b3_0*p_link4__Ir_0 + (1/2)*f_link2__b6_1*p_link2__It_1 + (1/2)*q_jd__C_0*e_jd__b2_0 + (1/2)*f_link2__b3_2*p_link2__Ir_2 + (1/2)*f_link2__b3_0*p_link2__Ir_0 + (1/2)*f_link3__b3_0*p_link3__Ir_0 + (1/2)*f_link4__b3_1*p_link4__Ir_1 + (1/2)*f_link2__b3_1*p_link2__Ir_1 + g*(m1*s_link1__rC_2 + m2*s_link2__rC_2 + m3*s_link3__rC_2 + m4*s_link4__rC_2) + (1/2)*f_link4__b6_1*p_link4__It_1 + (1/2)*f_link3__b3_2*p_link3__Ir_2 - 1/2*f_link1__b5_0*p_link1__It_0 + (1/2)*f_link4__b6_0*p_link4__It_0 + (1/2)*f_link3__b6_1*p_link3__It_1 + (1/2)*f_link1__b3_2*p_link1__Ir_2 + (1/2)*f_link3__b3_1*p_link3__Ir_1 + (1/2)*f_link4__b3_2*p_link4__Ir_2 - 1/2*f_link1__b5_1*p_link1__It_1 + (1/2)*f_link3__b6_0*p_link3__It_0 + (1/2)*q_jd__C_2*e_jd__b2_2 + (1/2)*f_link4__b6_2*p_link4__It_2 + (1/2)*f_link1__b3_0*p_link1__Ir_0 + (1/2)*f_link1__b3_1*p_link1__Ir_1 + (1/2)*f_link2__b6_2*p_link2__It_2 - 1/2*f_link1__b5_2*p_link1__It_2), copy=True),
+        'P_drive': xp.asarray(_b(u_vd_0*e_jd__b1_0 + u_vd_1*e_jd__b1_1 + u_vd_2*e_jd__b1_2), copy=True),
         'P_diss': xp.asarray(_b(e_jd__b3_0*f_jd__b1_0 + e_jd__b3_1*f_jd__b1_1 + e_jd__b3_2*f_jd__b1_2), copy=True),
         'work_drive': xp.asarray(_b(s_W_drive), copy=True),
         'dissipated': xp.asarray(_b(s_W_diss), copy=True),
-        'joint_gap': xp.reshape(xp.stack([_b(xp.sqrt((s_link1__rC_0 - _c65)*(s_link1__rC_0 - _c65) + (s_link1__rC_1 - _c66)*(s_link1__rC_1 - _c66) + (s_link1__rC_2 - _c67)*(s_link1__rC_2 - _c67))), _b(xp.sqrt((_c65 + _c69 + s_link1__rC_0 - s_link2__rC_0)*(_c65 + _c69 + s_link1__rC_0 - s_link2__rC_0) + (_c66 + _c70 + s_link1__rC_1 - s_link2__rC_1)*(_c66 + _c70 + s_link1__rC_1 - s_link2__rC_1) + (_c67 + _c71 + s_link1__rC_2 - s_link2__rC_2)*(_c67 + _c71 + s_link1__rC_2 - s_link2__rC_2))), _b(xp.sqrt((_c39 + _c71 + s_link2__rC_2 - s_link3__rC_2)*(_c39 + _c71 + s_link2__rC_2 - s_link3__rC_2) + (_c41 + _c69 + s_link2__rC_0 - s_link3__rC_0)*(_c41 + _c69 + s_link2__rC_0 - s_link3__rC_0) + (_c43 + _c70 + s_link2__rC_1 - s_link3__rC_1)*(_c43 + _c70 + s_link2__rC_1 - s_link3__rC_1))), _b(xp.sqrt((_c57 + _c73 - s_link4__rC_0)*(_c57 + _c73 - s_link4__rC_0) + (_c58 + _c74 - s_link4__rC_1)*(_c58 + _c74 - s_link4__rC_1) + (_c59 + _c75 - s_link4__rC_2)*(_c59 + _c75 - s_link4__rC_2))), _b(xp.sqrt((_c73 + _c76 + s_link4__rC_0)*(_c73 + _c76 + s_link4__rC_0) + (_c74 + _c77 + s_link4__rC_1)*(_c74 + _c77 + s_link4__rC_1) + (_c75 + _c78 + s_link4__rC_2)*(_c75 + _c78 + s_link4__rC_2))), ]), (5,) + _shape),
-        'sphere': xp.asarray(_b(xp.sqrt((_c57 + _c76)*(_c57 + _c76) + (_c58 + _c77)*(_c58 + _c77) + (_c59 + _c78)*(_c59 + _c78)) - l4), copy=True),
+        'joint_gap': xp.reshape(xp.stack([_b(xp.sqrt((s_link1__rC_1 - _c11)*(s_link1__rC_1 - _c11) + (s_link1__rC_0 - _c13)*(s_link1__rC_0 - _c13) + (s_link1__rC_2 - _c9)*(s_link1__rC_2 - _c9))), _b(xp.sqrt((s_link1__rC_0 + _c13 - s_link2__rC_0 + _c31)*(s_link1__rC_0 + _c13 - s_link2__rC_0 + _c31) + (s_link1__rC_1 - s_link2__rC_1 + _c11 + _c29)*(s_link1__rC_1 - s_link2__rC_1 + _c11 + _c29) + (s_link1__rC_2 - s_link2__rC_2 + _c9 + _c27)*(s_link1__rC_2 - s_link2__rC_2 + _c9 + _c27))), _b(xp.sqrt((s_link2__rC_1 - s_link3__rC_1 + _c47 + _c29)*(s_link2__rC_1 - s_link3__rC_1 + _c47 + _c29) + (-s_link3__rC_0 + s_link2__rC_0 + _c31 + _c49)*(-s_link3__rC_0 + s_link2__rC_0 + _c31 + _c49) + (s_link2__rC_2 - s_link3__rC_2 + _c27 + _c45)*(s_link2__rC_2 - s_link3__rC_2 + _c27 + _c45))), _b(xp.sqrt((_c66 - s_link4__rC_0 + _c65)*(_c66 - s_link4__rC_0 + _c65) + (_c67 - s_link4__rC_1 + _c64)*(_c67 - s_link4__rC_1 + _c64) + (_c68 - s_link4__rC_2 + _c63)*(_c68 - s_link4__rC_2 + _c63))), _b(xp.sqrt((s_link4__rC_0 + _c69 + _c65)*(s_link4__rC_0 + _c69 + _c65) + (s_link4__rC_1 + _c73 + _c64)*(s_link4__rC_1 + _c73 + _c64) + (s_link4__rC_2 + _c63 + _c71)*(s_link4__rC_2 + _c63 + _c71))), ]), (5,) + _shape),
+        'sphere': xp.asarray(_b(xp.sqrt((_c66 + _c69)*(_c66 + _c69) + (_c67 + _c73)*(_c67 + _c73) + (_c68 + _c71)*(_c68 + _c71)) - l4), copy=True),
     }
 
 

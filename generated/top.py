@@ -622,20 +622,20 @@ def outputs(t, x, p=None, u=None):
 
     x = xp.asarray(x, dtype=xp.float64)
     p_Ir_0, p_Ir_1, p_Ir_2, s_R_0_0, s_R_0_1, s_R_0_2, s_R_1_0, s_R_1_1, s_R_1_2, s_R_2_0, s_R_2_1, s_R_2_2, = xp.unstack(x)
-    _c0 = 1/I1
-    _c1 = 1/I3
-    _c2 = _c0*s_R_0_0
-    _c3 = _c0*s_R_0_1
-    _c4 = _c1*s_R_0_2
-    _c5 = _c2*s_R_1_0 + _c3*s_R_1_1 + _c4*s_R_1_2
-    _c6 = _c2*s_R_2_0 + _c3*s_R_2_1 + _c4*s_R_2_2
+    _c0 = 1/I3
+    _c1 = _c0*s_R_0_2
+    _c2 = 1/I1
+    _c3 = _c2*s_R_2_1
+    _c4 = _c2*s_R_2_0
+    _c5 = _c4*s_R_0_0 + _c3*s_R_0_1 + _c1*s_R_2_2
+    _c6 = _c2*s_R_0_0*s_R_1_0 + _c2*s_R_0_1*s_R_1_1 + _c1*s_R_1_2
     # Ir (I, integral): flow from momentum
-    f_b1_0 = _c5*p_Ir_1 + _c6*p_Ir_2 + p_Ir_0*(_c0*s_R_0_0*s_R_0_0 + _c0*s_R_0_1*s_R_0_1 + _c1*s_R_0_2*s_R_0_2)
-    _c7 = _c0*s_R_1_0*s_R_2_0 + _c0*s_R_1_1*s_R_2_1 + _c1*s_R_1_2*s_R_2_2
+    f_b1_0 = _c6*p_Ir_1 + p_Ir_0*(_c0*s_R_0_2*s_R_0_2 + _c2*s_R_0_0*s_R_0_0 + _c2*s_R_0_1*s_R_0_1) + _c5*p_Ir_2
+    _c7 = _c4*s_R_1_0 + _c3*s_R_1_1 + _c0*s_R_1_2*s_R_2_2
     # Ir (I, integral): flow from momentum
-    f_b1_1 = _c5*p_Ir_0 + _c7*p_Ir_2 + p_Ir_1*(_c0*s_R_1_0*s_R_1_0 + _c0*s_R_1_1*s_R_1_1 + _c1*s_R_1_2*s_R_1_2)
+    f_b1_1 = _c6*p_Ir_0 + p_Ir_1*(_c2*s_R_1_0*s_R_1_0 + _c0*s_R_1_2*s_R_1_2 + _c2*s_R_1_1*s_R_1_1) + _c7*p_Ir_2
     # Ir (I, integral): flow from momentum
-    f_b1_2 = _c6*p_Ir_0 + _c7*p_Ir_1 + p_Ir_2*(_c0*s_R_2_0*s_R_2_0 + _c0*s_R_2_1*s_R_2_1 + _c1*s_R_2_2*s_R_2_2)
+    f_b1_2 = _c5*p_Ir_0 + _c7*p_Ir_1 + p_Ir_2*(_c2*s_R_2_0*s_R_2_0 + _c2*s_R_2_1*s_R_2_1 + _c0*s_R_2_2*s_R_2_2)
 
     _shape = np.broadcast_shapes(x.shape[1:], getattr(t, "shape", ()), _bshape)
     _b = lambda v: xp.broadcast_to(xp.asarray(v, device=_device(x)), _shape)  # noqa: E731
@@ -644,7 +644,7 @@ def outputs(t, x, p=None, u=None):
         'tilt': xp.asarray(_b(xp.acos(s_R_2_2)), copy=True),
         'azimuth': xp.asarray(_b(xp.atan2(s_R_1_2, s_R_0_2)), copy=True),
         'omega': xp.reshape(xp.stack([_b(f_b1_0), _b(f_b1_1), _b(f_b1_2), ]), (3,) + _shape),
-        'energy': xp.asarray(_b((1/2)*f_b1_0*p_Ir_0 + (1/2)*f_b1_1*p_Ir_1 + (1/2)*f_b1_2*p_Ir_2 + g*l*m*s_R_2_2), copy=True),
+        'energy': xp.asarray(_b((1/2)*p_Ir_0*f_b1_0 + (1/2)*p_Ir_1*f_b1_1 + (1/2)*p_Ir_2*f_b1_2 + g*l*m*s_R_2_2), copy=True),
     }
 
 

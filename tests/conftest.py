@@ -175,8 +175,10 @@ def _has_module_fixtures(path: str) -> bool:
         return False
 
 
-# tests of one file that build the same compile-cache entries (the session's cache has no
-# lock: two workers missing one entry at once would both build it): unit name -> node ids
+# tests of one file that build the same compile-cache entries: unit name -> node ids. Two
+# workers missing one entry at once build it once (bgc.base.store's per-entry lock), but the
+# second waits idle for the first's build (a C build of the 3R2S takes minutes): one worker
+# runs them one after another, while the other worker takes other tests
 _SHARED_BUILDS = {
     "closed_loop_refs:3r2s": re.compile(  # the circle scenes' C builds, compliant and rigid
         r"^tests/test_closed_loop_refs\.py::test_(?:compliant_3r2s_converges_to_the_rigid_"

@@ -133,7 +133,14 @@ def test_gear_pair_does_not_depend_on_file_order():
         np.testing.assert_allclose(m.rhs(0.3, x[perm]), m0.rhs(0.3, x)[perm], rtol=1e-13)
 
 
-def test_strict_causality_keeps_the_error(bgc_cli, tmp_path):
+def test_strict_causality_keeps_the_error(tmp_path, monkeypatch):
+    """The command line in-process (click's runner, from the repository root as a real run:
+    three `bgc` processes cost 3 to 5 s of CPU in imports alone; tests/test_bad_input.py runs
+    real processes for the exit status and the absence of a traceback)."""
+    from click.testing import CliRunner
+
+    from bgc.cli.commands import main
+
     with pytest.raises(ModelError, match=r"I 'I2' is forced into derivative causality"):
         compile_model(parse_text(GEAR, "g.yaml"), strict_causality=True)
     with pytest.raises(ModelError, match="derivative causality"):
@@ -142,14 +149,22 @@ def test_strict_causality_keeps_the_error(bgc_cli, tmp_path):
         parse_text(GEAR + "causality: loose\n", "g.yaml")
     f = tmp_path / "gear_pair.yaml"
     f.write_text(GEAR)
+    monkeypatch.chdir(ROOT)
+
+    def bgc_cli(*args):
+        r = CliRunner().invoke(main, list(args), prog_name="bgc")
+        assert r.exception is None or isinstance(r.exception, SystemExit), \
+            (r.exception, r.stderr)
+        return r
     for cmd in ("check", "compile"):
         r = bgc_cli(cmd, "--strict-causality", str(f), *(["-o", str(tmp_path / "o.py")]
                                                         if cmd == "compile" else []))
-        assert r.returncode == 2 and "gear_pair.yaml:12:3: derivative causality" in r.stderr, r
+        assert r.exit_code == 2 and "gear_pair.yaml:12:3: derivative causality" in r.stderr, \
+            r.stderr
         assert "Traceback" not in r.stderr
     assert not (tmp_path / "o.py").exists()
     r = bgc_cli("check", str(f))
-    assert r.returncode == 0, r.stderr
+    assert r.exit_code == 0, r.stderr
     assert "states (2 scalars)" in r.stdout and "I I2 (line 12)" in r.stdout
     assert "follows from I1.p" in r.stdout
 

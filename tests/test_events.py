@@ -254,26 +254,29 @@ def test_mode_mistakes_are_located(tmp_path):
         exc.value)
 
 
-@pytest.mark.parametrize("run", ["full", "replayed"])
-def test_cli_summary_counts_events_and_writes_the_log(tmp_path, run):
+def test_cli_summary_counts_events_and_writes_the_log(tmp_path):
+    """A full run, then the same command again, which replays the first's run record: each
+    prints the summary and writes the same event log. (The full run and the replay were two
+    tests before, the replay's test running the full run again first.)"""
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src"),
            "BGC_CACHE_DIR": str(seed_c_runtime(tmp_path / "c"))}
     scene = ROOT / "models" / "scenes" / "bouncing_ball.yaml"
     out = tmp_path / "run.npz"
-    for _ in range(1 if run == "full" else 2):  # the second run replays the run record
+    for run in ("full", "replayed"):  # the second run replays the run record
+        out.unlink(missing_ok=True)
         proc = subprocess.run([sys.executable, "-m", "bgc", "simulate", str(scene), "--out",
                                str(out)], capture_output=True, text=True, env=env, timeout=300)
         assert proc.returncode == 0, proc.stderr
         assert "LU, 6 events;" in proc.stdout
-    assert ("run record" in proc.stdout + proc.stderr) == (run == "replayed")
-    with np.load(out) as data:
-        expected = impact_times(1.0, 0.8, 3.0)
-        assert np.allclose(data["event__t"], expected, atol=1e-9, rtol=0)
-        assert list(data["event__name"]) == ["impact"] * len(expected)
-        before, after = data["event__x_before"], data["event__x_after"]
-        assert before.shape == (len(expected), 2)
-        assert np.allclose(after[:, 0], -0.8 * before[:, 0], rtol=1e-14, atol=0)
-        assert np.max(np.abs(data["height"] - ball_height(data["t"], 1.0, 0.8))) < 1e-8
+        assert ("run record" in proc.stdout + proc.stderr) == (run == "replayed"), run
+        with np.load(out) as data:
+            expected = impact_times(1.0, 0.8, 3.0)
+            assert np.allclose(data["event__t"], expected, atol=1e-9, rtol=0)
+            assert list(data["event__name"]) == ["impact"] * len(expected)
+            before, after = data["event__x_before"], data["event__x_after"]
+            assert before.shape == (len(expected), 2)
+            assert np.allclose(after[:, 0], -0.8 * before[:, 0], rtol=1e-14, atol=0)
+            assert np.max(np.abs(data["height"] - ball_height(data["t"], 1.0, 0.8))) < 1e-8
 
 
 # --- stick-slip: the closed-form periodic solution ---------------------------------------------

@@ -58,3 +58,40 @@ def test_bridge_keeps_symbols_and_refuses_what_it_cannot_read():
         assert abs(float(b.from_se(d[s]).subs(pt)) - ref) < 1e-13
     for bad in (sp.sign(x), sp.Piecewise((x, x > 0), (y, True)), sp.Max(x, y), sp.atan2(x, y)):
         assert b.to_se(bad * y) is None  # the caller differentiates these with sympy
+
+
+def test_cse_passes_atan2_through_as_an_opaque_function():
+    # an output angle atan2(y, x) beside other outputs that share y and x: symengine's CSE
+    # takes the whole body (atan2 crosses as a function of no meaning there) and still finds
+    # the common terms inside its arguments; substituting the temporaries back gives the very
+    # values sympy computes from the original expressions
+    x, y, z = sp.symbols("x y z", real=True)
+    r = sp.sqrt(x ** 2 + y ** 2)
+    exprs = [sp.atan2(y * z + x, r), (y * z + x) * r, sp.atan2(sp.sin(z), x) + sp.sin(z)]
+    k = iter(range(100))
+    out = fastsym.cse(exprs, lambda: sp.Symbol(f"_c{next(k)}", real=True))
+    assert out is not None  # (without the opaque crossing: None, and sympy's cse)
+    repl, reduced = out
+    assert any(e.has(sp.atan2) for e in reduced) or any(e.has(sp.atan2) for _, e in repl)
+    assert any(v in (y * z + x, r) for _, v in repl)  # a term shared through atan2's argument
+    back = {}
+    for s, e in repl:
+        back[s] = e.xreplace(back)
+    pt = {x: 0.3, y: -1.7, z: 0.9}
+    for orig, red in zip(exprs, reduced):
+        ref = float(orig.subs(pt).evalf(30))
+        assert abs(float(red.xreplace(back).subs(pt).evalf(30)) - ref) < 1e-14 * (1 + abs(ref))
+    assert fastsym.Bridge().to_se(sp.atan2(y, x)) is None  # never so for differentiation
+
+
+def test_free_symbols_by_one_walk_are_sympys():
+    # the one-walk free symbols (forward sweep, lowering) against sympy's own, on the kinds of
+    # node bgc's expressions hold, and on classes with bound variables, which keep their rule
+    x, y, z, t = sp.symbols("x y z t", real=True)
+    f = sp.Function("f")
+    exprs = [x, sp.Integer(3), sp.pi, x * y + sp.sin(z) ** 2, sp.atan2(y, x) * sp.exp(-t),
+             sp.Piecewise((x, y > 0), (z, True)), sp.Max(x, sp.Abs(y)) + sp.sign(z),
+             f(x, y) + t, sp.Derivative(f(x, z), x), sp.Integral(x * y, (x, 0, z)),
+             sp.Lambda(x, x + y)(z), (x + y) * (x + y) ** 2 + sp.sqrt(x + y)]
+    for e in exprs:
+        assert fastsym.free_symbols(e) == e.free_symbols, e

@@ -504,3 +504,67 @@ def test_numpy_ladder_1000_initial_state_and_b_c_d_rolled_equal_unrolled(tmp_pat
     want_d = np.zeros((n, 1))
     want_d[0, 0] = 1 / R_
     np.testing.assert_allclose(D[rows], want_d, rtol=1e-14)
+
+
+def _covered(fn, states, params) -> int:
+    roll = rr.reroll(fn, states, params)
+    return sum(it.count * len(it.body) for it in roll.items if isinstance(it, rr.Loop))
+
+
+def _synthetic(rng, n: int):
+    """A function of n lines over a few states and parameters: short random stretches and
+    planted runs (one block of 1-6 lines repeated 5-12 times, over other states)."""
+    from bgc.lower.ir import Function
+
+    xs, ps = sp.symbols("x0:40", real=True), sp.symbols("p0:8", real=True)
+    lines, k = [], 0
+
+    def one(j):
+        kind = rng.integers(4)
+        a, b = xs[int(j) % 40], ps[int(rng.integers(8))]
+        return [a * b, a + b, sp.sin(a) * b, a / b - a][kind]
+
+    while len(lines) < n:
+        if rng.random() < 0.5:
+            block = [int(rng.integers(40)) for _ in range(int(rng.integers(1, 7)))]
+            shapes = [int(rng.integers(4)) for _ in block]
+            for rep in range(int(rng.integers(5, 13))):
+                for j, s in zip(block, shapes):
+                    x = xs[(j + rep) % 40]
+                    e = [x * ps[0], x + ps[1], sp.sin(x) * ps[2], x / ps[3] - x][s]
+                    lines.append(Line(sp.Symbol(f"v{k}"), e))
+                    k += 1
+        else:
+            lines.append(Line(sp.Symbol(f"v{k}"), one(rng.integers(40))))
+            k += 1
+    results = tuple((i, ln.target) for i, ln in enumerate(lines[-3:]))
+    return Function((), (), (), tuple(lines), results, 0), list(xs), list(ps)
+
+
+def test_may_cover_bounds_what_reroll_covers(monkeypatch):
+    """bgc.backends.numpy.rolled.may_cover is an upper bound: wherever reroll's loops cover
+    c items, may_cover(fn, c) holds (random functions with planted runs, several MIN_RUN);
+    and on the 3R2S, whose rhs, Jacobian and outputs reroll covers well below MIN_COVER, it
+    tells so without rerolling."""
+    from bgc.backends.numpy import rolled as nr
+
+    rng = np.random.default_rng(27)
+    refused = 0
+    for min_run in (2, 3, 5, 8):
+        monkeypatch.setattr(rr, "MIN_RUN", min_run)
+        for _ in range(12):
+            fn, xs, ps = _synthetic(rng, int(rng.integers(20, 160)))
+            c = _covered(fn, xs, ps)
+            assert nr.may_cover(fn, c)
+            refused += not nr.may_cover(fn, len(fn.lines) + len(fn.results))
+    assert refused > 10  # (the bound is no constant: most functions are not all loops)
+    monkeypatch.undo()
+    comp = compile_model(parse_file(ROOT / "models" / "3r2s.yaml"))
+    eq, low = comp.equations, comp.lowered
+    states = [sv.symbol for sv in eq.states]
+    params = [s for pv in eq.params for s in pv.symbols] + [d.symbol for d in eq.derived]
+    for fn in (low.rhs, low.jac, low.outs):
+        c = _covered(fn, states, params)
+        items = len(fn.lines) + len(fn.results)
+        assert nr.may_cover(fn, c)
+        assert c < nr.MIN_COVER * items and not nr.may_cover(fn, nr.MIN_COVER * items)

@@ -8,6 +8,7 @@ import os
 
 import numpy as np
 import pytest
+from conftest import seed_c_runtime
 
 from bgc.base.errors import ModelError
 from bgc.format.scene import parse_scene
@@ -189,14 +190,19 @@ def _c_ready():
 
 
 @pytest.mark.skipif(not _c_ready(), reason="no C compiler or C runtime")
-def test_c_backend_tables_against_independent_formulas_and_numpy(tmp_path):
+def test_c_backend_tables_against_independent_formulas_and_numpy(tmp_path, monkeypatch):
     """The C module's table inputs (linear, pchip, previous; held outside) against the same
     independent formulas as the numpy module above, and its runs (the step loop in C, the
-    knots of linear and previous tables as breakpoints) against the numpy module's."""
+    knots of linear and previous tables as breakpoints) against the numpy module's.
+
+    Built through a compile cache of the test's own that starts with the C runtime's objects
+    (conftest's seed_c_runtime; uncached, each of the three builds compiled the runtime
+    again): each scene's entries start empty, so every module is compiled here."""
     from scipy.interpolate import PchipInterpolator
 
     from bgc.run.runner import scene_module
 
+    monkeypatch.setenv("BGC_CACHE_DIR", str(seed_c_runtime(tmp_path / "cache")))
     csv = _csv(tmp_path, KNOTS)
     tk, vk = np.array(KNOTS).T
     tq = np.linspace(-0.3, 1.6, 97)
@@ -204,8 +210,8 @@ def test_c_backend_tables_against_independent_formulas_and_numpy(tmp_path):
     for interp in ("linear", "pchip", "previous"):
         sc = parse_scene(_scene(tmp_path, f"{{table: {csv}, columns: [time, height], "
                                           f"interp: {interp}}}", name=f"c_{interp}.yaml"))
-        backend, cm = scene_module(sc, None, "c", use_cache=False)
-        _, npm = scene_module(sc, None, "numpy", use_cache=False)
+        backend, cm = scene_module(sc, None, "c")
+        _, npm = scene_module(sc, None, "numpy")
         assert backend == "c" and cm.C_LIBRARY
         if interp == "linear":
             i = np.clip(np.searchsorted(tk, tc) - 1, 0, len(tk) - 2)
@@ -223,15 +229,16 @@ def test_c_backend_tables_against_independent_formulas_and_numpy(tmp_path):
 
 
 @pytest.mark.skipif(not _c_ready(), reason="no C compiler or C runtime")
-def test_c_backend_extrapolate_error(tmp_path):
+def test_c_backend_extrapolate_error(tmp_path, monkeypatch):
     """Outside the knots with extrapolate: error the C module raises the numpy module's
     ValueError naming the input, from outputs and from a run (with the time)."""
     from bgc.run.runner import scene_module
 
+    monkeypatch.setenv("BGC_CACHE_DIR", str(seed_c_runtime(tmp_path / "cache")))
     csv = _csv(tmp_path, KNOTS)
     sc = parse_scene(_scene(tmp_path, f"{{table: {csv}, columns: [time, height], "
                                       "extrapolate: error}"))
-    _, cm = scene_module(sc, None, "c", use_cache=False)
+    _, cm = scene_module(sc, None, "c")  # (a fresh cache: compiled here, the runtime seeded)
     assert abs(_road(cm, [0.3])[0] - (0.01 + 0.03 * 0.1 / 0.25)) < 1e-15
     with pytest.raises(ValueError, match=r"input 'zr': t .*outside its table \[0, 1.3\]"):
         _road(cm, [1.5])

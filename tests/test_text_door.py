@@ -157,3 +157,154 @@ def test_lit_refuses_non_finite_and_objects():
         lit(float("inf"))
     with pytest.raises(TypeError):
         lit(object())
+
+
+def test_start_check_code_leaves_out_only_the_functions_named():
+    """The start check's code (skeleton.checked_code(..., without=)): the module less exactly
+    the functions named, every other line where it was, and the same rhs at X0 as the whole
+    module (msd's: an independent closed form, p' = F0 - k q - c p/m, q' = p/m)."""
+    import numpy as np
+
+    from bgc.backends.skeleton import checked_code
+    from bgc.run.runner import START_UNUSED
+
+    src = compile_file(ROOT / "models" / "msd.yaml").source
+    whole, part = {}, {}
+    exec(checked_code(src, "<bgc msd_whole>"), whole)  # noqa: S102 - the checked module
+    exec(checked_code(src, "<bgc msd_part>", without=START_UNUSED), part)  # noqa: S102
+    assert set(START_UNUSED) <= set(whole) and not set(START_UNUSED) & set(part)
+    assert set(whole) - set(part) == set(START_UNUSED)
+    for name in ("rhs", "initial_state", "_params", "simulate"):
+        assert part[name].__code__.co_firstlineno == whole[name].__code__.co_firstlineno
+    x = np.array([0.3, -0.02])  # p, q
+    m, k, c, f0 = 2.0, 200.0, 4.0, 10.0
+    want = [f0 - k * x[1] - c * x[0] / m, x[0] / m]
+    assert np.allclose(part["rhs"](0.0, x), want, rtol=1e-14, atol=0)
+    assert np.array_equal(part["rhs"](0.0, x), whole["rhs"](0.0, x))
+    cut = src.index("\ndef rhs(")
+    bad = src[:cut] + "\nimport os\n" + src[cut:]
+    with pytest.raises(SkeletonError):
+        checked_code(bad, "<bgc bad>", without=START_UNUSED)
+
+
+def test_compile_start_check_names_the_law_that_is_not_finite(tmp_path):
+    """A module whose rhs is not finite at X0 with its defaults (a zero mass: v = p/m) is one
+    located ModelError from the start check, with the module loaded less its unused parts."""
+    from bgc.run.runner import check_module_start
+
+    text = (ROOT / "models" / "msd.yaml").read_text(encoding="utf-8")
+    text = text.replace("m:  {value: 2.0,", "m:  {value: 0.0,", 1)
+    (tmp_path / "zero.yaml").write_text(text, encoding="utf-8")
+    c = compile_file(tmp_path / "zero.yaml")
+    with pytest.raises(ModelError) as exc:
+        check_module_start(c)
+    assert "not finite with the default parameters" in str(exc.value)
+    assert "zero.yaml:28:3:" in str(exc.value) and "divides by m, which is 0" in str(exc.value)
+
+
+# The plain runs (bgc.backends.skeleton): a long run of plain lines is parsed as one `pass`.
+# The reference verdict is the whole model part's syntax tree, checked the same way.
+
+def _whole_verdict(text: str):
+    """What the check says when the model part is parsed whole: (top-level statements, the
+    functions' spans), or the refusal."""
+    from bgc.backends import skeleton
+
+    rt = _runtime_of(text)
+    body = text.rstrip("\n")
+    if not body.endswith("\n\n\n" + rt):
+        return "refused"
+    try:
+        tree = ast.parse(body[:-len(rt)])
+        spans = skeleton._check_head(tree.body)
+    except (SyntaxError, SkeletonError):
+        return "refused"
+    return [(type(n).__name__, n.lineno) for n in tree.body], spans
+
+
+def _runtime_of(text: str) -> str:
+    from bgc.backends import skeleton
+
+    rt = skeleton.runtime_source()
+    if "\nEVENT_NAMES = (" in text:  # a hybrid model's: the events' runtime follows
+        rt += "\n\n\n" + skeleton.events_runtime_source()
+    return rt
+
+
+def _plain_verdict(text: str):
+    from bgc.backends import skeleton
+
+    rt = _runtime_of(text)
+    try:
+        spans = skeleton._check_skeleton(text, "numpy")
+    except SkeletonError:
+        return "refused"
+    whole = text.rstrip("\n")[:-len(rt)]
+    head, _ = skeleton._plain_runs_passed(whole)
+    try:
+        tree = ast.parse(head)
+    except SyntaxError:  # (runs inside brackets: the whole tree decided)
+        tree = ast.parse(whole)
+    return [(type(n).__name__, n.lineno) for n in tree.body], spans
+
+
+def test_plain_runs_give_every_golden_the_whole_tree_s_verdict():
+    """Every golden module: the same top-level statements and the same function spans as
+    its whole syntax tree; the large ones' equations really are left to the scan."""
+    from bgc.backends import skeleton
+
+    reduced = 0
+    for path in sorted((ROOT / "generated").glob("*.py")):
+        text = path.read_text(encoding="utf-8")
+        assert _plain_verdict(text) == _whole_verdict(text) != "refused", path.name
+        rt = _runtime_of(text)
+        reduced += bool(skeleton._plain_runs_passed(text.rstrip("\n")[:-len(rt)])[1])
+    assert reduced >= 5
+
+
+def _in_jacobian(text: str, line: str, after: int = 200) -> str:
+    """``line`` put ``after`` lines into the Jacobian's body (inside its plain run)."""
+    at = text.index("\ndef jacobian(")
+    for _ in range(after):
+        at = text.index("\n", at + 1)
+    return text[:at] + "\n" + line + text[at:]
+
+
+@pytest.mark.parametrize("line, refused", [
+    ("import os", True),  # a top-level statement in the middle of the equations
+    ("X0 = 1", True),
+    ("rhs = None", True),
+    ("    # a note\rimport os", True),  # a line break only Python sees
+    ("    _z = (1 +\nimport os\n    )", True),  # a bracket left open over a top-level line
+    ("\t_z = 1", True),  # a tab in the indentation
+    ("    _z = 1)", True),  # a bracket closed that was never opened
+    ("def rhs(t, x):\n    pass", True),
+    ("    import os", False),  # inside the function: a body is not looked into, as before
+    ("    _z = 1  # \"quoted\" 'text'", False),
+])
+def test_plain_runs_refuse_what_the_whole_tree_refuses(line, refused):
+    text = (ROOT / "generated" / "mech3r2s.py").read_text(encoding="utf-8")
+    bad = _in_jacobian(text, line)
+    whole = _whole_verdict(bad)
+    assert (whole == "refused") is refused
+    assert _plain_verdict(bad) == whole
+
+
+def test_plain_runs_in_a_string_stay_string():
+    """Plain lines inside the module's docstring (a model's description may hold anything)
+    are string content: the same verdict as the whole tree, and the description unchanged."""
+    text = (ROOT / "generated" / "mech3r2s.py").read_text(encoding="utf-8")
+    block = "\n".join(["    x = 1"] * 60 + ["import os"] + ["    y = 2"] * 60)
+    at = text.index("\n", text.index('"""') + 3)
+    doc = text[:at] + "\n" + block + text[at:]
+    assert _plain_verdict(doc) == _whole_verdict(doc) != "refused"
+
+
+def test_plain_runs_inside_brackets_are_no_refusal():
+    """Plain lines inside a top-level bracket (a long table of index arrays) do not parse as
+    pass: the whole tree decides, and accepts the module as before."""
+    text = (ROOT / "generated" / "mech3r2s.py").read_text(encoding="utf-8")
+    rows = "".join("    np.array([%d, %d], dtype=np.intp),\n" % (k, k + 1) for k in range(80))
+    at = text.index("\ndef _unpack(") + 1
+    tables = text[:at] + "_IX = (\n" + rows + ")\n\n\n" + text[at:]
+    assert _plain_verdict(tables) == _whole_verdict(tables) != "refused"

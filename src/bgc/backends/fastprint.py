@@ -23,7 +23,7 @@ NumPyPrinter)``) and changes no character of what it prints:
 """
 from __future__ import annotations
 
-from sympy import Basic, Mul, Pow, S
+from sympy import Basic, Mul, Pow, S, Symbol
 from sympy.core.expr import UnevaluatedExpr
 from sympy.core.function import AppliedUndef, Function, UndefinedFunction
 from sympy.core.mul import _keep_coeff
@@ -35,6 +35,7 @@ from sympy.printing.precedence import (
 )
 
 _MUL = PRECEDENCE["Mul"]
+_ADD = PRECEDENCE["Add"]
 _UNARY_MINUS = 0.5 * (PRECEDENCE["Pow"] + PRECEDENCE["Mul"])
 _NOT_CONSTANT = object()
 _CLASS_PRECEDENCE: dict[type, object] = {}  # class -> its precedence, where the class decides
@@ -74,6 +75,11 @@ class FastPrinting:
         super().__init__(*args, **kwargs)
         self._mul_precedence: dict = {}
         self._symbol_names: dict = {}
+        self._methods: dict = {}  # class -> its printing method (_METHODS, for this printer)
+        # the settings the sums' and products' rules depend on (fixed once made)
+        self._own_add = self.order == "none"
+        self._own_mul = self.order in ("old", "none")
+        self._macros = getattr(self, "math_macros", None)  # C: pi/2 is M_PI_2, ...
 
     def doprint(self, expr, assign_to=None):
         if assign_to is not None or not hasattr(expr, "func"):  # not a sympy expression
@@ -86,10 +92,18 @@ class FastPrinting:
         return "\n".join(self._format_code(text.splitlines()))
 
     def _print(self, expr, **kwargs):
-        key = (type(self), type(expr))
-        method = _METHODS.get(key)
+        if type(expr) is Symbol and not kwargs:  # the commonest node: its text, once made
+            got = self._symbol_names.get(expr)
+            if got is None:
+                got = self._symbol_names[expr] = self._symbol_text(expr)
+            return got
+        method = self._methods.get(type(expr))
         if method is None:
-            method = _METHODS[key] = self._method_for(key[1])
+            key = (type(self), type(expr))
+            method = _METHODS.get(key)
+            if method is None:
+                method = _METHODS[key] = self._method_for(key[1])
+            self._methods[key[1]] = method
         if method is False or kwargs:
             return super()._print(expr, **kwargs)
         self._print_level += 1
@@ -114,16 +128,26 @@ class FastPrinting:
 
     def _prec(self, item):
         """sympy's ``precedence(item)``, from the cache where it can be."""
-        got = _class_precedence(type(item))
+        got = _CLASS_PRECEDENCE.get(type(item))
+        if got is None:
+            got = _class_precedence(type(item))
         if got is not _NOT_CONSTANT:
             return got
         if type(item) is Mul:
             # sympy's precedence_Mul: Add's where a minus sign can be pulled out, which needs
             # a negative number in front; else Mul's whatever the factors (its check of
             # functions among them gives Mul's too)
-            c = item.args[0]
+            args = item.args
+            c = args[0]
             if not (c.is_Number and c.is_extended_negative):
                 return _MUL
+            if c.is_Rational or c.is_Float:
+                # a finite negative coefficient: -item is not item, so the sign can be pulled
+                # out (Add's), unless a factor is a function of lower precedence than Mul's
+                for a in args:
+                    if isinstance(a, Function) and getattr(a, "precedence", _MUL) < _MUL:
+                        return _MUL
+                return _ADD
             got = self._mul_precedence.get(item)
             if got is None:
                 got = self._mul_precedence[item] = precedence(item)
@@ -131,10 +155,27 @@ class FastPrinting:
         return precedence(item)
 
     def parenthesize(self, item, level, strict=False):
-        p = self._prec(item)
+        p = _CLASS_PRECEDENCE.get(type(item))
+        if p is None or p is _NOT_CONSTANT:
+            p = self._prec(item)
         if p < level or (not strict and p <= level):
             return f"({self._print(item)})"
         return self._print(item)
+
+    def _symbol_text(self, expr) -> str:
+        """A Symbol's text as the printer's own dispatch makes it (a printer's names do not
+        change once it is made: :meth:`_print` keeps each symbol's text)."""
+        method = self._methods.get(Symbol)
+        if method is None:
+            method = self._methods[Symbol] = _METHODS.setdefault(
+                (type(self), Symbol), self._method_for(Symbol))
+        if method is False:
+            return super()._print(expr)
+        self._print_level += 1
+        try:
+            return method(self, expr)
+        finally:
+            self._print_level -= 1
 
     def _print_Symbol(self, expr):
         got = self._symbol_names.get(expr)
@@ -149,34 +190,37 @@ class FastPrinting:
         return super()._print_re(expr)
 
     def _print_Add(self, expr, order=None):
-        if order is not None or self.order != "none":
+        if order is not None or not self._own_add:
             return super()._print_Add(expr, order=order)
         prec = self._prec(expr)
         out = []
         for term in expr.args:
             t = self._print(term)
-            sign = "+"
-            if t.startswith("-") and not term.is_Add:
-                sign, t = "-", t[1:]
-            out.append(sign)
-            out.append(f"({t})" if term.is_Add or self._prec(term) < prec else t)
-        first = out.pop(0)
-        return ("" if first == "+" else first) + " ".join(out)
+            if term.is_Add:
+                out.append(f"+ ({t})")
+                continue
+            p = _CLASS_PRECEDENCE.get(type(term))
+            if p is None or p is _NOT_CONSTANT:
+                p = self._prec(term)
+            sign = "+ "
+            if t.startswith("-"):
+                sign, t = "- ", t[1:]
+            out.append(sign + (f"({t})" if p < prec else t))
+        first = out[0]  # the first term's sign: none for +, a bare - for -
+        out[0] = first[2:] if first[0] == "+" else "-" + first[2:]
+        return " ".join(out)
 
     def _print_Mul(self, expr):
-        macros = getattr(self, "math_macros", None)  # C: pi/2 is M_PI_2, 1/sqrt(2) M_SQRT1_2
-        if self.order not in ("old", "none") or (macros and expr in macros):
+        macros = self._macros  # C: pi/2 is M_PI_2, 1/sqrt(2) M_SQRT1_2
+        if not self._own_mul or (macros and expr in macros):
             return super()._print_Mul(expr)
         prec = self._prec(expr)
-        c, e = expr.as_coeff_Mul()
-        sign = ""
-        if c.is_extended_negative:  # c < 0 (c is a number), without sympifying the 0
-            expr, sign = _keep_coeff(-c, e), "-"
+        sign, factors = _signed_factors(expr)
         num, den, grouped = [], [], []
         lone_power = None
-        for f in Mul.make_args(expr):
-            if f.is_commutative and f.is_Pow and f.exp.is_Rational and f.exp.is_negative:
-                if f.exp != -1:
+        for f in factors:
+            if f.is_Pow and f.exp.is_Rational and f.exp.is_negative and f.is_commutative:
+                if f.exp is not S.NegativeOne:  # (a Rational equal to -1 is that one)
                     den.append(Pow(f.base, -f.exp, evaluate=False))
                     lone_power = -f.exp
                 else:
@@ -203,3 +247,28 @@ class FastPrinting:
         if lone_power is not None and lone_power in self.product_powers:
             d = f"({d})"
         return sign + "*".join(num_text) + "/" + d
+
+
+def _signed_factors(expr) -> tuple[str, tuple]:
+    """The sign sympy's product printing writes in front of ``expr`` and the factors it
+    prints after it: ("-", the factors of -expr) where the coefficient is a negative number,
+    else ("", the factors). sympy takes them as ``Mul.make_args(_keep_coeff(-c, rest))`` from
+    ``expr.as_coeff_Mul()``, which builds the product -expr; here the factors are read off
+    ``expr.args`` where that is what those steps give (a coefficient of -1; one plain factor;
+    several factors after the number), and only other products take sympy's steps."""
+    args = expr.args
+    c = args[0]
+    if not (c.is_Number and c.is_extended_negative):
+        return "", args
+    rest = args[1:]
+    neg = -c
+    first = rest[0]
+    if neg is S.One:  # _keep_coeff(1, rest) is rest itself
+        return "-", (first.args if len(rest) == 1 and isinstance(first, Mul) else rest)
+    if len(rest) > 1:  # rest is a product: its factors with the coefficient in front
+        if not first.is_Number:
+            return "-", (neg,) + rest
+    elif first.is_Symbol or (first.is_Pow and first.base.is_Symbol):
+        return "-", (neg, first)  # neg*first: a number times a symbol or its power
+    c, e = expr.as_coeff_Mul()
+    return "-", Mul.make_args(_keep_coeff(-c, e))

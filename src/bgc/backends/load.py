@@ -304,20 +304,30 @@ def load(name: str, backend: str, key: str | None, compile_fn, cache=None, progr
 
 
 def _compiled_and_loaded(name, backend, key, compile_fn, cache, progress, times):
-    """:func:`load` past the cache lookup: compile, then build and load."""
-    compiled = compile_fn()
-    if backend == "numpy" and (cache is None or key is None):
-        return compiled, load_module(compiled.source, name)
-    if cache is None or key is None:
-        import tempfile
+    """:func:`load` past the cache lookup: compile, then build and load. Through the cache,
+    the compile runs inside the entry's build (under its lock, bgc.base.store): a process
+    that waited for another's build of the same entry loads that one (compiled None, as on
+    a hit) and compiles nothing."""
+    if cache is not None and key is not None:
+        made = []
 
-        d = Path(tempfile.mkdtemp(prefix="bgc-c-"))
-        try:
-            _build_entry(compiled, backend, None, progress, name, times)(d)
-            # loaded (the mapping outlives the file): nothing is left behind
-            return compiled, load_entry(d, backend, name)
-        finally:
-            shutil.rmtree(d, ignore_errors=True)
-    entry = cache.get_or_build(backend, key,
-                               _build_entry(compiled, backend, cache, progress, name, times))
-    return compiled, load_entry(entry, backend, name, trusted=True)
+        def build(tmp: Path):
+            made.append(compile_fn())
+            _build_entry(made[0], backend, cache, progress, name, times)(tmp)
+        entry = cache.get_or_build(backend, key, build)
+        if not made:
+            (progress or (lambda m: None))(
+                f"cache hit ({backend} {key[:12]}: built meanwhile by another process)")
+        return (made[0] if made else None), load_entry(entry, backend, name, trusted=True)
+    compiled = compile_fn()
+    if backend == "numpy":
+        return compiled, load_module(compiled.source, name)
+    import tempfile
+
+    d = Path(tempfile.mkdtemp(prefix="bgc-c-"))  # uncached C: built in a temporary folder
+    try:
+        _build_entry(compiled, backend, None, progress, name, times)(d)
+        # loaded (the mapping outlives the file): nothing is left behind
+        return compiled, load_entry(d, backend, name)
+    finally:
+        shutil.rmtree(d, ignore_errors=True)

@@ -3,14 +3,27 @@
 Location: ``$BGC_CACHE_DIR``, else ``$XDG_CACHE_HOME/bgc``, else ``~/.cache/bgc``. Loading a
 cached module runs it, so a cache directory that is not owned by the user or that others can
 write to is refused. Entries are written into a temporary directory beside their final place
-and renamed into it (``os.replace``): a reader sees a whole entry or none, and of two processes
-that build the same entry at once, one rename wins and the other's copy is dropped. What goes
-into a key is the run layer's business (bgc.run.cache); this module only keeps entries.
+and renamed into it (``os.replace``): a reader sees a whole entry or none.
+
+One build per entry, across processes: a process that misses an entry takes an advisory lock
+on a file beside it (``.KEY.lock``, ``fcntl.flock``; made like the entries: mode 600, never
+through a link, the user's own), looks again (another process may have built it meanwhile)
+and builds only if it is still missing; the others wait and then find the entry. A hit takes
+no lock. The lock cannot wedge: the system drops it when its holder dies, a waiter gives up
+after :data:`LOCK_WAIT` seconds and builds anyway (with a one-line note), a build nested in
+the same thread's build of the same entry does not wait for itself, and where there is no
+``fcntl`` (Windows), or the file system refuses locks, two processes may both build, and one
+rename wins. The holder removes the lock file when it is done; a file left by a killed
+process is taken over by the next build (lock files are dot-files: never an entry, not
+counted, removed with their folder by ``clear``). What goes into a key is the run layer's
+business (bgc.run.cache); this module only keeps entries.
 """
 from __future__ import annotations
 
 import os
 import stat
+import sys
+import time
 from pathlib import Path
 
 from bgc.base.errors import ModelError
@@ -18,6 +31,12 @@ from bgc.base.errors import ModelError
 #: Entry kinds: generated modules, built C libraries, the C runtime's objects and compiler
 #: facts, and run records (bgc.run.record: files, not folders).
 TARGETS = ("numpy", "c", "c-runtime", "run")
+
+#: seconds a process waits for another process's build of the same entry before it builds
+#: the entry itself (a wedged or very slow holder costs at most this, never an error)
+LOCK_WAIT = 300.0
+#: the first and the longest pause between two looks at a lock another process holds
+_POLL = (0.01, 0.2)
 
 
 class UnsafeCache(ModelError):
@@ -75,19 +94,37 @@ class Cache:
             return d
         return None
 
-    def get_or_build(self, target: str, key: str, build) -> Path:
-        """The entry, built by ``build(tmpdir)`` when missing; the rename makes it visible."""
+    #: this cache's :data:`LOCK_WAIT` (a test may shorten it)
+    lock_wait = LOCK_WAIT
+
+    def get_or_build(self, target: str, key: str, build, stop=None) -> Path:
+        """The entry, built by ``build(tmpdir)`` when missing; the rename makes it visible.
+        A miss takes the entry's lock first (see the module's docstring): of the processes
+        that miss one entry at once, one builds and the others get its entry. ``stop`` (a
+        threading.Event, for a build ahead that may be called off): once set, a wait for
+        another process's build ends, and ``build`` runs (it is the build's to refuse)."""
         d = self.get(target, key)
         if d is not None:
-            return d
-        import shutil
-        import tempfile
-
+            return d  # a hit: no lock
         self._ensure()
         parent = self.entry(target, key).parent
         parent.mkdir(parents=True, mode=0o700, exist_ok=True)
         for sub in (self.path / target, parent):
             check_dir(sub)
+        lock = _EntryLock(parent / f".{key}.lock", self.entry(target, key))
+        try:
+            if lock.acquire(self.lock_wait, f"{target} {key[:12]}", stop):
+                d = self.get(target, key)  # built by another process while we waited?
+                if d is not None:
+                    return d
+            return self._build(target, key, parent, build)
+        finally:
+            lock.release()
+
+    def _build(self, target: str, key: str, parent: Path, build) -> Path:
+        import shutil
+        import tempfile
+
         tmp = Path(tempfile.mkdtemp(prefix=f".{key[:16]}.", dir=parent))
         try:
             build(tmp)
@@ -154,3 +191,108 @@ class Cache:
             aside.unlink()
         else:
             shutil.rmtree(aside, ignore_errors=True)
+
+
+def _fcntl():
+    """The fcntl module, or None where there is none (Windows: builds are not serialised).
+    Imported on a miss only: a hit needs no lock."""
+    try:
+        import fcntl
+    except ImportError:
+        return None
+    return fcntl
+
+
+#: lock file -> the thread of this process that holds it (a build nested in that thread's
+#: build of the same entry must not wait for itself)
+_HELD: dict[str, int] = {}
+
+
+class _EntryLock:
+    """The advisory lock of one entry's build (``fcntl.flock`` on ``path``): taken by
+    :meth:`acquire`, given back by :meth:`release` (which removes the file)."""
+
+    def __init__(self, path: Path, entry: Path):
+        self.path, self.entry, self.fd = path, entry, None
+
+    def acquire(self, wait: float, what: str, stop=None) -> bool:
+        """Take the lock, waiting at most ``wait`` seconds; True when taken or when the entry
+        appeared meanwhile (the caller looks again), False when the build goes on without it
+        (no fcntl, a file system without locks, a nested build, ``stop`` set, the wait over:
+        a note)."""
+        import threading
+
+        fcntl = _fcntl()
+        if fcntl is None or _HELD.get(str(self.path)) == threading.get_ident():
+            return False
+        deadline = time.monotonic() + wait
+        pause = _POLL[0]
+        while not self.entry.is_dir():
+            fd = self._open()
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:  # another process builds it
+                os.close(fd)
+                if stop is not None and stop.is_set():
+                    return False
+                if time.monotonic() >= deadline:
+                    print(f"note: waited {wait:.0f} s for another process building the compile "
+                          f"cache's entry {what}; building it here too", file=sys.stderr)
+                    return False
+                time.sleep(pause)
+                pause = min(2 * pause, _POLL[1])
+                continue
+            except OSError:  # locks refused (a network file system): build without
+                os.close(fd)
+                return False
+            if self._current(fd):
+                self.fd = fd
+                _HELD[str(self.path)] = threading.get_ident()
+                return True
+            os.close(fd)  # a finished holder removed that file: take the lock afresh
+        return True
+
+    def _open(self) -> int:
+        """The lock file, opened (made if missing: mode 600, never through a link) and
+        checked like the cache's folders: a regular file of the user's, others cannot write."""
+        try:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0)
+                         | getattr(os, "O_CLOEXEC", 0), 0o600)
+        except OSError as exc:
+            if self.path.is_symlink():
+                raise UnsafeCache(f"{self.path}: a link in place of a compile-cache lock file; "
+                                  "bgc follows no link in its cache: remove it") from exc
+            raise
+        st = os.fstat(fd)
+        bad = (not stat.S_ISREG(st.st_mode) or (hasattr(os, "getuid") and st.st_uid != os.getuid())
+               or st.st_mode & (stat.S_IWGRP | stat.S_IWOTH))
+        if bad:
+            os.close(fd)
+            raise UnsafeCache(f"{self.path}: a compile-cache lock file that is not a regular "
+                              "file of yours, or that others can write to: remove it")
+        return fd
+
+    def _current(self, fd: int) -> bool:
+        """Is the locked file still the one at the path (not removed by a holder that just
+        finished)?"""
+        try:
+            now = os.stat(self.path, follow_symlinks=False)
+        except FileNotFoundError:
+            return False
+        st = os.fstat(fd)
+        return (now.st_dev, now.st_ino) == (st.st_dev, st.st_ino)
+
+    def release(self) -> None:
+        """Remove the lock file, then let the lock go (a waiter that took the removed file's
+        lock sees that it is gone and takes a new one: :meth:`_current`)."""
+        if self.fd is None:
+            return
+        try:
+            os.unlink(self.path)
+        except OSError:
+            pass  # (the cache cleared meanwhile)
+        _HELD.pop(str(self.path), None)
+        fcntl = _fcntl()
+        fcntl.flock(self.fd, fcntl.LOCK_UN)
+        os.close(self.fd)
+        self.fd = None

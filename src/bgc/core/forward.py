@@ -149,7 +149,8 @@ class _Sweep:
 
     def grad(self, expr) -> dict[int, object]:
         D, bridge = self.D, self.bridge
-        syms = sorted((s for s in expr.free_symbols if D.get(s)), key=_name)  # deterministic
+        syms = sorted((s for s in fastsym.free_symbols(expr) if D.get(s)),
+                      key=_name)  # deterministic
         if not syms:
             return {}
         parts = _partials(bridge, expr, syms) if bridge is not None else None

@@ -92,16 +92,17 @@ def _worth(e) -> bool:
 
 
 def _parents(exprs) -> dict:
-    """How many times each distinct node is an argument of a distinct node (or a result)."""
+    """How many times each distinct node is an argument of a distinct node (or a result);
+    atoms (never worth a temporary: :func:`_worth`) are not counted, nor hashed."""
     count: dict = {}
-    stack = list(exprs)
+    stack = [e for e in exprs if not e.is_Atom]
     while stack:
         e = stack.pop()
         if e in count:
             count[e] += 1
             continue
         count[e] = 1
-        stack.extend(e.args)
+        stack.extend(a for a in e.args if not a.is_Atom)
     stats["nodes"] += len(count)
     return count
 
@@ -124,21 +125,25 @@ def linear_cse(exprs: list, make_symbol) -> tuple[list, list]:
     memo: dict = {}
     repl: list = []
     for root in exprs:
+        if root.is_Atom:  # (atoms stand for themselves: never looked up)
+            continue
         stack = [(root, False)]
         while stack:  # post-order without recursion (trees may be deep)
             e, ready = stack.pop()
             if e in memo:
                 continue
+            args = e.args
             if not ready:
                 stack.append((e, True))
-                stack.extend((a, False) for a in reversed(e.args) if a not in memo)
+                stack.extend((a, False) for a in reversed(args)
+                             if not a.is_Atom and a not in memo)
                 continue
-            new_args = tuple(memo[a] for a in e.args)
-            out = e if all(n is a for n, a in zip(new_args, e.args)) else _rebuilt(e, new_args)
+            new_args = tuple(a if a.is_Atom else memo[a] for a in args)
+            out = e if all(n is a for n, a in zip(new_args, args)) else _rebuilt(e, new_args)
             if count[e] > 1 and _worth(e):
                 s = make_symbol()
                 repl.append((s, out))
                 out = s
             memo[e] = out
     stats["nodes"] += len(memo)
-    return repl, [memo[r] for r in exprs]
+    return repl, [r if r.is_Atom else memo[r] for r in exprs]

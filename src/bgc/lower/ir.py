@@ -10,13 +10,15 @@ them as numpy (:mod:`bgc.backends.numpy.printer`) or C (:mod:`bgc.backends.c.pri
 """
 from __future__ import annotations
 
+import heapq
 import itertools
 from dataclasses import dataclass
 
 import sympy as sp
 
+from bgc.base.errors import ModelError
 from bgc.core import fastsym
-from bgc.core.eqtypes import Assignment, DepGraph, Equations, prune, schedule
+from bgc.core.eqtypes import Assignment, Equations, prune
 from bgc.core.forward import linear_parts
 from bgc.lower import cse as lcse
 
@@ -36,7 +38,15 @@ class Function:
     states: tuple[str, ...]  # state identifiers, "_" where unused
     lines: tuple[Line, ...]
     results: tuple[tuple[object, sp.Basic], ...]  # (key, expression)
-    ops: int  # operation count after CSE
+    #: operation count after CSE, or None: not counted (nothing on the compile path reads it;
+    #: :meth:`op_count` counts on demand)
+    ops: int | None = None
+
+    def op_count(self) -> int:
+        """Arithmetic operations and function calls of the body and results (:func:`count_ops`)."""
+        if self.ops is not None:
+            return self.ops
+        return count_ops([ln.expr for ln in self.lines] + [r for _, r in self.results])
 
 
 @dataclass(frozen=True)
@@ -71,16 +81,19 @@ class Lowered:
 
 
 def free_memo():
-    """``free(expr)``: sympy's ``free_symbols``, each expression's computed once (sympy walks
-    the whole tree for it, and the functions of one model share their assignments)."""
+    """``free(expr)``: sympy's ``free_symbols``, each expression object's computed once (the
+    functions of one model share their assignments). Keyed by the object, not its value: a
+    fresh expression (a CSE result) is never hashed for it, which walks its whole tree; the
+    memo holds the expression, so its id is not reused while it is there."""
     memo: dict = {}
 
     def free(e):
-        try:
-            return memo[e]
-        except KeyError:
-            memo[e] = out = e.free_symbols
-            return out
+        hit = memo.get(id(e))
+        if hit is not None and hit[0] is e:
+            return hit[1]
+        out = fastsym.free_symbols(e)
+        memo[id(e)] = (e, out)
+        return out
     return free
 
 
@@ -107,37 +120,9 @@ def lower_function(eq: Equations, results: list, assigns: list[Assignment], keys
     defs = [(s, e, "") for s, e in repl]
     defs += [(a.symbol, r, a.why) for a, r in zip(assigns, reduced[:len(assigns)])]
     res = reduced[len(assigns):]
-    # schedule: cse temporaries just before their first use, assignments in causal order
-    # (each definition's free symbols found once: sympy walks the whole tree for them)
     free = [free_of(e) for _, e, _ in defs]
-    g = DepGraph()
-    index = {}
-    byname = {}
-    defined = {s for s, _, _ in defs}
-    for (s, e, why), fs in zip(defs, free):
-        g.add_node(s)
-        byname[s] = (e, why)
-        for d in fs:
-            if d in defined:
-                g.add_edge(d, s)
-    pos = {a.symbol: i for i, a in enumerate(assigns)}
-    first_use: dict = {}
-    for (s, _, _), fs in zip(defs, free):
-        if s in pos:
-            for d in fs:
-                if d in defined:
-                    first_use[d] = min(first_use.get(d, 10 ** 9), pos[s])
-    for (s, _, _), fs in reversed(list(zip(defs[:len(repl)], free))):  # temporaries used
-        for d in fs:  # by later temporaries
-            if d in defined and s in first_use:
-                first_use[d] = min(first_use.get(d, 10 ** 9), first_use[s])
-    for s, _, _ in defs:
-        if s in pos:
-            index[s] = 2 * pos[s] + 1
-        else:
-            index[s] = 2 * first_use.get(s, len(assigns)) if s in first_use else 2 * len(assigns)
-    order = schedule(g, index)
-    lines = tuple(Line(s, byname[s][0], byname[s][1]) for s in order)
+    order = _schedule(defs, free, len(repl))
+    lines = tuple(Line(*defs[i]) for i in order)
     used = set().union(*free) if free else set()
     for r in res:
         used |= free_of(r)
@@ -145,8 +130,54 @@ def lower_function(eq: Equations, results: list, assigns: list[Assignment], keys
     pnames += tuple(str(a.symbol) for a in eq.derived if a.symbol in used)
     inames = tuple(str(s) for iv in eq.inputs for s in iv.symbols if s in used)
     snames = tuple(str(sv.symbol) if sv.symbol in used else "_" for sv in eq.states)
-    ops = count_ops([e for _, e, _ in defs] + list(res))
-    return Function(pnames, inames, snames, lines, tuple(zip(keys, res)), ops)
+    return Function(pnames, inames, snames, lines, tuple(zip(keys, res)))
+
+
+def _schedule(defs: list, free: list, ntemp: int) -> list[int]:
+    """The definitions' order (indices into ``defs``, whose first ``ntemp`` are CSE
+    temporaries and the rest assignments in causal order; ``free``: each one's free symbols):
+    assignments in causal order, each temporary just before its first use. A topological
+    order that keeps the priority (index, name) wherever dependencies allow: the order of
+    bgc.core.eqtypes.schedule, on positions rather than symbols (each symbol hashed once)."""
+    at = {s: i for i, (s, _, _) in enumerate(defs)}
+    nassign = len(defs) - ntemp
+    reads = [[k for k in map(at.get, fs) if k is not None] for fs in free]
+    first_use = [None] * len(defs)
+    for i in range(ntemp, len(defs)):  # assignments, at their position among the assignments
+        p = i - ntemp
+        for k in reads[i]:
+            if first_use[k] is None or p < first_use[k]:
+                first_use[k] = p
+    for i in range(ntemp - 1, -1, -1):  # temporaries used by later temporaries
+        fu = first_use[i]
+        if fu is None:
+            continue
+        for k in reads[i]:
+            if first_use[k] is None or fu < first_use[k]:
+                first_use[k] = fu
+    prio = [2 * (i - ntemp) + 1 if i >= ntemp else
+            2 * (first_use[i] if first_use[i] is not None else nassign)
+            for i in range(len(defs))]
+    succ: list[list[int]] = [[] for _ in defs]
+    indeg = [0] * len(defs)
+    for i, ks in enumerate(reads):
+        for k in set(ks):
+            succ[k].append(i)
+            indeg[i] += 1
+    names = [s.name if hasattr(s, "name") else str(s) for s, _, _ in defs]
+    heap = [(prio[i], names[i], i) for i in range(len(defs)) if indeg[i] == 0]
+    heapq.heapify(heap)
+    out = []
+    while heap:
+        _, _, i = heapq.heappop(heap)
+        out.append(i)
+        for m in succ[i]:
+            indeg[m] -= 1
+            if indeg[m] == 0:
+                heapq.heappush(heap, (prio[m], names[m], m))
+    if len(out) != len(defs):
+        raise ModelError(None, "internal: cycle left after solving algebraic loops")
+    return out
 
 
 def count_ops(exprs) -> int:
@@ -163,24 +194,27 @@ def count_ops(exprs) -> int:
     return n
 
 
-def lower_linear(eq: Equations, progress=None, jac: Function | None = None) -> Linear:
+def lower_linear(eq: Equations, progress=None, jac: Function | None = None,
+                 free=None) -> Linear:
     """B, C and D of the linearisation (forward mode along the rhs's assignments:
     bgc.core.forward.linear_parts), lowered like the other functions. ``jac``: the model's
     lowered Jacobian, whose lines (assignments, derivative intermediates, CSE temporaries)
-    C and D then read instead of eliminating common subexpressions over them again."""
+    C and D then read instead of eliminating common subexpressions over them again; ``free``:
+    the :func:`free_memo` its lowering shared (the Jacobian's lines' free symbols known)."""
     (progress or (lambda msg: None))("emitting the linearisation's B, C, D")
     lp = linear_parts(eq)
     bkeys = sorted(lp.B)
+    free = free or free_memo()
     ujac = lower_function(eq, [lp.B[k] for k in bkeys],
-                          list(eq.assignments) + list(lp.B_assignments), bkeys)
+                          list(eq.assignments) + list(lp.B_assignments), bkeys, free=free)
     ckeys, dkeys = sorted(lp.C), sorted(lp.D)
     results = [lp.C[k] for k in ckeys] + [lp.D[k] for k in dkeys]
     keys = [("C",) + k for k in ckeys] + [("D",) + k for k in dkeys]
     assigns = list(eq.assignments) + list(lp.CD_assignments)
     if jac is None:
-        yjac = lower_function(eq, results, assigns, keys)
+        yjac = lower_function(eq, results, assigns, keys, free=free)
     else:
-        yjac = lower_function(eq, results, _on_lines(jac, assigns), keys, cse=False)
+        yjac = lower_function(eq, results, _on_lines(jac, assigns), keys, cse=False, free=free)
     return Linear(ujac, yjac, lp.input_labels, lp.output_labels)
 
 
@@ -215,7 +249,7 @@ def lower(eq: Equations, progress=None, linear: bool = True) -> Lowered:
     outs = lower_function(eq, oexprs, list(eq.assignments), okeys, free=free)
     init = lower_function(eq, [sv.initial for sv in eq.states], [], list(range(n)), cse=False)
     derived = tuple(Line(a.symbol, a.expr, a.why) for a in eq.derived)
-    lin = lower_linear(eq, progress, jac) if linear else None
+    lin = lower_linear(eq, progress, jac, free) if linear else None
     cvals = list(getattr(eq, "constraint_values", ()))
     cons = lower_function(eq, cvals, list(eq.assignments), list(range(len(cvals))),
                           free=free) \

@@ -323,13 +323,25 @@ def check_start(c, mod, scene, p=None) -> None:
         pass
 
 
+#: the generated module's functions the start check never calls, left out of the module it
+#: loads (:func:`bgc.backends.skeleton.checked_code`): most of a large model's text, whose
+#: compile would cost more than everything else the check does
+START_UNUSED = ("jacobian", "outputs", "input_jacobian", "output_jacobian")
+
+
 def check_module_start(c) -> None:
     """The compiled module's initial state and right-hand side at t = 0 with its default
     parameters are finite, or one located error naming the law that is not (a zero inertia or
     capacitance, a root of a negative parameter, ...): `bgc compile` writes no module that
-    fails on its first call. (Loads the module from memory, as `bgc simulate` does.)"""
+    fails on its first call. (Loads the module from memory, as `bgc simulate` does, checked
+    as it does, less the functions this check never calls: START_UNUSED.)"""
+    # lazy: the compile path's check of the text (a warm run never loads it)
+    from bgc.backends.skeleton import checked_code
+
+    name = f"{c.model.name}_start_check"
+    code = checked_code(c.source, f"<bgc {name}>", without=START_UNUSED)
     with np.errstate(all="ignore"):
-        mod = load_module(c.source, f"{c.model.name}_start_check")
+        mod = load_module(c.source, name, code=code)
         x0 = np.asarray(mod.X0, dtype=float)
         dx = mod.rhs(0.0, x0)
         what, values = ("initial state", x0) if not np.isfinite(x0).all() else ("rhs", dx)

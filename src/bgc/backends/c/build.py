@@ -244,7 +244,7 @@ def _runtime_objects(cache, jobs: int, tmpdir, coord=None, stop=None) -> list[Pa
             list(ex.map(one, srcs))
 
     if cache is not None:
-        d = cache.get_or_build("c-runtime", key, build)
+        d = cache.get_or_build("c-runtime", key, build, stop=stop)
     else:  # uncached: built beside the model's objects, removed with them
         d = Path(tmpdir) / "runtime"
         d.mkdir()
