@@ -19,14 +19,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+
+import alternate  # bench/, beside this script: the before/after harness
+
 STAGES = ("parse", "graph", "causality", "equations without the Jacobian", "the Jacobian")
 
 
@@ -96,31 +97,17 @@ def child(model: str, count: bool) -> dict:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--model", default=str(ROOT / "models" / "3r2s.yaml"))
-    ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--before", default=None, help="src folder of the bgc to compare with")
-    ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    ap = alternate.parser(__doc__, repeats=5)
     ap.add_argument("--count", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.child:
         print(json.dumps(child(a.model, a.count)))
         return
-    srcs = {"after": str(ROOT / "src")}
-    if a.before:
-        srcs["before"] = a.before
-    rows: dict = {k: [] for k in srcs}
+    srcs = alternate.checkouts(a.before)
 
     def one(src: str, *more: str) -> dict:
-        got = subprocess.run([sys.executable, __file__, "--child", "--model", a.model, *more],
-                             env={**os.environ, "PYTHONPATH": src}, check=True,
-                             capture_output=True, text=True, cwd=ROOT)
-        return json.loads(got.stdout.strip().splitlines()[-1])
-    for r in range(a.repeats):
-        for label, src in srcs.items():
-            rows[label].append(one(src))
-            print(f"round {r + 1} {label}: " + ", ".join(f"{k} {v:.3f}"
-                                                         for k, v in rows[label][-1].items()))
+        return alternate.child(__file__, src, ["--model", a.model, *more])
+    rows = alternate.rounds(srcs, a.repeats, one)
     calls = {label: one(src, "--count") for label, src in srcs.items()}
     print(f"\nCPU seconds, min / median of {a.repeats}; Python calls ({Path(a.model).name}):")
     print("| stage | " + " | ".join(f"{lb} CPU | {lb} calls" for lb in srcs) + " |")

@@ -15,15 +15,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import resource
 import statistics
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+
+import alternate  # bench/, beside this script: the before/after harness
 
 
 def _cpu() -> float:
@@ -85,33 +84,16 @@ def child(model: str, out: str) -> dict:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--model", default=str(ROOT / "models" / "3r2s.yaml"))
-    ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--before", default=None, help="src folder of the bgc to compare with")
-    ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    ap = alternate.parser(__doc__, repeats=3)
     ap.add_argument("--out", default=None, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.child:
         print(json.dumps(child(a.model, a.out)))
         return
-    srcs = {"after": str(ROOT / "src")}
-    if a.before:
-        srcs["before"] = a.before
-    rows: dict = {k: [] for k in srcs}
-    for r in range(a.repeats):
-        for label, src in srcs.items():
-            with tempfile.TemporaryDirectory() as d:
-                cache = Path(d) / "cache"
-                cache.mkdir(mode=0o700)
-                env = {**os.environ, "PYTHONPATH": src, "BGC_CACHE_DIR": str(cache)}
-                got = subprocess.run([sys.executable, __file__, "--child", "--model", a.model,
-                                      "--out", str(Path(d) / "m.py")], env=env, check=True,
-                                     capture_output=True, text=True)
-                times = json.loads(got.stdout.strip().splitlines()[-1])
-            rows[label].append(times)
-            print(f"round {r + 1} {label}: " + ", ".join(f"{k.strip()} {v:.3f}"
-                                                         for k, v in times.items()))
+    srcs = alternate.checkouts(a.before)
+    with tempfile.TemporaryDirectory() as d:
+        rows = alternate.rounds(srcs, a.repeats, lambda src: alternate.child(
+            __file__, src, ["--model", a.model, "--out", str(Path(d) / "m.py")]))
     print(f"\nCPU seconds, median of {a.repeats} ({Path(a.model).name}):")
     keys = list(rows["after"][0])
     print("| stage | " + " | ".join(srcs) + " |\n|---|" + "---|" * len(srcs))

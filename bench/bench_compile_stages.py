@@ -15,18 +15,16 @@ the middle (the Jacobian's forward sweep and the lowering, under cProfile), symp
 """
 from __future__ import annotations
 
-import argparse
 import itertools
 import json
-import os
 import statistics
-import subprocess
-import sys
-import tempfile
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+
+import alternate  # bench/, beside this script: the before/after harness
+
 MIDDLE = ("deriving the Jacobian", "lowering rhs", "lowering jacobian", "lowering outputs",
           "emitting the linearisation's B, C, D")
 
@@ -86,30 +84,15 @@ def _calls(model, equations, ir, compile_source) -> dict:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--model", default=str(ROOT / "models" / "3r2s.yaml"))
-    ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--before", default=None, help="src folder of the bgc to compare with")
+    ap = alternate.parser(__doc__, repeats=5)
     ap.add_argument("--calls", action="store_true", help="count calls instead of timing")
-    ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.child:
         print(json.dumps(child(a.model, a.calls)))
         return
-    srcs = {"after": str(ROOT / "src")}
-    if a.before:
-        srcs["before"] = a.before
-    rows: dict = {k: [] for k in srcs}
-    for r in range(a.repeats):
-        for label, src in srcs.items():
-            with tempfile.TemporaryDirectory() as d:
-                env = {**os.environ, "PYTHONPATH": src, "BGC_CACHE_DIR": str(Path(d) / "c")}
-                got = subprocess.run([sys.executable, __file__, "--child", "--model", a.model]
-                                 + (["--calls"] if a.calls else []),
-                                 env=env, check=True, capture_output=True, text=True)
-            times = json.loads(got.stdout.strip().splitlines()[-1])
-            rows[label].append(times)
-            print(f"round {r + 1} {label}: " + ", ".join(f"{k} {v:.3f}" for k, v in times.items()))
+    srcs = alternate.checkouts(a.before)
+    rows = alternate.rounds(srcs, a.repeats, lambda src: alternate.child(
+        __file__, src, ["--model", a.model] + (["--calls"] if a.calls else [])))
     what = "calls" if a.calls else "CPU seconds per stage"
     print(f"\n{what}, median (min) of {a.repeats} ({Path(a.model).name}):")
     print("| stage | " + " | ".join(srcs) + " |\n|---|" + "---|" * len(srcs))
