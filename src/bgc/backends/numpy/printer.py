@@ -12,9 +12,7 @@ import ast
 import contextlib
 import functools
 import keyword
-import os
 import sys
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -442,47 +440,33 @@ def _inputs_and_tables(eq: Equations, printer, input_units: dict) -> tuple[list,
     return inputs, tables
 
 
-class TemplateBytecode(jinja2.BytecodeCache):
+class TemplateBytecode(jinja2.FileSystemBytecodeCache):
     """The templates' compiled code kept where Python keeps bgc's own: ``__pycache__`` of the
-    templates folder, written only where Python itself writes bytecode (not under
-    ``PYTHONDONTWRITEBYTECODE``; a folder that cannot be written is simply not used).
-    Compiling the numpy module's template costs a process about 0.15 s of CPU (lexing,
-    parsing, code generation); loading it from here is a read and ``marshal``. An entry is used
-    only for the very template text it came from (jinja's checksum of the source), the same
-    jinja version (in the file's name) and Python version (jinja's magic header); anything
-    else, or an unreadable file, is compiled again. Like a ``.pyc``, it is trusted as much as
-    the folder it lies in, bgc's own code."""
+    templates folder. jinja's file cache (an entry only for the very template text it came
+    from, by jinja's checksum, and the same Python, by its magic header; written beside its
+    place and renamed), with the jinja version in the file's name, and the rules of Python's
+    own bytecode: written only where Python writes ``.pyc`` files (not under
+    ``PYTHONDONTWRITEBYTECODE``), a folder that cannot be written simply not used, a damaged
+    entry compiled again (and rewritten). Compiling the numpy module's template costs a
+    process about 0.15 s of CPU; loading it from here is a read and ``marshal``. Like a
+    ``.pyc``, it is trusted as much as the folder it lies in, bgc's own code."""
 
     def __init__(self, folder: Path):
+        super().__init__(str(folder), f"%s.jinja2-{jinja2.__version__}.cache")
         self.folder = folder
-
-    def _path(self, bucket) -> Path:
-        return self.folder / f"{bucket.key}.jinja2-{jinja2.__version__}.cache"
 
     def load_bytecode(self, bucket) -> None:
         try:
-            data = self._path(bucket).read_bytes()
-        except OSError:
-            return
-        try:
-            bucket.bytecode_from_string(data)
+            super().load_bytecode(bucket)
         except Exception:  # noqa: BLE001 - a damaged entry: compiled again (and rewritten)
             bucket.reset()
 
     def dump_bytecode(self, bucket) -> None:
         if sys.dont_write_bytecode:
             return
-        tmp = None
-        try:  # written beside its place, then renamed: a reader sees all of it or nothing
+        with contextlib.suppress(OSError):
             self.folder.mkdir(exist_ok=True)
-            fd, tmp = tempfile.mkstemp(dir=self.folder, suffix=".tmp")
-            with os.fdopen(fd, "wb") as f:
-                bucket.write_bytecode(f)
-            os.replace(tmp, self._path(bucket))
-        except OSError:
-            if tmp is not None:
-                with contextlib.suppress(OSError):
-                    os.unlink(tmp)
+            super().dump_bytecode(bucket)
 
 
 @functools.lru_cache(maxsize=None)
