@@ -54,7 +54,7 @@ def test_each_text_is_checked_once(monkeypatch, fresh_cache):
     parsed = []
     real = skeleton._parse
     monkeypatch.setattr(skeleton, "_parse", lambda t, w: (parsed.append(w), real(t, w))[1])
-    monkeypatch.setattr(skeleton, "_PASSED", set())
+    monkeypatch.setattr(skeleton, "_PASSED", {})
     b = driver.build(MSD, backend="numpy", use_cache=False)
     assert parsed == ["generated module"]
     assert b.module.rhs(0.0, b.module.X0).shape == (2,)

@@ -97,13 +97,13 @@ def _top_names(node) -> tuple[str, set]:
     return kind, set()
 
 
-#: sha256 digests of the texts that passed a check in this process: rendering checks a module
-#: and loading it would check it again; the second check of the same text is a lookup
-#: (parsing the 3R2S module takes 0.4 s). In memory only, never persisted.
-_PASSED: set[tuple[str, bytes]] = set()
-#: digest of a checked module -> its model part's top-level functions: name -> (first line,
-#: last line), as the check's tree has them (what :func:`checked_code` may leave out)
-_SPANS: dict[tuple[str, bytes], dict[str, tuple[int, int]]] = {}
+#: sha256 digests of the texts that passed a check in this process, each with what the check
+#: found: for a module, its model part's top-level functions, name -> (first line, last line)
+#: as the check's tree has them (what :func:`checked_code` may leave out); for a wrapper, an
+#: empty dict. Rendering checks a module and loading it would check it again; the second check
+#: of the same text is a lookup (parsing the 3R2S module takes 0.4 s). One map, so a pass and
+#: its spans are remembered together or not at all. In memory only, never persisted.
+_PASSED: dict[tuple[str, bytes], dict[str, tuple[int, int]]] = {}
 
 
 def _digest(text: str, kind: str) -> tuple[str, bytes]:
@@ -117,9 +117,7 @@ def check_skeleton(text: str, backend: str = _TEMPLATES) -> None:
     digest = _digest(text, backend)
     if digest in _PASSED:
         return
-    spans = _check_skeleton(text, backend)
-    _PASSED.add(digest)
-    _SPANS[digest] = spans
+    _PASSED[digest] = _check_skeleton(text, backend)
 
 
 def checked_code(text: str, filename: str, wrapper: bool = False, without=()):
@@ -137,7 +135,7 @@ def checked_code(text: str, filename: str, wrapper: bool = False, without=()):
     apart from ``\\n``, is compiled whole."""
     (check_wrapper if wrapper else check_skeleton)(text)
     spans = None if wrapper or not without or "\r" in text else \
-        _SPANS.get(_digest(text, _TEMPLATES))
+        _PASSED.get(_digest(text, _TEMPLATES))
     if not spans:
         return compile(text, filename, "exec")
     lines = text.split("\n")
@@ -307,7 +305,7 @@ def check_wrapper(text: str) -> None:
     if digest in _PASSED:
         return
     _check_wrapper(text)
-    _PASSED.add(digest)
+    _PASSED[digest] = {}
 
 
 def _check_wrapper(text: str) -> None:
