@@ -23,7 +23,6 @@ line by line (and so is every function without runs: such a module is unchanged)
 from __future__ import annotations
 
 import numpy as np
-import sympy as sp
 
 from bgc.lower import ir as lower
 from bgc.lower import reroll as rr
@@ -116,15 +115,21 @@ class Emitter:
         self.printer, self.Line, self.rolled = printer, line_cls, rolled
         self.out_ref = out_ref  # result position -> the result array's flat index
         self.tables = tables
-        self.named = {s: sp.Symbol(f"_w[{k}]") for s, k in rolled.values.items()}
+        self.named = {s: f"_w[{k}]" for s, k in rolled.values.items()}
 
     def code(self, expr, extra=None) -> str:
-        sub = {s: self.named[s] for s in expr.free_symbols if s in self.named}
-        if extra:
-            sub.update(extra)
-        return self.printer.doprint(expr.xreplace(sub) if sub else expr)
+        """``expr``'s text, its values named by their slots (``_w[k]``) and the symbols of
+        ``extra`` (symbol -> text) by their texts."""
+        if not extra:
+            return self.printer.doprint(expr)
+        with self.printer.renamed(extra):
+            return self.printer.doprint(expr)
 
     def lines(self, out_name: str) -> list:
+        with self.printer.renamed(self.named):
+            return self._lines(out_name)
+
+    def _lines(self, out_name: str) -> list:
         out = []
         for it in self.rolled.items:
             if isinstance(it, Loop):
@@ -157,7 +162,7 @@ class Emitter:
                 extra = {}
                 for j, r in enumerate(st.reads):
                     out.append(self.Line(f"_g{j}", f"{_ARRAY[r.array]}[{every(r.index)}]"))
-                    extra[r.name] = sp.Symbol(f"_g{j}")
+                    extra[r.name] = f"_g{j}"
                 why = f"{st.comment} (and {loop.count - 1} more alike)" if st.comment else ""
                 out.append(self.Line(self._target(st, loop.count, out_name, every),
                                      self.code(st.expr, extra), why))
@@ -167,7 +172,7 @@ class Emitter:
             return _one(ix, self.tables)
         text = [f"for _i in range({loop.count}):  # a recurrence: one instance at a time"]
         for st in loop.body:
-            extra = {r.name: sp.Symbol(f"{_ARRAY[r.array]}[{one(r.index)}]") for r in st.reads}
+            extra = {r.name: f"{_ARRAY[r.array]}[{one(r.index)}]" for r in st.reads}
             text.append(f"        {self._target(st, loop.count, out_name, one)} = "
                         f"{self.code(st.expr, extra)}")
         return [self.Line("", "\n".join(text))]
