@@ -101,3 +101,47 @@ def test_the_lone_denominator_keeps_its_parentheses():
     assert BgcPrinter().doprint(x / b**2) == "x0/(x1*x1)"
     assert CPrinter().doprint(x / b**3) == "x0/(x1*x1*x1)"
     assert eval(BgcPrinter().doprint(x / (b + 1)**2), {"x0": 3.0, "x1": 1.0}) == 0.75
+
+
+def test_renamed_prints_what_the_replaced_expression_means():
+    """FastPrinting.renamed (the re-rolled numpy functions' slots and gathers): the text of
+    ``e`` with symbols renamed evaluates to ``e`` at the values the new names hold, nested
+    renamings restore what was there before, and afterwards every name is its own again."""
+    import math
+
+    import numpy as np
+
+    rng = random.Random(5)
+    d = sp.Dummy("r")
+    w = np.array([0.7, -1.3, 2.1, 0.4])
+    fast = BgcPrinter()
+    env = {"xp": np, "_w": w, "_g0": 1.9, "x5": -0.6, **{str(s): 0.3 + k for k, s in
+                                                             enumerate(X[:5])}}
+    checked = 0
+    for _ in range(200):
+        try:
+            e = _expr(rng, rng.randint(1, 3)).subs(X[4], d)
+        except (TypeError, ValueError):
+            continue
+        if e.has(sp.zoo, sp.nan, sp.oo) or e.has(*NAMED) or e.has(sp.Piecewise):
+            continue
+        values = {X[0]: sp.Float(w[2]), X[1]: sp.Float(w[0]), d: sp.Float(1.9),
+                  X[2]: sp.Float(0.3 + 2), X[3]: sp.Float(0.3 + 3), X[5]: sp.Float(-0.6)}
+        try:
+            want = complex(e.xreplace(values).evalf())
+        except (TypeError, ValueError):
+            continue
+        if not math.isfinite(abs(want)) or want.imag:
+            continue
+        with fast.renamed({X[0]: "_w[2]", X[1]: "_w[9]"}):
+            with fast.renamed({X[1]: "_w[0]", d: "_g0"}):  # inner names win, then undone
+                text = fast.doprint(e)
+            assert fast.doprint(X[1]) == "_w[9]"
+        assert fast.doprint(X[0] + X[1]) == BgcPrinter().doprint(X[0] + X[1])
+        with np.errstate(all="ignore"):
+            got = eval(text, env)  # noqa: S307 - bgc's own text of a random expression
+        assert np.isclose(got, want.real, rtol=1e-12, atol=1e-12), (e, text)
+        checked += 1
+    assert checked > 60
+    with pytest.raises(TypeError), fast.renamed({sp.sin(X[0]): "s"}):
+        pass
