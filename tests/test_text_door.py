@@ -308,3 +308,48 @@ def test_plain_runs_inside_brackets_are_no_refusal():
     at = text.index("\ndef _unpack(") + 1
     tables = text[:at] + "_IX = (\n" + rows + ")\n\n\n" + text[at:]
     assert _plain_verdict(tables) == _whole_verdict(tables) != "refused"
+
+
+def _parses(monkeypatch, text: str) -> list:
+    """The texts the check parses for ``text`` (each a syntax tree built)."""
+    from bgc.backends import skeleton
+
+    parsed = []
+    real = skeleton._parse
+    monkeypatch.setattr(skeleton, "_parse", lambda t, w: (parsed.append(t), real(t, w))[1])
+    skeleton._check_skeleton(text, "numpy")
+    return parsed
+
+
+def test_index_tables_and_a_block_after_a_run_are_parsed_once(monkeypatch):
+    """A long table of index arrays (a literal's items, given as one ``0,``) and a run that
+    ends on a block's header whose body is not plain (the run then stops before it): one
+    tree, much smaller than the text, and the whole tree's verdict."""
+    text = (ROOT / "generated" / "mech3r2s.py").read_text(encoding="utf-8")
+    rows = "".join("    np.array([%s], dtype=np.intp),\n" % ", ".join(map(str, range(k, k + 40)))
+                   for k in range(300))
+    at = text.index("\ndef _unpack(") + 1
+    tables = text[:at] + "_IX = (\n" + rows + ")\n\n\n" + text[at:]
+    block = "    if x.shape[1:] != _bs:\n        x = xp.reshape(x, (\n            3,))"
+    both = _in_jacobian(tables, block)
+    for t in (tables, both):
+        assert _plain_verdict(t) == _whole_verdict(t) != "refused"
+        parsed = _parses(monkeypatch, t)
+        assert len(parsed) == 1 and len(parsed[0]) < len(t) / 3
+
+
+@pytest.mark.parametrize("item", [
+    "    __import__('os').system('true'),",  # not a literal line: parsed as it is
+    ")\nimport os\n_IY = (",  # a top-level statement between two tables
+    ")\nrhs = None\n_IX = (",  # a name the model part defines, twice
+    "    np.array([1, 2], dtype=np.intp)),",  # a bracket closed that was never opened
+    "    np.array([1, 2], dtype=np.intp),\rimport os",  # a line break only Python sees
+    "    [1, 2],  # a comment ends no literal line",
+])
+def test_index_tables_give_the_whole_tree_s_verdict(item):
+    text = (ROOT / "generated" / "mech3r2s.py").read_text(encoding="utf-8")
+    rows = ["    np.array([%d, %d], dtype=np.intp)," % (k, k + 1) for k in range(80)]
+    rows.insert(40, item)
+    at = text.index("\ndef _unpack(") + 1
+    tables = text[:at] + "_IX = (\n" + "\n".join(rows) + "\n)\n\n\n" + text[at:]
+    assert _plain_verdict(tables) == _whole_verdict(tables)

@@ -188,7 +188,9 @@ def _check_skeleton(text: str, backend: str) -> dict[str, tuple[int, int]]:
 # refusal. Inside a triple-quoted string the run is string content (the statements around
 # it are the same); inside brackets, ``pass`` does not parse. A text the runs' tree refuses
 # is checked again whole, so only the whole tree refuses a text. A text with a carriage
-# return or a NUL byte is parsed whole. (The 3R2S's model part: a tree of 0.3 s,
+# return or a NUL byte is parsed whole. Runs of a literal's integer items (_LITERAL) are
+# given as one item; :func:`_opens` and :func:`_block_end` keep runs out of brackets and
+# blocks they would cut (guesses that only spare the second parse). (The 3R2S's model part: a tree of 0.3 s,
 # against 0.05 s for the scan and a tree without its equations.) What the check does not
 # do, before as now, is look into a function's body: a syntax error there is the compile's.
 
@@ -197,6 +199,12 @@ def _check_skeleton(text: str, backend: str) -> dict[str, tuple[int, int]]:
 _PLAIN = re.compile(r"( +)([^'\"\\#\t\f\v\x00\r]*)(#[^\f\v\x00\r]*)?\Z")
 _BRACKETS = re.compile(r"[()\[\]{}]")
 _CLOSE = {")": "(", "]": "[", "}": "{"}
+#: a line of a literal's items: a list of integers on one line, or numpy's array of one, and
+#: a comma (the index tables ``_IX`` and JAC_SPARSITY's pattern: a link chain of 9,996
+#: states has 5.5 MB of them, a parse of 5.6 s). A run of two or more such lines after a
+#: line that opens a bracket is given to the parser as one item, ``0,``: nothing but integers
+#: can be in it, and the statement around it is the same statement.
+_LITERAL = re.compile(r" +(?:\[[0-9, -]*\]|np\.array\(\[[0-9, -]*\], dtype=np\.intp\)),?\Z")
 #: the fewest lines in a row left to the scan (fewer are parsed as they are)
 MIN_PLAIN_RUN = 50
 
@@ -226,6 +234,16 @@ def _plain_runs_passed(head: str) -> tuple[str, list[tuple[int, int]]]:
     runs: list[tuple[int, int]] = []
     i, n = 0, len(lines)
     while i < n:
+        if i and _opens(lines[i - 1]) and _LITERAL.match(lines[i]):
+            j = i + 1
+            while j < n and _LITERAL.match(lines[j]):
+                j += 1
+            if j - i > 1:  # a literal's items: one item at the first line's indentation
+                lines[i:j] = [""] * (j - i)
+                lines[i] = "    0,"
+                runs.append((i + 1, j))
+            i = j
+            continue
         j, first, last = i, None, None
         while j < n:
             ind = _plain(lines[j])
@@ -236,12 +254,40 @@ def _plain_runs_passed(head: str) -> tuple[str, list[tuple[int, int]]]:
                 if first is None:
                     first = (j, ind)
             j += 1
-        if first is not None and j - i >= MIN_PLAIN_RUN:
-            lines[i:j] = [""] * (j - i)
-            lines[first[0]] = " " * first[1] + "pass"
-            runs.append((first[0] + 1, last + 1))
+        if first is not None and j - i >= MIN_PLAIN_RUN and not _opens(lines[i - 1] if i else ""):
+            end, last = _block_end(lines, first, j, last)
+            if end - i >= MIN_PLAIN_RUN:
+                lines[i:end] = [""] * (end - i)
+                lines[first[0]] = " " * first[1] + "pass"
+                runs.append((first[0] + 1, last + 1))
         i = j + 1
     return ("\n".join(lines) if runs else head), runs
+
+
+def _opens(line: str) -> bool:
+    """Whether the line before a run leaves a bracket open or a list going (``_IX = (``): a run
+    there is the bracket's content, not a block, and would only make the parse of the passes
+    fail and the text be parsed twice (a link chain of 9,996 states: 11 s). A guess that
+    saves time only: the whole tree still decides wherever the runs do not parse."""
+    code = line.rstrip()
+    return code.endswith(("(", "[", "{", ","))
+
+
+def _block_end(lines: list, first: tuple, j: int, last: int) -> tuple[int, int]:
+    """Where a run from line ``first`` up to (not including) line ``j`` may end, and its last
+    code line then: before its last statement at the run's own indentation or less where the
+    line after the run is indented deeper (``if x.shape[1:] != _bs:`` whose body is not
+    plain: a run to its end would leave that body hanging). Another guess that saves time
+    only, as :func:`_opens`."""
+    nxt = lines[j] if j < len(lines) else ""
+    if not nxt.strip() or len(nxt) - len(nxt.lstrip(" ")) <= first[1]:
+        return j, last
+    for k in range(last, first[0], -1):
+        ln = lines[k]
+        if _has_code(ln) and len(ln) - len(ln.lstrip(" ")) <= first[1]:
+            code = [m for m in range(first[0], k) if _has_code(lines[m])]
+            return k, (code[-1] if code else first[0])
+    return first[0], first[0]  # nothing to pass: the run is not used
 
 
 def _has_code(line: str) -> bool:
