@@ -80,3 +80,24 @@ def test_nothing_written_without_bytecode(tmp_path, monkeypatch):
     monkeypatch.setattr(sys, "dont_write_bytecode", False)
     t = _env(blocked).get_template("numpy/module.py.j2")  # still compiled, nothing raised
     assert t.render and blocked.read_text() == "mine"
+
+
+def test_c_templates_kept_code_renders_the_c_golden(tmp_path, monkeypatch):
+    """The C templates' environment keeps its compiled code the same way: written once, then
+    used without compiling the template text, and the C sources rendered through it are msd's
+    C goldens, byte for byte."""
+    from bgc.backends.c import printer as cprinter
+    from bgc.backends.load import c_files
+
+    monkeypatch.setattr(sys, "dont_write_bytecode", False)
+    folder = tmp_path / "__pycache__"
+    env = cprinter.make_template_env(folder)
+    for name in ("c/model.c.j2", "c/part.c.j2", "c/newton.c.j2", "c/tables.c.j2",
+                 "c/wrapper.py.j2"):
+        env.get_template(name)
+    assert len(list(folder.iterdir())) == 5
+    _no_compiling(monkeypatch)
+    monkeypatch.setattr(cprinter, "template_env", lambda: cprinter.make_template_env(folder))
+    files, _ = c_files(compile_file(ROOT / "models" / "msd.yaml"))
+    golden = ROOT / "generated" / "c" / "msd"
+    assert files and {n: (golden / n).read_text(encoding="utf-8") for n in files} == files

@@ -21,6 +21,7 @@ from __future__ import annotations
 import functools
 import hashlib
 from dataclasses import dataclass
+from pathlib import Path
 
 import jinja2
 
@@ -35,9 +36,10 @@ from bgc.backends.c.cexpr import (  # noqa: F401 (the C text helpers, as printer
 from bgc.backends.c.events import c_events, event_parts
 from bgc.backends.c.parts import PART_LINES, UNIT_PARTS, PartContext, cut_parts
 from bgc.backends.numpy.printer import comment as py_comment
-from bgc.backends.numpy.printer import lit, template_loader
+from bgc.backends.numpy.printer import TemplateBytecode, lit, template_loader
 from bgc.backends.skeleton import WRAPPER_MARK, binding_source, check_wrapper  # noqa: F401
 from bgc.base import __version__
+from bgc.base.paths import templates_dir
 from bgc.core.eqtypes import LinSolve, LinSolveEntry, NewtonSolve
 from bgc.lower.ir import Lowered
 from bgc.lower.newton import guarded
@@ -197,10 +199,18 @@ def _lu_plan(n: int, keys) -> str:
 
 @functools.lru_cache(maxsize=None)
 def template_env():
-    """The jinja environment of the C templates, with the C text filters (cstr, ccomment)."""
+    """The jinja environment of the C templates, with the C text filters (cstr, ccomment), made
+    once per process; their compiled code kept in templates/__pycache__ as the numpy
+    templates' (:class:`bgc.backends.numpy.printer.TemplateBytecode`)."""
+    return make_template_env(templates_dir() / "__pycache__")
+
+
+def make_template_env(bytecode_folder: Path):
+    """A jinja environment of the C templates, their compiled code kept in
+    ``bytecode_folder``."""
     env = jinja2.Environment(loader=template_loader(), keep_trailing_newline=True, trim_blocks=True,
                              lstrip_blocks=True, undefined=jinja2.StrictUndefined,
-                             autoescape=False)
+                             autoescape=False, bytecode_cache=TemplateBytecode(bytecode_folder))
     env.filters.update(cstr=c_string_literal, ccomment=c_comment, lit=lit, comment=py_comment)
     return env
 
