@@ -199,12 +199,14 @@ def _check_skeleton(text: str, backend: str) -> dict[str, tuple[int, int]]:
 _PLAIN = re.compile(r"( +)([^'\"\\#\t\f\v\x00\r]*)(#[^\f\v\x00\r]*)?\Z")
 _BRACKETS = re.compile(r"[()\[\]{}]")
 _CLOSE = {")": "(", "]": "[", "}": "{"}
-#: a line of a literal's items: a list of integers on one line, or numpy's array of one, and
-#: a comma (the index tables ``_IX`` and JAC_SPARSITY's pattern: a link chain of 9,996
+#: a line of a literal's items: a list of integers on one line (as Python writes them), or
+#: numpy's array of one, and a comma (a run of such items is valid wherever ``0,`` is) (the index tables ``_IX`` and JAC_SPARSITY's pattern: a link chain of 9,996
 #: states has 5.5 MB of them, a parse of 5.6 s). A run of two or more such lines after a
 #: line that opens a bracket is given to the parser as one item, ``0,``: nothing but integers
 #: can be in it, and the statement around it is the same statement.
-_LITERAL = re.compile(r" +(?:\[[0-9, -]*\]|np\.array\(\[[0-9, -]*\], dtype=np\.intp\)),?\Z")
+_INT = r"-?(?:0|[1-9][0-9]*)"
+_INTS = rf"\[(?:{_INT}(?:, {_INT})*)?\]"
+_LITERAL = re.compile(rf" +(?:{_INTS}|np\.array\({_INTS}, dtype=np\.intp\)),\Z")
 #: the fewest lines in a row left to the scan (fewer are parsed as they are)
 MIN_PLAIN_RUN = 50
 
@@ -256,7 +258,7 @@ def _plain_runs_passed(head: str) -> tuple[str, list[tuple[int, int]]]:
             j += 1
         if first is not None and j - i >= MIN_PLAIN_RUN and not _opens(lines[i - 1] if i else ""):
             end, last = _block_end(lines, first, j, last)
-            if end - i >= MIN_PLAIN_RUN:
+            if end > first[0] and end - i >= MIN_PLAIN_RUN:
                 lines[i:end] = [""] * (end - i)
                 lines[first[0]] = " " * first[1] + "pass"
                 runs.append((first[0] + 1, last + 1))
@@ -287,7 +289,7 @@ def _block_end(lines: list, first: tuple, j: int, last: int) -> tuple[int, int]:
         if _has_code(ln) and len(ln) - len(ln.lstrip(" ")) <= first[1]:
             code = [m for m in range(first[0], k) if _has_code(lines[m])]
             return k, (code[-1] if code else first[0])
-    return first[0], first[0]  # nothing to pass: the run is not used
+    return first[0], first[0]  # nothing to pass (no line before the header): not used
 
 
 def _has_code(line: str) -> bool:
