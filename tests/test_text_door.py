@@ -346,9 +346,12 @@ def test_index_tables_and_a_block_after_a_run_are_parsed_once(monkeypatch):
     "    np.array([1, 2], dtype=np.intp),\rimport os",  # a line break only Python sees
     "    [1, 2],  # a comment ends no literal line",
     "    [ - ],",  # integer-like lines that are no list of integers
+    "    [, ],",
     "    [01, 2],",
     "    [1 2],",
     "    [1, 2]\n    np.array([3], dtype=np.intp),",  # an item without its comma
+    "    [1, 2]\n)\n_IY = (",  # the last item of a table without its comma
+    "    [1, 2]\n    )",  # the same, its bracket closed on an indented line
 ])
 def test_index_tables_give_the_whole_tree_s_verdict(item):
     text = (ROOT / "generated" / "mech3r2s.py").read_text(encoding="utf-8")

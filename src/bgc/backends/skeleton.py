@@ -205,7 +205,7 @@ _CLOSE = {")": "(", "]": "[", "}": "{"}
 #: line that opens a bracket is given to the parser as one item, ``0,``: nothing but integers
 #: can be in it, and the statement around it is the same statement.
 _INT = r"-?(?:0|[1-9][0-9]*)"
-_INTS = rf"\[(?:{_INT}(?:, {_INT})*)?\]"
+_INTS = rf"\[(?:{_INT}(?:, {_INT})*(?:, )?)?\]"
 _LITERAL = re.compile(rf" +(?:{_INTS}|np\.array\({_INTS}, dtype=np\.intp\)),\Z")
 #: the fewest lines in a row left to the scan (fewer are parsed as they are)
 MIN_PLAIN_RUN = 50
@@ -240,6 +240,8 @@ def _plain_runs_passed(head: str) -> tuple[str, list[tuple[int, int]]]:
             j = i + 1
             while j < n and _LITERAL.match(lines[j]):
                 j += 1
+            if j + 1 < n and _LITERAL.match(lines[j] + ",") and lines[j + 1][:1] in _CLOSE:
+                j += 1  # the last item, its bracket closed on the next line: ``0,`` there too
             if j - i > 1:  # a literal's items: one item at the first line's indentation
                 lines[i:j] = [""] * (j - i)
                 lines[i] = "    0,"
