@@ -246,7 +246,8 @@ def bgc_in_process(*args, env: dict | None = None, cwd=None) -> subprocess.Compl
     import io
     import traceback
 
-    from bgc.cli.launch import main  # lazy: a test helper, imported by the tests that use it
+    # lazy: a test helper; bgc loads when a test runs it
+    from bgc.cli.launch import main
 
     argv = [str(a) for a in args]
     out, err = io.StringIO(), io.StringIO()

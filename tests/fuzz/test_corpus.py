@@ -54,7 +54,7 @@ def test_scene_variant_is_what_a_scene_compile_gives(tmp_path):
     a module really compiled for a scene: msd with its step scene."""
     import ast
 
-    from conftest import bgc_in_process  # (`python -m bgc`'s front door, in this process)
+    from conftest import bgc_in_process  # `python -m bgc`, in this process
 
     out = tmp_path / "m.py"
     r = bgc_in_process("compile", harness.ROOT / "models/msd.yaml", "--scene",
