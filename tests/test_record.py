@@ -26,25 +26,35 @@ ROOT = Path(__file__).resolve().parents[1]
 MSD = ROOT / "models" / "scenes" / "msd_step.yaml"
 
 
-def _bgc(*args, cache_dir, extra_env=None, via_cli=False):
-    """`bgc ARGS` as the console script runs it (bgc.cli.launch), or straight into click."""
+def _bgc(*args, cache_dir, extra_env=None):
+    """`bgc ARGS` as the console script runs it (bgc.cli.launch), in a process of its own."""
     if not os.path.lexists(cache_dir):  # a fresh cache: the C runtime's objects built
         seed_c_runtime(cache_dir)        # (no test here is about their build)
     env = {**os.environ, "BGC_CACHE_DIR": str(cache_dir), **(extra_env or {})}
-    cmd = [sys.executable, "-m", "bgc"] if not via_cli else [
-        sys.executable, "-c", "import sys; from bgc.cli.commands import main; main(sys.argv[1:])"]
-    return subprocess.run(cmd + [str(a) for a in args], capture_output=True, text=True,
-                          env=env, timeout=600)
+    return subprocess.run([sys.executable, "-m", "bgc"] + [str(a) for a in args],
+                          capture_output=True, text=True, env=env, timeout=600)
 
 
 def _bgc_here(*args, cache_dir):
-    """:func:`_bgc` (not via_cli) in this process: conftest's bgc_in_process runs what
+    """:func:`_bgc` in this process: conftest's bgc_in_process runs what
     `python -m bgc` runs (bgc.cli.launch.main: the replay, then click). For the tests whose
     property is which record a run replays, decided from files on disk; the process's own
     imports and its compiler probes (once per process) keep subprocesses."""
     if not os.path.lexists(cache_dir):
         seed_c_runtime(cache_dir)
     return bgc_in_process(*args, env={"BGC_CACHE_DIR": cache_dir})
+
+
+def _cli_here(*args, cache_dir):
+    """`bgc ARGS` straight into click (bgc.cli.commands.main), in this process: the full way,
+    no record replayed."""
+    from click.testing import CliRunner
+
+    from bgc.cli.commands import main
+
+    r = CliRunner().invoke(main, [str(a) for a in args], env={"BGC_CACHE_DIR": str(cache_dir)})
+    assert r.exception is None or isinstance(r.exception, SystemExit), r.exception
+    return subprocess.CompletedProcess(["bgc", *args], r.exit_code, r.stdout, r.stderr)
 
 
 def _replayed(proc) -> bool:
@@ -80,13 +90,13 @@ def test_replay_equals_the_full_way(tmp_path, backend):
         pytest.skip("no C compiler or C runtime")
     cdir = tmp_path / "cache"
     args = ["simulate", MSD, "--backend", backend]
-    first = _bgc(*args, "--out", tmp_path / "a.npz", cache_dir=cdir)
+    first = _bgc_here(*args, "--out", tmp_path / "a.npz", cache_dir=cdir)
     assert first.returncode == 0, first.stderr
     assert not _replayed(first) and "deriving equations" in first.stderr
-    warm = _bgc(*args, "--out", tmp_path / "b.npz", cache_dir=cdir)
+    warm = _bgc_here(*args, "--out", tmp_path / "b.npz", cache_dir=cdir)
     assert warm.returncode == 0, warm.stderr
     assert _replayed(warm) and "deriving equations" not in warm.stderr
-    full = _bgc(*args, "--out", tmp_path / "c.npz", cache_dir=cdir, via_cli=True)
+    full = _cli_here(*args, "--out", tmp_path / "c.npz", cache_dir=cdir)
     assert full.returncode == 0 and not _replayed(full) and "cache hit" in full.stderr
     _same(tmp_path / "a.npz", tmp_path / "b.npz")
     _same(tmp_path / "a.npz", tmp_path / "c.npz")
