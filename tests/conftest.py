@@ -228,3 +228,52 @@ def pytest_xdist_make_scheduler(config, log):
 def pytest_collection_modifyitems(config, items):
     if hasattr(config, "workerinput"):  # an xdist worker: its units keep a module together
         items.sort(key=lambda item: item.get_closest_marker("slow") is None)  # stable
+
+
+# ---------------------------------------------------------------------------------------------
+# `bgc ARGS` in the test's own process: what `python -m bgc` runs (bgc.cli.launch.main: the
+# run-record replay, then click), without starting an interpreter and importing bgc again
+# (0.5-1 s a call). For tests whose property is not about the process (its exit through
+# os._exit, its imports, a compiler identity probed once per process): those keep subprocesses.
+
+
+def bgc_in_process(*args, env: dict | None = None, cwd=None) -> subprocess.CompletedProcess:
+    """``bgc ARGS`` through :func:`bgc.cli.launch.main` in this process, with ``env``'s
+    variables set (and restored after), stdout and stderr captured: a CompletedProcess whose
+    returncode is the SystemExit's status (1 and the traceback on stderr for an exception
+    that escapes, as the interpreter would)."""
+    import contextlib
+    import io
+    import traceback
+
+    # lazy: a test helper; bgc loads when a test runs it
+    from bgc.cli.launch import main
+
+    argv = [str(a) for a in args]
+    out, err = io.StringIO(), io.StringIO()
+    saved = {k: os.environ.get(k) for k in (env or {})}
+    here = os.getcwd()
+    code = 0
+    try:
+        os.environ.update({k: str(v) for k, v in (env or {}).items()})
+        if cwd is not None:
+            os.chdir(cwd)
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                main(argv)
+            except SystemExit as exc:
+                c = exc.code
+                code = 0 if c is None else c if isinstance(c, int) else 1
+                if not isinstance(c, (int, type(None))):
+                    print(c, file=sys.stderr)
+            except Exception:  # noqa: BLE001 - what the interpreter would print
+                traceback.print_exc()
+                code = 1
+    finally:
+        os.chdir(here)
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+    return subprocess.CompletedProcess(["bgc", *argv], code, out.getvalue(), err.getvalue())

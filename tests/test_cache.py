@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import seed_c_runtime
+from conftest import bgc_in_process, seed_c_runtime
 
 from bgc.base.errors import ModelError
 from bgc.run import cache as cache_mod
@@ -32,34 +32,43 @@ def _bgc(*args, cache_dir, extra_env=None):
                           text=True, env=env, timeout=600)
 
 
+def _bgc_here(*args, cache_dir):
+    """:func:`_bgc` in this process (conftest's bgc_in_process: `python -m bgc`'s own front
+    door), for the tests whose property is the cache on disk, not a process's imports or its
+    compiler probes."""
+    if args and args[0] == "simulate" and "--backend" not in args:
+        args = (*args, "--backend", "numpy")
+    return bgc_in_process(*args, env={"BGC_CACHE_DIR": cache_dir})
+
+
 def _entries(d: Path, target="numpy"):
     return sorted(p for p in (d / target).glob("*/*") if p.is_dir() and not p.name.startswith("."))
 
 
 def test_miss_then_hit_gives_the_same_results(tmp_path):
     cdir = tmp_path / "cache"
-    a = _bgc("simulate", SCENE, "--out", tmp_path / "a.npz", cache_dir=cdir)
+    a = _bgc_here("simulate", SCENE, "--out", tmp_path / "a.npz", cache_dir=cdir)
     assert a.returncode == 0, a.stderr
     assert "cache hit" not in a.stderr and "deriving equations" in a.stderr
     assert len(_entries(cdir)) == 1
-    b = _bgc("simulate", SCENE, "--out", tmp_path / "b.npz", cache_dir=cdir)
+    b = _bgc_here("simulate", SCENE, "--out", tmp_path / "b.npz", cache_dir=cdir)
     assert b.returncode == 0, b.stderr
     assert "cache hit" in b.stderr and "deriving equations" not in b.stderr
     ra, rb = np.load(tmp_path / "a.npz"), np.load(tmp_path / "b.npz")
     for k in ra.files:
         np.testing.assert_array_equal(ra[k], rb[k])
     # --no-cache compiles afresh and adds nothing
-    c = _bgc("simulate", SCENE, "--no-cache", cache_dir=tmp_path / "other")
+    c = _bgc_here("simulate", SCENE, "--no-cache", cache_dir=tmp_path / "other")
     assert c.returncode == 0 and "deriving equations" in c.stderr
     assert not (tmp_path / "other").exists()
     # the key follows the scene: another scene is another entry
-    d = _bgc("simulate", ROOT / "models/scenes/dc_motor_load_step.yaml", cache_dir=cdir)
+    d = _bgc_here("simulate", ROOT / "models/scenes/dc_motor_load_step.yaml", cache_dir=cdir)
     assert d.returncode == 0, d.stderr
     assert len(_entries(cdir)) == 2
-    info = _bgc("cache", "info", cache_dir=cdir)
+    info = _bgc_here("cache", "info", cache_dir=cdir)
     assert info.returncode == 0 and "numpy 2" in info.stdout and str(cdir) in info.stdout
     assert "run 2" in info.stdout  # each scene's run record (bgc.run.record)
-    clr = _bgc("cache", "clear", cache_dir=cdir)
+    clr = _bgc_here("cache", "clear", cache_dir=cdir)
     assert clr.returncode == 0 and "removed 4" in clr.stdout  # 2 modules, 2 records
     assert _entries(cdir) == [] and not list((cdir / "run").glob("*/*"))
 
@@ -130,12 +139,12 @@ def test_editing_an_imported_file_recompiles(tmp_path):
     (work / "extra.yaml").write_text("bgc: 1\nname: extra\nelements: {}\nbonds: []\n# edited\n")
     k2 = cache_mod.key("numpy", work / "msd.yaml", scene)
     assert k1 != k2
-    r = _bgc("simulate", scene, cache_dir=cdir)
+    r = _bgc_here("simulate", scene, cache_dir=cdir)
     assert r.returncode == 0, r.stderr
     assert "cache hit" not in r.stderr
-    assert "cache hit" in _bgc("simulate", scene, cache_dir=cdir).stderr
+    assert "cache hit" in _bgc_here("simulate", scene, cache_dir=cdir).stderr
     (work / "extra.yaml").write_text("bgc: 1\nname: extra\nelements: {}\nbonds: []\n# edited again\n")
-    assert "cache hit" not in _bgc("simulate", scene, cache_dir=cdir).stderr
+    assert "cache hit" not in _bgc_here("simulate", scene, cache_dir=cdir).stderr
 
 
 def test_concurrent_writers(tmp_path):

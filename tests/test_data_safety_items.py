@@ -17,7 +17,7 @@ import pytest
 from click.testing import CliRunner
 
 from bgc.cli.commands import main
-from conftest import seed_c_runtime
+from conftest import bgc_in_process, seed_c_runtime
 from test_data_safety import MODEL, PARTS, SCENE, TABLE, project, snapshot
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -31,6 +31,15 @@ def bgc(*args, cache, cwd=None, timeout=300):
     env = {**os.environ, "BGC_CACHE_DIR": str(cache)}
     return subprocess.run([sys.executable, "-m", "bgc", *map(str, args)], capture_output=True,
                           text=True, env=env, cwd=cwd, timeout=timeout)
+
+
+def bgc_here(*args, cache):
+    """:func:`bgc` in this process: conftest's bgc_in_process runs what `python -m bgc` runs
+    (bgc.cli.launch.main: the record's replay, then click), for the tests whose property is
+    what the cache and the records on disk make of a run, not the process."""
+    if not os.path.lexists(cache):
+        seed_c_runtime(cache)
+    return bgc_in_process(*args, env={"BGC_CACHE_DIR": cache})
 
 
 def one_line(r, status=2) -> str:
@@ -113,13 +122,13 @@ def test_repointed_link_is_not_replayed(tmp_path, where):
         scene.write_text(SCENE.replace("model: model.yaml", "model: lib/model.yaml")
                          .replace("table: force.csv", "table: lib/force.csv"))
     link = scene.parent if where == "scene folder" else tmp_path / "S" / "lib"
-    assert bgc("simulate", scene, "--out", tmp_path / "a.npz", cache=cache).returncode == 0
-    warm_a = bgc("simulate", scene, "--out", tmp_path / "a2.npz", cache=cache)
+    assert bgc_here("simulate", scene, "--out", tmp_path / "a.npz", cache=cache).returncode == 0
+    warm_a = bgc_here("simulate", scene, "--out", tmp_path / "a2.npz", cache=cache)
     assert "run record" in warm_a.stderr  # the record is used while nothing changed
     link.unlink()
     link.symlink_to("B" if where == "scene folder" else "../B")
-    warm = bgc("simulate", scene, "--out", tmp_path / "b.npz", cache=cache)
-    cold = bgc("simulate", scene, "--out", tmp_path / "c.npz", "--no-cache", cache=cache)
+    warm = bgc_here("simulate", scene, "--out", tmp_path / "b.npz", cache=cache)
+    cold = bgc_here("simulate", scene, "--out", tmp_path / "c.npz", "--no-cache", cache=cache)
     assert warm.returncode == 0 and cold.returncode == 0, (warm.stderr, cold.stderr)
     b, c, a = (np.load(tmp_path / f"{n}.npz") for n in "bca")
     np.testing.assert_array_equal(b["position"], c["position"])
@@ -331,18 +340,18 @@ def test_corrupt_record_is_discarded_and_rebuilt(tmp_path, damage):
 def test_corrupt_cache_entry_is_discarded_and_rebuilt(tmp_path):
     proj = project(tmp_path)
     cache = tmp_path / "cache"
-    assert bgc("simulate", proj / "scene.yaml", "--out", tmp_path / "a.npz", "--backend",
-               "numpy", cache=cache).returncode == 0  # (the numpy entry the runs below use)
+    assert bgc_here("simulate", proj / "scene.yaml", "--out", tmp_path / "a.npz", "--backend",
+                    "numpy", cache=cache).returncode == 0  # (the numpy entry the runs below use)
     for p in (cache / "numpy").rglob("module.*"):
         p.write_bytes(b"\xff\xfe not a module")
-    r = bgc("simulate", proj / "scene.yaml", "--out", tmp_path / "b.npz", "--method", "BDF",
-            cache=cache)  # another option: not replayed, through the compile cache
+    r = bgc_here("simulate", proj / "scene.yaml", "--out", tmp_path / "b.npz", "--method",
+                 "BDF", cache=cache)  # another option: not replayed, through the compile cache
     assert r.returncode == 0 and "note: discarded a corrupt compile-cache entry" in r.stderr, \
         r.stderr
-    r = bgc("simulate", proj / "scene.yaml", "--out", tmp_path / "c.npz", "--method", "Radau",
-            "--no-cache", cache=cache)
+    r = bgc_here("simulate", proj / "scene.yaml", "--out", tmp_path / "c.npz", "--method",
+                 "Radau", "--no-cache", cache=cache)
     assert r.returncode == 0
-    r = bgc("simulate", proj / "scene.yaml", "-q", "--method", "LSODA", cache=cache)
+    r = bgc_here("simulate", proj / "scene.yaml", "-q", "--method", "LSODA", cache=cache)
     assert r.returncode == 0 and "discarded" not in r.stderr  # rebuilt whole
 
 
@@ -469,13 +478,17 @@ def test_warm_run_equals_the_no_cache_run_after_any_change():
             # backends (the C key adds the compiler: test_record.py), and the default C path
             # through re-pointed links is test_repointed_link_is_not_replayed; a C build
             # costs each of these 18 runs about a third more CPU
+            # in this process (`python -m bgc`'s front door, bgc.cli.launch: the record's
+            # replay, then click): what is replayed is decided from files on disk, so a fresh
+            # interpreter per run (0.5-1 s each) adds nothing to the property
             np_ = ("--backend", "numpy")
-            assert bgc("simulate", scene, "-q", *np_, cache=cache).returncode == 0
+            env = {"BGC_CACHE_DIR": cache}
+            assert bgc_in_process("simulate", scene, "-q", *np_, env=env).returncode == 0
             for op, value in changes:
                 _change(root, op, value)
-            warm = bgc("simulate", scene, "--out", root / "w.npz", *np_, cache=cache)
-            cold = bgc("simulate", scene, "--out", root / "c.npz", "--no-cache", *np_,
-                       cache=cache)
+            warm = bgc_in_process("simulate", scene, "--out", root / "w.npz", *np_, env=env)
+            cold = bgc_in_process("simulate", scene, "--out", root / "c.npz", "--no-cache",
+                                  *np_, env=env)
             assert warm.returncode == cold.returncode, (warm.stderr, cold.stderr)
             if cold.returncode == 0:
                 w, c = np.load(root / "w.npz"), np.load(root / "c.npz")

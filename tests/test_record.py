@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import seed_c_runtime
+from conftest import bgc_in_process, seed_c_runtime
 
 from bgc.run import record
 from bgc.run.cache import Cache
@@ -26,15 +26,35 @@ ROOT = Path(__file__).resolve().parents[1]
 MSD = ROOT / "models" / "scenes" / "msd_step.yaml"
 
 
-def _bgc(*args, cache_dir, extra_env=None, via_cli=False):
-    """`bgc ARGS` as the console script runs it (bgc.cli.launch), or straight into click."""
+def _bgc(*args, cache_dir, extra_env=None):
+    """`bgc ARGS` as the console script runs it (bgc.cli.launch), in a process of its own."""
     if not os.path.lexists(cache_dir):  # a fresh cache: the C runtime's objects built
         seed_c_runtime(cache_dir)        # (no test here is about their build)
     env = {**os.environ, "BGC_CACHE_DIR": str(cache_dir), **(extra_env or {})}
-    cmd = [sys.executable, "-m", "bgc"] if not via_cli else [
-        sys.executable, "-c", "import sys; from bgc.cli.commands import main; main(sys.argv[1:])"]
-    return subprocess.run(cmd + [str(a) for a in args], capture_output=True, text=True,
-                          env=env, timeout=600)
+    return subprocess.run([sys.executable, "-m", "bgc"] + [str(a) for a in args],
+                          capture_output=True, text=True, env=env, timeout=600)
+
+
+def _bgc_here(*args, cache_dir):
+    """:func:`_bgc` in this process: conftest's bgc_in_process runs what
+    `python -m bgc` runs (bgc.cli.launch.main: the replay, then click). For the tests whose
+    property is which record a run replays, decided from files on disk; the process's own
+    imports and its compiler probes (once per process) keep subprocesses."""
+    if not os.path.lexists(cache_dir):
+        seed_c_runtime(cache_dir)
+    return bgc_in_process(*args, env={"BGC_CACHE_DIR": cache_dir})
+
+
+def _cli_here(*args, cache_dir):
+    """`bgc ARGS` straight into click (bgc.cli.commands.main), in this process: the full way,
+    no record replayed."""
+    from click.testing import CliRunner
+
+    from bgc.cli.commands import main
+
+    r = CliRunner().invoke(main, [str(a) for a in args], env={"BGC_CACHE_DIR": str(cache_dir)})
+    assert r.exception is None or isinstance(r.exception, SystemExit), r.exception
+    return subprocess.CompletedProcess(["bgc", *args], r.exit_code, r.stdout, r.stderr)
 
 
 def _replayed(proc) -> bool:
@@ -70,13 +90,13 @@ def test_replay_equals_the_full_way(tmp_path, backend):
         pytest.skip("no C compiler or C runtime")
     cdir = tmp_path / "cache"
     args = ["simulate", MSD, "--backend", backend]
-    first = _bgc(*args, "--out", tmp_path / "a.npz", cache_dir=cdir)
+    first = _bgc_here(*args, "--out", tmp_path / "a.npz", cache_dir=cdir)
     assert first.returncode == 0, first.stderr
     assert not _replayed(first) and "deriving equations" in first.stderr
-    warm = _bgc(*args, "--out", tmp_path / "b.npz", cache_dir=cdir)
+    warm = _bgc_here(*args, "--out", tmp_path / "b.npz", cache_dir=cdir)
     assert warm.returncode == 0, warm.stderr
     assert _replayed(warm) and "deriving equations" not in warm.stderr
-    full = _bgc(*args, "--out", tmp_path / "c.npz", cache_dir=cdir, via_cli=True)
+    full = _cli_here(*args, "--out", tmp_path / "c.npz", cache_dir=cdir)
     assert full.returncode == 0 and not _replayed(full) and "cache hit" in full.stderr
     _same(tmp_path / "a.npz", tmp_path / "b.npz")
     _same(tmp_path / "a.npz", tmp_path / "c.npz")
@@ -123,7 +143,7 @@ def test_every_input_invalidates_the_record(tmp_path):
     cdir = tmp_path / "cache"
 
     def run(name):
-        p = _bgc("simulate", scene, "--out", tmp_path / f"{name}.npz", cache_dir=cdir)
+        p = _bgc_here("simulate", scene, "--out", tmp_path / f"{name}.npz", cache_dir=cdir)
         assert p.returncode == 0, p.stderr
         return p, np.load(tmp_path / f"{name}.npz")
 
@@ -163,23 +183,25 @@ def test_every_input_invalidates_the_record(tmp_path):
 
 def test_options_select_their_own_record(tmp_path):
     cdir = tmp_path / "cache"
-    a = _bgc("simulate", MSD, "--out", tmp_path / "a.npz", cache_dir=cdir)
+    a = _bgc_here("simulate", MSD, "--out", tmp_path / "a.npz", cache_dir=cdir)
     assert a.returncode == 0
-    b = _bgc("simulate", MSD, "--rtol", "1e-9", "--out", tmp_path / "b.npz", cache_dir=cdir)
+    b = _bgc_here("simulate", MSD, "--rtol", "1e-9", "--out", tmp_path / "b.npz",
+                  cache_dir=cdir)
     assert b.returncode == 0 and not _replayed(b) and "rtol=1e-09" in b.stdout
-    c = _bgc("simulate", MSD, "--rtol=1e-9", "-q", "--out", tmp_path / "c.npz", cache_dir=cdir)
+    c = _bgc_here("simulate", MSD, "--rtol=1e-9", "-q", "--out", tmp_path / "c.npz",
+                  cache_dir=cdir)
     assert c.returncode == 0 and "rtol=1e-09" in c.stdout
     _same(tmp_path / "b.npz", tmp_path / "c.npz")
-    d = _bgc("simulate", MSD, "--out", tmp_path / "d.npz", cache_dir=cdir)
+    d = _bgc_here("simulate", MSD, "--out", tmp_path / "d.npz", cache_dir=cdir)
     assert _replayed(d)
     _same(tmp_path / "a.npz", tmp_path / "d.npz")
     # what a record does not replay goes the full way
     for extra in (["--no-cache"], ["--plot", str(tmp_path / "figs")], ["--method", "BDF"]):
-        p = _bgc("simulate", MSD, *extra, cache_dir=cdir)
+        p = _bgc_here("simulate", MSD, *extra, cache_dir=cdir)
         assert p.returncode == 0, p.stderr
         assert not _replayed(p)
     # a usage error is the full way's, from click
-    bad = _bgc("simulate", MSD, "--rtol", "abc", cache_dir=cdir)
+    bad = _bgc_here("simulate", MSD, "--rtol", "abc", cache_dir=cdir)
     assert bad.returncode == 2 and "error:" in bad.stderr and not _replayed(bad)
 
 
@@ -187,11 +209,11 @@ def test_refusals_and_failures_read_as_the_full_ways(tmp_path):
     cdir = tmp_path / "cache"
     work = _copy_models(tmp_path / "models")
     scene = work / "scenes" / "msd_step.yaml"
-    assert _bgc("simulate", scene, cache_dir=cdir).returncode == 0
+    assert _bgc_here("simulate", scene, cache_dir=cdir).returncode == 0
     # --out naming the model: refused before the run, by the full way's message
     model = work / "msd.yaml"
     before = model.read_bytes()
-    p = _bgc("simulate", scene, "--out", model, cache_dir=cdir)
+    p = _bgc_here("simulate", scene, "--out", model, cache_dir=cdir)
     assert p.returncode == 2 and "--out" in p.stderr and "input" in p.stderr, p.stderr
     assert model.read_bytes() == before
     # a run that fails under a replay: the record's time limit made tiny (records are the
@@ -203,7 +225,7 @@ def test_refusals_and_failures_read_as_the_full_ways(tmp_path):
     assert rec is not None
     rec["run"]["max_wall"] = 1e-12
     assert record.save(store, key, rec)
-    f = _bgc("simulate", scene, cache_dir=cdir)
+    f = _bgc_here("simulate", scene, cache_dir=cdir)
     assert f.returncode == 1, f.stderr
     line = f.stderr.strip().splitlines()[-1]
     assert line.startswith(f"{scene}:") and "simulation failed" in line and "Traceback" not in \
@@ -212,20 +234,20 @@ def test_refusals_and_failures_read_as_the_full_ways(tmp_path):
 
 def test_an_unsafe_record_is_ignored(tmp_path):
     cdir = tmp_path / "cache"
-    assert _bgc("simulate", MSD, cache_dir=cdir).returncode == 0
+    assert _bgc_here("simulate", MSD, cache_dir=cdir).returncode == 0
     recs = [p for p in (cdir / "run").glob("*/*") if p.is_file()]
     assert len(recs) == 1
-    assert _replayed(_bgc("simulate", MSD, cache_dir=cdir))
+    assert _replayed(_bgc_here("simulate", MSD, cache_dir=cdir))
     os.chmod(recs[0], 0o666)  # writable by others: not trusted
-    p = _bgc("simulate", MSD, cache_dir=cdir)
+    p = _bgc_here("simulate", MSD, cache_dir=cdir)
     assert p.returncode == 0 and not _replayed(p)
     # the full way wrote a fresh record in its place
-    assert _replayed(_bgc("simulate", MSD, cache_dir=cdir))
+    assert _replayed(_bgc_here("simulate", MSD, cache_dir=cdir))
     # a record that is not marshal data, or of another format: ignored
     recs[0].write_bytes(b"not a record")
-    assert not _replayed(_bgc("simulate", MSD, cache_dir=cdir))
+    assert not _replayed(_bgc_here("simulate", MSD, cache_dir=cdir))
     recs[0].write_bytes(marshal.dumps({"format": -1}))
-    assert not _replayed(_bgc("simulate", MSD, cache_dir=cdir))
+    assert not _replayed(_bgc_here("simulate", MSD, cache_dir=cdir))
 
 
 def test_a_changed_compiler_is_not_replayed(tmp_path):

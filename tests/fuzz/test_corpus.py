@@ -53,13 +53,14 @@ def test_scene_variant_is_what_a_scene_compile_gives(tmp_path):
     """The reference skeletons' scene variant (built from the golden) equals the skeleton of
     a module really compiled for a scene: msd with its step scene."""
     import ast
-    import subprocess
+
+    from conftest import bgc_in_process  # `python -m bgc`, in this process
 
     out = tmp_path / "m.py"
-    env = dict(os.environ, BGC_CACHE_DIR=str(tmp_path / "cache"))
-    subprocess.run([sys.executable, "-m", "bgc", "compile", str(harness.ROOT / "models/msd.yaml"),
-                    "--scene", str(harness.ROOT / "models/scenes/msd_step.yaml"), "-o", str(out),
-                    "-q"], check=True, env=env, cwd=tmp_path)
+    r = bgc_in_process("compile", harness.ROOT / "models/msd.yaml", "--scene",
+                       harness.ROOT / "models/scenes/msd_step.yaml", "-o", out, "-q",
+                       env={"BGC_CACHE_DIR": tmp_path / "cache"}, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
     plain = harness.skeleton(ast.parse(harness.golden_of(harness.ROOT / "models/msd.yaml")
                                        .read_text(encoding="utf-8")))
     scene = harness.skeleton(ast.parse(out.read_text(encoding="utf-8")))
@@ -100,7 +101,9 @@ def test_harness_catches_payloads(tmp_path, extra, problem):
 def test_harness_catches_bad_errors(tmp_path, code, problem, monkeypatch):
     """An error case fails on a traceback, several lines, a write, the wrong line, no location,
     a hang (killed at the timeout), a memory hog (stopped by the limit), a leftover folder."""
-    monkeypatch.setattr(harness, "TIMEOUT", 3.0)
+    # the hang is killed at whatever the limit is: 1 s says it as well as 3 s (the others,
+    # which must finish within the limit, keep 3 s)
+    monkeypatch.setattr(harness, "TIMEOUT", 1.0 if "sleep(60)" in code else 3.0)
     case = harness.Case(id="self/err", category="self", expect="error", argv=[harness.SELFTEST,
                         code], message="bad", line=3)
     out = harness.run_case(case, tmp_path)
