@@ -141,9 +141,12 @@ def test_project_assembles_the_loop(tmp_path):
     assert abs(th[0] - 1.05) < 0.05  # a nearby pose, not the model's own
     f = tmp_path / "fb.yaml"
     f.write_text(text)
-    out = subprocess.run([sys.executable, "-m", "bgc", "check", str(f)], capture_output=True,
-                         text=True, timeout=600)
-    assert out.returncode == 0, out.stderr
+    from click.testing import CliRunner
+
+    from bgc.cli.commands import main
+
+    out = CliRunner().invoke(main, ["check", str(f)], prog_name="bgc")  # in-process
+    assert out.exit_code == 0, (out.stderr, out.exception)
     note = next(x for x in out.stdout.splitlines() if "initial positions projected" in x)
     assert "crank.th 1.05 -> " in note and "coupler.th" in note and "rocker.th" in note
 
@@ -209,9 +212,12 @@ def test_initial_option_is_validated():
 
 
 def test_numerically_redundant_constraint_is_reported():
-    out = subprocess.run([sys.executable, "-m", "bgc", "check", str(PARALLELOGRAM)],
-                         capture_output=True, text=True, timeout=600)
-    assert out.returncode == 0, out.stderr
+    from click.testing import CliRunner
+
+    from bgc.cli.commands import main
+
+    out = CliRunner().invoke(main, ["check", str(PARALLELOGRAM)], prog_name="bgc")  # in-process
+    assert out.exit_code == 0, (out.stderr, out.exception)
     line = next(x for x in out.stdout.splitlines() if "redundant constraint components" in x)
     assert line.count(".q[") == 1  # 12 degrees of freedom, 12 components, mobility 1
 
