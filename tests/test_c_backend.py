@@ -119,15 +119,20 @@ def test_parameter_batches_broadcast_like_numpy(compiled_model):
 def _span(name):
     # the references (scipy's Radau on the numpy module at rtol 1e-11) are the cost here:
     # the rigid 3R2S's (a 21-unknown reaction solve per call) took 4,233 steps and 30,149
-    # calls over a quarter second (73 CPU s for the whole test), about 200 s over 1 s: its
-    # first 0.1 s are checked; the compliant 3R2S's stiff couplings take 8,935 steps (62,782 calls, 20
+    # calls over a quarter second (73 CPU s for the whole test), about 200 s over 1 s, 1,886
+    # steps (30 CPU s) over 0.1 s, 974 (16 CPU s) over 0.05 s: its first 0.05 s are checked,
+    # where the C loops take 280-300 steps each (largest error 0.004 of the bound there, 0.006
+    # over 0.1 s); the compliant 3R2S's stiff couplings take 8,935 steps (62,782 calls, 20
     # CPU s) over 0.02 s, in which its joint angles move by up to 1e-2 rad (46 CPU s for the
     # whole test over 0.05 s); the rectifier's 76 s over 50 periods (15,000 steps), 23 s over
     # 10 periods (19 CPU s for the whole test), 5 periods kept, each with both diode
-    # switchings; the top's 48 s over 1 s of its 300 rad/s spin, 14 s over 0.3 s, 0.15 s kept
-    # (7 turns)
-    return {"van_der_pol": (0.0, 0.5), "3r2s": (0.0, 0.02), "3r2s_rigid": (0.0, 0.1),
-            "rectifier": (0.0, 0.1), "top": (0.0, 0.15)}.get(name, (0.0, 1.0))
+    # switchings, and so for the other 50 Hz rectifiers (ideal diodes, a switch: their mode
+    # events; over 50 periods the pair's test took 8.4 s, the switch's 6.4 s in a CI run);
+    # the top's 48 s over 1 s of its 300 rad/s spin, 14 s over 0.3 s, 0.15 s kept (7 turns)
+    return {"van_der_pol": (0.0, 0.5), "3r2s": (0.0, 0.02), "3r2s_rigid": (0.0, 0.05),
+            "rectifier": (0.0, 0.1), "rectifier_pair": (0.0, 0.1),
+            "rectifier_switch": (0.0, 0.1), "rectifier_ideal": (0.0, 0.1),
+            "top": (0.0, 0.15)}.get(name, (0.0, 1.0))
 
 
 _REFERENCES: dict = {}
@@ -296,21 +301,35 @@ def test_without_a_compiler_simulate_falls_back_to_numpy(tmp_path):
     assert out.is_file()
 
 
+def _bgc_here(*args):
+    """``bgc args...`` in this process (click's runner): for what the command says and
+    writes, not how its process ends (the tests above run real processes for those, and with
+    another CC: the compiler's facts are kept per process). Returns the click Result."""
+    from click.testing import CliRunner
+
+    from bgc.cli.commands import main
+
+    r = CliRunner().invoke(main, [str(a) for a in args], prog_name="bgc")
+    assert r.exception is None or isinstance(r.exception, SystemExit), (r.exception, r.stderr)
+    return r
+
+
 @needs_cc
 @needs_runtime
-def test_simulate_defaults_to_c_where_a_compiler_works(tmp_path):
+def test_simulate_defaults_to_c_where_a_compiler_works(tmp_path, monkeypatch):
     """No --backend and no solver backend in the scene: C for a method the C step loop runs,
     numpy for one it does not; the summary line says which and why."""
-    env = {"BGC_CACHE_DIR": str(seed_c_runtime(tmp_path / "cache"))}  # runtime objects built
+    # runtime objects built
+    monkeypatch.setenv("BGC_CACHE_DIR", str(seed_c_runtime(tmp_path / "cache")))
     scene = str(ROOT / "models/scenes/msd_step.yaml")
-    p = _bgc("simulate", scene, "--out", str(tmp_path / "c.npz"), env=env)
-    assert p.returncode == 0, p.stderr
+    p = _bgc_here("simulate", scene, "--out", str(tmp_path / "c.npz"))
+    assert p.exit_code == 0, p.stderr
     assert "(c backend; default: a C compiler works)" in p.stdout
-    q = _bgc("simulate", scene, "--method", "BDF", env=env)
-    assert q.returncode == 0, q.stderr
+    q = _bgc_here("simulate", scene, "--method", "BDF")
+    assert q.exit_code == 0, q.stderr
     assert "(numpy backend; default: BDF has no C step loop)" in q.stdout
-    r = _bgc("simulate", scene, "--backend", "numpy", "--out", str(tmp_path / "n.npz"), env=env)
-    assert r.returncode == 0 and "(numpy backend)" in r.stdout, r.stderr
+    r = _bgc_here("simulate", scene, "--backend", "numpy", "--out", str(tmp_path / "n.npz"))
+    assert r.exit_code == 0 and "(numpy backend)" in r.stdout, r.stderr
     a, b = np.load(tmp_path / "c.npz"), np.load(tmp_path / "n.npz")
     assert np.max(np.abs(a["position"] - b["position"])) < 1e-5 * np.max(np.abs(b["position"]))
 
@@ -365,14 +384,15 @@ def test_compile_target_c_writes_an_importable_folder(tmp_path):
 
 @needs_cc
 @needs_runtime
-def test_simulate_backend_c_agrees_with_numpy(tmp_path):
-    env = {"BGC_CACHE_DIR": str(seed_c_runtime(tmp_path / "cache"))}  # runtime objects built
+def test_simulate_backend_c_agrees_with_numpy(tmp_path, monkeypatch):
+    # runtime objects built
+    monkeypatch.setenv("BGC_CACHE_DIR", str(seed_c_runtime(tmp_path / "cache")))
     scene = str(ROOT / "models/scenes/msd_step.yaml")
-    a = _bgc("simulate", scene, "--backend", "c", "--out", str(tmp_path / "c.npz"),
-             "--rtol", "1e-9", "--atol", "1e-12", env=env)
-    b = _bgc("simulate", scene, "--backend", "numpy", "--out", str(tmp_path / "n.npz"),
-             "--rtol", "1e-9", "--atol", "1e-12", env=env)
-    assert a.returncode == 0 and b.returncode == 0, a.stderr + b.stderr
+    a = _bgc_here("simulate", scene, "--backend", "c", "--out", str(tmp_path / "c.npz"),
+                  "--rtol", "1e-9", "--atol", "1e-12")
+    b = _bgc_here("simulate", scene, "--backend", "numpy", "--out", str(tmp_path / "n.npz"),
+                  "--rtol", "1e-9", "--atol", "1e-12")
+    assert a.exit_code == 0 and b.exit_code == 0, a.stderr + b.stderr
     assert "(c backend)" in a.stdout and "atol=1e-12" in a.stdout and "compile" in a.stdout
     ra, rb = np.load(tmp_path / "c.npz"), np.load(tmp_path / "n.npz")
     assert np.allclose(ra["t"], rb["t"])

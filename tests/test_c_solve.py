@@ -66,11 +66,23 @@ def _key(name, text, fname):
         shutil.rmtree(d, ignore_errors=True)
 
 
+_compiles: dict = {}
+
+
+def _compiled(name):
+    """The model compiled with symbolic_max=0, once per worker (the pair below and the parts
+    test print their C from it; callers must not change it)."""
+    if name not in _compiles:
+        text, fname = _text(name)
+        _compiles[name] = compile_model(parse_text(text, fname), symbolic_max=0)
+    return _compiles[name]
+
+
 def _pair(name):
     """(compiled, numpy module, C module), every linear system solved numerically."""
     if name not in _built:
         text, fname = _text(name)
-        c = compile_model(parse_text(text, fname), symbolic_max=0)
+        c = _compiled(name)
         npm = load_module(c.source, f"solve_{name}_np")
         _, cm = backends.load(f"solve_{name}_c", "c", _key(name, text, fname), lambda: c,
                               cache_mod.Cache())
@@ -141,9 +153,17 @@ def _span(name):
     return {"double_pendulum_rigid": 3.0, "three_rod_rigid": 2.0}.get(name, 4.0)
 
 
+@pytest.fixture(scope="module")
+def numpy_runs():
+    """name -> the states of the numpy module's reference run below, made once for both C
+    methods. (A module-scoped fixture: conftest.work_unit sends this file's tests to one
+    xdist worker together, so each model is also compiled once.)"""
+    return {}
+
+
 @pytest.mark.parametrize("method", ["Radau", "Rodas4"])
 @pytest.mark.parametrize("name", ALL)
-def test_whole_runs_match_numpy(name, method):
+def test_whole_runs_match_numpy(name, method, numpy_runs):
     """The step loop in C (Radau IIA 5 or Rodas4, the model's solves inside) against the
     numpy module's own Python step loop (Radau: the numpy Rodas4 needs ~100x the steps of
     the C one on the gear's time-dependent drive, which makes it too slow for a test), both
@@ -153,7 +173,9 @@ def test_whole_runs_match_numpy(name, method):
     t_eval = np.linspace(0, T, 21)
     kw = dict(t_eval=t_eval, rtol=1e-10, atol=1e-12)
     _, xc, yc = cm.simulate((0, T), method=method, **kw)
-    _, xn, _ = npm.simulate((0, T), method="Radau", **kw)
+    if name not in numpy_runs:  # (the same run for either C method)
+        numpy_runs[name] = npm.simulate((0, T), method="Radau", **kw).x
+    xn = numpy_runs[name]
     scale = np.max(np.abs(xn), axis=1, keepdims=True) + 1e-3
     assert np.all(np.abs(xc - xn) <= 1e-6 * scale), np.max(np.abs(xc - xn) / scale)
     assert all(np.all(np.isfinite(v)) for v in yc.values())
@@ -234,26 +256,31 @@ def test_fmu_export_carries_numeric_solves():
     assert ", NULL)) return 1;" in files["bgc_fmu_model.c"]
 
 
-def test_cli_simulate_backend_c_runs_a_newton_loop_in_c(tmp_path):
+def test_cli_simulate_backend_c_runs_a_newton_loop_in_c(tmp_path, monkeypatch):
     """`bgc simulate --backend c` on a scene whose model has a nonlinear algebraic loop: the
-    C backend runs it (no fallback to numpy) and agrees with the numpy backend."""
-    import os
-    import subprocess
-    import sys
+    C backend runs it (no fallback to numpy) and agrees with the numpy backend.
+
+    The command line in-process (click's runner: two `bgc` processes spent seconds of CPU
+    in imports alone), through a cache of its own that starts with the C runtime's objects
+    (conftest's seed_c_runtime): the scene's entries start empty, so both are compiled here."""
+    from click.testing import CliRunner
+    from conftest import seed_c_runtime
+
+    from bgc.cli.commands import main
 
     text, _ = _text("loop_cubic")
     (tmp_path / "loop.yaml").write_text(text)
     (tmp_path / "scene.yaml").write_text(
         "bgc_scene: 1\nmodel: loop.yaml\nduration: 3.0\nparameters: {R2: 1500.0}\n"
         "outputs: [v_C, v_node]\nsolver: {method: Radau, rtol: 1.0e-9, atol: 1.0e-12, dt: 0.1}\n")
-    env = {**os.environ, "BGC_CACHE_DIR": str(tmp_path / "cache")}
+    monkeypatch.setenv("BGC_CACHE_DIR", str(seed_c_runtime(tmp_path / "cache")))
     runs = {}
     for backend in ("c", "numpy"):
         out = tmp_path / f"{backend}.npz"
-        p = subprocess.run([sys.executable, "-m", "bgc", "simulate", str(tmp_path / "scene.yaml"),
-                            "--backend", backend, "--out", str(out)], capture_output=True,
-                           text=True, env=env, timeout=600)
-        assert p.returncode == 0, p.stderr
+        p = CliRunner().invoke(main, ["simulate", str(tmp_path / "scene.yaml"), "--backend",
+                                      backend, "--out", str(out)], prog_name="bgc")
+        assert p.exit_code == 0, (p.stderr, p.exception)
+        assert p.exception is None or isinstance(p.exception, SystemExit), p.exception
         assert f"({backend} backend)" in p.stdout and "using the numpy backend" not in p.stderr
         runs[backend] = np.load(out)
     for o in ("v_C", "v_node"):
@@ -270,13 +297,16 @@ def test_solves_across_parts(name, monkeypatch):
 
     monkeypatch.setattr(emit_c, "PART_LINES", 3)
     text, fname = _text(name)
-    c = compile_model(parse_text(text, fname), symbolic_max=0)
+    c = _compiled(name)  # (the pair's compile: the parts are the C printer's)
     files, _ = backends.c_files(c)
     parts = [t for f, t in files.items() if f.startswith("model_part")]
     assert any("const double *const" in t and "= bgc_w + " in t for t in parts)  # imported
     assert any("double *const" in t for t in parts)  # a solve written to the scratch array
     npm = load_module(c.source, f"parts_{name}_np")
-    _, cm = backends.load(f"parts_{name}_c", "c", None, lambda: c, None)
+    # built through the session's cache (its C runtime's objects built once), under a key of
+    # its own: a library of 3-line parts
+    _, cm = backends.load(f"parts_{name}_c", "c", _key(f"{name}:PART_LINES=3", text, fname),
+                          lambda: c, cache_mod.Cache())
     rng = np.random.default_rng(2)
     x0 = np.asarray(npm.X0, float)
     for _ in range(3):

@@ -193,14 +193,18 @@ def _c_ready():
 def test_c_backend_tables_against_independent_formulas_and_numpy(tmp_path, monkeypatch):
     """The C module's table inputs (linear, pchip, previous; held outside) against the same
     independent formulas as the numpy module above, and its runs (the step loop in C, the
-    knots of linear and previous tables as breakpoints) against the numpy module's.
+    knots of linear and previous tables as breakpoints) against the numpy module's in
+    scipy's Radau.
 
     Built through a compile cache of the test's own that starts with the C runtime's objects
     (conftest's seed_c_runtime; uncached, each of the three builds compiled the runtime
-    again): each scene's entries start empty, so every module is compiled here."""
+    again): each scene's entries start empty, so every module is compiled here. The numpy
+    module is printed from the C build's own compile (as bgc.run.driver.build's numpy twin
+    of a C module), not compiled a second time."""
     from scipy.interpolate import PchipInterpolator
 
-    from bgc.run.runner import scene_module
+    from bgc.backends.load import load_module
+    from bgc.run.driver import build
 
     monkeypatch.setenv("BGC_CACHE_DIR", str(seed_c_runtime(tmp_path / "cache")))
     csv = _csv(tmp_path, KNOTS)
@@ -210,9 +214,10 @@ def test_c_backend_tables_against_independent_formulas_and_numpy(tmp_path, monke
     for interp in ("linear", "pchip", "previous"):
         sc = parse_scene(_scene(tmp_path, f"{{table: {csv}, columns: [time, height], "
                                           f"interp: {interp}}}", name=f"c_{interp}.yaml"))
-        backend, cm = scene_module(sc, None, "c")
-        _, npm = scene_module(sc, None, "numpy")
-        assert backend == "c" and cm.C_LIBRARY
+        b = build(scene=sc, backend="c")
+        cm = b.module
+        assert b.backend == "c" and cm.C_LIBRARY and b.compiled is not None
+        npm = load_module(b.compiled.source, f"c_table_{interp}_numpy")
         if interp == "linear":
             i = np.clip(np.searchsorted(tk, tc) - 1, 0, len(tk) - 2)
             want = vk[i] + (vk[i + 1] - vk[i]) * (tc - tk[i]) / (tk[i + 1] - tk[i])
@@ -221,10 +226,13 @@ def test_c_backend_tables_against_independent_formulas_and_numpy(tmp_path, monke
         else:
             want = np.array([vk[np.nonzero(tk <= s)[0][-1]] for s in tc])
         np.testing.assert_allclose(_road(cm, tq), want, atol=1e-15, err_msg=interp)
+        # both C methods against one run of the numpy module in scipy's Radau (which shares
+        # no code with the C runtime), at the same tolerances
+        kw = dict(dt=0.05, rtol=1e-9, atol=1e-12)
+        xn = npm.simulate((0, 2), method="Radau", **kw).x
+        scale = np.max(np.abs(xn), axis=1, keepdims=True)
         for method in ("Radau", "Rodas4"):
-            kw = dict(dt=0.05, method=method, rtol=1e-9, atol=1e-12)
-            xc, xn = cm.simulate((0, 2), **kw).x, npm.simulate((0, 2), **kw).x
-            scale = np.max(np.abs(xn), axis=1, keepdims=True)
+            xc = cm.simulate((0, 2), method=method, **kw).x
             assert np.max(np.abs(xc - xn) / scale) < 1e-5, (interp, method)
 
 
