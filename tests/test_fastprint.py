@@ -139,7 +139,7 @@ def test_renamed_prints_what_the_replaced_expression_means():
             assert fast.doprint(X[1]) == "_w[9]"
         assert fast.doprint(X[0] + X[1]) == BgcPrinter().doprint(X[0] + X[1])
         with np.errstate(all="ignore"):
-            got = eval(text, env)  # noqa: S307 - bgc's own text of a random expression
+            got = eval(text, env)
         assert np.isclose(got, want.real, rtol=1e-12, atol=1e-12), (e, text)
         checked += 1
     assert checked > 60

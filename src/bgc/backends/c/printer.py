@@ -35,8 +35,8 @@ from bgc.backends.c.cexpr import (  # noqa: F401 (the C text helpers, as printer
 )
 from bgc.backends.c.events import c_events, event_parts
 from bgc.backends.c.parts import PART_LINES, UNIT_PARTS, PartContext, cut_parts
-from bgc.backends.numpy.printer import comment as py_comment
 from bgc.backends.numpy.printer import TemplateBytecode, lit, template_loader
+from bgc.backends.numpy.printer import comment as py_comment
 from bgc.backends.skeleton import WRAPPER_MARK, binding_source, check_wrapper  # noqa: F401
 from bgc.base import __version__
 from bgc.base.paths import templates_dir
