@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import seed_c_runtime
+from conftest import bgc_in_process, seed_c_runtime
 
 from bgc.backends import load as backends
 from bgc.backends.c import build as cbuild
@@ -301,19 +301,6 @@ def test_without_a_compiler_simulate_falls_back_to_numpy(tmp_path):
     assert out.is_file()
 
 
-def _bgc_here(*args):
-    """``bgc args...`` in this process (click's runner): for what the command says and
-    writes, not how its process ends (the tests above run real processes for those, and with
-    another CC: the compiler's facts are kept per process). Returns the click Result."""
-    from click.testing import CliRunner
-
-    from bgc.cli.commands import main
-
-    r = CliRunner().invoke(main, [str(a) for a in args], prog_name="bgc")
-    assert r.exception is None or isinstance(r.exception, SystemExit), (r.exception, r.stderr)
-    return r
-
-
 @needs_cc
 @needs_runtime
 def test_simulate_defaults_to_c_where_a_compiler_works(tmp_path, monkeypatch):
@@ -322,14 +309,14 @@ def test_simulate_defaults_to_c_where_a_compiler_works(tmp_path, monkeypatch):
     # runtime objects built
     monkeypatch.setenv("BGC_CACHE_DIR", str(seed_c_runtime(tmp_path / "cache")))
     scene = str(ROOT / "models/scenes/msd_step.yaml")
-    p = _bgc_here("simulate", scene, "--out", str(tmp_path / "c.npz"))
-    assert p.exit_code == 0, p.stderr
+    p = bgc_in_process("simulate", scene, "--out", str(tmp_path / "c.npz"))
+    assert p.returncode == 0, p.stderr
     assert "(c backend; default: a C compiler works)" in p.stdout
-    q = _bgc_here("simulate", scene, "--method", "BDF")
-    assert q.exit_code == 0, q.stderr
+    q = bgc_in_process("simulate", scene, "--method", "BDF")
+    assert q.returncode == 0, q.stderr
     assert "(numpy backend; default: BDF has no C step loop)" in q.stdout
-    r = _bgc_here("simulate", scene, "--backend", "numpy", "--out", str(tmp_path / "n.npz"))
-    assert r.exit_code == 0 and "(numpy backend)" in r.stdout, r.stderr
+    r = bgc_in_process("simulate", scene, "--backend", "numpy", "--out", str(tmp_path / "n.npz"))
+    assert r.returncode == 0 and "(numpy backend)" in r.stdout, r.stderr
     a, b = np.load(tmp_path / "c.npz"), np.load(tmp_path / "n.npz")
     assert np.max(np.abs(a["position"] - b["position"])) < 1e-5 * np.max(np.abs(b["position"]))
 
@@ -388,11 +375,11 @@ def test_simulate_backend_c_agrees_with_numpy(tmp_path, monkeypatch):
     # runtime objects built
     monkeypatch.setenv("BGC_CACHE_DIR", str(seed_c_runtime(tmp_path / "cache")))
     scene = str(ROOT / "models/scenes/msd_step.yaml")
-    a = _bgc_here("simulate", scene, "--backend", "c", "--out", str(tmp_path / "c.npz"),
+    a = bgc_in_process("simulate", scene, "--backend", "c", "--out", str(tmp_path / "c.npz"),
                   "--rtol", "1e-9", "--atol", "1e-12")
-    b = _bgc_here("simulate", scene, "--backend", "numpy", "--out", str(tmp_path / "n.npz"),
+    b = bgc_in_process("simulate", scene, "--backend", "numpy", "--out", str(tmp_path / "n.npz"),
                   "--rtol", "1e-9", "--atol", "1e-12")
-    assert a.exit_code == 0 and b.exit_code == 0, a.stderr + b.stderr
+    assert a.returncode == 0 and b.returncode == 0, a.stderr + b.stderr
     assert "(c backend)" in a.stdout and "atol=1e-12" in a.stdout and "compile" in a.stdout
     ra, rb = np.load(tmp_path / "c.npz"), np.load(tmp_path / "n.npz")
     assert np.allclose(ra["t"], rb["t"])

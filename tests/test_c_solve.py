@@ -260,13 +260,10 @@ def test_cli_simulate_backend_c_runs_a_newton_loop_in_c(tmp_path, monkeypatch):
     """`bgc simulate --backend c` on a scene whose model has a nonlinear algebraic loop: the
     C backend runs it (no fallback to numpy) and agrees with the numpy backend.
 
-    The command line in-process (click's runner: two `bgc` processes spent seconds of CPU
-    in imports alone), through a cache of its own that starts with the C runtime's objects
+    The command line in-process (conftest's bgc_in_process: two `bgc` processes spent seconds
+    of CPU in imports alone), through a cache of its own that starts with the C runtime's objects
     (conftest's seed_c_runtime): the scene's entries start empty, so both are compiled here."""
-    from click.testing import CliRunner
-    from conftest import seed_c_runtime
-
-    from bgc.cli.commands import main
+    from conftest import bgc_in_process, seed_c_runtime
 
     text, _ = _text("loop_cubic")
     (tmp_path / "loop.yaml").write_text(text)
@@ -277,10 +274,9 @@ def test_cli_simulate_backend_c_runs_a_newton_loop_in_c(tmp_path, monkeypatch):
     runs = {}
     for backend in ("c", "numpy"):
         out = tmp_path / f"{backend}.npz"
-        p = CliRunner().invoke(main, ["simulate", str(tmp_path / "scene.yaml"), "--backend",
-                                      backend, "--out", str(out)], prog_name="bgc")
-        assert p.exit_code == 0, (p.stderr, p.exception)
-        assert p.exception is None or isinstance(p.exception, SystemExit), p.exception
+        p = bgc_in_process("simulate", tmp_path / "scene.yaml", "--backend", backend,
+                           "--out", out)
+        assert p.returncode == 0, p.stderr
         assert f"({backend} backend)" in p.stdout and "using the numpy backend" not in p.stderr
         runs[backend] = np.load(out)
     for o in ("v_C", "v_node"):

@@ -141,12 +141,10 @@ def test_project_assembles_the_loop(tmp_path):
     assert abs(th[0] - 1.05) < 0.05  # a nearby pose, not the model's own
     f = tmp_path / "fb.yaml"
     f.write_text(text)
-    from click.testing import CliRunner
+    from conftest import bgc_in_process
 
-    from bgc.cli.commands import main
-
-    out = CliRunner().invoke(main, ["check", str(f)], prog_name="bgc")  # in-process
-    assert out.exit_code == 0, (out.stderr, out.exception)
+    out = bgc_in_process("check", str(f))  # in-process
+    assert out.returncode == 0, out.stderr
     note = next(x for x in out.stdout.splitlines() if "initial positions projected" in x)
     assert "crank.th 1.05 -> " in note and "coupler.th" in note and "rocker.th" in note
 
@@ -212,12 +210,10 @@ def test_initial_option_is_validated():
 
 
 def test_numerically_redundant_constraint_is_reported():
-    from click.testing import CliRunner
+    from conftest import bgc_in_process
 
-    from bgc.cli.commands import main
-
-    out = CliRunner().invoke(main, ["check", str(PARALLELOGRAM)], prog_name="bgc")  # in-process
-    assert out.exit_code == 0, (out.stderr, out.exception)
+    out = bgc_in_process("check", str(PARALLELOGRAM))  # in-process
+    assert out.returncode == 0, out.stderr
     line = next(x for x in out.stdout.splitlines() if "redundant constraint components" in x)
     assert line.count(".q[") == 1  # 12 degrees of freedom, 12 components, mobility 1
 

@@ -106,12 +106,10 @@ def test_check_reports_the_out_of_plane_components():
     all out of the plane. The locks are kept from the ground outwards (r1, r2, r3 fix every
     rod's rotations about X and Z), so the lock that closes the chain of locks (r4, at O2)
     adds nothing, and neither does the pin's component along the joint axis Y."""
-    from click.testing import CliRunner
+    from conftest import bgc_in_process
 
-    from bgc.cli.commands import main
-
-    out = CliRunner().invoke(main, ["check", str(MODEL)], prog_name="bgc")  # in-process
-    assert out.exit_code == 0, (out.stderr, out.exception)
+    out = bgc_in_process("check", str(MODEL))  # in-process
+    assert out.returncode == 0, out.stderr
     text = out.stdout
     pin = re.search(r"constraint: Sf (pivot\d) ", text).group(1)
     comps = {src: n for src, n in re.findall(r"constraint: Sf (\S+) .*?, (\d) component", text)}

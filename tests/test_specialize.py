@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import bgc_in_process
 
 from bgc.backends.load import load_module
 from bgc.base.errors import Coord, ModelError
@@ -400,23 +401,11 @@ def bgc(*args):
                           text=True, timeout=600)
 
 
-def bgc_here(*args):
-    """``bgc args...`` in this process (click's runner): for what a command writes and says
-    (the tests above run real processes for their exit status and what is left on disk)."""
-    from click.testing import CliRunner
-
-    from bgc.cli.commands import main
-
-    r = CliRunner().invoke(main, [str(a) for a in args], prog_name="bgc")
-    assert r.exception is None or isinstance(r.exception, SystemExit), (r.exception, r.stderr)
-    return r
-
-
 def test_cli_compile_with_scene_writes_the_specialised_module(tmp_path):
     out = tmp_path / "m.py"
-    r = bgc_here("compile", "-q", MOTOR, "--scene", SCENES / "motor_load_motion_cold.yaml",
+    r = bgc_in_process("compile", "-q", MOTOR, "--scene", SCENES / "motor_load_motion_cold.yaml",
                  "-o", out)
-    assert r.exit_code == 0, r.stderr
+    assert r.returncode == 0, r.stderr
     text = out.read_text()
     assert "effects off: thermal" in text and "'C_wind.q'" not in text
     mod = load_module(text, "cli_cold")
@@ -442,8 +431,8 @@ def test_cli_unproducible_output_exit_2_nothing_written(tmp_path):
 
 
 def test_cli_explain(tmp_path):
-    r = bgc_here("explain", "-q", "--rounds", "2", SCENES / "motor_load_motion_cold.yaml")
-    assert r.exit_code == 0, r.stderr
+    r = bgc_in_process("explain", "-q", "--rounds", "2", SCENES / "motor_load_motion_cold.yaml")
+    assert r.returncode == 0, r.stderr
     lines = r.stdout.splitlines()
     row = next(x for x in lines if x.strip().startswith("states "))
     assert row.split()[1:3] == ["8", "5"]
