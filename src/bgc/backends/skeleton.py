@@ -190,8 +190,9 @@ def _check_skeleton(text: str, backend: str) -> dict[str, tuple[int, int]]:
 # is checked again whole, so only the whole tree refuses a text. A text with a carriage
 # return or a NUL byte is parsed whole. Runs of a literal's integer items (_LITERAL) are
 # given as one item; :func:`_opens` and :func:`_block_end` keep runs out of brackets and
-# blocks they would cut (guesses that only spare the second parse). (The 3R2S's model part: a tree of 0.3 s,
-# against 0.05 s for the scan and a tree without its equations.) What the check does not
+# blocks they would cut (guesses that only spare the second parse). (The 3R2S's model part:
+# a tree of 0.3 s, against 0.05 s for the scan and a tree without its equations.) What the
+# check does not
 # do, before as now, is look into a function's body: a syntax error there is the compile's.
 
 #: a plain line: spaces, code without quotes, backslashes, tabs or other line breaks, and
@@ -200,13 +201,17 @@ _PLAIN = re.compile(r"( +)([^'\"\\#\t\f\v\x00\r]*)(#[^\f\v\x00\r]*)?\Z")
 _BRACKETS = re.compile(r"[()\[\]{}]")
 _CLOSE = {")": "(", "]": "[", "}": "{"}
 #: a line of a literal's items: a list of integers on one line (as Python writes them), or
-#: numpy's array of one, and a comma (a run of such items is valid wherever ``0,`` is) (the index tables ``_IX`` and JAC_SPARSITY's pattern: a link chain of 9,996
-#: states has 5.5 MB of them, a parse of 5.6 s). A run of two or more such lines after a
-#: line that opens a bracket is given to the parser as one item, ``0,``: nothing but integers
+#: numpy's array of one, and a comma; _LAST_ITEM: the same without the comma. The index tables
+#: ``_IX`` and JAC_SPARSITY's pattern are such lines (a link chain of 9,996 states: 5.5 MB, a
+#: parse of 5.6 s). Two or more of them after a line that opens a bracket are given to the
+#: parser as one item, ``0,`` (the last one's comma may be left out where the bracket closes
+#: on the next line): a run of such items is valid wherever ``0,`` is, nothing but integers
 #: can be in it, and the statement around it is the same statement.
 _INT = r"-?(?:0|[1-9][0-9]*)"
 _INTS = rf"\[(?:{_INT}(?:, {_INT})*(?:, )?)?\]"
-_LITERAL = re.compile(rf" +(?:{_INTS}|np\.array\({_INTS}, dtype=np\.intp\)),\Z")
+_ITEM = rf" +(?:{_INTS}|np\.array\({_INTS}, dtype=np\.intp\))"
+_LITERAL = re.compile(_ITEM + r",\Z")
+_LAST_ITEM = re.compile(_ITEM + r"\Z")
 #: the fewest lines in a row left to the scan (fewer are parsed as they are)
 MIN_PLAIN_RUN = 50
 
@@ -240,9 +245,9 @@ def _plain_runs_passed(head: str) -> tuple[str, list[tuple[int, int]]]:
             j = i + 1
             while j < n and _LITERAL.match(lines[j]):
                 j += 1
-            if j + 1 < n and _LITERAL.match(lines[j] + ",") and lines[j + 1][:1] in _CLOSE:
+            if j + 1 < n and _LAST_ITEM.match(lines[j]) and lines[j + 1][:1] in _CLOSE:
                 j += 1  # the last item, its bracket closed on the next line: ``0,`` there too
-            if j - i > 1:  # a literal's items: one item at the first line's indentation
+            if j - i > 1:  # a literal's items: one item (inside brackets, any indentation)
                 lines[i:j] = [""] * (j - i)
                 lines[i] = "    0,"
                 runs.append((i + 1, j))
@@ -286,12 +291,16 @@ def _block_end(lines: list, first: tuple, j: int, last: int) -> tuple[int, int]:
     nxt = lines[j] if j < len(lines) else ""
     if not nxt.strip() or len(nxt) - len(nxt.lstrip(" ")) <= first[1]:
         return j, last
+    header = None  # the run's last statement at its own indentation or less
     for k in range(last, first[0], -1):
         ln = lines[k]
-        if _has_code(ln) and len(ln) - len(ln.lstrip(" ")) <= first[1]:
-            code = [m for m in range(first[0], k) if _has_code(lines[m])]
-            return k, (code[-1] if code else first[0])
-    return first[0], first[0]  # nothing to pass (no line before the header): not used
+        if not _has_code(ln):
+            continue
+        if header is not None:
+            return header, k  # the run ends before it; its last code line is k
+        if len(ln) - len(ln.lstrip(" ")) <= first[1]:
+            header = k
+    return (header, first[0]) if header is not None else (first[0], first[0])
 
 
 def _has_code(line: str) -> bool:

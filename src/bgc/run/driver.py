@@ -171,8 +171,9 @@ def compile_model(model: Model, progress=None, plan: Plan | None = None,
     """Compile a model, specialised to a scene's plan (effects, folded parameters, outputs).
 
     A plan that changes nothing gives exactly the module of the model alone (with the same
-    ``linear``). Storage elements in derivative causality are eliminated (their states follow from the others) unless
-    ``strict_causality`` or the model's ``causality: strict`` asks for today's error.
+    ``linear``). Storage elements in derivative causality are eliminated (their states follow
+    from the others) unless ``strict_causality`` or the model's ``causality: strict`` asks for
+    today's error.
     ``target``: "numpy" prints the numpy module (stage 7); any other target leaves it to be
     printed on demand (:attr:`Compiled.source`), and the linearisation's B, C, D unlowered.
     ``graph``: the model's bond graph, when the caller built it already (stage 2).
