@@ -78,3 +78,11 @@ def test_random_expressions_print_faithfully(expr):
     ref = _reference(expr)
     assume(math.isfinite(ref) and abs(ref) < 1e12)
     _agree(expr)
+
+
+@pytest.mark.parametrize("expr", [
+    sp.sqrt(545886860014552054364993611) / 531441,  # hypothesis found it: an int past int64
+    X * 2**60 + 3, -sp.Integer(2)**70 / (Y + 1),
+])
+def test_integers_past_a_double_s_exact_range_print_as_doubles(expr):
+    assert "e+" in _agree(expr)

@@ -302,3 +302,16 @@ def _signed_factors(expr) -> tuple[str, tuple]:
         return "-", (neg, first)  # neg*first: a number times a symbol or its power
     c, e = expr.as_coeff_Mul()
     return "-", Mul.make_args(_keep_coeff(-c, e))
+
+
+def integer_text(n: int) -> str:
+    """An integer constant's text: as it is up to 2**53 (exact in a double), else the double
+    the arithmetic would round it to anyway (a Python int past int64 makes numpy fall back to
+    object arrays, and a C literal past it does not compile: sqrt(545886860014552054364993611)
+    printed so failed to evaluate)."""
+    if abs(n) <= 2**53:
+        return str(n)
+    try:
+        return repr(float(n))
+    except OverflowError:
+        raise ValueError(f"integer constant {n} is beyond a double's range") from None

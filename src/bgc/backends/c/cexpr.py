@@ -8,7 +8,7 @@ import sympy as sp
 from sympy.printing.c import C99CodePrinter
 from sympy.printing.precedence import PRECEDENCE
 
-from bgc.backends.fastprint import FastPrinting
+from bgc.backends.fastprint import FastPrinting, integer_text
 
 _C_KEYWORDS = frozenset("""auto break case char const continue default do double else enum extern
 float for goto if inline int long register restrict return short signed sizeof static struct
@@ -103,7 +103,7 @@ class CPrinter(FastPrinting, C99CodePrinter):
         return f"({float(expr.p)!r}/{float(expr.q)!r})"
 
     def _print_Integer(self, expr):
-        return str(int(expr))
+        return integer_text(int(expr))
 
     def _print_NumberSymbol(self, expr):
         return repr(float(expr))

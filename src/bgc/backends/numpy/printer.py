@@ -20,7 +20,7 @@ import jinja2
 import sympy as sp
 from sympy.printing.numpy import NumPyPrinter
 
-from bgc.backends.fastprint import FastPrinting
+from bgc.backends.fastprint import FastPrinting, integer_text
 from bgc.backends.numpy.events import events_part
 from bgc.backends.numpy.rolled import Tables, rolled_function
 from bgc.backends.skeleton import (  # noqa: F401 (re-exported)
@@ -207,6 +207,10 @@ class BgcPrinter(FastPrinting, NumPyPrinter):
 
     def _print_Float(self, expr):
         return repr(float(expr))
+
+    def _print_Integer(self, expr):
+        return integer_text(int(expr))
+
 
 
 @dataclass(frozen=True)
