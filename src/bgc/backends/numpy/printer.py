@@ -212,7 +212,6 @@ class BgcPrinter(FastPrinting, NumPyPrinter):
         return integer_text(int(expr))
 
 
-
 @dataclass(frozen=True)
 class Line:
     target: str
