@@ -341,6 +341,48 @@ def client():
     sweep.close_client(c)
 
 
+def test_local_workers_drop_only_a_closing_workers_broken_connection(client):
+    """The CI failure of 6371dfb: a worker's heartbeat, in flight while that worker closed its
+    own connections, printed distributed's traceback at the end of `bgc sweep`. Each worker of
+    bgc's local cluster carries the filter; it drops that record while the worker closes and
+    keeps every record of a running worker."""
+    import logging
+
+    from distributed.comm.core import CommClosedError
+    from distributed.core import Status
+
+    from bgc.studies.quiet_close import ClosingCommFilter
+
+    names = client.run(lambda: [type(f).__name__
+                                for f in logging.getLogger("distributed.worker").filters])
+    assert len(names) == 2 and all("ClosingCommFilter" in v for v in names.values()), names
+
+    class W:
+        status = Status.running
+
+    def record(exc):
+        try:
+            raise exc
+        except Exception:
+            import sys
+            info = sys.exc_info()
+        return logging.LogRecord("distributed.worker", logging.ERROR, __file__, 1,
+                                 "Failed to communicate with scheduler during heartbeat.",
+                                 None, info)
+
+    w = W()
+    f = ClosingCommFilter(w)
+    broken = record(CommClosedError("in <TCP (closed) ConnectionPool.heartbeat_worker>"))
+    assert f.filter(broken)  # running: a broken connection is news
+    for s in (Status.closing, Status.closed, Status.closing_gracefully):
+        w.status = s
+        assert not f.filter(broken), s
+        assert f.filter(record(ValueError("a real error")))  # only broken connections go
+        plain = logging.LogRecord("distributed.worker", logging.INFO, __file__, 1, "x", None,
+                                  None)
+        assert f.filter(plain)
+
+
 def _alone(tmp_path, m, k, tag):
     """The same scene with the sample's values, run alone by bgc simulate's runner."""
     from bgc.run.runner import run_scene
