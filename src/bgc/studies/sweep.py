@@ -420,7 +420,7 @@ def client_for(scheduler=None, workers=None):
                                    processes=True, dashboard_address=None)
         client = Client(cluster)
         client.bgc_cluster = cluster
-        from bgc.studies.quiet_close import QuietWorkerClose
+        from bgc.studies.quiet_close import QuietWorkerClose  # imports distributed
         client.register_plugin(QuietWorkerClose(), name="bgc-quiet-close")
         return client
     client = Client(scheduler)
