@@ -147,16 +147,38 @@ _REFERENCE: list | None = None
 
 
 def warm() -> None:
-    """Import what the commands import, once, in the parent: every child starts warm."""
+    """Import what the commands import, once, in the parent, and compile the numpy module's
+    template there: every child starts warm (a child that imports the printer, the equation
+    builders, symengine and jinja and compiles the template itself spends more on them than
+    on the case; nothing a case computes is made here: no model, no result)."""
     import importlib
 
-    for name in ("bgc.cli.commands", "bgc.run.driver", "bgc.run.runner", "bgc.format.scene", "bgc.core.draw",
-                 "bgc.run.plots", "bgc.studies.accuracy", "scipy.integrate", "scipy.sparse",
-                 "scipy.sparse.linalg", "scipy.linalg", "matplotlib.pyplot"):
+    for name in ("bgc.cli.commands", "bgc.run.driver", "bgc.run.runner", "bgc.format.scene",
+                 "bgc.core.draw", "bgc.run.plots", "bgc.studies.accuracy",
+                 # what a compile imports lazily (driver -> equations -> printer)
+                 "bgc.core.equations", "bgc.core.fastsym", "bgc.core.modes", "bgc.lower",
+                 "bgc.backends.numpy.printer", "bgc.backends.skeleton", "symengine", "jinja2",
+                 # and a simulate on the C backend
+                 "bgc.backends.c.printer", "bgc.core.specialize", "bgc.run.record",
+                 "sympy.printing.c", "sympy.codegen.cfunctions", "sympy.combinatorics",
+                 "sympy.tensor.tensor", "sympy.sets.setexpr", "concurrent.futures.thread",
+                 "scipy.integrate", "scipy.sparse", "scipy.sparse.linalg", "scipy.linalg",
+                 "matplotlib.pyplot"):
         try:
             importlib.import_module(name)
         except Exception:  # noqa: BLE001 - a child will report it
             pass
+    try:  # the templates, compiled once (jinja's environment keeps them; a child finds them)
+        from bgc.backends.c import printer as c_printer
+        from bgc.backends.numpy import printer as np_printer
+
+        np_printer._environment().get_template(f"{np_printer._TEMPLATES}/module.py.j2")
+        env = c_printer.template_env()
+        for name in ("c/model.c.j2", "c/part.c.j2", "c/tables.c.j2", "c/newton.c.j2",
+                     "c/wrapper.py.j2"):
+            env.get_template(name)
+    except Exception:  # noqa: BLE001 - a child will report it
+        pass
 
 
 def reference_models() -> list[Path]:
