@@ -9,13 +9,12 @@ deflection (the run of the model alone must settle there).
 from __future__ import annotations
 
 import os
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import seed_c_runtime
+from conftest import bgc_in_process, seed_c_runtime
 
 from bgc.backends.c import build as cbuild
 from bgc.format.scene import MODEL_T_END, is_model_file, model_scene, parse_scene
@@ -25,14 +24,14 @@ MODELS = sorted((ROOT / "models").glob("*.yaml"))
 HAS_C = cbuild.available() and bool(cbuild.runtime_sources())
 
 
-def _bgc(*args, cache_dir, timeout=600):
+def _bgc(*args, cache_dir):
+    """``bgc ARGS`` in this process (conftest's bgc_in_process: the same entry as ``python -m
+    bgc``, the run-record replay included; the properties here are the runs', not the
+    process's), with its own cache and the system compiler's PATH."""
     if not os.path.lexists(cache_dir):  # a fresh cache: the C runtime's objects built (the
         seed_c_runtime(cache_dir)        # tests here are about the runs, not that build)
-    env = {"BGC_CACHE_DIR": str(cache_dir), "PYTHONPATH": str(ROOT / "src"),
-           "PATH": "/usr/bin:/bin"}
-    env = {**os.environ, **env}
-    return subprocess.run([sys.executable, "-m", "bgc", *map(str, args)], capture_output=True,
-                          text=True, env=env, timeout=timeout, cwd=ROOT)
+    return bgc_in_process(*args, env={"BGC_CACHE_DIR": str(cache_dir), "PATH": "/usr/bin:/bin"},
+                          cwd=ROOT)
 
 
 def _scene(tmp_path, solver: str, model="msd.yaml") -> Path:

@@ -9,8 +9,6 @@ measurably different, so the comparison can fail.
 from __future__ import annotations
 
 import dataclasses
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -189,11 +187,12 @@ def test_slicing_keeps_thermal_states_only_when_they_feed_back(tmp_path, motor):
     sc = motor_scene(tmp_path, want, "d")
     full0, full = run(full_mod, sc, p={"alpha": 0.0}), run(full_mod, sc)
     kw = dict(rtol=sc.rtol, atol=sc.atol)
-    compare(const, full_mod, run(const, sc), full0, full, **kw)
+    r_const = run(const, sc)
+    compare(const, full_mod, r_const, full0, full, **kw)
     compare(hot, full_mod, run(hot, sc), full, full0, **kw)
     # alpha reads a temperature that is gone with the thermal effect: it acts no more
     compare(cold, full_mod, run(cold, sc, p={"alpha": 1.0}), full0, full, **kw)
-    y_const = run(const, sc).y
+    y_const = r_const.y
     # and the constant-resistance steady state is the closed form
     P = full_mod.PARAM_DEFAULTS
     K, R, N, TL = P["K"], P["R_a"], P["N"], P["tau_L"]
@@ -397,8 +396,9 @@ def test_scene_mistakes_are_located(tmp_path, body, line, col, msg):
 
 
 def bgc(*args):
-    return subprocess.run([sys.executable, "-m", "bgc", *map(str, args)], capture_output=True,
-                          text=True, timeout=600)
+    """``bgc ARGS`` in this process (what ``python -m bgc`` runs: its exit status, stdout and
+    stderr; these tests are about the messages and what is written, not the process)."""
+    return bgc_in_process(*args)
 
 
 def test_cli_compile_with_scene_writes_the_specialised_module(tmp_path):
