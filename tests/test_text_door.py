@@ -61,16 +61,21 @@ def _hostile_model(tmp_path: Path, field: str, text: str) -> Path:
     return out
 
 
-def _import_isolated(module_file: Path) -> subprocess.CompletedProcess:
-    code = ("import importlib.util as u, sys; s = u.spec_from_file_location('m', sys.argv[1]); "
-            "m = u.module_from_spec(s); s.loader.exec_module(m); print(len(m.STATE_NAMES))")
-    return subprocess.run([sys.executable, "-I", "-c", code, str(module_file)],
-                          capture_output=True, text=True, timeout=60)
+def _import_isolated(canary: Path, module_files: list) -> subprocess.CompletedProcess:
+    """Each module imported, one after another, in one separate isolated Python process:
+    after each, a line with its number of states and whether the canary exists."""
+    code = ("import importlib.util as u, os, sys\n"
+            "for k, f in enumerate(sys.argv[2:]):\n"
+            "    s = u.spec_from_file_location(f'm{k}', f); m = u.module_from_spec(s)\n"
+            "    s.loader.exec_module(m); print(len(m.STATE_NAMES), os.path.exists(sys.argv[1]))\n")
+    argv = [sys.executable, "-I", "-c", code, str(canary), *map(str, module_files)]
+    return subprocess.run(argv, capture_output=True, text=True, timeout=60)
 
 
 @pytest.mark.parametrize("field", ["description", "unit", "param_description"])
 def test_free_text_never_runs(tmp_path, field):
     canary = tmp_path / "CANARY"
+    written = []
     for k, text in enumerate(_payloads(canary)):
         model = _hostile_model(tmp_path, field, text)
         if field == "unit":  # a unit is parsed (bgc.format.units): hostile text is refused
@@ -83,14 +88,17 @@ def test_free_text_never_runs(tmp_path, field):
         check_skeleton(c.source)
         out = tmp_path / f"m{k}.py"
         out.write_text(c.source, encoding="utf-8")
-        r = _import_isolated(out)
-        assert r.returncode == 0, r.stderr
-        assert r.stdout.strip() == "2"
+        written.append(out)
         assert not canary.exists(), f"payload {k} in {field} ran"
         # and the text survives, exactly, inside the docstring when it is the description
         if field == "description":
             doc = ast.get_docstring(ast.parse(c.source), clean=False)
             assert text in doc
+    if written:  # every module imported in the isolated process, the canary seen after each
+        r = _import_isolated(canary, written)
+        assert r.returncode == 0, r.stderr
+        assert r.stdout.splitlines() == ["2 False"] * len(written), (field, r.stdout)
+        assert not canary.exists(), f"a payload in {field} ran"
 
 
 def test_load_module_from_memory_leaves_nothing(tmp_path, monkeypatch):
