@@ -5,8 +5,6 @@ its equations at solve_ivp's own events."""
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +21,7 @@ G = 9.81
 
 
 from backend_targets import TARGETS, has_cc, private_cache  # noqa: F401 (fixture)
-from conftest import seed_c_runtime
+from conftest import bgc_in_process, seed_c_runtime
 
 
 def ball_height(t, h0, e, g=G):
@@ -258,14 +256,13 @@ def test_cli_summary_counts_events_and_writes_the_log(tmp_path):
     """A full run, then the same command again, which replays the first's run record: each
     prints the summary and writes the same event log. (The full run and the replay were two
     tests before, the replay's test running the full run again first.)"""
-    env = {**os.environ, "PYTHONPATH": str(ROOT / "src"),
-           "BGC_CACHE_DIR": str(seed_c_runtime(tmp_path / "c"))}
+    env = {"BGC_CACHE_DIR": str(seed_c_runtime(tmp_path / "c"))}
     scene = ROOT / "models" / "scenes" / "bouncing_ball.yaml"
     out = tmp_path / "run.npz"
     for run in ("full", "replayed"):  # the second run replays the run record
         out.unlink(missing_ok=True)
-        proc = subprocess.run([sys.executable, "-m", "bgc", "simulate", str(scene), "--out",
-                               str(out)], capture_output=True, text=True, env=env, timeout=300)
+        # in this process: what `python -m bgc` runs, its replay included (conftest)
+        proc = bgc_in_process("simulate", scene, "--out", out, env=env)
         assert proc.returncode == 0, proc.stderr
         assert "LU, 6 events;" in proc.stdout
         assert ("run record" in proc.stdout + proc.stderr) == (run == "replayed"), run
