@@ -144,20 +144,22 @@ _REFERENCES: dict = {}
 # steps, each without a Newton iteration or an LU. Measured on the numpy modules over the
 # spans below (steps, DOP853 against Radau): msd 45 against 1,872, rlc 223 against 3,531,
 # quarter_car 140 against 3,341, the rectifier 356 against 1,834 (7.7 s against 31.9 s of a
-# loaded machine), two_mass_chain 2,619 against 4,086, the rigid 3R2S 52 against 974 (12.5 s
-# against 60 s); the two references differ by at most 7e-4 of the bound the test holds the C
-# runs to (dc_motor; motor_thermal 1.4e-4, two_mass_chain 1e-4, the rest below 3e-5). The
-# stiff ones need many more explicit steps than Radau (the compliant 3R2S's DOP853 run blows
-# up); of those, _LSODA's go to scipy's LSODA (ODEPACK's Adams and BDF methods, switched by
-# stiffness: its step loop is compiled, one rhs call per Newton iteration), which meets
-# rtol 1e-11 in less time than Radau there: the compliant 3R2S 7,991 steps and 15,253 calls against Radau's
-# 8,935 and 62,782 (33 s against 154 s, loaded), the compliant four-bar 4.0 s against 14.3 s,
-# the references 2e-3 and 7e-5 of the bound apart. The rest (van_der_pol, the ideal
-# rectifier: LSODA no faster) stay on Radau, and a new model starts there.
+# loaded machine), the rigid 3R2S 52 against 974 (12.5 s against 60 s); the two references
+# differ by at most 7e-4 of the bound the test holds the C runs to (dc_motor; motor_thermal
+# 1.4e-4, the rest below 3e-5). two_mass_chain stays on Radau: its fastest mode (1.4e4 1/s)
+# holds DOP853 at its stability limit (2,619 steps against Radau's 4,086, no faster in a
+# suite run). The stiff ones need many more explicit steps than Radau (the compliant 3R2S's
+# DOP853 run blows up); of those, _LSODA's go to scipy's LSODA (ODEPACK's Adams and BDF
+# methods, switched by stiffness: its step loop is compiled, one rhs call per Newton
+# iteration), which meets rtol 1e-11 in less time than Radau there: the compliant 3R2S 7,991
+# steps and 15,253 calls against Radau's 8,935 and 62,782 (33 s against 154 s, loaded), the
+# compliant four-bar 4.0 s against 14.3 s, the references 2e-3 and 7e-5 of the bound apart.
+# The rest (van_der_pol, the ideal rectifier: LSODA no faster) stay on Radau, and a new model
+# starts there.
 _NONSTIFF = {"3r2s_rigid", "algebraic_loop", "dc_motor", "double_pendulum_rigid",
              "fourbar_rigid", "motor_thermal", "msd", "pendulum", "point_mass_3d", "quarter_car",
              "rectifier", "rectifier_pair", "rectifier_switch", "rlc", "stick_slip",
-             "three_rod_rigid", "top", "two_mass_chain"}
+             "three_rod_rigid", "top"}
 _LSODA = {"3r2s", "fourbar_compliant"}
 
 

@@ -224,14 +224,14 @@ def _params(model):
 # The references' integrator: scipy's DOP853 (explicit, order 8) for the models that are not
 # stiff, where it meets rtol 1e-11 in far fewer steps than scipy's Radau (implicit, order 5),
 # each without a Newton iteration or an LU (on the numpy modules, at rtol 1e-11 over 1 s:
-# msd 45 steps against 1,872, rlc 223 against 3,531, point_mass_3d 70 against 2,894,
-# two_mass_chain 2,619 against 4,086); Radau (with finite-difference Jacobians) for the
-# others (van_der_pol is stiff; two_tanks takes a few dozen steps either way, and its
-# orifices' square roots have no finite analytic Jacobian at an empty tank, which DOP853's
-# stiffness check at the start evaluates). Both are scipy's: neither shares code with the
-# FMU's C.
+# msd 45 steps against 1,872, rlc 223 against 3,531, point_mass_3d 70 against 2,894);
+# Radau (with finite-difference Jacobians) for the others: van_der_pol is stiff,
+# two_mass_chain's fastest mode holds DOP853 at its stability limit (no faster than Radau
+# there), two_tanks takes a few dozen steps either way and its orifices' square roots have no
+# finite analytic Jacobian at an empty tank, which DOP853's stiffness check at the start
+# evaluates. Both are scipy's: neither shares code with the FMU's C.
 _NONSTIFF = {"msd", "dc_motor", "algebraic_loop", "motor_thermal", "point_mass_3d", "rlc",
-             "two_mass_chain", "pendulum"}
+             "pendulum"}
 
 
 def _reference(model, t_span, **kw):
