@@ -383,12 +383,20 @@ def test_local_workers_drop_only_a_closing_workers_broken_connection(client):
         assert f.filter(plain)
 
 
+_ALONE: dict = {}
+
+
 def _alone(tmp_path, m, k, tag):
-    """The same scene with the sample's values, run alone by bgc simulate's runner."""
+    """The same scene with the sample's values, run alone by bgc simulate's runner (numpy, the
+    scenes' backend); run once per (m, k) in a worker: both backends' sweeps of the test below
+    sample the same (m, k) and compare with the same runs."""
     from bgc.run.runner import run_scene
 
-    p = _scene(tmp_path, "", name=f"alone_{tag}", params=f"parameters: {{m: {m!r}, k: {k!r}}}")
-    return run_scene(p)
+    if (m, k) not in _ALONE:
+        p = _scene(tmp_path, "", name=f"alone_{tag}",
+                   params=f"parameters: {{m: {m!r}, k: {k!r}}}")
+        _ALONE[m, k] = run_scene(p)
+    return _ALONE[m, k]
 
 
 @pytest.mark.slow
