@@ -102,7 +102,6 @@ def test_batch_matches_single_runs_for_a_sample(batch):
     err = np.max(np.abs(res.x - ex) / tol, axis=(0, 2))  # (N,)
     rng = np.random.default_rng(11)
     sample = sorted(set(rng.choice(N, 3, replace=False)) | set(np.argsort(err)[-2:]))
-    assert len(sample) == 5
     for i in sample:
         single = mod.simulate(SPAN, t_eval=t_eval, method="Radau", rtol=RTOL, atol=ATOL,
                               p={k: float(v[i]) for k, v in p.items()})
