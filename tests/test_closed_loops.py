@@ -172,8 +172,8 @@ def _fourbar_run(m, t_end, rtol, n=501):
 
 @pytest.fixture(scope="module")
 def fourbar_c_run(fourbar_c):
-    """The C four-bar over 5 s at rtol 1e-10 (501 samples): the run both the Kane reference's
-    test and the energy balance's check, made once."""
+    """The C four-bar over 5 s at rtol 1e-10 (501 samples), run once for both the Kane
+    reference's test and the energy balance."""
     return _fourbar_run(fourbar_c, 5.0, 1e-10)
 
 
