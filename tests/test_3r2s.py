@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from reference import mech3r2s as ref  # noqa: E402
 
 from bgc.format.scene import param_values, parse_scene  # noqa: E402
-from bgc.run.runner import compile_scene  # noqa: E402
+from bgc.run.runner import scene_module  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ("circle", "figure8", "gearshift")
@@ -42,10 +42,13 @@ class _Scenes:
         self._runs = {}
 
     def compiled(self, name):
-        """(Scene, module) of a scene: its model compiled with the scene's signals."""
+        """(Scene, module) of a scene: its model compiled with the scene's signals, the numpy
+        module through the session's compile cache (tests/stability compiles the circle scene
+        the same way: one compile for the session)."""
         if name not in self._compiled:
             scene = parse_scene(scene_path(name))
-            _, mod = compile_scene(scene)
+            backend, mod = scene_module(scene, backend="numpy")
+            assert backend == "numpy"
             self._compiled[name] = (scene, mod)
         return self._compiled[name]
 

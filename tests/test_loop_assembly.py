@@ -9,7 +9,6 @@ parallelogram linkage (one degree of freedom: its coupler translates without tur
 """
 from __future__ import annotations
 
-import subprocess
 import sys
 from pathlib import Path
 
@@ -55,31 +54,43 @@ def fourbar_numpy():
     return bgc.compile(str(RIGID))
 
 
-def test_closure_residual_decays_critically_damped(fourbar_numpy):
+DECAY_T = np.array([0.0, 0.02, 0.05, 0.1, 0.2, 0.4])
+
+
+def _off_the_loop(mod, t):
+    """mod's run from its initial state with the crank turned by 1e-5 rad (at rest, so
+    Phi'(0) = 0) over (0, t[-1]), Radau at rtol 1e-11: the loop's residual Phi at the times t
+    (2, len(t)). The start is inconsistent on purpose (check_constraints=False)."""
+    x0 = np.array(mod.initial_state(), dtype=float)
+    x0[list(mod.STATE_NAMES).index("crank.th")] += 1e-5
+    r = mod.module.simulate((0.0, t[-1]), t_eval=t, x0=x0, method="Radau", rtol=1e-11,
+                            atol=1e-14, check_constraints=False)
+    return _closure([r.y["th1"], r.y["th2"], r.y["th3"]])
+
+
+@pytest.fixture(scope="module")
+def closed_off_the_loop(fourbar_numpy):
+    """The stabilised four-bar started off the loop, one run over 1 s for both tests below:
+    Phi at DECAY_T and at t = 1 s (the last column)."""
+    return _off_the_loop(fourbar_numpy, np.append(DECAY_T, 1.0))
+
+
+def test_closure_residual_decays_critically_damped(closed_off_the_loop):
     """Started off the loop (crank turned by 1e-5 rad, at rest: Phi'(0) = 0), the residual
     follows Phi(t) = Phi(0) (1 + alpha t) exp(-alpha t), alpha = 20 1/s (the law is exact:
     Phi' is the flow the constraint holds)."""
-    m = fourbar_numpy
-    x0 = np.array(m.initial_state(), dtype=float)
-    x0[list(m.STATE_NAMES).index("crank.th")] += 1e-5
-    t = np.array([0.0, 0.02, 0.05, 0.1, 0.2, 0.4])
-    r = m.module.simulate((0.0, 0.4), t_eval=t, x0=x0, method="Radau", rtol=1e-11,
-                          atol=1e-14, check_constraints=False)  # an inconsistent x0 on purpose
-    phi = _closure([r.y["th1"], r.y["th2"], r.y["th3"]])
+    t = DECAY_T
+    phi = closed_off_the_loop[:, :len(t)]
     alpha = 20.0
     want = phi[:, :1] * (1 + alpha * t) * np.exp(-alpha * t)
     assert np.abs(phi[:, 0]).max() > 2e-6
     assert np.abs(phi - want).max() < 1e-4 * np.abs(phi[:, 0]).max()
 
 
-def test_without_closure_the_residual_stays(fourbar_numpy):
+def test_without_closure_the_residual_stays(closed_off_the_loop):
     m = bgc.compile(_without_closure(RIGID.read_text()))
-    for mod, stays in ((m, True), (fourbar_numpy, False)):
-        x0 = np.array(mod.initial_state(), dtype=float)
-        x0[list(mod.STATE_NAMES).index("crank.th")] += 1e-5
-        r = mod.module.simulate((0.0, 1.0), t_eval=[0.0, 1.0], x0=x0, method="Radau",
-                                rtol=1e-11, atol=1e-14, check_constraints=False)
-        phi = _closure([r.y["th1"], r.y["th2"], r.y["th3"]])
+    for phi, stays in ((_off_the_loop(m, np.array([0.0, 1.0])), True),
+                       (closed_off_the_loop[:, [0, -1]], False)):
         ratio = np.linalg.norm(phi[:, 1]) / np.linalg.norm(phi[:, 0])
         assert (ratio > 0.3) if stays else (ratio < 1e-6)
 
@@ -115,8 +126,11 @@ def test_inconsistent_initial_positions_are_located(tmp_path):
     text = RIGID.read_text().replace(CRANK, CRANK.replace("th1_0}", "th1_0 + 0.05}"))
     f = tmp_path / "fb.yaml"
     f.write_text(text)
-    out = subprocess.run([sys.executable, "-m", "bgc", "check", str(f)], capture_output=True,
-                         text=True, timeout=600)
+    from conftest import bgc_in_process
+
+    # in-process: the exit status is the SystemExit's (tests/test_bad_input.py runs real
+    # processes for the status and the absence of a traceback)
+    out = bgc_in_process("check", str(f))
     assert out.returncode == 2 and "Traceback" not in out.stderr
     head = out.stderr.strip().splitlines()[0]
     line = int(head.split(":")[1])
@@ -192,8 +206,9 @@ def test_scene_initial_is_checked_at_run_start(tmp_path):
     scene = tmp_path / "s.yaml"
     scene.write_text(f"bgc_scene: 1\nname: s\nmodel: {RIGID}\nduration: 0.1\n"
                      "initial: {crank.th: 1.01}\n")
-    out = subprocess.run([sys.executable, "-m", "bgc", "simulate", str(scene), "--backend",
-                          "numpy"], capture_output=True, text=True, timeout=600)
+    from conftest import bgc_in_process
+
+    out = bgc_in_process("simulate", str(scene), "--backend", "numpy")  # in-process
     assert out.returncode == 2 and "Traceback" not in out.stderr
     head = out.stderr.strip().splitlines()[-1]
     assert head.startswith(f"{scene}:5:") and "positions violate its closure" in head

@@ -20,12 +20,16 @@ from reference import mech3r2s as ref  # noqa: E402,F401  (re-exported)
 
 @lru_cache(maxsize=None)
 def scene_module(path):
-    """(scene, module) for a scene file: its model compiled with the scene's signals."""
+    """(scene, module) for a scene file: its model compiled with the scene's signals, the
+    numpy module, through the test session's compile cache (as `bgc simulate --backend numpy`
+    builds it): tests/test_3r2s.py compiles the circle scene the same way, so the session
+    compiles it once."""
     from bgc.format.scene import parse_scene
-    from bgc.run.runner import compile_scene
+    from bgc.run.runner import scene_module as built
 
     scene = parse_scene(path)
-    _, mod = compile_scene(scene)
+    backend, mod = built(scene, backend="numpy")
+    assert backend == "numpy"
     return scene, mod
 
 

@@ -16,8 +16,10 @@ the tolerance tol = rtol * max_t |x_exact| + atol, per state and instance:
   1 tol. (The batch controls one error norm, the RMS over all 4000 states, so one
   instance's error may exceed what its single run allows by up to sqrt(1000) ~ 32; measured
   at most 4.2 tol, median 4e-7 tol);
-* 8 random instances and the 2 worst ones, each run alone: within 50 tol of the batch
-  (measured 4.1) and within 5 tol of the exact solution (measured 0.22).
+* 3 random instances and the 2 worst ones, each run alone: within 50 tol of the batch
+  (measured 4.1, a worst one) and within 5 tol of the exact solution (measured 0.20). (The
+  sample was 8 random instances and the worst 2, measured 4.1 and 0.22: a single run costs
+  about 1.4 s, and 3 random ones with the worst two check the same property.)
 Measured: 5505 steps, 14 s with single-threaded BLAS.
 """
 from __future__ import annotations
@@ -47,16 +49,21 @@ def draw(seed=2024):
             "c2": 2 * z2 * np.sqrt(k2 * m1 * m2 / (m1 + m2)), "F0": 1e-3 * k1}
 
 
-def exact(p, i, t):
-    """Instance i from rest under the constant force: x_s + exp(A t) (x0 - x_s), stepped with
-    one matrix exponential over the uniform output spacing."""
-    A, b = chain_matrix({k: v[i] for k, v in p.items()})
-    xs = np.linalg.solve(A, -b)
+def exact(p, t):
+    """Every instance from rest under the constant force: x_s + exp(A t) (x0 - x_s), stepped
+    with one matrix exponential over the uniform output spacing -> (4, N, len(t)). The
+    instances' matrices are stacked: one batched expm and one batched product per output
+    time."""
+    A = np.empty((N, 4, 4))
+    b = np.empty((N, 4))
+    for i in range(N):
+        A[i], b[i] = chain_matrix({k: v[i] for k, v in p.items()})
+    xs = np.linalg.solve(A, -b[:, :, None])  # (N, 4, 1): the static deflections
     E = expm(A * (t[1] - t[0]))
-    out = np.empty((4, len(t)))
+    out = np.empty((4, N, len(t)))
     d = -xs
     for n in range(len(t)):
-        out[:, n] = xs + d
+        out[:, :, n] = (xs + d)[:, :, 0].T
         d = E @ d
     return out
 
@@ -67,7 +74,7 @@ def batch(gen):
     p = draw()
     t_eval = np.linspace(*SPAN, NT)
     res = mod.simulate(SPAN, t_eval=t_eval, method="Radau", rtol=RTOL, atol=ATOL, p=p)
-    ex = np.stack([exact(p, i, t_eval) for i in range(N)], axis=1)  # (4, N, NT)
+    ex = exact(p, t_eval)  # (4, N, NT)
     tol = RTOL * np.max(np.abs(ex), axis=2, keepdims=True) + ATOL
     return mod, p, t_eval, res, ex, tol
 
@@ -94,7 +101,7 @@ def test_batch_matches_single_runs_for_a_sample(batch):
     mod, p, t_eval, res, ex, tol = batch
     err = np.max(np.abs(res.x - ex) / tol, axis=(0, 2))  # (N,)
     rng = np.random.default_rng(11)
-    sample = sorted(set(rng.choice(N, 8, replace=False)) | set(np.argsort(err)[-2:]))
+    sample = sorted(set(rng.choice(N, 3, replace=False)) | set(np.argsort(err)[-2:]))
     for i in sample:
         single = mod.simulate(SPAN, t_eval=t_eval, method="Radau", rtol=RTOL, atol=ATOL,
                               p={k: float(v[i]) for k, v in p.items()})
