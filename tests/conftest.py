@@ -277,3 +277,31 @@ def bgc_in_process(*args, env: dict | None = None, cwd=None) -> subprocess.Compl
             else:
                 os.environ[k] = v
     return subprocess.CompletedProcess(["bgc", *argv], code, out.getvalue(), err.getvalue())
+
+
+# ---------------------------------------------------------------------------------------------
+# scipy's integrator for a reference run of an example model (scipy's, so it shares no code
+# with bgc's runtimes), chosen by the model's stiffness over the tests' spans, all at the
+# tests' own tolerances. DOP853 (explicit, order 8) for the models that are not stiff: it meets
+# rtol 1e-11 in far fewer steps than Radau, each without a Newton iteration or an LU (on the
+# numpy modules, steps DOP853 against Radau: msd 45 against 1,872, rlc 223 against 3,531,
+# quarter_car 140 against 3,341, point_mass_3d 70 against 2,894, the rectifier 356 against
+# 1,834, the rigid 3R2S 52 against 974; the references differ by at most 7e-4 of the bound
+# test_c_backend holds the C runs to). LSODA (ODEPACK's Adams and BDF, switched by stiffness)
+# for the stiff ones where it beats Radau: the compliant 3R2S 7,991 steps and 15,253 calls
+# against Radau's 8,935 and 62,782, the compliant four-bar 4.0 s against 14.3 s (references
+# 2e-3 and 7e-5 of the bound apart). Radau for the rest: van_der_pol and the ideal rectifier
+# (LSODA no faster), two_mass_chain (its fastest mode, 1.4e4 1/s, holds DOP853 at its
+# stability limit), two_tanks (its orifices' square roots have no finite Jacobian at an empty
+# tank, which DOP853's stiffness check at the start evaluates), and any new model.
+NONSTIFF_MODELS = frozenset({
+    "3r2s_rigid", "algebraic_loop", "dc_motor", "double_pendulum_rigid", "fourbar_rigid",
+    "motor_thermal", "msd", "pendulum", "point_mass_3d", "quarter_car", "rectifier",
+    "rectifier_pair", "rectifier_switch", "rlc", "stick_slip", "three_rod_rigid", "top"})
+LSODA_MODELS = frozenset({"3r2s", "fourbar_compliant"})
+
+
+def reference_method(model: str) -> str:
+    """scipy's method for a reference run of models/<model>.yaml (see above)."""
+    return "DOP853" if model in NONSTIFF_MODELS else "LSODA" if model in LSODA_MODELS \
+        else "Radau"

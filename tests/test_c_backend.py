@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import bgc_in_process, seed_c_runtime
+from conftest import bgc_in_process, reference_method, seed_c_runtime
 
 from bgc.backends import load as backends
 from bgc.backends.c import build as cbuild
@@ -118,8 +118,8 @@ def test_parameter_batches_broadcast_like_numpy(compiled_model):
 
 
 def _span(name):
-    # the references (scipy's Radau on the numpy module at rtol 1e-11, before _NONSTIFF's
-    # went to DOP853) are the cost here:
+    # the references (scipy's Radau on the numpy module at rtol 1e-11, before conftest's
+    # reference_method) are the cost here:
     # the rigid 3R2S's (a 21-unknown reaction solve per call) took 4,233 steps and 30,149
     # calls over a quarter second (73 CPU s for the whole test), about 200 s over 1 s, 1,886
     # steps (30 CPU s) over 0.1 s, 974 (16 CPU s) over 0.05 s: its first 0.05 s are checked,
@@ -139,36 +139,14 @@ def _span(name):
 
 _REFERENCES: dict = {}
 
-# The models whose reference is scipy's DOP853 (explicit, order 8) in place of its Radau
-# (implicit, order 5): not stiff over their spans, where DOP853 meets rtol 1e-11 in far fewer
-# steps, each without a Newton iteration or an LU. Measured on the numpy modules over the
-# spans below (steps, DOP853 against Radau): msd 45 against 1,872, rlc 223 against 3,531,
-# quarter_car 140 against 3,341, the rectifier 356 against 1,834 (7.7 s against 31.9 s of a
-# loaded machine), the rigid 3R2S 52 against 974 (12.5 s against 60 s); the two references
-# differ by at most 7e-4 of the bound the test holds the C runs to (dc_motor; motor_thermal
-# 1.4e-4, the rest below 3e-5). two_mass_chain stays on Radau: its fastest mode (1.4e4 1/s)
-# holds DOP853 at its stability limit (2,619 steps against Radau's 4,086, no faster in a
-# suite run). The stiff ones need many more explicit steps than Radau (the compliant 3R2S's
-# DOP853 run blows up); of those, _LSODA's go to scipy's LSODA (ODEPACK's Adams and BDF
-# methods, switched by stiffness: its step loop is compiled, one rhs call per Newton
-# iteration), which meets rtol 1e-11 in less time than Radau there: the compliant 3R2S 7,991
-# steps and 15,253 calls against Radau's 8,935 and 62,782 (33 s against 154 s, loaded), the
-# compliant four-bar 4.0 s against 14.3 s, the references 2e-3 and 7e-5 of the bound apart.
-# The rest (van_der_pol, the ideal rectifier: LSODA no faster) stay on Radau, and a new model
-# starts there.
-_NONSTIFF = {"3r2s_rigid", "algebraic_loop", "dc_motor", "double_pendulum_rigid",
-             "fourbar_rigid", "motor_thermal", "msd", "pendulum", "point_mass_3d", "quarter_car",
-             "rectifier", "rectifier_pair", "rectifier_switch", "rlc", "stick_slip",
-             "three_rod_rigid", "top"}
-_LSODA = {"3r2s", "fourbar_compliant"}
 
 
 def _reference(name, npm, span, x0, ms):
-    """scipy's DOP853 (a model of _NONSTIFF), LSODA (_LSODA) or Radau on the numpy module at
-    rtol 1e-11, once per model in a worker (both C methods are checked against it; the
+    """scipy's integrator for the model (conftest.reference_method: DOP853, LSODA or Radau)
+    on the numpy module at rtol 1e-11, once per model in a worker (both C methods are checked against it; the
     scheduler keeps a model's C tests on one worker)."""
     if name not in _REFERENCES:
-        method = "DOP853" if name in _NONSTIFF else "LSODA" if name in _LSODA else "Radau"
+        method = reference_method(name)
         _REFERENCES[name] = npm.simulate(span, dt=(span[1] - span[0]) / 50, method=method,
                                          rtol=1e-11, atol=1e-13, x0=x0, max_step=ms)
     return _REFERENCES[name]
@@ -180,8 +158,8 @@ def _reference(name, npm, span, x0, ms):
 @pytest.mark.parametrize("method", ["Rodas4", "Radau"])
 def test_whole_runs_match_numpy(name, method, compiled_model):
     """C Rodas4 and Radau at rtol 1e-8 (atol 1e-11) against scipy's DOP853, LSODA or Radau
-    (numpy module, _reference) at rtol 1e-11: every state, at every output time, within 1e-5 of its
-    scale plus 1e-7 (states that stay near zero, such as stiff joint deflections, are held to
+    (numpy module, _reference) at rtol 1e-11: every state, at every output time, within 1e-5
+    of its scale plus 1e-7 (states that stay near zero, such as stiff joint deflections, are held to
     the absolute floor)."""
     npm, cm = _pair(name, compiled_model)
     span = _span(name)
@@ -404,9 +382,9 @@ def test_simulate_backend_c_agrees_with_numpy(tmp_path, monkeypatch):
     monkeypatch.setenv("BGC_CACHE_DIR", str(seed_c_runtime(tmp_path / "cache")))
     scene = str(ROOT / "models/scenes/msd_step.yaml")
     a = bgc_in_process("simulate", scene, "--backend", "c", "--out", str(tmp_path / "c.npz"),
-                  "--rtol", "1e-9", "--atol", "1e-12")
-    b = bgc_in_process("simulate", scene, "--backend", "numpy", "--out", str(tmp_path / "n.npz"),
-                  "--rtol", "1e-9", "--atol", "1e-12")
+                       "--rtol", "1e-9", "--atol", "1e-12")
+    b = bgc_in_process("simulate", scene, "--backend", "numpy", "--out",
+                       str(tmp_path / "n.npz"), "--rtol", "1e-9", "--atol", "1e-12")
     assert a.returncode == 0 and b.returncode == 0, a.stderr + b.stderr
     assert "(c backend)" in a.stdout and "atol=1e-12" in a.stdout and "compile" in a.stdout
     ra, rb = np.load(tmp_path / "c.npz"), np.load(tmp_path / "n.npz")

@@ -17,6 +17,7 @@ import pytest
 fmpy = pytest.importorskip("fmpy")
 
 from bgc.backends.c import build as cbuild  # noqa: E402
+from conftest import reference_method  # noqa: E402
 
 pytestmark = pytest.mark.skipif(not cbuild.available(), reason="no C compiler")
 
@@ -221,26 +222,17 @@ def _params(model):
     return {k: v * 1.1 for k, v in mod.PARAM_DEFAULTS.items() if np.ndim(v) == 0}
 
 
-# The references' integrator: scipy's DOP853 (explicit, order 8) for the models that are not
-# stiff, where it meets rtol 1e-11 in far fewer steps than scipy's Radau (implicit, order 5),
-# each without a Newton iteration or an LU (on the numpy modules, at rtol 1e-11 over 1 s:
-# msd 45 steps against 1,872, rlc 223 against 3,531, point_mass_3d 70 against 2,894);
-# Radau (with finite-difference Jacobians) for the others: van_der_pol is stiff,
-# two_mass_chain's fastest mode holds DOP853 at its stability limit (no faster than Radau
-# there), two_tanks takes a few dozen steps either way and its orifices' square roots have no
-# finite analytic Jacobian at an empty tank, which DOP853's stiffness check at the start
-# evaluates. Both are scipy's: neither shares code with the FMU's C.
-_NONSTIFF = {"msd", "dc_motor", "algebraic_loop", "motor_thermal", "point_mass_3d", "rlc",
-             "pendulum"}
+# The references' integrator: conftest.reference_method (scipy's DOP853 where the model is not
+# stiff), else Radau with finite-difference Jacobians. Both are scipy's: neither shares code
+# with the FMU's C.
 
 
 def _reference(model, t_span, **kw):
-    """The numpy module's run of models/<model>.yaml in scipy's DOP853 (a model of
-    _NONSTIFF) or Radau with finite-difference Jacobians."""
-    mod = _numpy_module(f"{model}.yaml")
-    if model in _NONSTIFF:
-        return mod.simulate(t_span, method="DOP853", **kw)
-    return mod.simulate(t_span, method="Radau", jac=False, **kw)
+    """The numpy module's run of models/<model>.yaml in scipy's method for it
+    (conftest.reference_method), Radau's with finite-difference Jacobians."""
+    method = reference_method(model)
+    extra = {"jac": False} if method == "Radau" else {}
+    return _numpy_module(f"{model}.yaml").simulate(t_span, method=method, **extra, **kw)
 
 
 _RUNS: dict = {}

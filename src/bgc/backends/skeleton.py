@@ -192,8 +192,8 @@ def _check_skeleton(text: str, backend: str) -> dict[str, tuple[int, int]]:
 # given as one item; :func:`_opens` and :func:`_block_end` keep runs out of brackets and
 # blocks they would cut (guesses that only spare the second parse). (The 3R2S's model part:
 # a tree of 0.3 s, against 0.05 s for the scan and a tree without its equations.) What the
-# check does not
-# do, before as now, is look into a function's body: a syntax error there is the compile's.
+# check does not do, before as now, is look into a function's body: a syntax error there is
+# the compile's.
 
 #: a plain line: spaces, code without quotes, backslashes, tabs or other line breaks, and
 #: at most a comment
