@@ -16,8 +16,9 @@ import pytest
 
 fmpy = pytest.importorskip("fmpy")
 
-from bgc.backends.c import build as cbuild  # noqa: E402
-from conftest import reference_method  # noqa: E402
+from conftest import reference_method
+
+from bgc.backends.c import build as cbuild
 
 pytestmark = pytest.mark.skipif(not cbuild.available(), reason="no C compiler")
 
@@ -669,8 +670,6 @@ def test_tunable_parameter_between_communication_steps(fmus):
     """msd's damping c is tunable (the initial state does not depend on it): changed at
     t = 1 s between two steps, the run continues as the numpy module's run from the state at
     1 s with the new value. A fixed parameter is refused after initialisation."""
-    from fmpy.fmi1 import FMICallException
-
     md, s = _slave(fmus["msd"], "tune")
     vr = {v.name: v.valueReference for v in md.modelVariables}
     var = {v.name: v for v in md.modelVariables}
