@@ -20,7 +20,13 @@ from bgc.run.consistency import check_loop_start, project_start
 from bgc.run.watch import dropped_drift
 from bgc.run.driver import build, default_backend, module_name, scene_compiled
 from bgc.run.progress import simulating_line
-from bgc.run.steps import STEPS_PER_PERIOD, fastest_input, scene_max_step, stepped_over
+from bgc.run.steps import (
+    STEPS_PER_PERIOD,
+    fastest_input,
+    scene_max_step,
+    stepped_over,
+    tightened_atol,
+)
 
 
 @dataclass(frozen=True)
@@ -119,6 +125,7 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
         why = "fell back from c, see above"
     t1 = time.perf_counter()
     rtol = rtol or scene.rtol
+    atol_given = atol is not None or scene.atol_given  # else a run may tighten the default
     atol = scene.atol if atol is None else atol
 
     say(simulating_line(scene.name, method, backend, rtol, atol, why))
@@ -162,6 +169,9 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
             why += f"; {method_choice.EXPLICIT} failed at t = {exc.t:.6g}, rerun with Radau"
             say(f"{method_choice.EXPLICIT} failed ({exc}): rerunning with Radau")
             res = mod.simulate(scene.t_span, method=method, **run)
+        if not atol_given:
+            res = _tightened(mod, scene, method, run, res, say)
+            atol = run["atol"]
     except mod.SimulationError as exc:
         # the diagnosis reads the model's equations: compiled now if the module came from
         # the cache (a failed run can afford it)
@@ -185,6 +195,18 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
                             p=p, breakpoints=scene.breakpoints, x0=x0,
                             max_step=max_step, max_steps=max_steps, max_wall=max_wall),
                        tuple(getattr(res, "events", ())), why, tuple(built.times))
+
+
+def _tightened(mod, scene, method, run, res, say):
+    """The run again at a smaller atol (``run["atol"]`` updated) where the default atol, not
+    rtol, held some state's error (bgc.run.steps.tightened_atol), else ``res`` as it is."""
+    _, x, _ = res
+    tight = tightened_atol(mod, x, run["rtol"], run["atol"])
+    if tight is None:
+        return res
+    run["atol"], note = tight
+    say(note)
+    return mod.simulate(scene.t_span, method=method, **run)
 
 
 def _numpy_diagnosis(c, scene, method, run, mod, exc):
