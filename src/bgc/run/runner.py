@@ -326,7 +326,14 @@ def simulation_failed(c, mod, scene, exc, p=None) -> SimulationFailed:
             found = nonfinite_culprit(c, mod, exc, p)
         if found is not None:
             coord, why = found[0] or scene.coord, found[1]
-    return SimulationFailed(coord, f"simulation failed: {exc}{why}")
+    text = str(exc)
+    if "Zeno behaviour" in text and getattr(exc, "t", None) is not None:
+        # max_events is the module's argument, not the scene's: say what a scene can do
+        text = text.replace("raise max_events", "in Python, simulate(max_events=...)")
+        why = (f"; a body coming to rest on a stop (restitution below 1) reaches this at its "
+               f"Zeno time: end the run before t = {exc.t:.6g} s (the scene's duration, or "
+               "--t-end)")
+    return SimulationFailed(coord, f"simulation failed: {text}{why}")
 
 
 def check_start(c, mod, scene, p=None) -> None:
