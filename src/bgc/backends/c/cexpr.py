@@ -75,6 +75,9 @@ class CPrinter(FastPrinting, C99CodePrinter):
 
     # as in the numpy printer: x/b**2 and x/b**3 must not come out as x/b*b or x/b*b*b
     product_powers = (2, 3)
+    # no <math.h> constant macros (M_PI_2, M_SQRT1_2, M_LN2...): they are POSIX, not C99, and
+    # a strict -std=c99 build does not declare them; the constants print as numbers
+    math_macros: dict = {}
 
     def __init__(self, names: dict | None = None):
         super().__init__({"strict": True, "order": "none", "allow_unknown_functions": False})
