@@ -17,16 +17,12 @@ from bgc.format.scene import (
 )
 from bgc.run import method_choice
 from bgc.run.consistency import check_loop_start, project_start
+from bgc.run.event_log import zeno_text
 from bgc.run.watch import dropped_drift
 from bgc.run.driver import build, default_backend, module_name, scene_compiled
 from bgc.run.progress import simulating_line
-from bgc.run.steps import (
-    STEPS_PER_PERIOD,
-    fastest_input,
-    scene_max_step,
-    stepped_over,
-    tightened_atol,
-)
+from bgc.run.steps import STEPS_PER_PERIOD, fastest_input, rerun_tightened, scene_max_step
+from bgc.run.steps import stepped_over
 
 
 @dataclass(frozen=True)
@@ -170,7 +166,7 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
             say(f"{method_choice.EXPLICIT} failed ({exc}): rerunning with Radau")
             res = mod.simulate(scene.t_span, method=method, **run)
         if not atol_given:
-            res = _tightened(mod, scene, method, run, res, say)
+            res = rerun_tightened(mod, scene.t_span, method, run, res, say)
             atol = run["atol"]
     except mod.SimulationError as exc:
         # the diagnosis reads the model's equations: compiled now if the module came from
@@ -195,18 +191,6 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
                             p=p, breakpoints=scene.breakpoints, x0=x0,
                             max_step=max_step, max_steps=max_steps, max_wall=max_wall),
                        tuple(getattr(res, "events", ())), why, tuple(built.times))
-
-
-def _tightened(mod, scene, method, run, res, say):
-    """The run again at a smaller atol (``run["atol"]`` updated) where the default atol, not
-    rtol, held some state's error (bgc.run.steps.tightened_atol), else ``res`` as it is."""
-    _, x, _ = res
-    tight = tightened_atol(mod, x, run["rtol"], run["atol"])
-    if tight is None:
-        return res
-    run["atol"], note = tight
-    say(note)
-    return mod.simulate(scene.t_span, method=method, **run)
 
 
 def _numpy_diagnosis(c, scene, method, run, mod, exc):
@@ -326,14 +310,8 @@ def simulation_failed(c, mod, scene, exc, p=None) -> SimulationFailed:
             found = nonfinite_culprit(c, mod, exc, p)
         if found is not None:
             coord, why = found[0] or scene.coord, found[1]
-    text = str(exc)
-    if "Zeno behaviour" in text and getattr(exc, "t", None) is not None:
-        # max_events is the module's argument, not the scene's: say what a scene can do
-        text = text.replace("raise max_events", "in Python, simulate(max_events=...)")
-        why = (f"; a body coming to rest on a stop (restitution below 1) reaches this at its "
-               f"Zeno time: end the run before t = {exc.t:.6g} s (the scene's duration, or "
-               "--t-end)")
-    return SimulationFailed(coord, f"simulation failed: {text}{why}")
+    text, zeno = zeno_text(exc)
+    return SimulationFailed(coord, f"simulation failed: {text}{why or zeno}")
 
 
 def check_start(c, mod, scene, p=None) -> None:

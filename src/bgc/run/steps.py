@@ -119,3 +119,15 @@ def tightened_atol(mod, x, rtol: float, atol: float) -> tuple[float, str] | None
     return new, (f"atol {new:g}: the state {names}{more} stays so small in its own unit that "
                  f"the default atol {atol:g} would hold it to a relative {atol / least:.1g}, not "
                  f"rtol {rtol:g}; rerunning (the scene's solver atol chooses)")
+
+
+def rerun_tightened(mod, t_span, method: str, run: dict, res, say):
+    """The run again at a smaller atol (``run["atol"]`` updated, the reason said) where the
+    default atol, not rtol, held some state's error (:func:`tightened_atol`), else ``res``."""
+    _, x, _ = res
+    tight = tightened_atol(mod, x, run["rtol"], run["atol"])
+    if tight is None:
+        return res
+    run["atol"], note = tight
+    say(note)
+    return mod.simulate(t_span, method=method, **run)
