@@ -26,7 +26,6 @@ def event_arrays(events, n_states: int) -> dict:
             "event__x_after": np.array([ev[4] for ev in events]).reshape(len(events), n_states)}
 
 
-
 def zeno_text(exc) -> tuple[str, str]:
     """(the message, a remedy) of a run's SimulationError ``exc``; for the Zeno guard's stop
     the remedy a scene has (its max_events is the module's argument, not the scene's): end

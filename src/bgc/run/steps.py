@@ -83,7 +83,6 @@ def stepped_over(mod, t, x, p=None, breakpoints=(), nsteps=None) -> str | None:
             "a smaller solver max_step resolves it")
 
 
-
 #: atol dominates a state's error control where it exceeds rtol times the state's size by this.
 ATOL_DOMINATES = 10.0
 #: a state that never exceeds this fraction of atol is taken as zero (round-off, a component
