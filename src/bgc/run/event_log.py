@@ -33,7 +33,7 @@ def zeno_text(exc) -> tuple[str, str]:
     text = str(exc)
     if "Zeno behaviour" not in text or getattr(exc, "t", None) is None:
         return text, ""
-    return (text.replace("raise max_events", "in Python, simulate(max_events=...)"),
-            f"; a body coming to rest on a stop (restitution below 1) reaches this at its "
-            f"Zeno time: end the run before t = {exc.t:.6g} s (the scene's duration, or "
-            "--t-end)")
+    remedy = (f"; a body coming to rest on a stop (restitution below 1) reaches this at its "
+              f"Zeno time: end the run before t = {exc.t:.6g} s (the scene's duration, or "
+              "--t-end)")
+    return text.replace("raise max_events", "in Python, simulate(max_events=...)"), remedy

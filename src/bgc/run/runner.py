@@ -17,12 +17,17 @@ from bgc.format.scene import (
 )
 from bgc.run import method_choice
 from bgc.run.consistency import check_loop_start, project_start
-from bgc.run.event_log import zeno_text
-from bgc.run.watch import dropped_drift
 from bgc.run.driver import build, default_backend, module_name, scene_compiled
+from bgc.run.event_log import zeno_text
 from bgc.run.progress import simulating_line
-from bgc.run.steps import STEPS_PER_PERIOD, fastest_input, rerun_tightened, scene_max_step
-from bgc.run.steps import stepped_over
+from bgc.run.steps import (
+    STEPS_PER_PERIOD,
+    fastest_input,
+    rerun_tightened,
+    scene_max_step,
+    stepped_over,
+)
+from bgc.run.watch import dropped_drift
 
 
 @dataclass(frozen=True)

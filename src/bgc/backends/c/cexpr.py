@@ -4,6 +4,8 @@ from the model reaches the C sources: :func:`c_string_literal` (string literals)
 :func:`c_comment` (comments)."""
 from __future__ import annotations
 
+from typing import ClassVar
+
 import sympy as sp
 from sympy.printing.c import C99CodePrinter
 from sympy.printing.precedence import PRECEDENCE
@@ -77,7 +79,7 @@ class CPrinter(FastPrinting, C99CodePrinter):
     product_powers = (2, 3)
     # no <math.h> constant macros (M_PI_2, M_SQRT1_2, M_LN2...): they are POSIX, not C99, and
     # a strict -std=c99 build does not declare them; the constants print as numbers
-    math_macros: dict = {}
+    math_macros: ClassVar[dict] = {}
 
     def __init__(self, names: dict | None = None):
         super().__init__({"strict": True, "order": "none", "allow_unknown_functions": False})
