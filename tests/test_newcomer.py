@@ -19,6 +19,9 @@ against a closed form worked out here by hand:
 - a ball dropped from h0 with restitution e: first impact at sqrt(2 h0/g), then intervals
   2 e^k v1/g, v1 = sqrt(2 g h0).
 
+Also what tripped the newcomer on the way: a library part's elements (what an output reads)
+were named nowhere, and a Zeno stop advised an option `bgc simulate` does not have.
+
 Every run compiles one small model (the C backend where a C compiler works): a few seconds
 each on the shared cores.
 """
@@ -174,3 +177,18 @@ def test_zeno_stop_says_what_a_scene_can_do(tmp_path, cache):
     assert "Zeno" in msg and "raise max_events" not in msg
     said = float(msg.split("end the run before t = ")[1].split()[0])
     assert abs(said - t_zeno) < 1e-4 * t_zeno
+
+
+def test_a_library_parts_elements_are_named(tmp_path, cache):
+    """`bgc library capacitor` lists its elements (the charge's C element is `c`); an output
+    that reads e() of the instance's parameter instead is one located line naming them."""
+    shown = bgc_in_process("library", "capacitor")
+    assert shown.returncode == 0 and "Elements:" in shown.stdout
+    assert "c (C)" in shown.stdout.split("Elements:")[1].split("Laws:")[0]
+    text = (FIRST / "rc_lowpass.yaml").read_text().replace("e(c1.c)", "e(c1.C)")
+    (tmp_path / "rc.yaml").write_text(text)
+    bad = bgc_in_process("check", tmp_path / "rc.yaml",
+                         env={"BGC_CACHE_DIR": str(cache)})
+    line = text.splitlines().index(next(s for s in text.splitlines() if "e(c1.C)" in s)) + 1
+    assert bad.returncode == 2 and bad.stderr.count("\n") == 1, bad.stderr
+    assert f"rc.yaml:{line}:" in bad.stderr and "the elements of 'c1': S, c" in bad.stderr
