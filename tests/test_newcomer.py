@@ -192,3 +192,6 @@ def test_a_library_parts_elements_are_named(tmp_path, cache):
     line = text.splitlines().index(next(s for s in text.splitlines() if "e(c1.C)" in s)) + 1
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1, bad.stderr
     assert f"rc.yaml:{line}:" in bad.stderr and "the elements of 'c1': S, c" in bad.stderr
+    (tmp_path / "rc.yaml").write_text(text.replace("e(c1.C)", "e(c1)"))
+    bad = bgc_in_process("check", tmp_path / "rc.yaml", env={"BGC_CACHE_DIR": str(cache)})
+    assert bad.returncode == 2 and "the elements of 'c1': S, c" in bad.stderr, bad.stderr

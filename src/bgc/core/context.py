@@ -122,7 +122,7 @@ class NameResolver:
         if kind == "instance":
             if len(path) == 1:
                 raise ModelError(coord, f"{self.what}: {head!r} is a component instance, not a "
-                                        "value")
+                                        "value" + self._elements_hint(scope + (head,)))
             return self._find(path[1:], coord, scope + (head,))
         if len(path) != 1:
             raise ModelError(coord, f"{self.what}: {head!r} is {a_kind(kind)}: it has no "

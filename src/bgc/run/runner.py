@@ -53,7 +53,8 @@ class SceneResult:
     #: a hybrid model's event log: (t, event, instance index, x before, x after) per event
     events: tuple = ()
     #: why the run used its backend when the command and the scene named none, or C failed
-    #: ("" when the backend was named and used)
+    #: ("" when the backend was named and used); also the method auto chose, and a default
+    #: atol the run tightened (the summary line's parenthesis)
     backend_why: str = ""
     #: the compile's stages and seconds (bgc.run.driver.STAGES; only "load" on a cache hit)
     stage_times: tuple = ()
@@ -171,8 +172,8 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
             say(f"{method_choice.EXPLICIT} failed ({exc}): rerunning with Radau")
             res = mod.simulate(scene.t_span, method=method, **run)
         if not atol_given:
-            res = rerun_tightened(mod, scene.t_span, method, run, res, say)
-            atol = run["atol"]
+            res, tight = rerun_tightened(mod, scene.t_span, method, run, res, say)
+            atol, why = run["atol"], f"{why}; {tight}" if why and tight else why or tight
     except mod.SimulationError as exc:
         # the diagnosis reads the model's equations: compiled now if the module came from
         # the cache (a failed run can afford it)

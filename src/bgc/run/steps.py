@@ -120,13 +120,15 @@ def tightened_atol(mod, x, rtol: float, atol: float) -> tuple[float, str] | None
                  f"rtol {rtol:g}; rerunning (the scene's solver atol chooses)")
 
 
-def rerun_tightened(mod, t_span, method: str, run: dict, res, say):
-    """The run again at a smaller atol (``run["atol"]`` updated, the reason said) where the
-    default atol, not rtol, held some state's error (:func:`tightened_atol`), else ``res``."""
+def rerun_tightened(mod, t_span, method: str, run: dict, res, say) -> tuple:
+    """(result, what the summary line adds) of the run again at a smaller atol (``run["atol"]``
+    updated, the reason said) where the default atol, not rtol, held some state's error
+    (:func:`tightened_atol`), else (``res``, "")."""
     _, x, _ = res
     tight = tightened_atol(mod, x, run["rtol"], run["atol"])
     if tight is None:
-        return res
-    run["atol"], note = tight
+        return res, ""
+    old, (run["atol"], note) = run["atol"], tight
     say(note)
-    return mod.simulate(t_span, method=method, **run)
+    return (mod.simulate(t_span, method=method, **run),
+            f"atol tightened from {old:g}: small states")
