@@ -195,3 +195,32 @@ def test_a_library_parts_elements_are_named(tmp_path, cache):
     (tmp_path / "rc.yaml").write_text(text.replace("e(c1.C)", "e(c1)"))
     bad = bgc_in_process("check", tmp_path / "rc.yaml", env={"BGC_CACHE_DIR": str(cache)})
     assert bad.returncode == 2 and "the elements of 'c1': S, c" in bad.stderr, bad.stderr
+
+
+def test_default_atol_tightening_rules():
+    """The rule of docs/model-format.md ("the default atol follows the states' sizes") on a
+    stand-in module: only a state above 1e-4 atol whose size times rtol is over 10 times below
+    atol counts (not a mode, not round-off); the new atol is rtol times the smallest such
+    size, rounded down to a power of ten; a rerun that fails leaves the first run standing."""
+    from bgc.run.steps import rerun_tightened, tightened_atol
+
+    class Stand:
+        STATE_NAMES = ("cap.q", "mass.p", "noise", "on")
+        MODE_NAMES = ("on",)
+        SimulationError = RuntimeError
+
+        @staticmethod
+        def simulate(span, method=None, **run):
+            raise Stand.SimulationError("max_steps")
+
+    x = np.array([[0.0, -5e-7], [0.0, 2.0], [1e-14, 0.0], [0.0, 1.0]])
+    new, note = tightened_atol(Stand, x, 1e-6, 1e-9)
+    assert new == pytest.approx(1e-13, rel=1e-12) and "'cap.q'" in note
+    assert "'noise'" not in note and "'on'" not in note and "'mass.p'" not in note
+    # at atol 1e-12, 5e-13 (rtol times cap.q) is not 10 times below it; 1e-14 is no longer
+    # round-off next to that atol
+    assert "'cap.q'" not in tightened_atol(Stand, x, 1e-6, 1e-12)[1]
+    said, run, first = [], {"rtol": 1e-6, "atol": 1e-9}, (None, x, None)
+    res, why = rerun_tightened(Stand, (0.0, 1.0), "Radau", run, first, said.append)
+    assert res is first and why == "" and run["atol"] == 1e-9
+    assert said[-1].startswith("warning: the run at atol 1e-13 failed")

@@ -123,12 +123,19 @@ def tightened_atol(mod, x, rtol: float, atol: float) -> tuple[float, str] | None
 def rerun_tightened(mod, t_span, method: str, run: dict, res, say) -> tuple:
     """(result, what the summary line adds) of the run again at a smaller atol (``run["atol"]``
     updated, the reason said) where the default atol, not rtol, held some state's error
-    (:func:`tightened_atol`), else (``res``, "")."""
+    (:func:`tightened_atol`), else (``res``, ""); a rerun that fails (its step budget, say)
+    leaves the first run standing, with a warning."""
     _, x, _ = res
     tight = tightened_atol(mod, x, run["rtol"], run["atol"])
     if tight is None:
         return res, ""
     old, (run["atol"], note) = run["atol"], tight
     say(note)
-    return (mod.simulate(t_span, method=method, **run),
-            f"atol tightened from {old:g}: small states")
+    try:
+        return (mod.simulate(t_span, method=method, **run),
+                f"atol tightened from {old:g}: small states")
+    except mod.SimulationError as exc:  # the first run stands, with what it holds to atol
+        say(f"warning: the run at atol {run['atol']:g} failed ({exc}); the run at atol "
+            f"{old:g} stands, its small states held to atol only")
+        run["atol"] = old
+        return res, ""
