@@ -38,7 +38,10 @@ m^3/s), thermal (K, W). A two-point component takes its first point's bond *into
 (or `p`) and gives its second point's bond *out of* port `b` (or `n`); where its description
 says so, a port left unbonded is the ground. Sources are bonded out of their port. Every
 parameter has a unit, and every component checks clean under `units: strict`. An element a
-component defines is named `instance.element` in outputs (`f(cart.I)`, `q(j1.C)`).
+component defines is named `instance.element` in outputs (`f(cart.I)`, `q(j1.C)`); each
+component's **Elements** list gives their names and types: `e()` and `f()` read any of them
+(a 0-junction's common effort, a 1-junction's common flow), `p()` an I's momentum, `q()` a C's
+displacement (a capacitor `c1`'s voltage is `e(c1.c)`, its charge `q(c1.c)`).
 
 Hybrid components (switches, the ideal diode, the check valve, hard stops, stick-slip
 friction) hold modes and events of their own

@@ -441,8 +441,11 @@ elements:
   ch5: {type: chamber, V: 1.0e-3, beta: 1.0e+9}
   ps6: {type: pressure_source, P: 1.0e+5}
   pi6: {type: pipe}
+  tk7: {type: tank, A: 1.0, h0: 2.0}
+  rs7: {type: restriction, Rh: 3000.0}
+  tk8: {type: tank, A: 0.5}
 bonds: [[q1.p, ch1.p], [ps2.p, or2.a], [ch3.p, or3.a], [ps4.p, cy4.p], [cy4.rod, m4.p],
-        [w5.w, pu5.shaft], [pu5.p, ch5.p], [ps6.p, pi6.a]]
+        [w5.w, pu5.shaft], [pu5.p, ch5.p], [ps6.p, pi6.a], [tk7.p, rs7.a], [rs7.b, tk8.p]]
 outputs:
   p1: {expr: "e(ch1.C)", unit: Pa}
   Q2: {expr: "f(or2.R)", unit: m^3/s}
@@ -451,6 +454,9 @@ outputs:
   F4: {expr: "e(m4.I)", unit: N}
   p5: {expr: "e(ch5.C)", unit: Pa}
   Q6: {expr: "f(pi6.I)", unit: m^3/s}
+  p7: {expr: "e(tk7.N)", unit: Pa}
+  p8: {expr: "e(tk8.N)", unit: Pa}
+  Q7: {expr: "f(rs7.R)", unit: m^3/s}
 """
 
 
@@ -487,6 +493,22 @@ def test_cylinder_force_and_pipe(hydraulic):
     L, d, mu, rho = 1.0, 0.01, 0.03, 850.0
     R, ind = 128 * mu * L / (math.pi * d**4), rho * L / (math.pi * d**2 / 4)
     assert np.allclose(y["Q6"], 1.0e5 / R * (1 - np.exp(-R * t / ind)), rtol=1e-7, atol=1e-12)
+
+
+def test_two_tanks_level_out_through_a_restriction(hydraulic):
+    """Two open tanks (areas A1, A2) joined by a linear restriction Rh: the level difference
+    d = h1 - h2 obeys d' = -(rho g / Rh)(1/A1 + 1/A2) d, so it decays as exp(-t/tau) with
+    tau = Rh A1 A2 / (rho g (A1 + A2)), towards the common level A1 h0 / (A1 + A2) (the
+    volume is kept); the bottom pressures are rho g h and the flow is their drop over Rh."""
+    t, y = hydraulic
+    rho, g, A1, A2, h0, Rh = 1000.0, 9.81, 1.0, 0.5, 2.0, 3000.0
+    tau = Rh * A1 * A2 / (rho * g * (A1 + A2))
+    d = h0 * np.exp(-t / tau)
+    h_end = A1 * h0 / (A1 + A2)
+    assert np.allclose(y["p7"], rho * g * (h_end + d * A2 / (A1 + A2)), rtol=1e-8)
+    assert np.allclose(y["p8"], rho * g * (h_end - d * A1 / (A1 + A2)), rtol=1e-8, atol=1e-6)
+    assert np.allclose(y["Q7"], (y["p7"] - y["p8"]) / Rh, rtol=1e-12, atol=1e-15)
+    assert np.allclose(y["Q7"], rho * g * d / Rh, rtol=1e-8, atol=1e-12)
 
 
 THERMAL = """

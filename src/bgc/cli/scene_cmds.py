@@ -36,7 +36,9 @@ def _solver_methods():
 @click.option("--rtol", type=float, default=None,
               help="relative tolerance, finite, within the limit of tolerances (1e-14..1)")
 @click.option("--atol", type=POSITIVE, default=None,
-              help="absolute tolerance (default: the scene's solver atol)")
+              help="absolute tolerance, in each state's unit (default: the scene's solver "
+                   "atol; without one 1e-9, tightened by a second run where a state stays "
+                   "small next to it, e.g. a microfarad's charge)")
 @click.option("--max-wall", type=POSITIVE, default=None,
               help="stop with an error once the integration has taken this many seconds")
 @click.option("--backend", type=click.Choice(BACKENDS), default=None,

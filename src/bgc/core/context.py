@@ -122,12 +122,20 @@ class NameResolver:
         if kind == "instance":
             if len(path) == 1:
                 raise ModelError(coord, f"{self.what}: {head!r} is a component instance, not a "
-                                        "value")
+                                        "value" + self._elements_hint(scope + (head,)))
             return self._find(path[1:], coord, scope + (head,))
         if len(path) != 1:
             raise ModelError(coord, f"{self.what}: {head!r} is {a_kind(kind)}: it has no "
                                     f"{path[1]!r}")
         return kind, head, scope
+
+    def _elements_hint(self, scope) -> str:
+        """Inside a component instance: the elements it has (what e(), f(), p(), q() take)."""
+        if not scope:
+            return ""
+        names = sorted(k for k, v in self.ctx.bg.scopes[scope].names.items() if v == "element")
+        return (f" (the elements of {'.'.join(scope)!r}: {', '.join(names)}; `bgc library` "
+                "lists a library component's)") if names else ""
 
     def value(self, path, coord):
         if len(path) == 1 and path[0] in self.local:
@@ -204,7 +212,8 @@ class NameResolver:
             e, f = ctx.e[bonds[0].id], ctx.f[bonds[0].id]
         else:
             raise ModelError(coord, f"{self.what}: {func}() takes a bond, element or junction; "
-                                    f"{'.'.join(path)!r} is {a_kind(kind)}")
+                                    f"{'.'.join(path)!r} is {a_kind(kind)}"
+                                    + self._elements_hint(scope))
         if func == "e":
             return e
         if func == "f":

@@ -63,6 +63,10 @@ def describe(comp, lib: str, markdown: bool = False) -> str:
         for s in states:
             lines += _para(f"{item}{code(s.name)} [{s.unit or '-'}]: d/dt = "
                            f"{code(s.derivative.text)}", markdown)
+    # what an output reads as instance.element: e(), f(), p() of an I, q() of a C
+    lines += ["", head("Elements")] + _para(
+        f"{item}" + ", ".join(f"{code(e.name)} ({e.type})" for e in comp.body.elements),
+        markdown)
     lines += ["", head("Laws")]
     for law in comp.laws:
         lines += _para(f"{item}{law}", markdown)

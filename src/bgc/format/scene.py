@@ -70,6 +70,9 @@ class Scene:
     #: constraints at run start (bgc.run.consistency.project_start); where it says so
     project: bool = False
     project_coord: Coord | None = None
+    #: the scene's solver gives atol (else the default, which a run may tighten where a state
+    #: stays small next to it: bgc.run.steps.tightened_atol)
+    atol_given: bool = False
 
 
 def parse_scene(path: str | Path) -> Scene:
@@ -117,7 +120,8 @@ def parse_scene(path: str | Path) -> Scene:
                  dt, max_step, bps, tuple(plots), effects, desc, r.coord(root),
                  hashlib.sha256(text.encode()).hexdigest()[:16], free, output_coords,
                  r.coord(top["model"][1]), initial, initial_coord,
-                 backend, max_steps, project, project_coord)
+                 backend, max_steps, project, project_coord,
+                 "solver" in top and "atol" in r.mapping(top["solver"][1], "solver"))
 
 
 def _constraints(r: Reader, top: dict) -> tuple[bool, Coord | None]:

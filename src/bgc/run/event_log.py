@@ -3,7 +3,9 @@ outputs in the .npz): one row per event, in the order they happened.
 
 The keys hold a double underscore, which no output name may: ``event__t`` (times),
 ``event__name``, ``event__instance`` (the instance's index in the batch, -1 padded),
-``event__x_before`` and ``event__x_after`` (the states, in STATE_NAMES order)."""
+``event__x_before`` and ``event__x_after`` (the states, in STATE_NAMES order).
+
+Also what `bgc simulate` says when the runtimes' Zeno guard stops a run (:func:`zeno_text`)."""
 from __future__ import annotations
 
 import numpy as np
@@ -23,3 +25,15 @@ def event_arrays(events, n_states: int) -> dict:
             "event__x_before": np.array([ev[3] for ev in events]).reshape(len(events), n_states),
             "event__x_after": np.array([ev[4] for ev in events]).reshape(len(events), n_states)}
 
+
+def zeno_text(exc) -> tuple[str, str]:
+    """(the message, a remedy) of a run's SimulationError ``exc``; for the Zeno guard's stop
+    the remedy a scene has (its max_events is the module's argument, not the scene's): end
+    the run before the Zeno time, where a body coming to rest on a stop piles up impacts."""
+    text = str(exc)
+    if "Zeno behaviour" not in text or getattr(exc, "t", None) is None:
+        return text, ""
+    remedy = (f"; a body coming to rest on a stop (restitution below 1) reaches this at its "
+              f"Zeno time: end the run before t = {exc.t:.6g} s (the scene's duration, or "
+              "--t-end)")
+    return text.replace("raise max_events", "in Python, simulate(max_events=...)"), remedy

@@ -17,10 +17,17 @@ from bgc.format.scene import (
 )
 from bgc.run import method_choice
 from bgc.run.consistency import check_loop_start, project_start
-from bgc.run.watch import dropped_drift
 from bgc.run.driver import build, default_backend, module_name, scene_compiled
+from bgc.run.event_log import zeno_text
 from bgc.run.progress import simulating_line
-from bgc.run.steps import STEPS_PER_PERIOD, fastest_input, scene_max_step, stepped_over
+from bgc.run.steps import (
+    STEPS_PER_PERIOD,
+    fastest_input,
+    rerun_tightened,
+    scene_max_step,
+    stepped_over,
+)
+from bgc.run.watch import dropped_drift
 
 
 @dataclass(frozen=True)
@@ -46,7 +53,8 @@ class SceneResult:
     #: a hybrid model's event log: (t, event, instance index, x before, x after) per event
     events: tuple = ()
     #: why the run used its backend when the command and the scene named none, or C failed
-    #: ("" when the backend was named and used)
+    #: ("" when the backend was named and used); also the method auto chose, and a default
+    #: atol the run tightened (the summary line's parenthesis)
     backend_why: str = ""
     #: the compile's stages and seconds (bgc.run.driver.STAGES; only "load" on a cache hit)
     stage_times: tuple = ()
@@ -119,6 +127,7 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
         why = "fell back from c, see above"
     t1 = time.perf_counter()
     rtol = rtol or scene.rtol
+    atol_given = atol is not None or scene.atol_given  # else a run may tighten the default
     atol = scene.atol if atol is None else atol
 
     say(simulating_line(scene.name, method, backend, rtol, atol, why))
@@ -162,6 +171,9 @@ def run_scene(path, progress=None, method=None, rtol=None, max_wall=None, atol=N
             why += f"; {method_choice.EXPLICIT} failed at t = {exc.t:.6g}, rerun with Radau"
             say(f"{method_choice.EXPLICIT} failed ({exc}): rerunning with Radau")
             res = mod.simulate(scene.t_span, method=method, **run)
+        if not atol_given:
+            res, tight = rerun_tightened(mod, scene.t_span, method, run, res, say)
+            atol, why = run["atol"], f"{why}; {tight}" if why and tight else why or tight
     except mod.SimulationError as exc:
         # the diagnosis reads the model's equations: compiled now if the module came from
         # the cache (a failed run can afford it)
@@ -304,7 +316,8 @@ def simulation_failed(c, mod, scene, exc, p=None) -> SimulationFailed:
             found = nonfinite_culprit(c, mod, exc, p)
         if found is not None:
             coord, why = found[0] or scene.coord, found[1]
-    return SimulationFailed(coord, f"simulation failed: {exc}{why}")
+    text, zeno = zeno_text(exc)
+    return SimulationFailed(coord, f"simulation failed: {text}{why or zeno}")
 
 
 def check_start(c, mod, scene, p=None) -> None:

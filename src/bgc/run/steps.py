@@ -81,3 +81,61 @@ def stepped_over(mod, t, x, p=None, breakpoints=(), nsteps=None) -> str | None:
             f"d{name}/dt of the model is {f.reshape(n, -1, nt - 2)[i].flat[k + 1]:.4g}, the "
             f"solution's {d[i].flat[k + 1]:.4g} (outputs there show what the state never saw); "
             "a smaller solver max_step resolves it")
+
+
+#: atol dominates a state's error control where it exceeds rtol times the state's size by this.
+ATOL_DOMINATES = 10.0
+#: a state that never exceeds this fraction of atol is taken as zero (round-off, a component
+#: that is zero by symmetry), not as a small quantity.
+ATOL_NOISE = 1e-4
+
+
+def tightened_atol(mod, x, rtol: float, atol: float) -> tuple[float, str] | None:
+    """(a smaller atol, why) when the default atol, not rtol, held some state's error, else
+    None.
+
+    The integrators keep each state's local error below atol + rtol |x|. A state that stays
+    small in its own unit (a microfarad capacitor's charge, 1e-6 C at 1 V; a millihenry
+    inductor's flux linkage) is held to atol alone: at the default atol 1e-9 its relative
+    error may reach 1e-3, not rtol. Such a state is one whose largest magnitude over the run,
+    times rtol, lies more than ATOL_DOMINATES times below atol, and above ATOL_NOISE times atol
+    (modes and closed loops' violation states, small by design, are left out). The atol
+    returned is rtol times the smallest such size, rounded down to a power of ten: the run
+    repeated with it holds every state to rtol (docs/model-format.md, "Scenes")."""
+    skip = set(getattr(mod, "MODE_NAMES", ())) | set(getattr(mod, "CONSTRAINT_STATES", ()))
+    X = np.abs(np.asarray(x, dtype=float).reshape(np.shape(x)[0], -1))
+    with np.errstate(all="ignore"):
+        size = np.where(np.isfinite(X), X, 0.0).max(axis=1)
+    small = sorted((size[i], name) for i, name in enumerate(mod.STATE_NAMES)
+                   if name not in skip and ATOL_NOISE * atol < size[i]
+                   and rtol * size[i] * ATOL_DOMINATES < atol)
+    if not small:
+        return None
+    least = small[0][0]
+    new = float(10.0 ** np.floor(np.log10(rtol * least)))
+    names = ", ".join(f"{name!r} (at most {s:.3g})" for s, name in small[:3])
+    more = f" and {len(small) - 3} more" if len(small) > 3 else ""
+    return new, (f"atol {new:g}: the state {names}{more} stays so small in its own unit that "
+                 f"the default atol {atol:g} would hold it to a relative {atol / least:.1g}, not "
+                 f"rtol {rtol:g}; rerunning (the scene's solver atol chooses)")
+
+
+def rerun_tightened(mod, t_span, method: str, run: dict, res, say) -> tuple:
+    """(result, what the summary line adds) of the run again at a smaller atol (``run["atol"]``
+    updated, the reason said) where the default atol, not rtol, held some state's error
+    (:func:`tightened_atol`), else (``res``, ""); a rerun that fails (its step budget, say)
+    leaves the first run standing, with a warning."""
+    _, x, _ = res
+    tight = tightened_atol(mod, x, run["rtol"], run["atol"])
+    if tight is None:
+        return res, ""
+    old, (run["atol"], note) = run["atol"], tight
+    say(note)
+    try:
+        return (mod.simulate(t_span, method=method, **run),
+                f"atol tightened from {old:g}: small states")
+    except mod.SimulationError as exc:  # the first run stands, with what it holds to atol
+        say(f"warning: the run at atol {run['atol']:g} failed ({exc}); the run at atol "
+            f"{old:g} stands, its small states held to atol only")
+        run["atol"] = old
+        return res, ""

@@ -4,6 +4,8 @@ from the model reaches the C sources: :func:`c_string_literal` (string literals)
 :func:`c_comment` (comments)."""
 from __future__ import annotations
 
+from typing import ClassVar
+
 import sympy as sp
 from sympy.printing.c import C99CodePrinter
 from sympy.printing.precedence import PRECEDENCE
@@ -75,6 +77,9 @@ class CPrinter(FastPrinting, C99CodePrinter):
 
     # as in the numpy printer: x/b**2 and x/b**3 must not come out as x/b*b or x/b*b*b
     product_powers = (2, 3)
+    # no <math.h> constant macros (M_PI_2, M_SQRT1_2, M_LN2...): they are POSIX, not C99, and
+    # a strict -std=c99 build does not declare them; the constants print as numbers
+    math_macros: ClassVar[dict] = {}
 
     def __init__(self, names: dict | None = None):
         super().__init__({"strict": True, "order": "none", "allow_unknown_functions": False})
