@@ -10784,23 +10784,25 @@ def _one_sided(a, c):
 # parameters split per instance once per run) and stack the results: per instance the same
 # arithmetic, so the same values (bench/bench_small_batch.py, bench/RESULTS_small_batch.md).
 #
-#: The loop's limits (`python bench/bench_small_batch.py`, bench/RESULTS_small_batch.md;
-#: measured on msd, rlc, pendulum, quarter_car, dc_motor, the rigid double pendulum, the top,
-#: the rigid four-bar and the 3R2S). A batch of nb instances, 2 <= nb < SMALL_BATCH[name], is
-#: looped where the function is large: at least SMALL_BATCH_MIN_LOCALS local names (its
-#: efforts, flows, temporaries and parameters: a count of its operations fixed when the
-#: module is generated). Why: one instance costs a fixed overhead plus its operations on
+#: The loop's limits (`python bench/bench_small_batch.py --span 0.1 --budget 0.3`,
+#: bench/RESULTS_small_batch.md; measured on msd, rlc, pendulum, quarter_car, dc_motor, the
+#: rigid double pendulum, the top, the rigid four-bar and the 3R2S). A batch of nb instances
+#: is looped where 2 <= nb < SMALL_BATCH[name][k], k by the function's size: its count of local
+#: names (its efforts, flows, temporaries and parameters: a count of its operations fixed when
+#: the module is generated), k = 0 from SMALL_BATCH_MIN_LOCALS names, 1 from
+#: SMALL_BATCH_LARGE_LOCALS. Why: one instance costs a fixed overhead plus its operations on
 #: numbers; the vectorised call costs about the same overhead plus the same operations on
-#: arrays, 7-10 times dearer each and nearly flat in nb up to 16 or more. So a small function
-#: (msd's, the quarter car's: under 35 names) is overhead and never pays for a loop, and a
-#: large one pays while nb is below that ratio: the rhs up to 4 instances, the Jacobian (its
-#: dense n x n result is more operations per call) up to 6. A function that solves a linear
-#: system (derivative causality: _bgc_linsolve, whose cost per call barely grows with nb)
-#: pays for 2 instances only (SMALL_BATCH_SOLVES). Each limit is within 20 % of the faster
-#: path at every measured size and model.
-SMALL_BATCH = {"rhs": 5, "jacobian": 7}
+#: arrays, several times dearer each and nearly flat in nb up to 16 or more. The loop pays
+#: while nb is below the ratio of the two, which grows with the function's size: a small
+#: function (msd's, the quarter car's: under 35 names) is overhead and never pays; the top's
+#: and the double pendulum's (57-363 names) pay up to 4 instances for the rhs and 6 for the
+#: Jacobian (its dense n x n result is more operations per call); the 3R2S's (523 and 3920)
+#: up to 7 and 9. A function that solves linear systems (derivative causality: _bgc_linsolve,
+#: whose cost per call barely grows with nb) pays for 2 instances only (SMALL_BATCH_SOLVES).
+#: Each limit is within 20 % of the faster path at every measured size and model.
+SMALL_BATCH = {"rhs": (5, 8), "jacobian": (7, 10)}
+SMALL_BATCH_MIN_LOCALS, SMALL_BATCH_LARGE_LOCALS = 50, 400
 SMALL_BATCH_SOLVES = 3
-SMALL_BATCH_MIN_LOCALS = 50
 # the model part's own functions (a C wrapper defines its rhs after this runtime: None here),
 # and whether the model part evaluates one instance exactly as an instance of a batch: a
 # nonlinear loop's Newton starts warm from the last call's solution (an instance would start
@@ -10810,8 +10812,8 @@ _LOOPABLE = globals().get("_NEWTON_WARM") is None and globals().get("_PARAM_ARRA
 
 
 def _loop_limit(name):
-    """The batch size from which rhs or jacobian (name) is vectorised: SMALL_BATCH's for a
-    large function, SMALL_BATCH_SOLVES at most for one that solves linear systems, 0 (never
+    """The batch size from which rhs or jacobian (name) is vectorised: SMALL_BATCH's by the
+    function's size, SMALL_BATCH_SOLVES at most for one that solves linear systems, 0 (never
     looped) for a small one, in a module that is not loopable, or for a function that is not
     the model part's own."""
     fn = _OWN[name]
@@ -10820,9 +10822,10 @@ def _loop_limit(name):
     code = fn.__code__
     if code.co_nlocals < SMALL_BATCH_MIN_LOCALS:
         return 0
+    limit = SMALL_BATCH[name][int(code.co_nlocals >= SMALL_BATCH_LARGE_LOCALS)]
     if "_bgc_linsolve" in code.co_names:
-        return min(SMALL_BATCH[name], SMALL_BATCH_SOLVES)
-    return SMALL_BATCH[name]
+        return min(limit, SMALL_BATCH_SOLVES)
+    return limit
 
 
 def _looped(name, nb):

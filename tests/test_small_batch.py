@@ -12,9 +12,10 @@ import pytest
 from scipy.integrate import solve_ivp
 
 #: the loop on for any size and any function (a model under the rule's size still loops)
-ALWAYS = {"SMALL_BATCH": {"rhs": 10**6, "jacobian": 10**6}, "SMALL_BATCH_MIN_LOCALS": 0}
+ALWAYS = {"SMALL_BATCH": {"rhs": (10**6, 10**6), "jacobian": (10**6, 10**6)},
+          "SMALL_BATCH_MIN_LOCALS": 0, "SMALL_BATCH_SOLVES": 10**6}
 #: the loop off: the vectorised path everywhere (the runtime before the loop)
-NEVER = {"SMALL_BATCH": {"rhs": 0, "jacobian": 0}}
+NEVER = {"SMALL_BATCH": {"rhs": (0, 0), "jacobian": (0, 0)}}
 
 
 def _set(monkeypatch, mod, limits):
@@ -74,10 +75,13 @@ def test_loop_and_vectorised_paths_give_the_same_values(gen, name, shape):
 
 def test_the_rule_loops_large_functions_below_their_limits_only(gen, monkeypatch):
     big, small, newton = gen("mech3r2s"), gen("msd"), gen("rectifier")
-    assert big._looped("rhs", 2) and big._looped("jacobian", 2)
-    assert not big._looped("rhs", 1)  # one instance is the single path already
-    assert not big._looped("rhs", big.SMALL_BATCH["rhs"])
-    assert not big._looped("jacobian", big.SMALL_BATCH["jacobian"])
+    for fn in ("rhs", "jacobian"):
+        limit = big._loop_limit(fn)
+        assert limit > 3 and big._looped(fn, 2) and big._looped(fn, limit - 1)
+        assert not big._looped(fn, limit) and not big._looped(fn, 1)  # 1: the single path
+    # the 3R2S's functions are larger than the double pendulum's: their loops pay longer
+    pend = gen("double_pendulum_rigid")
+    assert big._loop_limit("rhs") > pend._loop_limit("rhs") > 2
     assert not small._looped("rhs", 2)  # a small function: overhead, never looped
     # a nonlinear loop's Newton starts warm from the last call: never looped
     assert not newton._LOOPABLE and not newton._looped("rhs", 2)
