@@ -172,8 +172,8 @@ def write(out, table, e2e, single, limits, span, repeats, cmd, load_before, load
               "batches of mass variants", "",
               f"One instance alone: {single:.2f} s. Best of {repeats} interleaved runs each. "
               "Vectorised: SMALL_BATCH set to 0 (the runtime before the loop); loop: the "
-              "default limits; both with the default choice of LU (sparse from 4 instances of "
-              "the 3R2S: SPARSE_MIN_SIZE, SPARSE_MAX_DENSITY). The last column: the loop with "
+              "default limits; both with the default choice of LU (the column 'default LU sparse': "
+              "SPARSE_MIN_SIZE, SPARSE_MAX_DENSITY). The last column: the loop with "
               "simulate(..., sparse=True), where the default is dense.", "",
               "| batch | vectorised (s) | loop (s) | loop/vec | x bit-identical | nfev | njev "
               "| default LU sparse | loop, sparse=True (s) |",
