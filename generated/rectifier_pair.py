@@ -929,15 +929,15 @@ def _looped(name, nb):
     return 2 <= nb < _loop_limit(name)
 
 
-_SPLIT = []  # the last (unpacked parameters, batch, their split per instance)
-
-
 def _split_params(p, batch):
     """The unpacked parameters p (from _params) as one unpacked tuple per instance of the
-    batch (flat order), each of scalars; made once per p (simulate unpacks its parameters once,
-    so once per run) and kept for the calls that follow."""
-    if _SPLIT and _SPLIT[0] is p and _SPLIT[1] == batch:
-        return _SPLIT[2]
+    batch (flat order), each of scalars; made once per p and batch (simulate unpacks its
+    parameters once, so once per run) and kept on p itself (a run's own object: no state
+    shared between threads that run at once)."""
+    memo = getattr(p, "__dict__", None)
+    split = None if memo is None else memo.get(("_split", batch))
+    if split is not None:
+        return split
     vals, bshape = p
     nb = int(np.prod(batch, dtype=int))
     if not bshape:
@@ -946,7 +946,8 @@ def _split_params(p, batch):
         cols = [np.broadcast_to(v, batch).reshape(nb) if np.ndim(v) else None for v in vals]
         split = [type(p)((tuple(v if c is None else c[i] for v, c in zip(vals, cols)), ()))
                  for i in range(nb)]
-    _SPLIT[:] = [p, batch, split]
+    if memo is not None:
+        memo[("_split", batch)] = split
     return split
 
 
