@@ -225,8 +225,8 @@ def test_batch_of_mass_variants_equals_single_runs(scenes):
     against 36 for this span with 3, side by side on a loaded machine: docs/performance.md.
     Before the numpy runtime looped small batches instance by instance, the batched call
     cost more than its single runs together: with 2 variants 20 s against 6 s each, on a
-    loaded machine; the whole test now takes about 13 s: docs/performance.md, "Small
-    batches in the numpy module".)
+    loaded machine; the whole test went from 33 s to 21 s side by side: docs/performance.md,
+    "Small batches in the numpy module".)
 
     The batched solve takes other steps (one error norm over all instances), so the two
     agree to the solver's accuracy only: measured 3.7e-6 rad in the angles, 1e-7 m in p3 and
