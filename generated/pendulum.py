@@ -525,16 +525,158 @@ def _one_sided(a, c):
     return lambda t: min(max(t, lo), hi)
 
 
+# --------------------------------------------------------------------------------------------
+# Small batches: numpy's cost per operation on an array of 2-16 entries is several times its
+# cost on one number (a 0-d value: numpy's scalar arithmetic), and a batch's rhs and Jacobian
+# are thousands of such operations. Below a measured size the solver-facing wrappers evaluate
+# the batch instance by instance through the single-instance path (x of shape (n,), the
+# parameters split per instance once per run) and stack the results: per instance the same
+# arithmetic, so the same values (bench/bench_small_batch.py, bench/RESULTS_small_batch.md).
+#
+#: The loop's limits (`python bench/bench_small_batch.py --span 0.1 --budget 0.3`,
+#: bench/RESULTS_small_batch.md; measured on msd, rlc, pendulum, quarter_car, dc_motor, the
+#: rigid double pendulum, the top, the rigid four-bar and the 3R2S). A batch of nb instances
+#: is looped where 2 <= nb < SMALL_BATCH[name][k], k by the function's size: its count of local
+#: names (its efforts, flows, temporaries and parameters: a count of its operations fixed when
+#: the module is generated), k = 0 from SMALL_BATCH_MIN_LOCALS names, 1 from
+#: SMALL_BATCH_LARGE_LOCALS. Why: one instance costs a fixed overhead plus its operations on
+#: numbers; the vectorised call costs about the same overhead plus the same operations on
+#: arrays, several times dearer each and nearly flat in nb up to 16 or more. The loop pays
+#: while nb is below the ratio of the two, which grows with the function's size: a small
+#: function (msd's, the quarter car's: under 35 names) is overhead and never pays; the top's
+#: and the double pendulum's (57-363 names) pay up to 4 instances for the rhs and 6 for the
+#: Jacobian (its dense n x n result is more operations per call); the 3R2S's (523 and 3920)
+#: up to 7 and 9. A function that solves linear systems (derivative causality: _bgc_linsolve,
+#: whose cost per call barely grows with nb) pays for 2 instances only (SMALL_BATCH_SOLVES).
+#: Each limit is within 20 % of the faster path at every measured size and model.
+SMALL_BATCH = {"rhs": (5, 8), "jacobian": (7, 10)}
+SMALL_BATCH_MIN_LOCALS, SMALL_BATCH_LARGE_LOCALS = 50, 400
+SMALL_BATCH_SOLVES = 3
+# the model part's own functions (a C wrapper defines its rhs after this runtime: None here),
+# and whether the model part evaluates one instance exactly as an instance of a batch: a
+# nonlinear loop's Newton starts warm from the last call's solution (an instance would start
+# from the one before it) and a rolled module keeps one parameter array per batch
+_OWN = {"rhs": globals().get("rhs"), "jacobian": globals().get("jacobian")}
+_LOOPABLE = globals().get("_NEWTON_WARM") is None and globals().get("_PARAM_ARRAY") is None
+
+
+def _loop_limit(name):
+    """The batch size from which rhs or jacobian (name) is vectorised: SMALL_BATCH's by the
+    function's size, SMALL_BATCH_SOLVES at most for one that solves linear systems, 0 (never
+    looped) for a small one, in a module that is not loopable, or for a function that is not
+    the model part's own."""
+    fn = _OWN[name]
+    if not _LOOPABLE or fn is None or globals().get(name) is not fn:
+        return 0
+    code = fn.__code__
+    if code.co_nlocals < SMALL_BATCH_MIN_LOCALS:
+        return 0
+    limit = SMALL_BATCH[name][int(code.co_nlocals >= SMALL_BATCH_LARGE_LOCALS)]
+    if "_bgc_linsolve" in code.co_names:
+        return min(limit, SMALL_BATCH_SOLVES)
+    return limit
+
+
+def _looped(name, nb):
+    """Does the solver-facing wrapper of rhs or jacobian (name) loop over the nb instances of
+    a batch (_loop_limit)?"""
+    return 2 <= nb < _loop_limit(name)
+
+
+def _split_params(p, batch):
+    """The unpacked parameters p (from _params) as one unpacked tuple per instance of the
+    batch (flat order), each of scalars; made once per p and batch (simulate unpacks its
+    parameters once, so once per run) and kept on p itself (a run's own object: no state
+    shared between threads that run at once)."""
+    memo = getattr(p, "__dict__", None)
+    split = None if memo is None else memo.get(("_split", batch))
+    if split is not None:
+        return split
+    vals, bshape = p
+    nb = int(np.prod(batch, dtype=int))
+    if not bshape:
+        split = [p] * nb
+    else:
+        cols = [np.broadcast_to(v, batch).reshape(nb) if np.ndim(v) else None for v in vals]
+        split = [type(p)((tuple(v if c is None else c[i] for v, c in zip(vals, cols)), ()))
+                 for i in range(nb)]
+    if memo is not None:
+        memo[("_split", batch)] = split
+    return split
+
+
+_INPUT_SIZES = {}  # input -> its number of components, found on first use
+
+
+def _input_sizes():
+    """Each input's number of components (INPUT_LABELS: a vector input's are name[k])."""
+    if not _INPUT_SIZES:
+        _INPUT_SIZES.update({name: sum(1 for lbl in INPUT_LABELS
+                                       if lbl == name or lbl.startswith(name + "["))
+                             for name in INPUT_NAMES})
+    return _INPUT_SIZES
+
+
+def _split_inputs(t, u, batch, nb):
+    """The input overrides u at time t as one dict per instance (nb of the batch) of constant
+    signals: each override called once; a scalar input's value that spans the batch is split
+    per instance, other values are every instance's. Without overrides, None for each."""
+    if u is None:
+        return [None] * nb
+    sizes = _input_sizes()
+    same, each = {}, {}
+    for name, f in u.items():
+        if name not in sizes:
+            continue  # not an input: the model part never reads it
+        v = np.asarray(f(t), dtype=float)
+        if sizes[name] == 1 and v.size > 1:
+            each[name] = np.broadcast_to(v, batch).reshape(nb)
+        elif sizes[name] == 1:
+            same[name] = lambda _t, v=v.reshape(()): v
+        else:
+            same[name] = lambda _t, v=v: v
+    return [{**same, **{name: (lambda _t, v=v[i]: v) for name, v in each.items()}}
+            for i in range(nb)]
+
+
+def _each(name, t, y, shape, p, u):
+    """rhs (dx/dt, (n, nb)) or jacobian ((n, n, nb)) of the batch in y (flat, n * nb),
+    instance by instance through the single-instance path."""
+    n = shape[0]
+    Y = y.reshape(n, -1)
+    nb = Y.shape[1]
+    ps, us = _split_params(p, shape[1:]), _split_inputs(t, u, shape[1:], nb)
+    fn = rhs if name == "rhs" else jacobian
+    out = np.empty((n, nb) if name == "rhs" else (n, n, nb))
+    for i in range(nb):
+        out[..., i] = fn(t, Y[:, i], ps[i], us[i])
+    return out
+
+
 def _flat_rhs(at, shape, p, u, stats, method):
     """rhs on the solver's flat state (n * batch,), at the one-sided time at(t); counts calls.
-    A value that is not finite stops the run (NonFiniteError): one check per call."""
+    A value that is not finite stops the run (NonFiniteError): one check per call. A small
+    batch is evaluated instance by instance (_looped)."""
+    looped = _looped("rhs", int(np.prod(shape[1:], dtype=int)))
+
     def fun(t, y):
         stats["nfev"] += 1
-        dy = rhs(at(t), y.reshape(shape + y.shape[1:]), p, u).reshape(y.shape)
+        if looped and y.ndim == 1:
+            dy = _each("rhs", at(t), y, shape, p, u).reshape(y.shape)
+        else:
+            dy = rhs(at(t), y.reshape(shape + y.shape[1:]), p, u).reshape(y.shape)
         if not _all_finite(dy):
             raise _nonfinite(method, "rhs", at(t), y, dy, shape, stats)
         return dy
     return fun
+
+
+def _batch_jacobian(t, y, shape, p, u):
+    """The analytic Jacobian of the batch in y (flat): (n, n, nb), a small batch instance by
+    instance (_looped)."""
+    if _looped("jacobian", y.size // N_STATES if N_STATES else 0):
+        return _each("jacobian", t, y, shape, p, u)
+    return jacobian(t, y.reshape(shape), p, u).reshape(N_STATES, N_STATES, -1)
 
 
 _PATTERN = []  # JAC_SPARSITY's (rows, columns), found once (a scan of n * n entries)
@@ -608,7 +750,7 @@ def _flat_jacobian(at, shape, p, u, sparse, method, stats):
                 raise _nonfinite(method, "jacobian", at(t), y, jacobian(
                     at(t), y.reshape(shape), p, u).reshape(N_STATES, N_STATES, nb), shape, stats)
             return sps.csc_matrix((vals[order], indices, indptr), shape=(size, size))
-        J = jacobian(at(t), y.reshape(shape), p, u).reshape(N_STATES, N_STATES, nb)
+        J = _batch_jacobian(at(t), y, shape, p, u)
         if not sparse:
             if not _all_finite(J):
                 raise _nonfinite(method, "jacobian", at(t), y, J, shape, stats)
@@ -654,7 +796,7 @@ def _jacobian_options(method, jac, at, shape, p, u, stats, sparse=None):
 def _eigenvalues(t, y, shape, p, u, method, stats):
     """Eigenvalues of the analytic Jacobian at (t, y), over up to _STIFF_SAMPLE batch instances
     (a Jacobian that is not finite stops the run, as in the implicit methods)."""
-    J = np.asarray(jacobian(t, y.reshape(shape), p, u)).reshape(N_STATES, N_STATES, -1)
+    J = np.asarray(_batch_jacobian(t, y, shape, p, u))
     if not _all_finite(J):
         raise _nonfinite(method, "jacobian", t, y, J, shape, stats)
     pick = np.unique(np.linspace(0, J.shape[2] - 1, _STIFF_SAMPLE).round().astype(int))

@@ -223,8 +223,10 @@ def test_batch_of_mass_variants_equals_single_runs(scenes):
     2 s (v_d jumps; theta1 starts to move) and the first half second of the circle. (The
     whole 6 s with 8 variants checked the same property at 60 CPU s; with 4, 49 CPU s
     against 36 for this span with 3, side by side on a loaded machine: docs/performance.md.
-    The batched call costs more than its single runs together: with 2 variants it took
-    20 s and each single run 6 s, on a loaded machine.)
+    Before the numpy runtime looped small batches instance by instance, the batched call
+    cost more than its single runs together: with 2 variants 20 s against 6 s each, on a
+    loaded machine; the whole test went from 33 s to 21 s side by side: docs/performance.md,
+    "Small batches in the numpy module".)
 
     The batched solve takes other steps (one error norm over all instances), so the two
     agree to the solver's accuracy only: measured 3.7e-6 rad in the angles, 1e-7 m in p3 and
