@@ -1,0 +1,110 @@
+"""A red-team pass (branch harden): each defect a hostile or careless user found, paired with
+the input that showed it and what bgc says now.
+
+* a table or an import named through a YAML escape (``"t\\x61ble"``) was missing from the
+  compile cache's key, the run record and the run's inputs: an edited table replayed the old
+  result, and ``--out`` could replace the table;
+* an empty output path (``--out ''``, ``--plot ''``, ``--scene ''``) was taken as no option:
+  exit 0 with nothing written;
+* ``bgc sweep --scheduler bogus`` was an internal error; ``--max-wall nan`` was accepted;
+* a scene's (or a sweep's) parameter value outside the model's ``min``/``max`` ran;
+* ``linearize --at`` a time that is not finite, before the start or past the limit of times
+  was blamed on the model (or integrated backwards);
+* a 5000-digit number in an expression showed Python's own advice;
+* a model path naming a folder or a device said "does not exist".
+"""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from bgc.base.reach import reached_files
+from bgc.cli.commands import main
+from conftest import bgc_in_process, seed_c_runtime
+
+ROOT = Path(__file__).resolve().parents[1]
+MSD = (ROOT / "models" / "msd.yaml").read_text(encoding="utf-8")
+STEP = """bgc_scene: 1
+model: msd.yaml
+duration: 2.0
+outputs: [position]
+solver: {method: Radau, rtol: 1.0e-6, atol: 1.0e-9, dt: 0.1, backend: numpy}
+"""
+
+
+def one_line(r, status: int = 2) -> str:
+    """The one line a user error prints (progress lines, which start with '[', aside)."""
+    assert r.exit_code == status, (r.exit_code, r.output)
+    assert "Traceback" not in r.output, r.output
+    lines = [ln for ln in r.output.strip().splitlines() if not ln.startswith("[")]
+    assert len(lines) == 1, r.output
+    return lines[0]
+
+
+def cli(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def files(root: Path) -> dict:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*"))
+            if p.is_file() and "cache" not in p.relative_to(root).parts}
+
+
+# -- a table named through a YAML escape ---------------------------------------------------------
+
+ESCAPED = STEP + 'inputs:\n  F: {"t\\x61ble": force.csv, columns: [time, F]}\n'
+
+
+def _escaped_project(root: Path) -> Path:
+    (root / "msd.yaml").write_text(MSD)
+    (root / "force.csv").write_text("time,F\n0,0\n1,10\n2,10\n")
+    scene = root / "scene.yaml"
+    scene.write_text(ESCAPED)
+    assert b"table" not in scene.read_bytes()  # the escape is the whole point
+    return scene
+
+
+@pytest.mark.parametrize("key", ['"t\\x61ble"', '"\\u0074able"', '"\\U00000074able"'])
+def test_a_table_named_through_an_escape_is_reached(tmp_path, key):
+    (tmp_path / "msd.yaml").write_text(MSD)
+    (tmp_path / "force.csv").write_text("time,F\n0,0\n1,1\n")
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(STEP + f"inputs:\n  F: {{{key}: force.csv}}\n")
+    reached = [Path(r.resolved).name for r in reached_files(tmp_path / "msd.yaml", scene)]
+    assert reached == ["msd.yaml", "force.csv"]
+
+
+def test_an_import_named_through_an_escape_is_reached(tmp_path):
+    parts = tmp_path / "parts.yaml"
+    parts.write_text("bgc: 1\nname: parts\nelements: {}\nbonds: []\n")
+    model = tmp_path / "m.yaml"
+    model.write_text(MSD.replace("units: strict", '"imp\\x6frts": [{file: parts.yaml}]'))
+    assert b"imports" not in model.read_bytes()
+    assert [Path(r.resolved).name for r in reached_files(model)] == ["m.yaml", "parts.yaml"]
+
+
+def test_an_edited_escaped_table_is_not_replayed_and_never_replaced(tmp_path):
+    """The run with the first table, the table edited, the warm run: it must be the --no-cache
+    run's answer (the force doubled: the static deflection F/k doubles), and an output aimed
+    at the table is refused."""
+    scene, cache = _escaped_project(tmp_path), seed_c_runtime(tmp_path / "cache")
+    env = {"BGC_CACHE_DIR": cache}
+
+    def position(name, *extra):
+        r = bgc_in_process("simulate", scene, "-q", "--out", tmp_path / name, *extra, env=env)
+        assert r.returncode == 0, r.stderr
+        return np.load(tmp_path / name)["position"]
+
+    first = position("a.npz")
+    (tmp_path / "force.csv").write_text("time,F\n0,0\n1,20\n2,20\n")
+    warm, cold = position("b.npz"), position("c.npz", "--no-cache")
+    np.testing.assert_array_equal(warm, cold)
+    assert warm[-1] > 1.5 * first[-1]
+    before = (tmp_path / "force.csv").read_bytes()
+    r = bgc_in_process("simulate", scene, "-q", "--out", tmp_path / "force.csv", env=env)
+    assert r.returncode == 2 and "is an input of this run" in r.stderr, r.stderr
+    assert (tmp_path / "force.csv").read_bytes() == before
