@@ -108,3 +108,60 @@ def test_an_edited_escaped_table_is_not_replayed_and_never_replaced(tmp_path):
     r = bgc_in_process("simulate", scene, "-q", "--out", tmp_path / "force.csv", env=env)
     assert r.returncode == 2 and "is an input of this run" in r.stderr, r.stderr
     assert (tmp_path / "force.csv").read_bytes() == before
+
+
+# -- an empty output path is refused, never taken as no option ----------------------------------
+
+def _step_project(root: Path) -> Path:
+    (root / "msd.yaml").write_text(MSD)
+    scene = root / "scene.yaml"
+    scene.write_text(STEP)
+    return scene
+
+
+SWEEP = STEP + "sweep:\n  parameters:\n    m: {values: [1.0, 2.0]}\n"
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["simulate", "{scene}", "--out", ""], "error: --out '': the path is empty"),
+    (["linearize", "{model}", "--out", ""], "error: --out '': the path is empty"),
+    (["accuracy", "{scene}", "--out", "", "--methods", "RK45", "--tols", "1e-3"],
+     "error: --out '': the path is empty"),
+    (["sweep", "{sweep}", "--out", "r.zarr", "--plot", ""], "error: --plot '': the path is empty"),
+    (["compile", "{model}", "--scene", "", "-o", "m.py"], "cannot read scene file '': no such file"),
+])
+def test_an_empty_output_path_is_one_message_and_writes_nothing(tmp_path, monkeypatch, argv,
+                                                                  words):
+    scene = _step_project(tmp_path)
+    (tmp_path / "sweep.yaml").write_text(SWEEP)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("BGC_CACHE_DIR", str(seed_c_runtime(tmp_path / "cache")))
+    before = files(tmp_path)
+    subs = {"{scene}": scene, "{model}": tmp_path / "msd.yaml", "{sweep}": tmp_path / "sweep.yaml"}
+    r = cli(*[subs.get(a, a) for a in argv], "-q")
+    assert words in one_line(r)
+    assert files(tmp_path) == before
+
+
+# -- bgc sweep's and bgc accuracy's options ------------------------------------------------------
+
+@pytest.mark.parametrize("address", ["bogus", "foo://host:1", "tcp://"])
+def test_a_scheduler_that_is_not_an_address_is_a_usage_error(tmp_path, monkeypatch, address):
+    (tmp_path / "msd.yaml").write_text(MSD)
+    (tmp_path / "sweep.yaml").write_text(SWEEP)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("BGC_CACHE_DIR", str(seed_c_runtime(tmp_path / "cache")))
+    r = cli("sweep", "sweep.yaml", "--out", "r.zarr", "--scheduler", address, "-q",
+            "--backend", "numpy")
+    line = one_line(r)
+    assert line.startswith(f"error: --scheduler {address!r} is not a Dask scheduler's address")
+    assert not (tmp_path / "r.zarr").exists()
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-1", "0"])
+def test_sweep_max_wall_is_a_positive_finite_number(tmp_path, value):
+    (tmp_path / "msd.yaml").write_text(MSD)
+    (tmp_path / "sweep.yaml").write_text(SWEEP)
+    r = cli("sweep", tmp_path / "sweep.yaml", "--out", tmp_path / "r.zarr", "--max-wall", value)
+    assert "Invalid value for '--max-wall'" in one_line(r)
+    assert not (tmp_path / "r.zarr").exists()

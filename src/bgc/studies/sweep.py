@@ -423,7 +423,12 @@ def client_for(scheduler=None, workers=None):
         from bgc.studies.quiet_close import QuietWorkerClose  # imports distributed
         client.register_plugin(QuietWorkerClose(), name="bgc-quiet-close")
         return client
-    client = Client(scheduler)
+    try:
+        client = Client(scheduler)
+    except (ValueError, TypeError) as exc:  # not an address (no port, unknown protocol)
+        raise ModelError(None, f"--scheduler {str(scheduler)[:80]!r} is not a Dask "
+                               f"scheduler's address ({str(exc)[:120]}): give "
+                               "tcp://HOST:PORT, or 'local'") from None
     client.bgc_cluster = None
     return client
 
