@@ -165,3 +165,40 @@ def test_sweep_max_wall_is_a_positive_finite_number(tmp_path, value):
     r = cli("sweep", tmp_path / "sweep.yaml", "--out", tmp_path / "r.zarr", "--max-wall", value)
     assert "Invalid value for '--max-wall'" in one_line(r)
     assert not (tmp_path / "r.zarr").exists()
+
+
+# -- a scene's or a sweep's value outside the model's min and max --------------------------------
+
+@pytest.mark.parametrize("line, words", [
+    ("parameters: {m: -1.0}", "parameter 'm': the scene gives -1, below the model's min 0 "
+                              "(line 16 of "),
+    ("parameters: {k: -200}", "parameter 'k': the scene gives -200, below the model's min 0"),
+    ("parameters: {m: 1.0e-9}", None),  # within: runs
+])
+def test_scene_parameters_keep_the_models_bounds(tmp_path, line, words):
+    """msd.yaml says ``min: 0`` for m, k and c; the model's own value had to keep it, and so
+    must a scene's (a negative mass is a different, unstable system)."""
+    scene = _step_project(tmp_path)
+    scene.write_text(STEP + line + "\n")
+    r = cli("simulate", scene, "-q", "--out", tmp_path / "r.npz")
+    if words is None:
+        assert r.exit_code == 0, r.output
+        return
+    text = one_line(r)
+    assert text.startswith(f"{scene}:6:14: ") and words in text, text
+    assert not (tmp_path / "r.npz").exists()
+
+
+@pytest.mark.parametrize("rule, words", [
+    ("{linspace: [-1.0, 3.0, 3]}", "the sweep gives -1, below the model's min 0"),
+    ("{values: [2.0, -0.5]}", "the sweep gives -0.5, below the model's min 0"),
+    ("{normal: [0.1, 1.0]}\n  samples: 8\n  seed: 1", "below the model's min 0"),
+])
+def test_swept_values_keep_the_models_bounds(tmp_path, rule, words):
+    (tmp_path / "msd.yaml").write_text(MSD)
+    sweep = tmp_path / "sweep.yaml"
+    sweep.write_text(STEP + f"sweep:\n  parameters:\n    m: {rule}\n")
+    r = cli("sweep", sweep, "--out", tmp_path / "r.zarr", "-q")
+    text = one_line(r)
+    assert text.startswith(f"{sweep}:8:5: parameter 'm': ") and words in text, text
+    assert not (tmp_path / "r.zarr").exists()

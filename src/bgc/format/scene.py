@@ -550,6 +550,20 @@ def _check_value_shape(pid: str, v, param, coord) -> None:
         raise ModelError(coord, f"parameter {pid!r}: the scene gives {_shape_text(got)}, the "
                                 f"model's parameter is {_shape_text(want)} (line "
                                 f"{param.coord.line} of {param.coord.file})")
+    check_bounds(pid, v, param, coord, "the scene gives")
+
+
+def check_bounds(pid: str, v, param, coord, who: str) -> None:
+    """A value for a scalar parameter within the model's ``min`` and ``max`` (which the model's
+    own value had to keep): a scene or a sweep may not run a negative mass the model refused."""
+    if not isinstance(v, (int, float)) or isinstance(v, bool):
+        return
+    for bound, word in ((param.min, "min"), (param.max, "max")):
+        if bound is not None and (v < bound if word == "min" else v > bound):
+            raise ModelError(coord, f"parameter {pid!r}: {who} {v:g}, "
+                                    f"{'below' if word == 'min' else 'above'} the model's "
+                                    f"{word} {bound:g} (line {param.coord.line} of "
+                                    f"{param.coord.file})")
 
 
 def check_outputs(scene: Scene, names) -> None:

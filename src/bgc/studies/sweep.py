@@ -59,7 +59,7 @@ from bgc.base.safeio import read_text_bounded
 from bgc.core.graph import build_graph
 from bgc.format.expr import Expr
 from bgc.format.reader import Reader
-from bgc.format.scene import parse_scene, scene_model
+from bgc.format.scene import check_bounds, parse_scene, scene_model
 from bgc.run.runner import compile_scene, runtime_params
 from bgc.studies.sweep_plot import plot_sweep  # noqa: F401 (bgc.studies.sweep.plot_sweep)
 from bgc.studies.sweep_spec import (  # noqa: F401 (the section's names, as sweep.*)
@@ -204,6 +204,11 @@ def prepare(scene_path, progress=None, backend: str | None = None) -> Prepared:
             raise ModelError(e.coord, f"sweep: parameter {e.name!r} is a matrix; only scalar "
                                       "parameters can be swept")
         swept.append(e.name)
+    values = samples(spec)
+    for e in spec.entries:  # within the model's min and max, as a scene's value must be
+        if e.kind == "param":
+            for v in (float(np.min(values[e.label])), float(np.max(values[e.label]))):
+                check_bounds(e.name, v, known[e.name], e.coord, "the sweep gives")
     extra = tuple(n for n in swept if n in scene.params and n not in scene.free)
     scene2 = dataclasses.replace(scene, free=scene.free + extra)
     c, mod = compile_scene(scene2, progress)
@@ -235,7 +240,7 @@ def prepare(scene_path, progress=None, backend: str | None = None) -> Prepared:
                     scene.max_step, tuple(scene.breakpoints),
                     runtime_params(scene2, mod) or {},
                     {e.label: e.name for e in spec.entries if e.kind == "param"}, states,
-                    samples(spec), outs, {o: tuple(mod.OUTPUT_SHAPES[o]) for o in outs},
+                    values, outs, {o: tuple(mod.OUTPUT_SHAPES[o]) for o in outs},
                     dict(mod.PARAM_UNITS), spec, c_files=files, c_wrapper=wrapper, c_key=ckey)
     if backend == "c":
         load(prep, progress)  # built once here: the workers on this machine find it cached
