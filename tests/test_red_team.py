@@ -202,3 +202,24 @@ def test_swept_values_keep_the_models_bounds(tmp_path, rule, words):
     text = one_line(r)
     assert text.startswith(f"{sweep}:8:5: parameter 'm': ") and words in text, text
     assert not (tmp_path / "r.zarr").exists()
+
+
+# -- linearize --at: a time a run from the start reaches -----------------------------------------
+
+@pytest.mark.parametrize("at", ["nan", "inf", "-1", "1e308"])
+def test_linearize_at_a_time_outside_the_run_is_a_usage_error(at):
+    r = cli("linearize", ROOT / "models" / "msd.yaml", "--at", at, "-q")
+    assert one_line(r) == (f"error: --at {at!r}: a time from the start, 0 s, to 1e+15 s (the "
+                           "limit of times)")
+
+
+def test_linearize_at_nan_from_python_is_a_bgc_error():
+    import bgc
+
+    with pytest.raises(bgc.BgcError, match="--at nan: a time from the start"):
+        bgc.linearize(ROOT / "models" / "msd.yaml", at=float("nan"))
+
+
+def test_jac_tols_message_names_its_own_option():
+    r = cli("accuracy", ROOT / "models" / "scenes" / "msd_step.yaml", "--jac-tols", "x")
+    assert one_line(r) == "error: --jac-tols 'x': give 1e-3:1e-10 or a comma list"

@@ -87,7 +87,7 @@ def register(main_group):
         if rms is not None and len(rms) != 2:
             raise ModelError(None, "--ref-methods: give two methods")
         jms = parse_methods(jac_methods, FD_JACOBIAN) if jac_methods.strip() else ()
-        jtl = parse_tols(jac_tols) if jms else ()
+        jtl = parse_tols(jac_tols, "--jac-tols") if jms else ()
         if not budget > 0 or repeats < 1 or not 0 < ref_rtol < 1:
             raise ModelError(None, "--budget and --ref-rtol must be positive, --repeats >= 1")
         say(f"compiling {scene}")
