@@ -223,3 +223,17 @@ def test_linearize_at_nan_from_python_is_a_bgc_error():
 def test_jac_tols_message_names_its_own_option():
     r = cli("accuracy", ROOT / "models" / "scenes" / "msd_step.yaml", "--jac-tols", "x")
     assert one_line(r) == "error: --jac-tols 'x': give 1e-3:1e-10 or a comma list"
+
+
+# -- a number of thousands of digits ---------------------------------------------------------------
+
+def test_a_number_of_thousands_of_digits_is_named_not_pythons_advice():
+    from bgc.format.parse import parse_text
+
+    text = MSD.replace('inertia: "m"', 'inertia: "' + "9" * 5000 + '"')
+    with pytest.raises(Exception) as err:
+        parse_text(text, "m.yaml")
+    line = text[:text.index("9" * 5000)].count("\n") + 1
+    msg = str(err.value)
+    assert msg.startswith(f"m.yaml:{line}:") and "a number with thousands of digits" in msg, msg
+    assert "set_int_max_str_digits" not in msg
