@@ -15,7 +15,7 @@ the input that showed it and what bgc says now.
 """
 from __future__ import annotations
 
-import shutil
+import re
 from pathlib import Path
 
 import numpy as np
@@ -237,3 +237,26 @@ def test_a_number_of_thousands_of_digits_is_named_not_pythons_advice():
     msg = str(err.value)
     assert msg.startswith(f"m.yaml:{line}:") and "a number with thousands of digits" in msg, msg
     assert "set_int_max_str_digits" not in msg
+
+
+# -- a model path that names a folder or a device ------------------------------------------------
+
+@pytest.mark.parametrize("target, words", [
+    ("folder", "model file is a folder"),
+    ("/dev/null", "model file is not a regular file (a device, FIFO or socket)"),
+    ("missing.yaml", "model file does not exist"),
+])
+def test_a_model_path_says_what_it_names(tmp_path, monkeypatch, target, words):
+    import bgc
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "folder").mkdir()
+    r = cli("equations", target)
+    assert one_line(r) == f"{target}:1:1: {words}"
+    with pytest.raises(bgc.BgcError, match="^" + re.escape(f"{target}:1:1: {words}")):
+        bgc.compile(target)
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(STEP.replace("model: msd.yaml", f"model: {target}"))
+    r = cli("simulate", scene, "-q")
+    shown = repr(target)
+    assert one_line(r) == f"{scene}:2:8: model file {shown} {words.removeprefix('model file ')}"

@@ -15,7 +15,7 @@ import yaml
 from bgc.base import BACKENDS  # noqa: F401 (the one list, re-exported)
 from bgc.base.errors import Coord, ModelError
 from bgc.base.limits import LIMITS
-from bgc.base.safeio import read_text_bounded
+from bgc.base.safeio import not_a_file, read_text_bounded
 from bgc.format import tables as _tables
 from bgc.format.parse import Model, parse_file
 from bgc.format.reader import Reader, check_name, param_value, require
@@ -145,8 +145,9 @@ def _model_path(r: Reader, top: dict, path: str) -> str:
     if "\0" in model_rel:
         raise ModelError(r.coord(top["model"][1]), "the model's path contains a NUL byte")
     model_path = str(Path(path).parent / model_rel)
-    if not Path(model_path).is_file():
-        raise ModelError(r.coord(top["model"][1]), f"model file {model_rel!r} does not exist")
+    why = not_a_file(model_path)
+    if why is not None:
+        raise ModelError(r.coord(top["model"][1]), f"model file {model_rel!r} {why}")
     return model_path
 
 
