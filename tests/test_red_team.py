@@ -260,3 +260,23 @@ def test_a_model_path_says_what_it_names(tmp_path, monkeypatch, target, words):
     r = cli("simulate", scene, "-q")
     shown = repr(target)
     assert one_line(r) == f"{scene}:2:8: model file {shown} {words.removeprefix('model file ')}"
+
+
+# -- plots named after a hidden scene file: refused before anything is written ----------------------
+
+@pytest.mark.parametrize("plots", ["", "plots:\n  - {kind: time, outputs: [position]}\n"])
+def test_plot_names_are_checked_before_any_output_is_written(tmp_path, plots):
+    """A scene without ``name:`` names its plots after its file: '.hidden.yaml' gives hidden
+    file names, refused; --out used to be written first, and the plots' folder made."""
+    (tmp_path / "msd.yaml").write_text(MSD)
+    scene = tmp_path / ".hidden.yaml"
+    scene.write_text(STEP + plots)
+    before = files(tmp_path)
+    r = cli("simulate", scene, "-q", "--out", tmp_path / "r.npz", "--plot", tmp_path / "figs")
+    text = one_line(r)
+    assert text.startswith(f"{scene}:1:1: plot file name '.hidden_") and "name: ..." in text
+    assert files(tmp_path) == before and not (tmp_path / "figs").exists()
+    scene.write_text(STEP.replace("bgc_scene: 1", "bgc_scene: 1\nname: visible") + plots)
+    r = cli("simulate", scene, "-q", "--out", tmp_path / "r.npz", "--plot", tmp_path / "figs")
+    assert r.exit_code == 0, r.output
+    assert all(p.name.startswith("visible_") for p in (tmp_path / "figs").iterdir())
