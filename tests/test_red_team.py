@@ -280,3 +280,29 @@ def test_plot_names_are_checked_before_any_output_is_written(tmp_path, plots):
     r = cli("simulate", scene, "-q", "--out", tmp_path / "r.npz", "--plot", tmp_path / "figs")
     assert r.exit_code == 0, r.output
     assert all(p.name.startswith("visible_") for p in (tmp_path / "figs").iterdir())
+
+
+# -- bgc cache clear in a folder that holds a user's files ----------------------------------------
+
+def test_cache_clear_removes_only_what_bgc_made(tmp_path, monkeypatch):
+    """BGC_CACHE_DIR pointed at a project folder: its own run/, numpy/, c/ sub-folders were
+    removed whole, files bgc never made with them; now only bgc's entries go."""
+    proj = tmp_path / "proj"
+    mine = {"run/notes.txt": "precious", "numpy/ab/x.txt": "mine", "c/keep.c": "int x;",
+            "c-runtime/a.txt": "k", "msd.yaml": MSD}
+    for rel, text in mine.items():
+        (proj / rel).parent.mkdir(parents=True, exist_ok=True)
+        (proj / rel).write_text(text)
+    proj.chmod(0o700)
+    monkeypatch.setenv("BGC_CACHE_DIR", str(proj))
+    r = CliRunner().invoke(main, ["simulate", str(proj / "msd.yaml"), "-q", "--backend",
+                                  "numpy", "--t-end", "0.1"])
+    assert r.exit_code == 0, r.output
+    assert list((proj / "numpy").glob("*/*" + "?" * 60)), "no entry made"
+    r = CliRunner().invoke(main, ["cache", "clear"])
+    assert r.exit_code == 0 and "removed 2 entries" in r.output, r.output  # module, record
+    assert "note: left 4 item(s) bgc did not make" in r.output
+    for rel, text in mine.items():
+        assert (proj / rel).read_text() == text, rel
+    assert not list((proj / "numpy").glob("*/*" + "?" * 60))
+    assert sorted(p.name for p in (proj / "numpy").iterdir()) == ["ab"]
