@@ -306,3 +306,43 @@ def test_cache_clear_removes_only_what_bgc_made(tmp_path, monkeypatch):
         assert (proj / rel).read_text() == text, rel
     assert not list((proj / "numpy").glob("*/*" + "?" * 60))
     assert sorted(p.name for p in (proj / "numpy").iterdir()) == ["ab"]
+
+
+# -- a component instance's number outside the component parameter's min and max -----------------
+
+SD = """bgc: 1
+name: tm
+parameters: {m: 2.0}
+components:
+  sd:
+    parameters: {k: {value: 1.0, min: 0, max: 100}, r: 0.5}
+    ports: {a: v}
+    elements:
+      v: {type: "1"}
+      C: {type: C, stiffness: "k"}
+      R: {type: R, resistance: "r"}
+    bonds: [[v, C], [v, R]]
+elements:
+  f: {type: Se, effort: '1'}
+  j: {type: '1'}
+  mm: {type: I, inertia: m}
+  s1: {type: sd, k: VALUE}
+bonds: [[f, j], [j, mm], [j, s1.a]]
+"""
+
+
+@pytest.mark.parametrize("value, words", [
+    ("-3", "instance 's1': parameter 'k' = -3 is below the min 0 of component 'sd'"),
+    ("1e3", "instance 's1': parameter 'k' = 1000 is above the max 100 of component 'sd'"),
+    ("50", None), ('"3*m"', None),  # within; an expression's value is the run's
+])
+def test_instance_numbers_keep_the_component_parameters_bounds(value, words):
+    from bgc.api import check
+
+    text = SD.replace("VALUE", value)
+    if words is None:
+        assert check(text).states
+        return
+    with pytest.raises(Exception) as err:
+        check(text)
+    assert str(err.value) == f"<string>:17:21: {words}"
