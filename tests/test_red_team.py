@@ -346,3 +346,67 @@ def test_instance_numbers_keep_the_component_parameters_bounds(value, words):
     with pytest.raises(Exception) as err:
         check(text)
     assert str(err.value) == f"<string>:17:21: {words}"
+
+
+# -- a junction of thousands of bonds; a law of a hundred nested where(...) ------------------------
+
+def _wide(n: int, per: int) -> str:
+    """n dampers on 1-junctions of at most ``per`` dampers each, joined in a chain."""
+    js = -(-n // per)
+    text = ["bgc: 1", "name: wide", "parameters: {m: 2.0, k: 200.0}", "elements:",
+            "  force: {type: Se, effort: '1'}", "  mass: {type: I, inertia: m}",
+            "  spring: {type: C, stiffness: k}"]
+    text += [f"  v{j}: {{type: '1'}}" for j in range(js)]
+    text += [f"  r{i}: {{type: R, resistance: '1 + q(spring)**2'}}" for i in range(n)]
+    bonds = ["[force, v0]", "[v0, mass]", "[v0, spring]"] + [f"[v{j}, v{j + 1}]"
+                                                             for j in range(js - 1)]
+    bonds += [f"[v{i // per}, r{i}]" for i in range(n)]
+    return "\n".join(text) + "\nbonds: [" + ", ".join(bonds) + "]\n"
+
+
+def test_a_junction_of_more_bonds_than_the_limit_is_located(tmp_path):
+    """3 000 bonds on one junction: Python's parser refused the generated module's balance
+    line (an unlocated 'nested too deeply', after seconds of work); now the junction is
+    named, and the remedy (joined junctions) compiles."""
+    model = tmp_path / "wide.yaml"
+    model.write_text(_wide(3000, 3000))
+    r = cli("compile", model, "-o", tmp_path / "w.py", "-q")
+    assert one_line(r) == (f"{model}:8:3: junction 'v0' has 3003 bonds, more than 1000 (the "
+                           "limit of bonds on one junction): split it into joined junctions")
+    assert not (tmp_path / "w.py").exists()
+
+
+@pytest.mark.slow
+def test_split_junctions_compile(tmp_path):
+    model = tmp_path / "wide.yaml"
+    model.write_text(_wide(2400, 800))
+    r = cli("compile", model, "-o", tmp_path / "w.py", "-q")
+    assert r.exit_code == 0, r.output
+
+
+def _nested_where(n: int) -> str:
+    return "".join(f"where(q(spring) > {i}, 1, " for i in range(n)) + "0" + ")" * n
+
+
+@pytest.mark.parametrize("where, line, words", [
+    ("law", 6, "C 'spring': its law is nested too deeply to differentiate"),
+    ("output", 9, "output 'x': its expression is nested too deeply to differentiate"),
+])
+def test_a_law_too_deep_to_differentiate_names_its_element(tmp_path, where, line, words):
+    law = f"k + {_nested_where(120)}" if where == "law" else "k"
+    out = _nested_where(120) if where == "output" else "q(spring)"
+    model = tmp_path / "deep.yaml"
+    model.write_text(f"""bgc: 1
+name: deep
+parameters: {{m: 2.0, k: 200.0}}
+elements:
+  force: {{type: Se, effort: '1'}}
+  spring: {{type: C, stiffness: "{law}"}}
+  mass: {{type: I, inertia: m}}
+  v: {{type: '1'}}
+outputs: {{x: "{out}"}}
+bonds: [[force, v], [v, mass], [v, spring]]
+""")
+    r = cli("compile", model, "-o", tmp_path / "d.py", "-q", "--no-cache")
+    text = one_line(r)
+    assert text.startswith(f"{model}:{line}:") and words in text, text

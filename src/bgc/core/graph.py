@@ -342,6 +342,10 @@ def _check(bg: BondGraph) -> None:
             if n < 2:
                 raise ModelError(el.coord, f"junction {el.id!r} has {n} bond(s): a junction "
                                            "needs at least two (dangling junction)")
+            if n > LIMITS.junction_bonds:
+                raise ModelError(el.coord, f"junction {el.id!r} has {n} bonds, more than "
+                                           f"{LIMITS.junction_bonds} (the limit of bonds on one "
+                                           "junction): split it into joined junctions")
             cards = {b.n for b in bonds}
             if len(cards) > 1:
                 detail = ", ".join(f"{b.id} (n={b.n})" for b in bonds)
