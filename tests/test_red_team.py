@@ -410,3 +410,23 @@ bonds: [[force, v], [v, mass], [v, spring]]
     r = cli("compile", model, "-o", tmp_path / "d.py", "-q", "--no-cache")
     text = one_line(r)
     assert text.startswith(f"{model}:{line}:") and words in text, text
+
+
+# -- a quiet sweep says nothing on stderr ----------------------------------------------------------
+
+@pytest.mark.slow
+def test_a_quiet_sweep_prints_no_warning(tmp_path):
+    """Zarr warned about the store's marker file (.bgc-output) each time it listed the
+    folder: seven warnings on every run's stderr, twice as many on a resumed one."""
+    import os
+    import subprocess
+    import sys
+
+    (tmp_path / "msd.yaml").write_text(MSD)
+    (tmp_path / "sweep.yaml").write_text(SWEEP)
+    env = {**os.environ, "BGC_CACHE_DIR": str(seed_c_runtime(tmp_path / "cache"))}
+    for _ in range(2):  # a run, then a resumed one
+        r = subprocess.run([sys.executable, "-m", "bgc", "sweep", "sweep.yaml", "--out", "r.zarr",
+                            "--workers", "1", "-q"], cwd=tmp_path, env=env, capture_output=True,
+                           text=True, timeout=300)
+        assert r.returncode == 0 and r.stderr == "", r.stderr
