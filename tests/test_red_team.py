@@ -430,3 +430,19 @@ def test_a_quiet_sweep_prints_no_warning(tmp_path):
                             "--workers", "1", "-q"], cwd=tmp_path, env=env, capture_output=True,
                            text=True, timeout=300)
         assert r.returncode == 0 and r.stderr == "", r.stderr
+
+
+# -- initial: equilibrium where the search itself fails ----------------------------------------------
+
+def test_an_equilibrium_search_that_fails_is_located_at_initial(tmp_path):
+    """two_tanks.yaml starts with empty tanks, where the orifice law's slope is infinite: the
+    search's SVD fails. It was an internal error (exit 3) with a numpy warning; linearize
+    already said it in one line."""
+    (tmp_path / "two_tanks.yaml").write_text((ROOT / "models" / "two_tanks.yaml").read_text())
+    scene = tmp_path / "eq.yaml"
+    scene.write_text("bgc_scene: 1\nmodel: two_tanks.yaml\nduration: 0.5\n"
+                     "initial: equilibrium\nsolver: {backend: numpy}\n")
+    r = cli("simulate", scene, "-q", "--out", tmp_path / "r.npz")
+    text = one_line(r)
+    assert text.startswith(f"{scene}:4:1: initial: no equilibrium found"), text
+    assert not (tmp_path / "r.npz").exists()

@@ -424,8 +424,14 @@ def initial_state(scene: Scene, module, p=None):
         return None
     t0 = scene.t_span[0]
     if scene.initial == "equilibrium":
-        x, info = module.equilibrium(p=p, t=t0)
-        if not np.all(info.converged):
+        with np.errstate(all="ignore"):  # a singular or not finite search: one located line
+            try:
+                x, info = module.equilibrium(p=p, t=t0)
+            except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
+                raise ModelError(scene.initial_coord, f"initial: no equilibrium found: the "
+                                 f"search failed ({exc}); is the right-hand side finite near "
+                                 "the initial state?") from None
+        if not np.all(info.converged) or not np.all(np.isfinite(x)):
             raise ModelError(scene.initial_coord, f"initial: no equilibrium found (max "
                                                   f"|dx/dt| = {np.max(info.residual):.3g})")
         return x
