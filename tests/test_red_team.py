@@ -446,3 +446,16 @@ def test_an_equilibrium_search_that_fails_is_located_at_initial(tmp_path):
     text = one_line(r)
     assert text.startswith(f"{scene}:4:1: initial: no equilibrium found"), text
     assert not (tmp_path / "r.npz").exists()
+
+
+# -- a scene with both duration and t_span ---------------------------------------------------------
+
+@pytest.mark.parametrize("keys, line", [("duration: 5.0\nt_span: [0, 2]\n", 5),
+                                        ("t_span: [1, 6]\nduration: 5.0\n", 5)])
+def test_duration_and_t_span_together_are_refused(tmp_path, keys, line):
+    """Both used to run, t_span winning silently over the duration."""
+    (tmp_path / "msd.yaml").write_text(MSD)
+    scene = tmp_path / "s.yaml"
+    scene.write_text("bgc_scene: 1\nmodel: msd.yaml\nsolver: {backend: numpy}\n" + keys)
+    r = cli("simulate", scene, "-q", "--out", tmp_path / "r.npz")
+    assert one_line(r) == f"{scene}:{line}:1: the scene: give duration or t_span, not both"

@@ -163,6 +163,9 @@ def _a_time(r: Reader, node, what: str) -> float:
 
 def _span(r: Reader, top: dict, root) -> tuple[float, float]:
     """duration or t_span: the start and the end."""
+    if "t_span" in top and "duration" in top:  # which one would win is no answer
+        later = max((top["t_span"][0], top["duration"][0]), key=lambda n: n.start_mark.index)
+        raise ModelError(r.coord(later), "the scene: give duration or t_span, not both")
     if "t_span" in top:
         span_node = top["t_span"][1]
         span = r.seq(span_node, "t_span")
