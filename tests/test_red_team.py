@@ -459,3 +459,37 @@ def test_duration_and_t_span_together_are_refused(tmp_path, keys, line):
     scene.write_text("bgc_scene: 1\nmodel: msd.yaml\nsolver: {backend: numpy}\n" + keys)
     r = cli("simulate", scene, "-q", "--out", tmp_path / "r.npz")
     assert one_line(r) == f"{scene}:{line}:1: the scene: give duration or t_span, not both"
+
+
+# -- a periodic event whose period is not positive -------------------------------------------------
+
+TICK = """bgc: 1
+name: tick
+parameters: {m: 2.0, k: 200.0, T: PERIOD, T2: "T - 1"}
+modes: {on: 0}
+elements:
+  force: {type: Se, effort: 'where(on > 0.5, 1, 0)'}
+  mass: {type: I, inertia: m}
+  spring: {type: C, stiffness: k}
+  v: {type: '1'}
+bonds: [[force, v], [v, mass], [v, spring]]
+events:
+  tick: {every: EVERY, do: {on: '1 - on'}}
+"""
+
+
+@pytest.mark.parametrize("period, every, shown", [("0.0", "T", "0"), ("-1.0", "T", "-1"),
+                                                  ("1.0", "T2", "0"), ("0.5", "T", None)])
+def test_a_periodic_event_needs_a_positive_period(period, every, shown):
+    """every: 0 (or -1) compiled and ran, the event never firing, exit 0."""
+    from bgc.api import check
+
+    text = TICK.replace("PERIOD", period).replace("EVERY", every)
+    if shown is None:
+        assert "tick_count" in " ".join(check(text).states)
+        return
+    with pytest.raises(Exception) as err:
+        check(text)
+    assert str(err.value) == (f"<string>:12:17: event 'tick': the period is {shown} with the "
+                              "parameters' values (the model's, or a scene's): it must be "
+                              "positive")
