@@ -493,3 +493,61 @@ def test_a_periodic_event_needs_a_positive_period(period, every, shown):
     assert str(err.value) == (f"<string>:12:17: event 'tick': the period is {shown} with the "
                               "parameters' values (the model's, or a scene's): it must be "
                               "positive")
+
+
+# -- a scene's initial: in a sweep and in an accuracy study ---------------------------------------
+
+INIT = STEP.replace("outputs: [position]", "outputs: [position]\ninitial: {spring.q: 0.2}")
+
+
+def _msd_from(x0: float, t: np.ndarray, m: float = 3.0) -> np.ndarray:
+    """An independent answer: m x'' + c x' + k x = F0 (msd.yaml's defaults, the scene's m)
+    from x(0) = x0 at rest, by scipy."""
+    from scipy.integrate import solve_ivp
+
+    k, c, f0 = 200.0, 4.0, 10.0
+    sol = solve_ivp(lambda _, y: [y[1], (f0 - k * y[0] - c * y[1]) / m], (0.0, t[-1]),
+                    [x0, 0.0], t_eval=t, rtol=1e-11, atol=1e-13)
+    return sol.y[0]
+
+
+def test_a_sweep_starts_where_its_scene_does(tmp_path):
+    """A sweep ignored the scene's initial: every sample started from the model's own x0
+    (the docs say a sample is the same run as the scene alone)."""
+    from bgc.studies.sweep import prepare, run_chunk
+
+    (tmp_path / "msd.yaml").write_text(MSD)
+    scene = tmp_path / "init.yaml"
+    scene.write_text(INIT + "sweep:\n  parameters:\n    m: {values: [3.0, 1.0]}\n")
+    res = run_chunk(prepare(scene, backend="numpy"), 0, 2)
+    assert list(res["status"]) == [0, 0]
+    t = np.linspace(0.0, 2.0, 21)
+    for row, m in zip(res["y"]["position"], (3.0, 1.0)):
+        np.testing.assert_allclose(row, _msd_from(0.2, t, m), atol=2e-5)
+
+
+def test_a_sweep_starts_each_sample_at_its_own_equilibrium(tmp_path):
+    """initial: equilibrium in a swept scene: each sample's static deflection F0/k (F0 = 10 N
+    held), whatever the mass; without the start they all began at rest at zero."""
+    from bgc.studies.sweep import prepare, run_chunk
+
+    (tmp_path / "msd.yaml").write_text(MSD)
+    scene = tmp_path / "eq.yaml"
+    scene.write_text(STEP + "initial: equilibrium\nsweep:\n  parameters:\n"
+                            "    k: {values: [100.0, 400.0]}\n")
+    res = run_chunk(prepare(scene, backend="numpy"), 0, 2)
+    assert list(res["status"]) == [0, 0]
+    for row, k in zip(res["y"]["position"], (100.0, 400.0)):
+        np.testing.assert_allclose(row, 10.0 / k, rtol=1e-6)
+
+
+def test_an_accuracy_study_starts_where_its_scene_does(tmp_path):
+    from bgc.studies.runs import prepare, solve
+
+    (tmp_path / "msd.yaml").write_text(MSD)
+    scene = tmp_path / "init.yaml"
+    scene.write_text(INIT.replace("duration: 2.0", "duration: 2.0\nparameters: {m: 3.0}"))
+    setup = prepare(scene)
+    res, _ = solve(setup, "Radau", 1e-10, 1e-12)
+    np.testing.assert_allclose(np.asarray(res.y["position"]).reshape(-1),
+                               _msd_from(0.2, setup.t_eval), atol=1e-7)

@@ -438,8 +438,16 @@ def initial_state(scene: Scene, module, p=None):
             raise ModelError(scene.initial_coord, f"initial: no equilibrium found (max "
                                                   f"|dx/dt| = {np.max(info.residual):.3g})")
         return x
-    names = list(module.STATE_NAMES)
     x = np.array(module.initial_state(p), dtype=float)
+    for i, v in initial_values(scene, module).items():
+        x[i] = v
+    return x
+
+
+def initial_values(scene: Scene, module) -> dict:
+    """The states a scene's ``initial:`` mapping sets: state index -> value (located errors
+    for a name the module does not have, or the wrong number of values)."""
+    names, out = list(module.STATE_NAMES), {}
     for sname, (vals, coord) in scene.initial.items():
         if sname in names:
             idx = [names.index(sname)]
@@ -454,9 +462,8 @@ def initial_state(scene: Scene, module, p=None):
         if len(vals) != len(idx):
             raise ModelError(coord, f"initial {sname!r}: {len(vals)} value(s) for "
                                     f"{len(idx)} state(s) ({', '.join(names[i] for i in idx)})")
-        for i, v in zip(idx, vals):
-            x[i] = v
-    return x
+        out.update(zip(idx, (float(v) for v in vals)))
+    return out
 
 
 def check_rtol(v: float, where: Coord | None, what: str) -> float:
