@@ -551,3 +551,21 @@ def test_an_accuracy_study_starts_where_its_scene_does(tmp_path):
     res, _ = solve(setup, "Radau", 1e-10, 1e-12)
     np.testing.assert_allclose(np.asarray(res.y["position"]).reshape(-1),
                                _msd_from(0.2, setup.t_eval), atol=1e-7)
+
+
+# -- bgc export --scene with an initial: the FMU does not carry ------------------------------------
+
+def test_export_of_a_scene_with_initial_states_says_the_fmu_does_not_carry_them(tmp_path):
+    """The FMU starts from the model's x0 (FMPy: position 0 at t = 0, not the scene's 0.2):
+    the export now says so instead of silently differing from the scene."""
+    import shutil as sh
+
+    if sh.which("cc") is None:
+        pytest.skip("no C compiler")
+    (tmp_path / "msd.yaml").write_text(MSD)
+    scene = tmp_path / "init.yaml"
+    scene.write_text(INIT)
+    r = cli("export", tmp_path / "msd.yaml", "--scene", scene, "--fmu", tmp_path / "i.fmu")
+    assert r.exit_code == 0, r.output
+    assert ("warning: the FMU starts from the model's initial state: the scene's initial: "
+            "(line 5) is not carried into it") in r.output
