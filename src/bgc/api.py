@@ -18,6 +18,7 @@ import numpy as np
 
 from bgc.backends.load import BACKENDS as targets
 from bgc.base.errors import Coord, ModelError
+from bgc.base.safeio import not_a_file
 from bgc.builder import Builder, Component  # noqa: F401 (bgc.Builder, bgc.Component)
 from bgc.core.causality import assign_causality
 from bgc.core.draw import render_image, to_dot
@@ -54,8 +55,9 @@ def _model(src):
     if not isinstance(src, (str, Path)):
         raise TypeError(f"a model is a path or YAML text (or a bgc.Builder), not "
                         f"{type(src).__name__}")
-    if not Path(src).is_file():
-        raise ModelError(Coord(str(src), 1, 1), "model file does not exist")
+    why = not_a_file(src)
+    if why is not None:
+        raise ModelError(Coord(str(src), 1, 1), f"model file {why}")
     return parse_file(src)
 
 
@@ -78,8 +80,9 @@ def compile(path_or_text, scene=None, target: str = "numpy") -> "CompiledModel":
         raise ModelError(None, f"unknown target {target!r} (one of {', '.join(targets)})")
     built = _is_text(path_or_text) or isinstance(path_or_text, Builder)
     path = None if built else path_or_text
-    if path is not None and not Path(path).is_file():
-        raise ModelError(Coord(str(path), 1, 1), "model file does not exist")
+    why = None if path is None else not_a_file(path)
+    if why is not None:
+        raise ModelError(Coord(str(path), 1, 1), f"model file {why}")
     sc = None
     if scene is not None:
         sc = parse_scene(scene)

@@ -239,6 +239,10 @@ def operating_point(mod, at, p=None, u=None, t0: float = 0.0, progress=None,
         t = float(at)
     except (TypeError, ValueError):
         raise ModelError(None, f"--at {at!r}: 'equilibrium' or a time in seconds") from None
+    tmax = LIMITS.time_magnitude
+    if not t0 <= t <= tmax:  # false for nan: a run forward from the start, within the limit
+        raise ModelError(None, f"--at {at!r}: a time from the start, {t0:g} s, to {tmax:g} s "
+                               "(the limit of times)")
     start = mod.initial_state(p) if x0 is None else x0
     if t == t0:
         return t, start, f"t = {t:g} s"

@@ -31,6 +31,9 @@ class Limits:
     component_depth: int = 8
     #: Largest bond cardinality and vector/matrix dimension in a shape.
     cardinality: int = 64
+    #: Most bonds on one junction: its balance is one sum, one line of the generated module,
+    #: which Python's own parser refuses beyond about 2 500 terms.
+    junction_bonds: int = 1000
     # -- expressions ----------------------------------------------------------------------
     #: Longest expression text, in characters.
     expr_chars: int = 20_000

@@ -66,8 +66,11 @@ class _Walk:
         return r
 
     def load(self, data: bytes, word: bytes):
-        # a file that never says "imports" (or "table") has none: no need to parse it
-        if word not in data:
+        # A file that never says "imports" (or "table") has none: no need to parse it. YAML
+        # can spell a key without its letters only through a double-quoted escape
+        # ("t\x61ble", "\u0074able"), so a file with a backslash is parsed too; the parser
+        # reads UTF-8 only, where every other spelling of the word holds its bytes.
+        if word not in data and b"\\" not in data:
             return None
         return self.yaml.load(data, Loader=self.loader)  # (CSafeLoader or SafeLoader)
 

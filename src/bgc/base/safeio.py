@@ -98,6 +98,21 @@ def read_bytes(path, limit: int, follow: bool = True) -> bytes:
     return b"".join(chunks)
 
 
+def not_a_file(path) -> str | None:
+    """Why ``path`` is not a regular file to read ("does not exist", "is a folder", ...), or
+    None when it is one (links followed): the words after "model file" in a message."""
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError) as exc:
+        return "does not exist" if isinstance(exc, ValueError) or exc.errno in (
+            errno.ENOENT, errno.ENOTDIR) else f"cannot be read: {_why(exc)}"
+    if stat.S_ISDIR(st.st_mode):
+        return "is a folder"
+    if not stat.S_ISREG(st.st_mode):
+        return "is not a regular file (a device, FIFO or socket)"
+    return None
+
+
 def _why(exc: OSError) -> str:
     if exc.errno == errno.ELOOP:
         return "too many levels of symbolic links (a symlink loop?)"

@@ -159,7 +159,9 @@ class Cache:
         return out
 
     def clear(self) -> int:
-        """Remove every entry; returns how many there were."""
+        """Remove every entry; returns how many there were. Only bgc's own entries (and their
+        lock files and temporaries) go: a folder the cache was pointed at keeps the rest
+        (``kept``)."""
         if not self.path.exists():
             return 0
         self._ensure()
@@ -171,10 +173,14 @@ class Cache:
                 raise UnsafeCache(f"{sub}: not a folder of the compile cache (a link or a "
                                   "file); bgc removes only its own folders: remove it yourself")
         n = sum(self.info()["entries"].values())
+        self.kept = []
         for t in TARGETS:
             if (self.path / t).is_dir():
-                shutil.rmtree(self.path / t)  # links inside are removed, never followed
+                self.kept += _remove_own(self.path / t, shutil)
         return n
+
+    #: what :meth:`clear` left because bgc did not make it (paths)
+    kept: list = []
 
     def discard(self, target: str, key: str) -> None:
         """Remove one entry (a corrupt one): renamed aside first, so a reader never finds it
@@ -191,6 +197,36 @@ class Cache:
             aside.unlink()
         else:
             shutil.rmtree(aside, ignore_errors=True)
+
+
+def _own(name: str, shard: str) -> bool:
+    """Whether ``name`` in the folder ``shard`` (a key's first two characters) is bgc's: an
+    entry (named by its key, which starts with the shard's name), or a lock file, build
+    folder, record temporary or discarded entry of one (a dot, then the key, or .discard.)."""
+    return name.startswith((shard, "." + shard, ".discard."))
+
+
+def _remove_own(sub: Path, shutil) -> list:
+    """Remove bgc's entries in the target folder ``sub`` (``<shard>/<key>``) and the folders
+    they leave empty; anything else (a user's file in a folder the cache was pointed at) is
+    left, and returned. Links are removed, never followed."""
+    kept = []
+    for shard in sorted(sub.iterdir()):
+        if len(shard.name) != 2 or shard.is_symlink() or not shard.is_dir():
+            kept.append(shard)
+            continue
+        for e in sorted(shard.iterdir()):
+            if not _own(e.name, shard.name):
+                kept.append(e)
+            elif e.is_symlink() or not e.is_dir():
+                e.unlink()
+            else:
+                shutil.rmtree(e)
+        if not any(shard.iterdir()):
+            shard.rmdir()
+    if not any(sub.iterdir()):
+        sub.rmdir()
+    return kept
 
 
 def _fcntl():

@@ -87,7 +87,7 @@ def register(main_group):
         if rms is not None and len(rms) != 2:
             raise ModelError(None, "--ref-methods: give two methods")
         jms = parse_methods(jac_methods, FD_JACOBIAN) if jac_methods.strip() else ()
-        jtl = parse_tols(jac_tols) if jms else ()
+        jtl = parse_tols(jac_tols, "--jac-tols") if jms else ()
         if not budget > 0 or repeats < 1 or not 0 < ref_rtol < 1:
             raise ModelError(None, "--budget and --ref-rtol must be positive, --repeats >= 1")
         say(f"compiling {scene}")
@@ -98,9 +98,10 @@ def register(main_group):
         if not all(math.isfinite(b) for b in bps):
             raise ModelError(None, f"--breakpoints {extra_bps!r}: give finite numbers")
         sc = parse_scene(scene)
-        out = Path(out_dir or f"accuracy_{Path(sc.file).stem}")
-
+        # '' is refused as an empty path (Path('') would be '.'), not taken as the default
+        out = f"accuracy_{Path(sc.file).stem}" if out_dir is None else out_dir
         check_folder(out_folder(out, "--out", create=False), "--out")  # before the study
+        out = Path(out)
         setup = prepare(sc, t_end=t_end, atol_scale=atol_scale, breakpoints=bps)
         inputs = model_inputs(scene, sc.model_path)  # the model has parsed: its imports
 

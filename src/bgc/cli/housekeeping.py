@@ -80,3 +80,6 @@ def cache_clear_cmd():
     c = Cache()
     n = c.clear()
     click.echo(f"{c.path}: removed {n} entries")
+    if c.kept:  # a folder the cache was pointed at: bgc removes only what it made
+        shown = ", ".join(str(p) for p in c.kept[:3]) + (", ..." if len(c.kept) > 3 else "")
+        click.echo(f"note: left {len(c.kept)} item(s) bgc did not make: {shown}", err=True)

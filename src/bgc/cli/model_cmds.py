@@ -46,7 +46,7 @@ def compile_cmd(model, output, scene, target, no_cache, quiet, strict_causality)
 
     prog = Progress(quiet)
     sc = None
-    if scene:
+    if scene is not None:  # '' too: the scene file's message, not a module for no scene
         prog("parsing")
         sc = parse_scene(scene)
     # the scene's module is the one `bgc simulate` runs: bgc.run.driver's one scene compile
@@ -66,7 +66,7 @@ def compile_cmd(model, output, scene, target, no_cache, quiet, strict_causality)
         return
     if output is None:
         output = _default_output(Path(model), c.model.name)
-    ins = model_inputs(model, scene, sc.model_path if scene else None)
+    ins = model_inputs(model, scene, sc.model_path if sc is not None else None)
 
     check_module_start(c)  # finite at X0 with the defaults, or a located error: nothing written
     write_output(output, c.source, ins, "-o")

@@ -67,7 +67,7 @@ def simulate_cmd(scene, t_end, max_steps, out, plot_dir, method, rtol, atol, max
         check_rtol(rtol, None, "--rtol")
     prog = Progress(quiet)
     sc = _scene_or_model(scene, t_end, max_steps, prog)
-    if out:  # refused before the run, not after it (the imports are known after it)
+    if out is not None:  # refused before the run (the imports are known after it); '' too
         check_output(out, model_inputs(scene, sc.model_path, follow=False), "--out")
     if plot_dir is not None:
         # lazy: the compile path, which a warm run never loads
@@ -84,7 +84,7 @@ def simulate_cmd(scene, t_end, max_steps, out, plot_dir, method, rtol, atol, max
 
         figures = render_plots(res.scene, res.t, res.y,
                                getattr(res.module, "OUTPUT_UNITS", None))
-    if out:
+    if out is not None:
         buf = io.BytesIO()
         np.savez_compressed(buf, t=res.t, **res.y, **event_arrays(res.events, res.x.shape[0]))
         write_output(out, buf.getvalue(), ins, "--out")
@@ -221,10 +221,10 @@ def linearize_cmd(target, at, out, bode, freq_range, x0_items, quiet):
                                    f"{', '.join(mod.INPUT_LABELS) or '(no inputs)'} and OUT "
                                    f"one of {', '.join(mod.OUTPUT_LABELS)}")
         pairs.append((i_name, o_name))
-    if pairs and not out:
+    if pairs and out is None:
         raise ModelError(None, "--bode needs --out DIR for its plots")
     plan = None
-    if out:  # refused before anything is computed
+    if out is not None:  # refused before anything is computed ('' too: an empty path)
         # lazy: the compile path, which a warm run never loads
         from bgc.cli.outputs import check_linear
 

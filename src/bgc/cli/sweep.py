@@ -7,6 +7,7 @@ import click
 
 from bgc.base.outdirs import out_folder
 from bgc.base.outfiles import check_folder
+from bgc.cli.options import POSITIVE
 from bgc.run.progress import Progress
 from bgc.studies.sweep import client_for, close_client, prepare, run_sweep
 from bgc.studies.sweep_folder import check_store
@@ -34,7 +35,7 @@ def register(main_group):
                   help="discard the results in a store bgc made (marked by its .bgc-output "
                        "file) for another sweep; nothing else in it, and no other folder, is "
                        "ever removed")
-    @click.option("--max-wall", type=click.FloatRange(min=0.0, min_open=True), default=None,
+    @click.option("--max-wall", type=POSITIVE, default=None,
                   help="seconds per simulate call before it is stopped (recorded as failed)")
     @click.option("--backend", type=click.Choice(("c", "numpy")), default=None,
                   help="c (the C step loop: each instance its own step size) or numpy; "
@@ -48,7 +49,7 @@ def register(main_group):
 
 
         check_store(out)  # a folder bgc did not make: refused before anything runs
-        if plot_dir:
+        if plot_dir is not None:  # '' too: refused as an empty path
             check_folder(out_folder(plot_dir, "--plot", create=False), "--plot")
         say(f"compiling {scene}")
         prep = prepare(scene, say, backend)
@@ -60,7 +61,7 @@ def register(main_group):
             rep = run_sweep(prep, out, client, chunk, restart, quiet)
         finally:
             close_client(client)
-        if plot_dir:
+        if plot_dir is not None:
             for f in plot_sweep(prep, open_results(out), plot_dir):
                 say(f"wrote {f}")
         click.echo(f"{prep.scene_name}: {rep.n} instances, {rep.chunks} chunks ({rep.computed} "

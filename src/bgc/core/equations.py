@@ -40,7 +40,7 @@ from bgc.core.eqtypes import (
     symbol_vector,
 )
 from bgc.core.events import build_events, flat_events, mode_ids
-from bgc.core.forward import jacobian
+from bgc.core.forward import TooDeep, jacobian
 from bgc.core.graph import BondGraph, FlatElement, code_name
 from bgc.core.laws import check_value, element_equations
 from bgc.core.loops import causal_order, time_derivatives
@@ -107,7 +107,14 @@ def derive(bg: BondGraph, caus: Causality, progress=None, fold: dict | None = No
         progress("deriving the Jacobian")
     nloops = [dc_replace(nl, g=tuple(e.xreplace(subs) for e in nl.g)) for nl in nloops or ()]
     tangents: list = []  # the Jacobian's sweep, which the linearisation's C goes on from
-    jac, jac_assign = jacobian(kept, state_vars, derivatives, nloops, keep=tangents)
+    try:
+        jac, jac_assign = jacobian(kept, state_vars, derivatives, nloops, keep=tangents)
+    except TooDeep as exc:
+        el = bg.element(owner[exc.symbol]) if exc.symbol in owner else None
+        where = f"{el.type} {el.id!r}" if el is not None else exc.why
+        raise ModelError(el.coord if el is not None else None, f"{where}: its law is nested "
+                         "too deeply to differentiate (nested where(...)? flatten the "
+                         "conditions)") from None
     check_names(bg, ctx, state_vars)
     standing = tuple(w for w in caus.warnings if not w.startswith("R elements with causality"))
     standing += tuple(notes)

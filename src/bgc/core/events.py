@@ -112,6 +112,10 @@ def _event(ctx, bg, scope, ev, symbols, t_symbol) -> EventEq:
     if ev.every is not None:
         if shape_of(period):
             raise ModelError(where, f"{what}: the period must be a scalar")
+        value = _with_defaults(ctx, period)
+        if value is not None and not value > 0:  # (false for nan too)
+            raise ModelError(where, f"{what}: the period is {value:g} with the parameters' "
+                                    "values (the model's, or a scene's): it must be positive")
         if shape_of(first):
             raise ModelError(ev.at.coord, f"{what}: the time must be a scalar")
         if count in resets:
@@ -120,6 +124,22 @@ def _event(ctx, bg, scope, ev, symbols, t_symbol) -> EventEq:
         resets[count] = count + 1
     return EventEq(name, ev.coord, guard, ev.direction, tuple(resets.items()),
                    ev.condition is None)
+
+
+def _with_defaults(ctx, expr) -> float | None:
+    """A scalar expression of parameters at their default values (derived ones in their
+    order), or None where it is not a number."""
+    vals = {pv.symbols[0]: sp.Float(pv.value) for pv in ctx.params.values()
+            if isinstance(pv.value, (int, float)) and len(pv.symbols) == 1}
+    for k in ctx.derived_order:
+        a = ctx.derived[k]
+        if isinstance(a.symbol, sp.Symbol) and not shape_of(a.expr):
+            vals[a.symbol] = a.expr.xreplace(vals)
+    try:
+        v = expr.xreplace(vals)
+        return float(v) if v.is_number and v.is_real else None
+    except (TypeError, ValueError, AttributeError):
+        return None
 
 
 def _shape(v) -> str:

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import sympy as sp
 
+from bgc.base.errors import ModelError
 from bgc.core import fastsym
 from bgc.core.eqtypes import (
     Assignment,
@@ -31,6 +32,17 @@ def _name(s) -> str:
     """A symbol's text as ``str`` gives it (its name), without sympy's printer for plain
     symbols (the printer was a fifth of a large ladder's Jacobian)."""
     return s.name if type(s) is sp.Symbol else str(s)
+
+
+class TooDeep(Exception):
+    """An assignment whose expression is nested too deeply for sympy to differentiate (its
+    ``symbol`` and ``why``), or the ``final`` expression of that index (a derivative, an
+    output); bgc.core.equations names the element that defined it, :func:`linear_parts` the
+    output."""
+
+    def __init__(self, symbol, why: str, final: int | None = None):
+        super().__init__(why)
+        self.symbol, self.why, self.final = symbol, why, final
 
 
 def jacobian(kept: list[Assignment], state_vars, derivatives, nloops=(), keep=None):
@@ -86,7 +98,11 @@ def forward_mode(kept: list[Assignment], seeds: dict, finals: list, prefix: str 
             sweep.step(a)
     out = {}
     for i, expr in enumerate(finals):
-        for j, v in sweep.grad(expr).items():
+        try:
+            g = sweep.grad(expr)
+        except RecursionError:
+            raise TooDeep(None, "", final=i) from None
+        for j, v in g.items():
             out[(i, j)] = v
     return out, sweep.jac_assign
 
@@ -223,7 +239,10 @@ class _Sweep:
             if dv:
                 self.D[a.symbol] = dv
         else:
-            g = self.grad(a.expr)
+            try:
+                g = self.grad(a.expr)
+            except RecursionError:  # sympy's diff recurses per level of a nested law
+                raise TooDeep(a.symbol, a.why) from None
             if not g:
                 return
             dv = {}
@@ -306,18 +325,35 @@ def linear_parts(eq: Equations) -> LinearParts:
     youts = [v for _, _, vals in eq.outputs for v in vals]
     kept = list(eq.assignments)
     nloops = tuple(getattr(eq, "newton", ()))
-    B, b_assign = forward_mode(kept, useeds, list(eq.derivatives), "_du", nloops)
+    try:
+        B, b_assign = forward_mode(kept, useeds, list(eq.derivatives), "_du", nloops)
+    except TooDeep as exc:
+        raise _too_deep(exc, [f"d{sv.name}/dt" for sv in eq.states]) from None
     tangents = getattr(eq, "jac_tangents", None)
-    if tangents is not None and tangents.fits(eq):
-        # C goes on from the state Jacobian's sweep: the assignments the derivatives read
-        # already have their derivatives (the Jacobian's intermediates _d*, which C's
-        # function then computes too); only those that only the outputs read are new
-        C, c_assign = forward_mode(kept, xseeds, youts, "_d", nloops,
-                                   sweep=tangents.sweep.fork())
-    else:
-        C, c_assign = forward_mode(kept, xseeds, youts, "_dx", nloops)
-    D, d_assign = forward_mode(kept, useeds, youts, "_du", nloops)
+    try:
+        if tangents is not None and tangents.fits(eq):
+            # C goes on from the state Jacobian's sweep: the assignments the derivatives read
+            # already have their derivatives (the Jacobian's intermediates _d*, which C's
+            # function then computes too); only those that only the outputs read are new
+            C, c_assign = forward_mode(kept, xseeds, youts, "_d", nloops,
+                                       sweep=tangents.sweep.fork())
+        else:
+            C, c_assign = forward_mode(kept, xseeds, youts, "_dx", nloops)
+        D, d_assign = forward_mode(kept, useeds, youts, "_du", nloops)
+    except TooDeep as exc:
+        names = [n for n, _, vals in eq.outputs for _ in vals]
+        err = _too_deep(exc, [f"output {n!r}" for n in names])
+        err.output = names[exc.final] if exc.final is not None else None  # (for its place)
+        raise err from None
     # B's and D's intermediates share a prefix: they live in different generated functions
     # except D's, which sits beside C's (prefix _d or _dx): no clash inside one function.
     return LinearParts(B, tuple(b_assign), C, D, tuple(c_assign) + tuple(d_assign),
                        tuple(ilabels), tuple(olabels))
+
+
+def _too_deep(exc: TooDeep, finals: list[str]) -> ModelError:
+    """The linearisation's refusal of an expression sympy cannot differentiate: the output (or
+    derivative) it is, else the assignment's own words."""
+    what = finals[exc.final] if exc.final is not None else exc.why
+    return ModelError(None, f"{what}: its expression is nested too deeply to differentiate "
+                            "(nested where(...)? flatten the conditions)")

@@ -40,6 +40,22 @@ class Scope:
     component: str = ""
 
 
+def _within_bounds(inst: str, comp: str, param, val, coord) -> None:
+    """An instance's number for a component parameter within the parameter's ``min`` and
+    ``max`` (as the component's own value must be); an expression's value is the run's."""
+    if param.min is None and param.max is None:
+        return
+    try:
+        v = float(str(getattr(val, "text", val)).strip())
+    except ValueError:
+        return
+    for bound, word in ((param.min, "min"), (param.max, "max")):
+        if bound is not None and (v < bound if word == "min" else v > bound):
+            raise ModelError(coord, f"instance {inst!r}: parameter {param.name!r} = {v:g} is "
+                                    f"{'below' if word == 'min' else 'above'} the {word} "
+                                    f"{bound:g} of component {comp!r}")
+
+
 @dataclass(frozen=True)
 class FlatParam:
     id: str
@@ -242,12 +258,13 @@ class _Flattener:
             if depth >= MAX_DEPTH:
                 raise ModelError(el.coord, f"element {el.name!r}: components nested deeper "
                                            f"than {MAX_DEPTH} (a component instantiating itself?)")
-            declared = {p.name for p in sub.body.params}
+            declared = {p.name: p for p in sub.body.params}
             sub_bind: dict[str, ParamBinding] = {}
             for key, val, coord in el.args:
                 if key not in declared:
                     raise ModelError(coord, f"instance {el.name!r}: component {sub.name!r} has "
                                             f"no parameter {key!r}")
+                _within_bounds(el.name, sub.name, declared[key], val, coord)
                 sub_bind[key] = ParamBinding("expr", val, prefix)
             sub_prefix = prefix + (el.name,)
             self.enter(prefix, sub_prefix, el, sub)
@@ -325,6 +342,10 @@ def _check(bg: BondGraph) -> None:
             if n < 2:
                 raise ModelError(el.coord, f"junction {el.id!r} has {n} bond(s): a junction "
                                            "needs at least two (dangling junction)")
+            if n > LIMITS.junction_bonds:
+                raise ModelError(el.coord, f"junction {el.id!r} has {n} bonds, more than "
+                                           f"{LIMITS.junction_bonds} (the limit of bonds on one "
+                                           "junction): split it into joined junctions")
             cards = {b.n for b in bonds}
             if len(cards) > 1:
                 detail = ", ".join(f"{b.id} (n={b.n})" for b in bonds)

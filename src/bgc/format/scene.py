@@ -15,7 +15,7 @@ import yaml
 from bgc.base import BACKENDS  # noqa: F401 (the one list, re-exported)
 from bgc.base.errors import Coord, ModelError
 from bgc.base.limits import LIMITS
-from bgc.base.safeio import read_text_bounded
+from bgc.base.safeio import not_a_file, read_text_bounded
 from bgc.format import tables as _tables
 from bgc.format.parse import Model, parse_file
 from bgc.format.reader import Reader, check_name, param_value, require
@@ -149,8 +149,9 @@ def _model_path(r: Reader, top: dict, path: str) -> str:
     if "\0" in model_rel:
         raise ModelError(r.coord(top["model"][1]), "the model's path contains a NUL byte")
     model_path = str(Path(path).parent / model_rel)
-    if not Path(model_path).is_file():
-        raise ModelError(r.coord(top["model"][1]), f"model file {model_rel!r} does not exist")
+    why = not_a_file(model_path)
+    if why is not None:
+        raise ModelError(r.coord(top["model"][1]), f"model file {model_rel!r} {why}")
     return model_path
 
 
@@ -166,6 +167,9 @@ def _a_time(r: Reader, node, what: str) -> float:
 
 def _span(r: Reader, top: dict, root) -> tuple[float, float]:
     """duration or t_span: the start and the end."""
+    if "t_span" in top and "duration" in top:  # which one would win is no answer
+        later = max((top["t_span"][0], top["duration"][0]), key=lambda n: n.start_mark.index)
+        raise ModelError(r.coord(later), "the scene: give duration or t_span, not both")
     if "t_span" in top:
         span_node = top["t_span"][1]
         span = r.seq(span_node, "t_span")
@@ -427,13 +431,27 @@ def initial_state(scene: Scene, module, p=None):
         return None
     t0 = scene.t_span[0]
     if scene.initial == "equilibrium":
-        x, info = module.equilibrium(p=p, t=t0)
-        if not np.all(info.converged):
+        with np.errstate(all="ignore"):  # a singular or not finite search: one located line
+            try:
+                x, info = module.equilibrium(p=p, t=t0)
+            except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
+                raise ModelError(scene.initial_coord, f"initial: no equilibrium found: the "
+                                 f"search failed ({exc}); is the right-hand side finite near "
+                                 "the initial state?") from None
+        if not np.all(info.converged) or not np.all(np.isfinite(x)):
             raise ModelError(scene.initial_coord, f"initial: no equilibrium found (max "
                                                   f"|dx/dt| = {np.max(info.residual):.3g})")
         return x
-    names = list(module.STATE_NAMES)
     x = np.array(module.initial_state(p), dtype=float)
+    for i, v in initial_values(scene, module).items():
+        x[i] = v
+    return x
+
+
+def initial_values(scene: Scene, module) -> dict:
+    """The states a scene's ``initial:`` mapping sets: state index -> value (located errors
+    for a name the module does not have, or the wrong number of values)."""
+    names, out = list(module.STATE_NAMES), {}
     for sname, (vals, coord) in scene.initial.items():
         if sname in names:
             idx = [names.index(sname)]
@@ -448,9 +466,8 @@ def initial_state(scene: Scene, module, p=None):
         if len(vals) != len(idx):
             raise ModelError(coord, f"initial {sname!r}: {len(vals)} value(s) for "
                                     f"{len(idx)} state(s) ({', '.join(names[i] for i in idx)})")
-        for i, v in zip(idx, vals):
-            x[i] = v
-    return x
+        out.update(zip(idx, (float(v) for v in vals)))
+    return out
 
 
 def check_rtol(v: float, where: Coord | None, what: str) -> float:
@@ -554,6 +571,20 @@ def _check_value_shape(pid: str, v, param, coord) -> None:
         raise ModelError(coord, f"parameter {pid!r}: the scene gives {_shape_text(got)}, the "
                                 f"model's parameter is {_shape_text(want)} (line "
                                 f"{param.coord.line} of {param.coord.file})")
+    check_bounds(pid, v, param, coord, "the scene gives")
+
+
+def check_bounds(pid: str, v, param, coord, who: str) -> None:
+    """A value for a scalar parameter within the model's ``min`` and ``max`` (which the model's
+    own value had to keep): a scene or a sweep may not run a negative mass the model refused."""
+    if not isinstance(v, (int, float)) or isinstance(v, bool):
+        return
+    for bound, word in ((param.min, "min"), (param.max, "max")):
+        if bound is not None and (v < bound if word == "min" else v > bound):
+            raise ModelError(coord, f"parameter {pid!r}: {who} {v:g}, "
+                                    f"{'below' if word == 'min' else 'above'} the model's "
+                                    f"{word} {bound:g} (line {param.coord.line} of "
+                                    f"{param.coord.file})")
 
 
 def check_outputs(scene: Scene, names) -> None:

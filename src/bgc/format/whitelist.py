@@ -169,14 +169,24 @@ def _checked(expr: Expr) -> ast.expr:
     except SyntaxError as exc:
         off = lead + max((exc.offset or 1) - 1, 0) if (exc.lineno or 1) == 1 else lead
         raise ModelError(_at(expr, min(off, len(text))),
-                         f"invalid expression {short_text(text)}: {exc.msg}") from None
+                         f"invalid expression {short_text(text)}: {_why(exc.msg)}") from None
     except (RecursionError, MemoryError):
         raise ModelError(expr.coord, "expression is nested too deeply") from None
     except ValueError as exc:  # e.g. null bytes, on some Python versions
-        raise ModelError(expr.coord, f"invalid expression {short_text(text)}: {exc}") from None
+        raise ModelError(expr.coord, f"invalid expression {short_text(text)}: {_why(exc)}") \
+            from None
     _check_depth(expr, tree.body)
     _check_node(expr, tree.body)
     return tree.body
+
+
+def _why(exc) -> str:
+    """Python's reason, except for its limit on the digits of an integer literal, whose advice
+    (sys.set_int_max_str_digits) is not the model's."""
+    why = str(exc)
+    if "integer string conversion" in why:
+        return "a number with thousands of digits (numbers are doubles: at most about 1e308)"
+    return why
 
 
 def _check_depth(expr: Expr, root: ast.AST) -> None:

@@ -281,7 +281,14 @@ def _compile_model(model: Model, progress, plan: Plan | None, strict_causality: 
     if notes:
         notes.insert(0, f"specialised for scene {plan.scene!r}")
     with clock("lower"):
-        low = lower(eqs, progress, linear=target == "numpy" and linear)
+        try:
+            low = lower(eqs, progress, linear=target == "numpy" and linear)
+        except ModelError as exc:  # an output the linearisation cannot differentiate: placed
+            places = {o.name: o.coord for o in model.body.outputs}
+            out = places.get(getattr(exc, "output", None))
+            if exc.coord is not None or out is None:
+                raise
+            raise ModelError(out, exc.message) from None
     units = graph.units
 
     def printer(equations: bool = True, check: bool = True) -> str:

@@ -26,6 +26,10 @@ def export_fmu(model_path, out, scene_path=None, kind: str = "both", progress=No
 
     if scene is not None:
         check_scene_for(scene, model_path)
+        if scene.initial is not None:  # computed at a run's start, not compiled in
+            say("warning: the FMU starts from the model's initial state: the scene's initial: "
+                f"(line {scene.initial_coord.line}) is not carried into it; set the states in "
+                "the importing tool")
         say("compiling the scene's model")
     else:
         say("parsing")

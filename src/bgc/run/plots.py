@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bgc.base.errors import ModelError
+from bgc.base.errors import Coord, ModelError
 from bgc.base.outfiles import write_output
 
 
@@ -226,16 +226,32 @@ def _png(fn, *args, **kw) -> bytes:
 
 def render_plots(scene, t, y, units=None) -> list[tuple[str, bytes]]:
     """(file name, PNG bytes) of each plot of the scene (or one per output when it names
-    none), drawn in memory: nothing is written until every figure has been drawn.
+    none), drawn in memory: nothing is written until every figure has been drawn, and every
+    file name is checked before the first is drawn.
     ``units``: output name -> unit for the axes (the module's OUTPUT_UNITS)."""
     if not scene.plots:
-        return [(f"{scene.name}_{name}.png", _png(plot_time, t, y, [name], units=units))
-                for name in y]
+        names = _plain_names(scene, [f"{scene.name}_{name}.png" for name in y])
+        return [(fname, _png(plot_time, t, y, [name], units=units))
+                for fname, name in zip(names, y)]
     check_plots(scene, {k: np.shape(v)[:-1] for k, v in y.items()})
     fns = {"time": plot_time, "path3d": plot_path3d, "loci": plot_loci}
-    return [(f"{scene.name}_{k + 1}_{pl.kind}.png",
-             _png(fns[pl.kind], t, y, list(pl.outputs), pl.title, pl.labels, units=units))
-            for k, pl in enumerate(scene.plots)]
+    names = _plain_names(scene, [f"{scene.name}_{k + 1}_{pl.kind}.png"
+                                 for k, pl in enumerate(scene.plots)])
+    return [(fname, _png(fns[pl.kind], t, y, list(pl.outputs), pl.title, pl.labels,
+                         units=units))
+            for fname, pl in zip(names, scene.plots)]
+
+
+def _plain_names(scene, fnames: list[str]) -> list[str]:
+    """The plots' file names, each a plain file name (no folder, not hidden), else one
+    located error at the scene, before anything is drawn or written: a scene file's name
+    (its stem names the plots unless the scene says ``name:``) such as '.hidden.yaml'."""
+    for fname in fnames:
+        if Path(fname).name != fname or fname.startswith("."):
+            where = Coord(str(getattr(scene, "file", "") or scene.name), 1, 1)
+            raise ModelError(where, f"plot file name {fname!r} is not a plain file name; give "
+                                    "the scene a name (name: ...)")
+    return fnames
 
 
 def write_plots(scene, t, y, outdir, inputs=None, rendered=None, units=None) -> list[Path]:

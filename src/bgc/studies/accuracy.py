@@ -84,8 +84,8 @@ from bgc.studies.runs import (  # noqa: F401 (the study's parts, as bgc.studies.
 from bgc.studies.stiffness import SweepPoint, param_sweep  # noqa: F401
 
 
-def parse_tols(text: str) -> tuple:
-    """'1e-3:1e-10' (every decade between) or '1e-3,1e-6,...'."""
+def parse_tols(text: str, what: str = "--tols") -> tuple:
+    """'1e-3:1e-10' (every decade between) or '1e-3,1e-6,...' (``what``: the option's name)."""
     try:
         if ":" in text:
             a, b = (float(s) for s in text.split(":"))
@@ -97,12 +97,12 @@ def parse_tols(text: str) -> tuple:
         else:
             tols = tuple(float(s) for s in text.split(",") if s.strip())
     except ValueError:
-        raise ModelError(None, f"--tols {text!r}: give 1e-3:1e-10 or a comma list") from None
+        raise ModelError(None, f"{what} {text!r}: give 1e-3:1e-10 or a comma list") from None
     if not tols or not all(0 < t < 1 for t in tols):
-        raise ModelError(None, f"--tols {text!r}: tolerances lie strictly between 0 and 1")
+        raise ModelError(None, f"{what} {text!r}: tolerances lie strictly between 0 and 1")
     low = LIMITS.min_rtol
     if any(t < low * (1 - 1e-9) for t in tols):
-        raise ModelError(None, f"--tols {text!r}: {min(tols):g} is below {low:g}, the smallest "
+        raise ModelError(None, f"{what} {text!r}: {min(tols):g} is below {low:g}, the smallest "
                                "relative tolerance double precision resolves (a scene's rtol "
                                "has the same bound)")
     return tols

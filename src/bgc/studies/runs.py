@@ -22,7 +22,7 @@ import numpy as np
 from bgc.backends.c import build as cbuild
 from bgc.base.errors import ModelError, SimulationFailed
 from bgc.core.signals import input_breakpoints
-from bgc.format.scene import parse_scene
+from bgc.format.scene import initial_state, parse_scene
 from bgc.run.runner import compile_scene, scene_module
 
 METHODS = ("RK45", "DOP853", "Radau", "BDF", "LSODA", "Rodas4")
@@ -73,6 +73,7 @@ class Setup:
     compiled: object = None  # the Compiled scene module (for diagnoses)
     cmodule: object = None  # the C backend's module, for the C methods (made on first use)
     source: str = ""  # the module's source text: Dask workers compile their own copy
+    x0: object = None  # the scene's initial state (its initial:), None for the module's own
 
 
 def prepare(scene_path, t_end=None, atol_scale=None, breakpoints=(), progress=None) -> Setup:
@@ -104,11 +105,14 @@ def prepare(scene_path, t_end=None, atol_scale=None, breakpoints=(), progress=No
     # the instants where an input expression jumps (where(t < 1, ...)) are breakpoints too:
     # at rtol 1e-12 no integrator steps through a jump it is not told of
     jumps = input_breakpoints(compiled.equations)
-    return Setup(Path(scene.file).stem, scene, mod, values(scene) or None, (t0, t1),
+    p = values(scene) or None
+    x0 = initial_state(scene, mod, p)  # the scene's start, as `bgc simulate` takes it
+    return Setup(Path(scene.file).stem, scene, mod, p, (t0, t1),
                  t_eval, tuple(sorted({float(b) for b in (*scene.breakpoints, *breakpoints,
                                                           *jumps) if t0 < b < t1})),
                  scene.max_step,
-                 outs, float(atol_scale), ct, compiled=compiled, source=compiled.source)
+                 outs, float(atol_scale), ct, compiled=compiled, source=compiled.source,
+                 x0=x0)
 
 
 @contextlib.contextmanager
@@ -149,7 +153,7 @@ def solve(setup: Setup, method, rtol, atol, jac_mode="analytic", deadline=math.i
         wall = None if math.isinf(deadline) else max(deadline - time.perf_counter(), 1e-3)
         try:
             res = mod.simulate(setup.t_span, t_eval=setup.t_eval, method=method[2:], rtol=rtol,
-                               atol=atol, p=setup.p, breakpoints=setup.breakpoints,
+                               atol=atol, p=setup.p, x0=setup.x0, breakpoints=setup.breakpoints,
                                max_step=setup.max_step, max_wall=wall, max_steps=10 ** 7)
         except mod.SimulationError as exc:
             if "wall time" in str(exc):
@@ -160,7 +164,7 @@ def solve(setup: Setup, method, rtol, atol, jac_mode="analytic", deadline=math.i
     mod = setup.module
     with _instrumented(mod, deadline, jac_mode == "dense-fd"):
         res = mod.simulate(setup.t_span, t_eval=setup.t_eval, method=method, rtol=rtol,
-                           atol=atol, p=setup.p, breakpoints=setup.breakpoints,
+                           atol=atol, p=setup.p, x0=setup.x0, breakpoints=setup.breakpoints,
                            jac=jac_mode == "analytic", max_step=setup.max_step,
                            max_steps=10 ** 7)  # the budget bounds a study's runs
     stats = {k: int(res.stats[k]) for k in ("nfev", "njev", "nlu", "nsteps")}
@@ -272,7 +276,7 @@ def _pilot_states(setup: Setup):
     try:
         with np.errstate(all="ignore"):
             res = mod.simulate(setup.t_span, method="Radau", rtol=1e-4,
-                                        atol=1e-4 * setup.atol_scale, p=setup.p,
+                                        atol=1e-4 * setup.atol_scale, p=setup.p, x0=setup.x0,
                                         breakpoints=setup.breakpoints,
                                         max_step=setup.max_step, max_wall=30.0)
     except Exception:  # noqa: BLE001 - the study's own runs report failures
@@ -291,7 +295,7 @@ def is_stiff(setup: Setup) -> tuple[bool, float]:
     """(stiff, stiffness index): the index is the largest max|eig J| times the span, of the
     Jacobian at t0 and at states along a loose pilot run (_pilot_states)."""
     mod = setup.module
-    x0 = mod.initial_state(setup.p).reshape(-1)
+    x0 = (mod.initial_state(setup.p) if setup.x0 is None else np.asarray(setup.x0)).reshape(-1)
     rho = _spectral_radius(mod, setup.t_span[0], x0, setup.p)
     if math.isfinite(rho):
         for t, x in _pilot_states(setup):

@@ -59,7 +59,7 @@ from bgc.base.safeio import read_text_bounded
 from bgc.core.graph import build_graph
 from bgc.format.expr import Expr
 from bgc.format.reader import Reader
-from bgc.format.scene import parse_scene, scene_model
+from bgc.format.scene import check_bounds, initial_values, parse_scene, scene_model
 from bgc.run.runner import compile_scene, runtime_params
 from bgc.studies.sweep_plot import plot_sweep  # noqa: F401 (bgc.studies.sweep.plot_sweep)
 from bgc.studies.sweep_spec import (  # noqa: F401 (the section's names, as sweep.*)
@@ -113,6 +113,8 @@ class Prepared:
     c_wrapper: str = ""  # the C wrapper module's text
     c_key: str = ""  # their compile-cache key on the client's machine (backends.c_key)
     inputs: object = None  # the run's inputs (bgc.base.outfiles.Inputs): no output replaces one
+    fixed: dict = field(default_factory=dict)  # state index -> the scene's initial: value
+    equilibrium: bool = False  # the scene's initial: equilibrium (each sample its own)
 
     @property
     def n(self) -> int:
@@ -134,6 +136,8 @@ class Prepared:
                              repr(self.max_step), self.breakpoints, _jsonable(self.base_p),
                              sorted(self.params.items()), sorted(self.states.items()),
                              list(self.outputs), chunk, self.max_wall], default=str).encode())
+        if self.fixed or self.equilibrium:  # the scene's start (a store made without differs)
+            h.update(json.dumps([sorted(self.fixed.items()), self.equilibrium]).encode())
         for k in sorted(self.values):
             h.update(k.encode())
             h.update(np.ascontiguousarray(self.values[k], dtype="<f8").tobytes())
@@ -204,6 +208,11 @@ def prepare(scene_path, progress=None, backend: str | None = None) -> Prepared:
             raise ModelError(e.coord, f"sweep: parameter {e.name!r} is a matrix; only scalar "
                                       "parameters can be swept")
         swept.append(e.name)
+    values = samples(spec)
+    for e in spec.entries:  # within the model's min and max, as a scene's value must be
+        if e.kind == "param":
+            for v in (float(np.min(values[e.label])), float(np.max(values[e.label]))):
+                check_bounds(e.name, v, known[e.name], e.coord, "the sweep gives")
     extra = tuple(n for n in swept if n in scene.params and n not in scene.free)
     scene2 = dataclasses.replace(scene, free=scene.free + extra)
     c, mod = compile_scene(scene2, progress)
@@ -235,12 +244,15 @@ def prepare(scene_path, progress=None, backend: str | None = None) -> Prepared:
                     scene.max_step, tuple(scene.breakpoints),
                     runtime_params(scene2, mod) or {},
                     {e.label: e.name for e in spec.entries if e.kind == "param"}, states,
-                    samples(spec), outs, {o: tuple(mod.OUTPUT_SHAPES[o]) for o in outs},
+                    values, outs, {o: tuple(mod.OUTPUT_SHAPES[o]) for o in outs},
                     dict(mod.PARAM_UNITS), spec, c_files=files, c_wrapper=wrapper, c_key=ckey)
     if backend == "c":
         load(prep, progress)  # built once here: the workers on this machine find it cached
 
     prep.inputs = run_inputs(scene.model_path, scene_path)
+    # each sample starts where the scene alone does: its initial: states, or the equilibrium
+    prep.equilibrium = scene.initial == "equilibrium"
+    prep.fixed = initial_values(scene, mod) if isinstance(scene.initial, dict) else {}
     return prep
 
 
@@ -316,6 +328,18 @@ def host_slots(client) -> dict:
     return out
 
 
+def _start(mod, prep: Prepared, p: dict):
+    """The batch's start before the swept states: the module's initial state, or with the
+    scene's ``initial: equilibrium`` each instance's equilibrium (inputs held at t0)."""
+    if not prep.equilibrium:
+        return mod.initial_state(p or None)
+    x, info = mod.equilibrium(p=p or None, t=prep.t_span[0])
+    if not np.all(info.converged) or not np.all(np.isfinite(x)):
+        raise ValueError(f"initial: no equilibrium found (max |dx/dt| = "
+                         f"{np.nanmax(info.residual):.3g})")
+    return np.asarray(x, dtype=float)
+
+
 def _call(mod, prep: Prepared, idx: np.ndarray, nthreads: int | None = None):
     """One vectorised simulate over the instances idx; (y dict with the batch first, stats).
     nthreads: the C integrator's threads (None: every CPU); unused by numpy."""
@@ -323,9 +347,11 @@ def _call(mod, prep: Prepared, idx: np.ndarray, nthreads: int | None = None):
     for label, pid in prep.params.items():
         p[pid] = prep.values[label][idx]
     x0 = None
-    if prep.states:
-        x0 = np.array(np.broadcast_to(mod.initial_state(p or None).reshape(
+    if prep.states or prep.fixed or prep.equilibrium:  # the scene's start, then the swept
+        x0 = np.array(np.broadcast_to(_start(mod, prep, p).reshape(
             mod.N_STATES, -1), (mod.N_STATES, len(idx))))
+        for k, v in prep.fixed.items():
+            x0[k] = v
         for label, k in prep.states.items():
             x0[k] = prep.values[label][idx]
     if not prep.params:  # a batch axis from x0 only
@@ -423,7 +449,12 @@ def client_for(scheduler=None, workers=None):
         from bgc.studies.quiet_close import QuietWorkerClose  # imports distributed
         client.register_plugin(QuietWorkerClose(), name="bgc-quiet-close")
         return client
-    client = Client(scheduler)
+    try:
+        client = Client(scheduler)
+    except (ValueError, TypeError) as exc:  # not an address (no port, unknown protocol)
+        raise ModelError(None, f"--scheduler {str(scheduler)[:80]!r} is not a Dask "
+                               f"scheduler's address ({str(exc)[:120]}): give "
+                               "tcp://HOST:PORT, or 'local'") from None
     client.bgc_cluster = None
     return client
 

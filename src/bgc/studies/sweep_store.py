@@ -6,12 +6,17 @@ a store made for another sweep is refused. ``prep`` below is a
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 
 from bgc.base.errors import ModelError
 from bgc.base.outdirs import mark_folder, remove_marked
 from bgc.studies.sweep_folder import STORE_KIND, _zarr_entries, _zarr_own, check_store
+
+# The store's folder holds bgc's marker file (bgc.base.outdirs.MARKER); Zarr 3 warns about it
+# (not one of its objects) each time it lists the folder: seven lines on every sweep's stderr.
+warnings.filterwarnings("ignore", message=r"Object at \.bgc-output is not recognized")
 
 STATS = ("nfev", "njev", "nlu", "nsteps")
 MESSAGE_WIDTH = 240  # characters of a failure message kept in the store
