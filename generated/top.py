@@ -1279,24 +1279,32 @@ def _block_pattern(nb):
     return (rows[:, None] * nb + b).ravel(), (cols[:, None] * nb + b).ravel()
 
 
-#: Where sparse linear algebra pays (bench/bench_sparse.py, bench/RESULTS_sparse.md): an
-#: implicit method factorises a sparse Jacobian (scipy's splu) when the flat state (states x
-#: instances) has at least SPARSE_MIN_SIZE[method] entries and at most SPARSE_MAX_DENSITY of
-#: the Jacobian's entries can be nonzero; below, a dense LU (LAPACK) is as fast or faster.
-#: Rodas4 factorises at every step, where splu's fixed cost weighs more: its threshold is
-#: higher.
+#: Where sparse linear algebra pays (bench/bench_sparse.py): an implicit method factorises a
+#: sparse Jacobian (scipy's splu) when the flat state (states x instances) has at least
+#: SPARSE_MIN_SIZE[method] entries and one instance's block (JAC_SPARSITY) has at most
+#: SPARSE_MAX_DENSITY * nb**2 of its entries nonzero; else a dense LU (LAPACK) is as fast or
+#: faster. Rodas4 factorises at every step, where splu's fixed cost weighs more: its size is
+#: higher (single runs of RC ladders, bench/RESULTS_sparse.md). The nb**2: a batch's flat
+#: Jacobian is block diagonal, so the dense LU costs ~ (n nb)**3 while splu's cost is ~ nb
+#: times one block's: the ratio dense / sparse grows as nb**2 over a single run's, and the
+#: flat density (the block's / nb) understates it by a further nb. Checked end to end on
+#: batches (the 3R2S circle, RC ladders, the rigid double pendulum, the top, a 1000-instance
+#: batch) with `python bench/bench_sparse.py --cases all --methods Radau,Rodas4 --rounds 2`
+#: (bench/RESULTS_sparse_batch.md): the picked path within 20 % of the faster.
 SPARSE_MIN_SIZE = {"Radau": 100, "BDF": 100, "Rodas4": 200}
 SPARSE_MAX_DENSITY = 0.05
 
 
 def _use_sparse(nb, sparse=None, method="Radau"):
     """Does an implicit method get a sparse Jacobian? sparse=True/False forces the choice;
-    None decides by size and density (SPARSE_MIN_SIZE, SPARSE_MAX_DENSITY)."""
+    None decides by the flat size and the block's density (SPARSE_MIN_SIZE,
+    SPARSE_MAX_DENSITY * nb**2: one instance's rule for nb = 1)."""
     if sparse is not None:
         return bool(sparse)
     size = N_STATES * nb
-    nnz = int(np.count_nonzero(JAC_SPARSITY)) * nb
-    return size >= SPARSE_MIN_SIZE.get(method, 100) and nnz <= SPARSE_MAX_DENSITY * size * size
+    nnz = int(np.count_nonzero(JAC_SPARSITY))
+    return (size >= SPARSE_MIN_SIZE.get(method, 100)
+            and nnz <= SPARSE_MAX_DENSITY * nb * nb * N_STATES * N_STATES)
 
 
 def _csc_plan(nb):
@@ -1746,7 +1754,8 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
     Jacobian at the start and, while integrating, from steps held at the stability limit.
     max_wall: seconds; SimulationError once the wall time is exceeded. sparse: the implicit
     methods' linear algebra, sparse (scipy.sparse, splu) or dense (LAPACK); None chooses by
-    the flat state's size and the Jacobian's density (SPARSE_MIN_SIZE, SPARSE_MAX_DENSITY).
+    the flat state's size and one instance's Jacobian density against the batch's size
+    (SPARSE_MIN_SIZE, SPARSE_MAX_DENSITY, _use_sparse).
     Statistics in result.stats: nfev (rhs calls), njev, nlu, nsteps (accepted steps), nstiff
     (stiffness checks), summed over the segments. check_constraints: a given x0 of a model
     with closed loops is checked against their constraints (ValueError naming the constraint
