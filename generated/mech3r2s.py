@@ -10956,26 +10956,28 @@ def _block_pattern(nb):
 #: while splu's stays ~ nb x one block's, at most a few dense LUs of the block (splu on a full
 #: block is a few times LAPACK's): from 2 instances the dense LU does nb**2 = 4 times the
 #: block's work per instance and loses to splu whatever the block's density, once the flat
-#: size (SPARSE_MIN_BATCH_SIZE, every method) pays for splu's fixed cost; under a
-#: multithreaded BLAS a dense LU of 100-400 unknowns is slower still. Measured end to end on
-#: the 3R2S circle, RC ladders of 30 / 100 / 300, the rigid double pendulum and the top at
-#: batches 1-64, Radau and Rodas4, the picked path within 20 % of the faster on an idle
-#: machine: `python bench/bench_sparse.py --cases all --methods Radau,Rodas4 --rounds 2`
+#: size (SPARSE_MIN_BATCH_SIZE[method]; Rodas4's higher, as alone) pays for splu's fixed
+#: cost; under a multithreaded BLAS a dense LU of 100-400 unknowns is slower still. Measured
+#: end to end on the 3R2S circle, RC ladders of 30 / 100 / 300, the rigid double pendulum and
+#: the top at batches 1-64, Radau and Rodas4 (BDF follows Radau, unmeasured for batches), the
+#: picked path within 15 % of the faster for every batch measured on an idle machine:
+#: `python bench/bench_sparse.py --cases all --methods Radau,Rodas4 --rounds 2`
 #: (bench/RESULTS_sparse_batch.md).
 SPARSE_MIN_SIZE = {"Radau": 100, "BDF": 100, "Rodas4": 200}
 SPARSE_MAX_DENSITY = 0.05
-SPARSE_MIN_BATCH_SIZE = 100
+SPARSE_MIN_BATCH_SIZE = {"Radau": 50, "BDF": 50, "Rodas4": 150}
 
 
 def _use_sparse(nb, sparse=None, method="Radau"):
     """Does an implicit method get a sparse Jacobian? sparse=True/False forces the choice;
     None decides: one instance by its size and density (SPARSE_MIN_SIZE[method],
-    SPARSE_MAX_DENSITY), a batch of nb >= 2 by the flat size (SPARSE_MIN_BATCH_SIZE)."""
+    SPARSE_MAX_DENSITY), a batch of nb >= 2 by the flat size
+    (SPARSE_MIN_BATCH_SIZE[method])."""
     if sparse is not None:
         return bool(sparse)
     size = N_STATES * nb
     if nb > 1:
-        return size >= SPARSE_MIN_BATCH_SIZE
+        return size >= SPARSE_MIN_BATCH_SIZE.get(method, 50)
     nnz = int(np.count_nonzero(JAC_SPARSITY))
     return size >= SPARSE_MIN_SIZE.get(method, 100) and nnz <= SPARSE_MAX_DENSITY * size * size
 

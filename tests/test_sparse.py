@@ -95,7 +95,7 @@ def test_the_size_rule(ladder):
     for method in ("Radau", "BDF", "Rodas4"):
         assert not ladder._use_sparse(1, None, method)
         assert ladder._use_sparse(1, True, method) and not ladder._use_sparse(10**4, False, method)
-        big = -(-ladder.SPARSE_MIN_BATCH_SIZE // N)  # instances that reach the size
+        big = -(-ladder.SPARSE_MIN_BATCH_SIZE[method] // N)  # instances that reach it
         assert ladder._use_sparse(big, None, method)
         assert not ladder._use_sparse(big - 1, None, method)
 
@@ -115,11 +115,12 @@ def test_the_batch_rule_is_monotone_and_never_denser_than_the_flat_rule(ladder, 
                                                                         n, density):
     """Properties of _use_sparse for one instance's pattern of n states and a given density
     (patterns made here): a system under both sizes (SPARSE_MIN_SIZE[method] alone,
-    SPARSE_MIN_BATCH_SIZE flat) stays dense; once sparse at nb instances, sparse at every
-    larger nb (a block-diagonal batch of a model whose single run is sparse stays sparse);
-    sparse wherever the flat matrix's own size and density say so by the one-instance rule;
-    a batch of 2 or more over SPARSE_MIN_BATCH_SIZE goes sparse whatever its block's density
-    (the dense LU of the block-diagonal matrix does nb**2 times the block's work)."""
+    SPARSE_MIN_BATCH_SIZE[method] flat) stays dense; once sparse at nb instances, sparse at
+    every larger nb (a block-diagonal batch of a model whose single run is sparse stays
+    sparse); sparse wherever the flat matrix's own size and density say so by the
+    one-instance rule; a batch of 2 or more over SPARSE_MIN_BATCH_SIZE[method] goes sparse
+    whatever its block's density (the dense LU of the block-diagonal matrix does nb**2 times
+    the block's work)."""
     P = _pattern(n, max(n, int(round(density * n * n))))
     monkeypatch.setattr(ladder, "N_STATES", n)
     monkeypatch.setattr(ladder, "JAC_SPARSITY", P)
@@ -131,7 +132,7 @@ def test_the_batch_rule_is_monotone_and_never_denser_than_the_flat_rule(ladder, 
         for nb in (1, 2, 3, 4, 5, 8, 16, 64, 1000):
             use = ladder._use_sparse(nb, None, method)
             size = n * nb
-            if size < min(floor, ladder.SPARSE_MIN_BATCH_SIZE):
+            if size < min(floor, ladder.SPARSE_MIN_BATCH_SIZE[method]):
                 assert not use, (method, nb)
             if nb == 1:
                 assert use == (size >= floor and single), method
@@ -139,7 +140,7 @@ def test_the_batch_rule_is_monotone_and_never_denser_than_the_flat_rule(ladder, 
                 assert use, (method, nb)  # monotone in nb
             if size >= floor and nnz * nb <= ladder.SPARSE_MAX_DENSITY * size * size:
                 assert use, (method, nb)  # the flat density's rule said sparse
-            if nb >= 2 and size >= ladder.SPARSE_MIN_BATCH_SIZE:
+            if nb >= 2 and size >= ladder.SPARSE_MIN_BATCH_SIZE[method]:
                 assert use, (method, nb)
             seen_sparse = seen_sparse or use
             assert ladder._use_sparse(nb, True, method)
