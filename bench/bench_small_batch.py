@@ -127,7 +127,7 @@ def end_to_end(batches, span, repeats):
              for k in ("m1", "m2", "m3", "m4")}
         runs = [("vectorised", {"rhs": (0, 0), "jacobian": (0, 0)}, None),
                 ("loop", default, None)]
-        if not mod._use_sparse(nb):  # (from 4 instances the default LU is sparse already)
+        if not mod._use_sparse(nb):  # (a batch of 95 x 2 or more is sparse by default now)
             runs.append(("loop, sparse LU", default, True))
         out = {}
         for _ in range(repeats):  # interleaved; the best of the repeats

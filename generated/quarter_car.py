@@ -769,23 +769,38 @@ def _block_pattern(nb):
     return (rows[:, None] * nb + b).ravel(), (cols[:, None] * nb + b).ravel()
 
 
-#: Where sparse linear algebra pays (bench/bench_sparse.py, bench/RESULTS_sparse.md): an
-#: implicit method factorises a sparse Jacobian (scipy's splu) when the flat state (states x
-#: instances) has at least SPARSE_MIN_SIZE[method] entries and at most SPARSE_MAX_DENSITY of
-#: the Jacobian's entries can be nonzero; below, a dense LU (LAPACK) is as fast or faster.
-#: Rodas4 factorises at every step, where splu's fixed cost weighs more: its threshold is
-#: higher.
+#: Where sparse linear algebra pays (bench/bench_sparse.py). One instance: an implicit method
+#: factorises a sparse Jacobian (scipy's splu) when it has at least SPARSE_MIN_SIZE[method]
+#: states and at most SPARSE_MAX_DENSITY of its entries can be nonzero (JAC_SPARSITY); below, a
+#: dense LU (LAPACK) is as fast or faster; Rodas4 factorises at every step, where splu's fixed
+#: cost weighs more: its size is higher (single runs of RC ladders, bench/RESULTS_sparse.md).
+#: A batch (nb >= 2): its flat Jacobian is block diagonal, so the dense LU costs ~ (n nb)**3
+#: while splu's stays ~ nb x one block's, at most a few dense LUs of the block (splu on a full
+#: block is a few times LAPACK's): from 2 instances the dense LU does nb**2 = 4 times the
+#: block's work per instance and loses to splu whatever the block's density, once the flat
+#: size (SPARSE_MIN_BATCH_SIZE[method]; Rodas4's higher, as alone) pays for splu's fixed
+#: cost; under a multithreaded BLAS a dense LU of 100-400 unknowns is slower still. Measured
+#: end to end on the 3R2S circle, RC ladders of 30 / 100 / 300, the rigid double pendulum and
+#: the top at batches 1-64, Radau and Rodas4 (BDF follows Radau, unmeasured for batches), the
+#: picked path within 15 % of the faster for every batch measured on an idle machine:
+#: `python bench/bench_sparse.py --cases all --methods Radau,Rodas4 --rounds 2`
+#: (bench/RESULTS_sparse_batch.md).
 SPARSE_MIN_SIZE = {"Radau": 100, "BDF": 100, "Rodas4": 200}
 SPARSE_MAX_DENSITY = 0.05
+SPARSE_MIN_BATCH_SIZE = {"Radau": 50, "BDF": 50, "Rodas4": 150}
 
 
 def _use_sparse(nb, sparse=None, method="Radau"):
     """Does an implicit method get a sparse Jacobian? sparse=True/False forces the choice;
-    None decides by size and density (SPARSE_MIN_SIZE, SPARSE_MAX_DENSITY)."""
+    None decides: one instance by its size and density (SPARSE_MIN_SIZE[method],
+    SPARSE_MAX_DENSITY), a batch of nb >= 2 by the flat size
+    (SPARSE_MIN_BATCH_SIZE[method])."""
     if sparse is not None:
         return bool(sparse)
     size = N_STATES * nb
-    nnz = int(np.count_nonzero(JAC_SPARSITY)) * nb
+    if nb > 1:
+        return size >= SPARSE_MIN_BATCH_SIZE.get(method, 50)
+    nnz = int(np.count_nonzero(JAC_SPARSITY))
     return size >= SPARSE_MIN_SIZE.get(method, 100) and nnz <= SPARSE_MAX_DENSITY * size * size
 
 
@@ -1236,7 +1251,8 @@ def simulate(t_span, t_eval=None, method="Radau", rtol=1e-6, atol=1e-9, p=None, 
     Jacobian at the start and, while integrating, from steps held at the stability limit.
     max_wall: seconds; SimulationError once the wall time is exceeded. sparse: the implicit
     methods' linear algebra, sparse (scipy.sparse, splu) or dense (LAPACK); None chooses by
-    the flat state's size and the Jacobian's density (SPARSE_MIN_SIZE, SPARSE_MAX_DENSITY).
+    one instance's size and Jacobian density, a batch's flat size (SPARSE_MIN_SIZE,
+    SPARSE_MAX_DENSITY, SPARSE_MIN_BATCH_SIZE: _use_sparse).
     Statistics in result.stats: nfev (rhs calls), njev, nlu, nsteps (accepted steps), nstiff
     (stiffness checks), summed over the segments. check_constraints: a given x0 of a model
     with closed loops is checked against their constraints (ValueError naming the constraint

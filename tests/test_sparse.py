@@ -95,9 +95,90 @@ def test_the_size_rule(ladder):
     for method in ("Radau", "BDF", "Rodas4"):
         assert not ladder._use_sparse(1, None, method)
         assert ladder._use_sparse(1, True, method) and not ladder._use_sparse(10**4, False, method)
-        big = -(-ladder.SPARSE_MIN_SIZE[method] // N)  # instances that reach the size
+        big = -(-ladder.SPARSE_MIN_BATCH_SIZE[method] // N)  # instances that reach it
         assert ladder._use_sparse(big, None, method)
         assert not ladder._use_sparse(big - 1, None, method)
+
+
+def _pattern(n, nnz, seed=0):
+    """An n x n sparsity pattern of nnz entries: the diagonal, then random off-diagonal ones."""
+    rng = np.random.default_rng(seed)
+    P = np.eye(n, dtype=bool)
+    off = np.flatnonzero(~P)
+    P.flat[rng.choice(off, size=nnz - n, replace=False)] = True
+    return P
+
+
+@pytest.mark.parametrize("n, density", [(2, 0.75), (12, 0.76), (24, 0.12), (95, 0.19),
+                                        (101, 0.25), (150, 0.02), (150, 0.3), (300, 1.0)])
+def test_the_batch_rule_is_monotone_and_never_denser_than_the_flat_rule(ladder, monkeypatch,
+                                                                        n, density):
+    """Properties of _use_sparse for one instance's pattern of n states and a given density
+    (patterns made here): a system under both sizes (SPARSE_MIN_SIZE[method] alone,
+    SPARSE_MIN_BATCH_SIZE[method] flat) stays dense; once sparse at nb instances, sparse at
+    every larger nb (a block-diagonal batch of a model whose single run is sparse stays
+    sparse); sparse wherever the flat matrix's own size and density say so by the
+    one-instance rule; a batch of 2 or more over SPARSE_MIN_BATCH_SIZE[method] goes sparse
+    whatever its block's density (the dense LU of the block-diagonal matrix does nb**2 times
+    the block's work)."""
+    P = _pattern(n, max(n, int(round(density * n * n))))
+    monkeypatch.setattr(ladder, "N_STATES", n)
+    monkeypatch.setattr(ladder, "JAC_SPARSITY", P)
+    nnz = int(P.sum())
+    single = P.sum() <= ladder.SPARSE_MAX_DENSITY * n * n
+    for method in ("Radau", "BDF", "Rodas4"):
+        floor = ladder.SPARSE_MIN_SIZE[method]
+        seen_sparse = False
+        for nb in (1, 2, 3, 4, 5, 8, 16, 64, 1000):
+            use = ladder._use_sparse(nb, None, method)
+            size = n * nb
+            if size < min(floor, ladder.SPARSE_MIN_BATCH_SIZE[method]):
+                assert not use, (method, nb)
+            if nb == 1:
+                assert use == (size >= floor and single), method
+            if seen_sparse:
+                assert use, (method, nb)  # monotone in nb
+            if size >= floor and nnz * nb <= ladder.SPARSE_MAX_DENSITY * size * size:
+                assert use, (method, nb)  # the flat density's rule said sparse
+            if nb >= 2 and size >= ladder.SPARSE_MIN_BATCH_SIZE[method]:
+                assert use, (method, nb)
+            seen_sparse = seen_sparse or use
+            assert ladder._use_sparse(nb, True, method)
+            assert not ladder._use_sparse(nb, False, method)
+
+
+def test_the_3r2s_block_goes_sparse_from_a_batch_of_two(gen):
+    """The 3R2S (about 100 states, a block of about 19 % nonzeros: dense alone) goes sparse
+    from 2 instances, where bench/bench_sparse.py measured splu ahead
+    (bench/RESULTS_sparse_batch.md); the flat density alone (the block's / 2, over 5 %)
+    would keep it dense."""
+    mod = gen("mech3r2s")
+    n, nnz = mod.N_STATES, int(np.count_nonzero(mod.JAC_SPARSITY))
+    assert 0.1 < nnz / n**2 <= 0.2
+    assert not mod._use_sparse(1, None, "Radau")
+    assert 2 * nnz > mod.SPARSE_MAX_DENSITY * (2 * n) ** 2  # the flat rule: dense
+    assert all(mod._use_sparse(2, None, m) for m in ("Radau", "BDF", "Rodas4"))
+
+
+def test_a_dense_block_batch_on_the_new_sparse_path_equals_its_single_runs(gen):
+    """The top (12 states, 76 % of its block nonzero): a batch of 9 has 108 flat states and a
+    flat density of 8.5 %, dense by the flat rule, sparse by the batch rule. Each instance
+    (its own mass and spin) must equal its own single run (dense, its own steps) to the runs'
+    tolerance, and the default must be the sparse path (the same trajectory bit for bit)."""
+    mod = gen("top")
+    nb = 9
+    assert mod._use_sparse(nb, None, "Radau") and not mod._use_sparse(1, None, "Radau")
+    scale = np.linspace(0.8, 1.2, nb)
+    p = {"m": mod.PARAM_DEFAULTS["m"] * scale, "omega3": mod.PARAM_DEFAULTS["omega3"] * scale}
+    kw = dict(method="Radau", rtol=1e-8, atol=1e-10, dt=0.01)
+    auto = mod.simulate((0.0, 0.1), p=p, **kw)
+    forced = mod.simulate((0.0, 0.1), p=p, sparse=True, **kw)
+    assert np.array_equal(auto.x, forced.x)
+    for i in range(nb):
+        one = mod.simulate((0.0, 0.1), p={k: float(v[i]) for k, v in p.items()}, **kw)
+        err = np.max(np.abs(auto.x[:, i] - one.x))
+        assert err <= 1e-6 * np.max(np.abs(one.x)), (i, err)
+    assert np.ptp(auto.x[:, :, -1], axis=1).max() > 1e-3  # the instances differ
 
 
 def msd_step(t, k):
