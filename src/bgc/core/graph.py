@@ -18,6 +18,7 @@ from bgc.core.units import check_units
 from bgc.format.library import LIBRARY_DIR, PREFIX
 from bgc.format.parse import ELEMENT_TYPES as _TYPES
 from bgc.format.parse import JUNCTIONS, STORAGE, TWO_PORTS, Body, Component, Model
+from bgc.format.reader import outside
 from bgc.format.whitelist import Expr
 
 MAX_DEPTH = LIMITS.component_depth
@@ -49,11 +50,10 @@ def _within_bounds(inst: str, comp: str, param, val, coord) -> None:
         v = float(str(getattr(val, "text", val)).strip())
     except ValueError:
         return
-    for bound, word in ((param.min, "min"), (param.max, "max")):
-        if bound is not None and (v < bound if word == "min" else v > bound):
-            raise ModelError(coord, f"instance {inst!r}: parameter {param.name!r} = {v:g} is "
-                                    f"{'below' if word == 'min' else 'above'} the {word} "
-                                    f"{bound:g} of component {comp!r}")
+    out = outside(v, param.min, param.max)
+    if out is not None:
+        raise ModelError(coord, f"instance {inst!r}: parameter {param.name!r} = {v:g} is "
+                                f"{out[0]} the {out[1]} {out[2]:g} of component {comp!r}")
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,7 @@ from bgc.format.reader import (  # noqa: F401
     Reader,
     check_name,
     finite_number,
+    outside,
     param_value,
     read_stabilisation,
     require,
@@ -482,13 +483,10 @@ def _param(r: Reader, pname: str, kn, vn) -> Param:
         if "free" in pm:
             free = bool(r.scalar(pm["free"][1], "free"))
     value = param_value(r, pname, valnode)
-    if isinstance(value, float):
-        if lo is not None and value < lo:
-            raise ModelError(r.coord(valnode), f"parameter {pname!r}: value {value:g} is below "
-                                               f"its min {lo:g}")
-        if hi is not None and value > hi:
-            raise ModelError(r.coord(valnode), f"parameter {pname!r}: value {value:g} is above "
-                                               f"its max {hi:g}")
+    out = outside(value, lo, hi) if isinstance(value, float) else None
+    if out is not None:
+        raise ModelError(r.coord(valnode), f"parameter {pname!r}: value {value:g} is {out[0]} "
+                                           f"its {out[1]} {out[2]:g}")
     return Param(pname, value, r.coord(kn), unit, lo, hi, desc, free)
 
 

@@ -326,6 +326,17 @@ def require(r: Reader, m: dict, node, allowed, what: str, required=()):
         raise ModelError(r.coord(node), f"{what}: missing key {missing!r}")
 
 
+def outside(v: float, lo, hi) -> tuple[str, str, float] | None:
+    """Where v lies outside a parameter's [min, max]: ("below", "min", lo) or ("above", "max",
+    hi); None within (an absent bound does not bound). The one check for a model's own value,
+    a scene's or sweep's value and a component instance's number."""
+    if lo is not None and v < lo:
+        return "below", "min", lo
+    if hi is not None and v > hi:
+        return "above", "max", hi
+    return None
+
+
 def param_value(r: Reader, pname: str, node):
     if isinstance(node, yaml.SequenceNode):
         rows = []

@@ -18,7 +18,7 @@ from bgc.base.limits import LIMITS
 from bgc.base.safeio import not_a_file, read_text_bounded
 from bgc.format import tables as _tables
 from bgc.format.parse import Model, parse_file
-from bgc.format.reader import Reader, check_name, param_value, require
+from bgc.format.reader import Reader, check_name, outside, param_value, require
 from bgc.format.whitelist import Expr
 
 #: the solver methods a scene or --method may name; "auto": DOP853 or Radau by a stiffness probe
@@ -579,12 +579,11 @@ def check_bounds(pid: str, v, param, coord, who: str) -> None:
     own value had to keep): a scene or a sweep may not run a negative mass the model refused."""
     if not isinstance(v, (int, float)) or isinstance(v, bool):
         return
-    for bound, word in ((param.min, "min"), (param.max, "max")):
-        if bound is not None and (v < bound if word == "min" else v > bound):
-            raise ModelError(coord, f"parameter {pid!r}: {who} {v:g}, "
-                                    f"{'below' if word == 'min' else 'above'} the model's "
-                                    f"{word} {bound:g} (line {param.coord.line} of "
-                                    f"{param.coord.file})")
+    out = outside(v, param.min, param.max)
+    if out is not None:
+        raise ModelError(coord, f"parameter {pid!r}: {who} {v:g}, {out[0]} the model's "
+                                f"{out[1]} {out[2]:g} (line {param.coord.line} of "
+                                f"{param.coord.file})")
 
 
 def check_outputs(scene: Scene, names) -> None:
