@@ -153,8 +153,10 @@ def alpha_of(model) -> float:
     return model.stabilisation if model.stabilisation is not None else DEFAULT_ALPHA
 
 
-def initial_values(ctx: Context, state_vars) -> dict | None:
-    vals: dict = {T: sp.Float(0)}
+def parameter_values(ctx: Context, vals: dict | None = None) -> dict | None:
+    """Every parameter symbol at the model's value (sympy Floats), derived ones in their
+    order, added to ``vals``; None where a derived one is not a finite number."""
+    vals = {} if vals is None else vals
     for pv in ctx.params.values():
         flatv = _flat_floats(pv.value) if isinstance(pv.value, tuple) else [pv.value]
         for s, v in zip(pv.symbols, flatv):
@@ -166,6 +168,13 @@ def initial_values(ctx: Context, state_vars) -> dict | None:
             if v is None:
                 return None
             vals[s] = v
+    return vals
+
+
+def initial_values(ctx: Context, state_vars) -> dict | None:
+    vals = parameter_values(ctx, {T: sp.Float(0)})
+    if vals is None:
+        return None
     for iv in ctx.inputs.values():
         if iv.table is not None:
             return None

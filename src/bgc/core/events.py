@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import sympy as sp
 
 from bgc.base.errors import Coord, ModelError
+from bgc.core.constraints import parameter_values
 from bgc.core.graph import join
 from bgc.format.expr import Expr, shape_of
 
@@ -129,12 +130,9 @@ def _event(ctx, bg, scope, ev, symbols, t_symbol) -> EventEq:
 def _with_defaults(ctx, expr) -> float | None:
     """A scalar expression of parameters at their default values (derived ones in their
     order), or None where it is not a number."""
-    vals = {pv.symbols[0]: sp.Float(pv.value) for pv in ctx.params.values()
-            if isinstance(pv.value, (int, float)) and len(pv.symbols) == 1}
-    for k in ctx.derived_order:
-        a = ctx.derived[k]
-        if isinstance(a.symbol, sp.Symbol) and not shape_of(a.expr):
-            vals[a.symbol] = a.expr.xreplace(vals)
+    vals = parameter_values(ctx)
+    if vals is None:
+        return None
     try:
         v = expr.xreplace(vals)
         return float(v) if v.is_number and v.is_real else None
