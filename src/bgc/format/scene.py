@@ -99,7 +99,8 @@ def parse_scene(path: str | Path) -> Scene:
     params = _parameters(r, top)
     inputs = _inputs(r, top)
     outputs, output_coords = _outputs(r, top)
-    method, rtol, atol, dt, max_step, backend, max_steps = _solver(r, top, t1 - t0)
+    method, rtol, atol, dt, max_step, backend, max_steps, atol_given = _solver(r, top,
+                                                                             t1 - t0)
     bps = ()
     if "breakpoints" in top:
         items = r.seq(top["breakpoints"][1], "breakpoints")
@@ -120,8 +121,7 @@ def parse_scene(path: str | Path) -> Scene:
                  dt, max_step, bps, tuple(plots), effects, desc, r.coord(root),
                  hashlib.sha256(text.encode()).hexdigest()[:16], free, output_coords,
                  r.coord(top["model"][1]), initial, initial_coord,
-                 backend, max_steps, project, project_coord,
-                 "solver" in top and "atol" in r.mapping(top["solver"][1], "solver"))
+                 backend, max_steps, project, project_coord, atol_given)
 
 
 def _constraints(r: Reader, top: dict) -> tuple[bool, Coord | None]:
@@ -233,8 +233,8 @@ def _outputs(r: Reader, top: dict) -> tuple[tuple[str, ...], dict]:
 
 
 def _solver(r: Reader, top: dict, length: float) -> tuple:
-    """solver: (method, rtol, atol, dt, max_step, backend, max_steps), each checked against
-    the span."""
+    """solver: (method, rtol, atol, dt, max_step, backend, max_steps, whether it gives atol),
+    each checked against the span."""
     method, rtol, atol, dt, max_step = "Radau", 1e-6, 1e-9, None, float("inf")
     backend, max_steps = None, Scene.max_steps
     if "solver" in top:
@@ -265,7 +265,8 @@ def _solver(r: Reader, top: dict, length: float) -> tuple:
                     dt = v
                 else:
                     max_step = v
-    return method, rtol, atol, dt, max_step, backend, max_steps
+    return (method, rtol, atol, dt, max_step, backend, max_steps,
+            "solver" in top and "atol" in sm)
 
 
 def _solver_number(r: Reader, sm: dict, key: str, length: float) -> float:
